@@ -1,0 +1,77 @@
+"""The ``igdrivsim`` console script.
+
+Each subcommand lives next to the code it drives; a command module defines
+``<name>_arguments(parser)`` and ``<name>_command(args) -> int``. Modules are imported only when
+their command runs, so ``igdrivsim --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from igdrivsim.errors import IGDrivSimError
+
+# name -> (module, help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "inspect": ("igdrivsim.data.commands", "print one JSON line per scenario in WOMD files"),
+    "generate": ("igdrivsim.data.synthetic.commands", "write synthetic WOMD-format shards"),
+    "filter": ("igdrivsim.data.commands", "apply the paper's scenario filter, write a manifest"),
+    "replay": ("igdrivsim.simulator.commands", "replay the discretised expert, report metrics"),
+    "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
+    "train": ("igdrivsim.training.commands", "train BC / BC-RL policies"),
+    "evaluate": ("igdrivsim.evaluation.commands", "evaluate a trained run on validation data"),
+    "report": ("igdrivsim.evaluation.commands", "aggregate evaluations into tables and figures"),
+}
+# `igdrivsim bench NAME`
+BENCHES: dict[str, tuple[str, str]] = {
+    "data": ("igdrivsim.data.commands", "scenarios/s read and decoded"),
+    "sim": ("igdrivsim.simulator.commands", "scenario-steps/s of reset + 80 steps"),
+    "train": ("igdrivsim.training.commands", "training updates/s and scenario-steps/s"),
+}
+
+
+def _add(sub, name: str, module: str, help_: str, prefix: str = "") -> None:
+    parser = sub.add_parser(name, help=help_, description=help_)
+    parser.set_defaults(_module=module, _name=prefix + name)
+    # Defer importing heavy modules: only the chosen command's module configures its parser.
+    parser.set_defaults(_configure=lambda p=parser: getattr(
+        importlib.import_module(module), f"{prefix}{name}_arguments")(p))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="igdrivsim", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (module, help_) in COMMANDS.items():
+        _add(sub, name, module, help_)
+    bench = sub.add_parser("bench", help="speed benchmarks").add_subparsers(dest="bench",
+                                                                            required=True)
+    for name, (module, help_) in BENCHES.items():
+        _add(bench, name, module, help_, prefix="bench_")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    # Two passes: find the command, let its module add arguments, then parse for real.
+    first = [a for a in argv if a not in ("-h", "--help")]
+    if not first:
+        parser.parse_args(argv)  # prints usage (or help) and exits
+    known, _ = parser.parse_known_args(first)
+    known._configure()
+    args = parser.parse_args(argv)
+    try:
+        func = getattr(importlib.import_module(args._module), f"{args._name}_command")
+        return int(func(args) or 0)
+    except IGDrivSimError as err:
+        print(f"igdrivsim {args._name.replace('_', ' ')}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"igdrivsim {args._name}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

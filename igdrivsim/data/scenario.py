@@ -1,0 +1,183 @@
+"""The scenario data model: one immutable pytree per WOMD scenario.
+
+Every array may carry arbitrary leading batch dimensions ``...``; the trailing dimensions are
+fixed by :class:`Capacities`. Padding slots are marked invalid, never silently cut. Arrays are
+NumPy on the host (readers, generator, filter) and become JAX arrays when passed to ``jit``.
+
+Axis conventions (WOMD / Waymax): objects ``O``, time ``T`` (91 steps at 10 Hz: 10 past, 1
+current at index 10, 80 future), roadgraph points ``R``, traffic lights ``L``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from flax import struct
+
+NUM_STEPS = 91  # 9.1 s at 10 Hz
+CURRENT_INDEX = 10  # index of the "current" step; steps 0..10 are the warm-up
+DT = 0.1  # seconds per step
+SCENARIO_ID_BYTES = 32  # scenario ids are stored as NUL-padded ASCII bytes
+
+# Object types (WOMD).
+TYPE_UNSET, TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST, TYPE_OTHER = 0, 1, 2, 3, 4
+
+# Roadgraph point types (WOMD tf.Example convention).
+RG_LANE_FREEWAY, RG_LANE_SURFACE_STREET, RG_LANE_BIKE = 1, 2, 3
+RG_ROAD_LINE_TYPES = tuple(range(5, 14))
+RG_ROAD_EDGE_UNKNOWN, RG_ROAD_EDGE_BOUNDARY, RG_ROAD_EDGE_MEDIAN = 14, 15, 16
+RG_STOP_SIGN, RG_CROSSWALK, RG_SPEED_BUMP = 17, 18, 19
+RG_ROAD_EDGE_TYPES = (RG_ROAD_EDGE_BOUNDARY, RG_ROAD_EDGE_MEDIAN)  # used by the offroad metric
+RG_NUM_TYPES = 20  # one-hot width of the roadgraph type feature
+
+
+@dataclass(frozen=True)
+class Capacities:
+    """Fixed array sizes. Defaults are WOMD's (v1.0/1.1 tf.Example has 20,000 roadgraph points)."""
+
+    max_objects: int = 128
+    max_roadgraph_points: int = 20_000
+    max_traffic_lights: int = 16
+    num_steps: int = NUM_STEPS
+
+
+@struct.dataclass
+class Trajectory:
+    """Per-object logged states, shape ``[..., O, T]`` each. Yaw in radians, SI units."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    yaw: np.ndarray
+    vel_x: np.ndarray
+    vel_y: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    height: np.ndarray
+    valid: np.ndarray  # bool
+
+    @property
+    def speed(self):
+        return (self.vel_x**2 + self.vel_y**2) ** 0.5
+
+
+@struct.dataclass
+class ObjectMetadata:
+    """Per-object metadata, shape ``[..., O]``. ``valid`` marks a used slot (not padding)."""
+
+    id: np.ndarray  # int32
+    object_type: np.ndarray  # int32, TYPE_*
+    is_sdc: np.ndarray  # bool, exactly one True per scenario
+    tracks_to_predict: np.ndarray  # bool
+    objects_of_interest: np.ndarray  # bool
+    valid: np.ndarray  # bool
+
+
+@struct.dataclass
+class Roadgraph:
+    """Roadgraph sample points, ``[..., R]`` (``xyz`` and ``dir`` are ``[..., R, 3]``).
+
+    ``dir`` is the unit direction to the next point of the same polyline (zero at its end); for
+    road edges the road interior lies on the left of ``dir``.
+    """
+
+    xyz: np.ndarray
+    dir: np.ndarray
+    type: np.ndarray  # int32, RG_*
+    id: np.ndarray  # int32 polyline id
+    valid: np.ndarray  # bool
+
+
+@struct.dataclass
+class TrafficLights:
+    """Traffic-light states, ``[..., L, T]`` each (WOMD stores ``[T, 16]``; we store lanes first)."""
+
+    state: np.ndarray  # int32, WOMD TrafficSignalLaneState enum
+    valid: np.ndarray  # bool
+    lane_id: np.ndarray  # int32
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+
+
+@struct.dataclass
+class Scenario:
+    """One WOMD scenario (or a batch of them)."""
+
+    trajectory: Trajectory
+    metadata: ObjectMetadata
+    roadgraph: Roadgraph
+    traffic_lights: TrafficLights
+    scenario_id: np.ndarray  # uint8 [..., SCENARIO_ID_BYTES], NUL-padded ASCII
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.metadata.is_sdc.shape[:-1])
+
+    @property
+    def num_objects(self) -> int:
+        return int(self.metadata.is_sdc.shape[-1])
+
+    @property
+    def num_roadgraph_points(self) -> int:
+        return int(self.roadgraph.type.shape[-1])
+
+
+def encode_scenario_id(sid: str) -> np.ndarray:
+    raw = sid.encode("ascii")
+    if len(raw) > SCENARIO_ID_BYTES:
+        raise ValueError(f"scenario id {sid!r} longer than {SCENARIO_ID_BYTES} bytes")
+    out = np.zeros(SCENARIO_ID_BYTES, np.uint8)
+    out[: len(raw)] = np.frombuffer(raw, np.uint8)
+    return out
+
+
+def decode_scenario_id(arr: np.ndarray) -> str:
+    """Scenario id of one (unbatched) scenario as a string."""
+    return bytes(np.asarray(arr, np.uint8)).rstrip(b"\0").decode("ascii")
+
+
+def sdc_index(scenario: Scenario) -> np.ndarray:
+    """Index of the SDC slot, ``[...]``; raises if an (unbatched, host) scenario has none."""
+    return np.argmax(np.asarray(scenario.metadata.is_sdc), axis=-1)
+
+
+def empty_scenario(caps: Capacities = Capacities()) -> Scenario:
+    """An all-invalid scenario with the given capacities (the padding template)."""
+    o, t, r, nl = caps.max_objects, caps.num_steps, caps.max_roadgraph_points, caps.max_traffic_lights
+    f = lambda *s: np.zeros(s, np.float32)  # noqa: E731
+    i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
+    b = lambda *s: np.zeros(s, bool)  # noqa: E731
+    return Scenario(
+        trajectory=Trajectory(
+            x=f(o, t), y=f(o, t), z=f(o, t), yaw=f(o, t), vel_x=f(o, t), vel_y=f(o, t),
+            length=f(o, t), width=f(o, t), height=f(o, t), valid=b(o, t),
+        ),
+        metadata=ObjectMetadata(
+            id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
+            tracks_to_predict=b(o), objects_of_interest=b(o), valid=b(o),
+        ),
+        roadgraph=Roadgraph(
+            xyz=f(r, 3), dir=f(r, 3), type=i(r), id=np.full(r, -1, np.int32), valid=b(r)
+        ),
+        traffic_lights=TrafficLights(
+            state=i(nl, t), valid=b(nl, t), lane_id=np.full((nl, t), -1, np.int32),
+            x=f(nl, t), y=f(nl, t), z=f(nl, t),
+        ),
+        scenario_id=np.zeros(SCENARIO_ID_BYTES, np.uint8),
+    )
+
+
+def stack_scenarios(scenarios: list[Scenario]) -> Scenario:
+    """Stack unbatched scenarios (same capacities) into one batch along a new leading axis."""
+    import jax
+
+    return jax.tree.map(lambda *xs: np.stack(xs), *scenarios)
+
+
+def index_scenario(batch: Scenario, i) -> Scenario:
+    """The ``i``-th scenario of a batch (any index NumPy accepts)."""
+    import jax
+
+    return jax.tree.map(lambda x: x[i], batch)
