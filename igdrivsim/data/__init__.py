@@ -1,0 +1,33 @@
+"""WOMD data: the Scenario pytree, TFRecord readers (tf.Example and Scenario protobuf), the
+tf.Example writer, sharded sources and the paper's scenario filter."""
+
+from igdrivsim.data.reader import (
+    FORMAT_SCENARIO,
+    FORMAT_TFEXAMPLE,
+    ReadStats,
+    ScenarioRecord,
+    decode_record,
+    expand_paths,
+    iter_file,
+    iter_scenarios,
+    load_records,
+    load_scenario,
+    read_scenarios,
+    write_tfexample,
+)
+from igdrivsim.data.scenario import (
+    Capacities,
+    Scenario,
+    decode_scenario_id,
+    empty_scenario,
+    fit_to_capacities,
+    sdc_index,
+    stack_scenarios,
+)
+
+__all__ = [
+    "FORMAT_SCENARIO", "FORMAT_TFEXAMPLE", "Capacities", "ReadStats", "Scenario",
+    "ScenarioRecord", "decode_record", "decode_scenario_id", "empty_scenario", "expand_paths",
+    "fit_to_capacities", "iter_file", "iter_scenarios", "load_records", "load_scenario",
+    "read_scenarios", "sdc_index", "stack_scenarios", "write_tfexample",
+]

@@ -181,3 +181,89 @@ def index_scenario(batch: Scenario, i) -> Scenario:
     import jax
 
     return jax.tree.map(lambda x: x[i], batch)
+
+
+def _select(tree, index: np.ndarray, axis: int, size: int, template):
+    """Take ``index`` along ``axis`` of every leaf and pad with the ``template`` leaves to ``size``."""
+    import jax
+
+    def one(x, pad):
+        x = np.take(np.asarray(x), index, axis=axis)
+        missing = size - x.shape[axis]
+        if missing <= 0:
+            return x
+        pad = np.take(np.asarray(pad), np.arange(missing), axis=axis)
+        return np.concatenate([x, pad.astype(x.dtype)], axis=axis)
+
+    return jax.tree.map(one, tree, template)
+
+
+def _keep_nearest(valid: np.ndarray, dist: np.ndarray, capacity: int,
+                  must_keep: np.ndarray | None = None) -> np.ndarray:
+    """Indices (in original order) of the valid slots to keep: all if they fit, else the
+    ``must_keep`` slots plus the nearest others by ``dist``."""
+    candidates = np.flatnonzero(valid)
+    if len(candidates) <= capacity:
+        return candidates
+    priority = dist[candidates].astype(np.float64)
+    if must_keep is not None:
+        priority = np.where(must_keep[candidates], -np.inf, priority)
+    chosen = candidates[np.argsort(priority, kind="stable")[:capacity]]
+    return np.sort(chosen)
+
+
+def fit_to_capacities(scenario: Scenario, caps: Capacities = Capacities()) -> Scenario:
+    """Pad (invalid) or reduce a scenario to exactly ``caps``; arbitrary leading batch dims.
+
+    Nothing valid is cut while it fits: if a section already fits, slots keep their positions
+    (so WOMD's SDC slot stays put) and padding is appended. If there are more slots than the
+    capacity, invalid slots go first; if the valid ones still do not fit, the SDC and the objects
+    nearest to it (closest approach over the steps where both are valid), the roadgraph points
+    and traffic lights nearest to the SDC's current position are kept, in their original order.
+    """
+    if scenario.batch_shape:
+        n = scenario.batch_shape[0]
+        return stack_scenarios([fit_to_capacities(index_scenario(scenario, i), caps)
+                                for i in range(n)])
+    template = empty_scenario(caps)
+    tr, md, rg, tl = (scenario.trajectory, scenario.metadata, scenario.roadgraph,
+                      scenario.traffic_lights)
+    steps = np.asarray(tr.x).shape[-1]
+    if steps != caps.num_steps:
+        raise ValueError(f"scenario has {steps} steps, capacities say {caps.num_steps}")
+    is_sdc = np.asarray(md.is_sdc)
+    sdc = int(np.argmax(is_sdc))
+    xy = np.stack([np.asarray(tr.x), np.asarray(tr.y)], -1)
+    valid = np.asarray(tr.valid)
+    sdc_valid = valid[sdc]
+    ref_t = CURRENT_INDEX if sdc_valid[CURRENT_INDEX] or not sdc_valid.any() else int(
+        np.flatnonzero(sdc_valid)[0])
+    ref = xy[sdc, ref_t]
+
+    def fit(section, template_section, axis_len, capacity, slot_valid, dist, must_keep=None):
+        if axis_len <= capacity:
+            index = np.arange(axis_len)
+        else:
+            index = _keep_nearest(slot_valid, dist, capacity, must_keep)
+        return _select(section, index, 0, capacity, template_section)
+
+    num_objects = is_sdc.shape[0]
+    both = valid & sdc_valid[None]
+    gap = np.linalg.norm(xy - xy[sdc][None], axis=-1)
+    obj_dist = np.where(both, gap, np.inf).min(axis=1) if num_objects else np.zeros(0)
+    obj_valid = np.asarray(md.valid) | is_sdc
+    trajectory = fit(tr, template.trajectory, num_objects, caps.max_objects, obj_valid, obj_dist,
+                     is_sdc)
+    metadata = fit(md, template.metadata, num_objects, caps.max_objects, obj_valid, obj_dist,
+                   is_sdc)
+    rg_xy = np.asarray(rg.xyz)[:, :2]
+    roadgraph = fit(rg, template.roadgraph, rg_xy.shape[0], caps.max_roadgraph_points,
+                    np.asarray(rg.valid), np.linalg.norm(rg_xy - ref, axis=-1))
+    tl_valid = np.asarray(tl.valid)
+    tl_xy = np.stack([np.asarray(tl.x), np.asarray(tl.y)], -1)
+    tl_dist = np.where(tl_valid, np.linalg.norm(tl_xy - ref, axis=-1), np.inf).min(
+        axis=1, initial=np.inf)
+    lights = fit(tl, template.traffic_lights, tl_valid.shape[0], caps.max_traffic_lights,
+                 tl_valid.any(axis=1), tl_dist)
+    return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
+                    traffic_lights=lights, scenario_id=np.asarray(scenario.scenario_id, np.uint8))

@@ -1,0 +1,257 @@
+"""Reading WOMD files: path expansion, per-record format detection, streaming and parallel reads.
+
+Each record is auto-detected as a WOMD motion tf.Example or a WOMD Scenario protobuf, decoded at
+its native sizes, then fitted to the requested :class:`Capacities`. Bad records raise
+:class:`DataError` naming file, record and problem; with ``skip_bad=True`` they are skipped with
+a warning and counted in a :class:`ReadStats`, and the rest of the file is still read.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import warnings
+from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from google.protobuf.message import DecodeError
+
+from igdrivsim.data import tfrecord
+from igdrivsim.data.protos import example_class
+from igdrivsim.data.scenario import Capacities, Scenario, fit_to_capacities, index_scenario
+from igdrivsim.data.tfexample import decode_tfexample, encode_tfexample, is_tfexample
+from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
+from igdrivsim.errors import DataError
+
+FORMAT_TFEXAMPLE, FORMAT_SCENARIO = "tf_example", "scenario_proto"
+_SHARDED = re.compile(r"^(?P<name>.+)@(?P<count>\d+)$")
+PathSpec = str | os.PathLike | Sequence[str | os.PathLike]
+
+
+class ScenarioRecord(NamedTuple):
+    """A decoded scenario and where it came from."""
+
+    file: str
+    record: int
+    format: str
+    scenario: Scenario
+
+
+@dataclass
+class ReadStats:
+    """Counts of what a read saw; ``skipped`` lists ``(file, record, message)`` of bad records."""
+
+    read: int = 0
+    skipped: list[tuple[str, int | None, str]] = field(default_factory=list)
+
+    def skip(self, err: DataError) -> None:
+        self.skipped.append((err.file, err.record, str(err)))
+        warnings.warn(f"skipping bad record: {err}", stacklevel=3)
+
+
+def expand_paths(spec: PathSpec) -> list[str]:
+    """Files named by a path, a directory (its files), a glob, ``name@N``, or a list of those.
+
+    ``name@N`` is WOMD's sharded notation: ``name-00000-of-0000N`` ... ``name-0000(N-1)-of-...``.
+    Raises :class:`DataError` if something names no file.
+    """
+    if not isinstance(spec, str | os.PathLike):
+        return [p for s in spec for p in expand_paths(s)]
+    spec = os.fspath(spec)
+    if os.path.isdir(spec):
+        files = sorted(os.path.join(spec, n) for n in os.listdir(spec)
+                       if not n.startswith(".") and os.path.isfile(os.path.join(spec, n)))
+        records = [f for f in files if "tfrecord" in os.path.basename(f)]
+        files = records or files
+    elif os.path.isfile(spec):
+        return [spec]
+    elif (m := _SHARDED.match(spec)) is not None:
+        count = int(m["count"])
+        files = [f"{m['name']}-{i:05d}-of-{count:05d}" for i in range(count)]
+        missing = [f for f in files if not os.path.isfile(f)]
+        if missing:
+            raise DataError(f"{len(missing)} of {count} shards missing, e.g. {missing[0]}",
+                            file=spec)
+    elif glob.has_magic(spec):
+        files = sorted(f for f in glob.glob(spec) if os.path.isfile(f))
+    else:
+        raise DataError("no such file or directory", file=spec)
+    if not files:
+        raise DataError("matches no files", file=spec)
+    return files
+
+
+def decode_record(data: bytes) -> tuple[str, Scenario]:
+    """Detect the format of one record and decode it at native sizes: ``(format, scenario)``."""
+    order = ("example", "scenario") if data[:1] == b"\x0a" else ("scenario", "example")
+    for kind in order:
+        try:
+            if kind == "example":
+                message = example_class().FromString(data)
+                if is_tfexample(message):
+                    return FORMAT_TFEXAMPLE, decode_tfexample(data)
+            else:
+                message = parse_scenario_proto(data)
+                if is_scenario_proto(message):
+                    return FORMAT_SCENARIO, decode_scenario_proto(message)
+        except DecodeError:
+            continue
+    raise DataError("unknown record format: neither a WOMD tf.Example nor a Scenario protobuf")
+
+
+def _locate(err: DataError, file: str, record: int | None) -> DataError:
+    return DataError(err.problem, file=file, record=record if err.record is None else err.record,
+                     key=err.key)
+
+
+def iter_file(path: str, caps: Capacities | None = Capacities(), skip_bad: bool = False,
+              stats: ReadStats | None = None, start: int = 0,
+              stop: int | None = None) -> Iterator[ScenarioRecord]:
+    """Decode records ``start <= i < stop`` of one TFRecord file (``caps=None``: native sizes)."""
+    stats = stats if stats is not None else ReadStats()
+    records = tfrecord.iter_frames(path, start=start)
+    for index, data, error in records:
+        if stop is not None and index >= stop:
+            return
+        try:
+            if error is not None:
+                raise error
+            fmt, scenario = decode_record(data)
+            if caps is not None:
+                scenario = fit_to_capacities(scenario, caps)
+        except DataError as err:
+            err = _locate(err, path, index)
+            if not skip_bad:
+                raise err from None
+            stats.skip(err)
+            continue
+        stats.read += 1
+        yield ScenarioRecord(path, index, fmt, scenario)
+
+
+def iter_scenarios(paths: PathSpec, caps: Capacities | None = Capacities(),
+                   skip_bad: bool = False, stats: ReadStats | None = None, workers: int = 0,
+                   chunk: int = 16, progress: bool = False) -> Iterator[ScenarioRecord]:
+    """Stream :class:`ScenarioRecord` over all files of ``paths`` in order.
+
+    ``workers > 1`` decodes chunks of ``chunk`` records in that many processes (at most
+    ``2 * workers`` chunks in flight, results in file order). ``progress`` shows a tqdm bar.
+    """
+    files = expand_paths(paths)
+    stats = stats if stats is not None else ReadStats()
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(desc="reading", unit="scn")
+    try:
+        if workers <= 1:
+            for path in files:
+                for rec in iter_file(path, caps, skip_bad, stats):
+                    if bar is not None:
+                        bar.update()
+                    yield rec
+            return
+        yield from _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _decode_chunk(path: str, caps, skip_bad: bool, start: int, stop: int):
+    stats = ReadStats()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recs = list(iter_file(path, caps, skip_bad, stats, start, stop))
+    return recs, stats.skipped
+
+
+def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
+    tasks = []
+    for path in files:
+        try:
+            n = tfrecord.count_records(path)
+        except DataError as err:
+            if not skip_bad:
+                raise
+            n = err.record  # read what precedes the broken framing, report the break below
+            stats.skip(err)
+        tasks += [(path, s, min(s + chunk, n)) for s in range(0, n, chunk)]
+    with ProcessPoolExecutor(workers) as pool:
+        pending = []
+        it = iter(tasks)
+        for task in it:
+            pending.append(pool.submit(_decode_chunk, task[0], caps, skip_bad, *task[1:]))
+            if len(pending) >= 2 * workers:
+                break
+        while pending:
+            recs, skipped = pending.pop(0).result()
+            task = next(it, None)
+            if task is not None:
+                pending.append(pool.submit(_decode_chunk, task[0], caps, skip_bad, *task[1:]))
+            for f, r, msg in skipped:
+                stats.skipped.append((f, r, msg))
+                warnings.warn(f"skipping bad record: {msg}", stacklevel=2)
+            for rec in recs:
+                stats.read += 1
+                if bar is not None:
+                    bar.update()
+                yield rec
+
+
+def read_scenarios(paths: PathSpec, caps: Capacities = Capacities(), skip_bad: bool = False,
+                   stats: ReadStats | None = None, workers: int = 0) -> Iterator[Scenario]:
+    """Stream the scenarios of ``paths`` (file, dir, glob, ``name@N``, or a list), fitted to
+    ``caps``; the format of each record is detected (tf.Example or Scenario protobuf)."""
+    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers):
+        yield rec.scenario
+
+
+def load_scenario(path: str | os.PathLike, index: int = 0,
+                  caps: Capacities | None = Capacities()) -> Scenario:
+    """Record ``index`` of one file as a :class:`Scenario` fitted to ``caps`` (None: native)."""
+    path = os.fspath(path)
+    for rec in iter_file(path, caps, start=index, stop=index + 1):
+        return rec.scenario
+    raise DataError(f"no record {index} (file has fewer records)", file=path, record=index)
+
+
+def load_records(refs: Iterable[tuple[str, int]], caps: Capacities = Capacities()
+                 ) -> Iterator[Scenario]:
+    """Scenarios by ``(file, record)`` reference, e.g. the kept rows of a filter manifest.
+
+    References are grouped per file and read in one pass per file, yielding in the given order.
+    """
+    refs = list(refs)
+    by_file: dict[str, set[int]] = {}
+    for f, r in refs:
+        by_file.setdefault(os.fspath(f), set()).add(int(r))
+    cache: dict[tuple[str, int], Scenario] = {}
+    for f, wanted in by_file.items():
+        for rec in iter_file(f, caps, start=min(wanted), stop=max(wanted) + 1):
+            if rec.record in wanted:
+                cache[(f, rec.record)] = rec.scenario
+        for r in wanted - {rec_r for (ff, rec_r) in cache if ff == f}:
+            raise DataError(f"no record {r} (file has fewer records)", file=f, record=r)
+    for f, r in refs:
+        yield cache[(os.fspath(f), int(r))]
+
+
+def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
+    """Unbatched scenarios from scenarios that may carry leading batch dimensions."""
+    for s in scenarios:
+        if not s.batch_shape:
+            yield s
+            continue
+        for i in range(s.batch_shape[0]):
+            yield from unbatch([index_scenario(s, i)])
+
+
+def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario) -> int:
+    """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns count."""
+    if isinstance(scenarios, Scenario):
+        scenarios = [scenarios]
+    return tfrecord.write_records(path, (encode_tfexample(s) for s in unbatch(scenarios)))

@@ -1,0 +1,108 @@
+"""Planar polyline helpers for the generator (NumPy, points as ``[N, 2]`` float64 arrays)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def arc_length(points: np.ndarray) -> np.ndarray:
+    """Cumulative arc length ``[N]`` along a polyline, starting at 0."""
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def resample(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Points at (almost) equal arc-length spacing, keeping both end points."""
+    s = arc_length(points)
+    if s[-1] <= 0:
+        return points[:1].copy()
+    n = max(int(np.ceil(s[-1] / spacing)), 1)
+    t = np.linspace(0.0, s[-1], n + 1)
+    return np.stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])], axis=1)
+
+
+def tangents(points: np.ndarray) -> np.ndarray:
+    """Unit tangents ``[N, 2]`` (central differences; one-sided at the ends)."""
+    g = np.gradient(points, axis=0) if len(points) > 1 else np.array([[1.0, 0.0]])
+    return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+
+
+def left_normals(points: np.ndarray) -> np.ndarray:
+    """Unit normals pointing to the left of the direction of travel."""
+    t = tangents(points)
+    return np.stack([-t[:, 1], t[:, 0]], axis=1)
+
+
+def offset(points: np.ndarray, d) -> np.ndarray:
+    """The polyline shifted by ``d`` (scalar or ``[N]``) metres to its left."""
+    return points + np.asarray(d, float).reshape(-1, 1) * left_normals(points)
+
+
+def next_dirs(points: np.ndarray) -> np.ndarray:
+    """WOMD ``dir``: unit vector to the next point of the polyline; zero at the last point."""
+    d = np.zeros_like(points)
+    diff = np.diff(points, axis=0)
+    d[:-1] = diff / np.maximum(np.linalg.norm(diff, axis=1, keepdims=True), 1e-9)
+    return d
+
+
+def unwrapped_yaw(points: np.ndarray) -> np.ndarray:
+    t = tangents(points)
+    return np.unwrap(np.arctan2(t[:, 1], t[:, 0]))
+
+
+def curvature(points: np.ndarray) -> np.ndarray:
+    """Signed curvature ``[N]`` (1/m) from the heading change per unit arc length."""
+    yaw = unwrapped_yaw(points)
+    s = arc_length(points)
+    if len(points) < 3:
+        return np.zeros(len(points))
+    return np.gradient(yaw, s)
+
+
+def bezier_cubic(p0, t0, p1, t1, n: int) -> np.ndarray:
+    """Cubic Bezier from ``p0`` leaving along ``t0`` to ``p1`` arriving along ``t1``.
+
+    ``t0``/``t1`` are tangent vectors whose lengths set the control-point distances.
+    """
+    p0, t0, p1, t1 = (np.asarray(v, float) for v in (p0, t0, p1, t1))
+    u = np.linspace(0.0, 1.0, n)[:, None]
+    c0, c1 = p0 + t0, p1 - t1
+    return (1 - u) ** 3 * p0 + 3 * (1 - u) ** 2 * u * c0 + 3 * (1 - u) * u**2 * c1 + u**3 * p1
+
+
+def bezier_quad(p0, c, p1, n: int) -> np.ndarray:
+    p0, c, p1 = (np.asarray(v, float) for v in (p0, c, p1))
+    u = np.linspace(0.0, 1.0, n)[:, None]
+    return (1 - u) ** 2 * p0 + 2 * (1 - u) * u * c + u**2 * p1
+
+
+def line_intersection(p, u, q, v):
+    """Parameters ``(a, b)`` with ``p + a u = q + b v``, or ``None`` for (near-)parallel lines."""
+    m = np.array([[u[0], -v[0]], [u[1], -v[1]]], float)
+    if abs(np.linalg.det(m)) < 1e-6:
+        return None
+    a, b = np.linalg.solve(m, np.asarray(q, float) - np.asarray(p, float))
+    return float(a), float(b)
+
+
+def signed_area(poly: np.ndarray) -> float:
+    """Shoelace area; positive for counter-clockwise polygons."""
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def concat(*pieces: np.ndarray) -> np.ndarray:
+    """Join polylines, dropping a piece's first point when it repeats the previous end."""
+    out = [pieces[0]]
+    for piece in pieces[1:]:
+        if len(piece) == 0:
+            continue
+        if np.linalg.norm(piece[0] - out[-1][-1]) < 1e-6:
+            piece = piece[1:]
+        out.append(piece)
+    return np.concatenate(out, axis=0)
+
+
+def rot(angle: float) -> np.ndarray:
+    return np.array([np.cos(angle), np.sin(angle)])

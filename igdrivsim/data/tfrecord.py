@@ -1,0 +1,145 @@
+"""TFRecord framing: ``uint64 length | uint32 masked_crc(length) | data | uint32 masked_crc(data)``.
+
+All integers little-endian; the CRC is CRC32C (Castagnoli) masked as
+``((crc >> 15 | crc << 17) + 0xa282ead8) mod 2**32``. Every record is checked; a bad CRC or a
+truncated record raises :class:`DataError` naming the file and record index.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+
+import google_crc32c
+
+from igdrivsim.errors import DataError
+
+_MASK_DELTA = 0xA282EAD8
+_HEADER = struct.Struct("<QI")
+_FOOTER = struct.Struct("<I")
+
+
+def masked_crc(data: bytes) -> int:
+    """The masked CRC32C that TFRecord stores after the length and after the data."""
+    crc = google_crc32c.value(data)
+    return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
+
+
+def encode_record(data: bytes) -> bytes:
+    """One framed record."""
+    length = struct.pack("<Q", len(data))
+    return (length + _FOOTER.pack(masked_crc(length)) + data + _FOOTER.pack(masked_crc(data)))
+
+
+def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
+                ) -> Iterator[tuple[int, bytes | None, DataError | None]]:
+    """Yield ``(record_index, data, error)`` for the records of a TFRecord file, from ``start``.
+
+    A record whose data CRC fails comes with ``data=None`` and its error, and reading goes on
+    (the framing is intact). A broken framing (bad length CRC, truncation) yields its error last:
+    nothing after it can be located. Records before ``start`` are skipped by seeking.
+    """
+    path = os.fspath(path)
+    try:
+        f = open(path, "rb")
+    except OSError as err:
+        yield 0, None, DataError(f"cannot open: {err.strerror}", file=path)
+        return
+    with f:
+        index = 0
+        while True:
+            header = f.read(_HEADER.size)
+            if not header:
+                return
+            if len(header) < _HEADER.size:
+                yield index, None, DataError(
+                    f"truncated record header ({len(header)} of 12 bytes)", file=path,
+                    record=index)
+                return
+            length, length_crc = _HEADER.unpack(header)
+            if check_crc and masked_crc(header[:8]) != length_crc:
+                yield index, None, DataError(
+                    "corrupt record: length CRC mismatch (not a TFRecord file?)", file=path,
+                    record=index)
+                return
+            if index < start:
+                f.seek(length + 4, os.SEEK_CUR)
+                index += 1
+                continue
+            body = f.read(length + 4)
+            if len(body) < length + 4:
+                yield index, None, DataError(
+                    f"truncated record: expected {length + 4} bytes after the header, found "
+                    f"{len(body)}", file=path, record=index)
+                return
+            data = body[:length]
+            if check_crc and masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
+                yield index, None, DataError("corrupt record: data CRC mismatch", file=path,
+                                             record=index)
+            else:
+                yield index, data, None
+            index += 1
+
+
+def iter_records(path: str | os.PathLike, check_crc: bool = True,
+                 start: int = 0) -> Iterator[tuple[int, bytes]]:
+    """Yield ``(record_index, data)`` for each record; raises :class:`DataError` on bad ones."""
+    for index, data, error in iter_frames(path, check_crc, start):
+        if error is not None:
+            raise error
+        yield index, data
+
+
+def read_record(path: str | os.PathLike, index: int) -> bytes:
+    """The data of record ``index`` (raises :class:`DataError` if the file has fewer)."""
+    for i, data in iter_records(path, start=index):
+        if i == index:
+            return data
+    raise DataError(f"no record {index} (file has fewer records)", file=os.fspath(path),
+                    record=index)
+
+
+def count_records(path: str | os.PathLike) -> int:
+    """Number of records, checking only the framing (length CRCs), not the data CRCs."""
+    n = 0
+    path = os.fspath(path)
+    with open(path, "rb") as f:
+        while header := f.read(_HEADER.size):
+            if len(header) < _HEADER.size:
+                raise DataError("truncated record header", file=path, record=n)
+            length, length_crc = _HEADER.unpack(header)
+            if masked_crc(header[:8]) != length_crc:
+                raise DataError("corrupt record: length CRC mismatch", file=path, record=n)
+            f.seek(length + 4, os.SEEK_CUR)
+            n += 1
+    return n
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike, mode: str = "wb"):
+    """Open a temp file next to ``path``; on success it replaces ``path`` atomically."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, mode) as f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_records(path: str | os.PathLike, records: Iterable[bytes]) -> int:
+    """Write framed records atomically; returns how many were written."""
+    n = 0
+    with atomic_path(path) as f:
+        for data in records:
+            f.write(encode_record(data))
+            n += 1
+    return n

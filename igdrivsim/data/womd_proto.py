@@ -1,0 +1,189 @@
+"""WOMD Scenario protobuf -> :class:`Scenario` (one unbatched scenario at its native sizes).
+
+Tracks become trajectory rows (one per track, in file order). Map features become roadgraph
+points with the tf.Example type codes: lane centres 1-3 (``LaneCenter.type``), road lines 5-13
+(``RoadLine.type + 5``), road edges 14-16 (``RoadEdge.type + 14``), stop signs 17 (one point),
+crosswalks 18 and speed bumps 19 (closed polygons). Driveways have no tf.Example type and are
+skipped. Polylines keep their vertices and segments longer than ``max_spacing`` are subdivided;
+``dir`` is the unit vector to the next point of the polyline (zero at its end), so road edges keep
+WOMD's orientation (road interior on the left). Traffic lights get one slot per controlled lane,
+in order of first appearance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from igdrivsim.data.protos import scenario_class
+from igdrivsim.data.scenario import (
+    CURRENT_INDEX,
+    NUM_STEPS,
+    RG_CROSSWALK,
+    RG_ROAD_EDGE_UNKNOWN,
+    RG_SPEED_BUMP,
+    RG_STOP_SIGN,
+    ObjectMetadata,
+    Roadgraph,
+    Scenario,
+    TrafficLights,
+    Trajectory,
+    encode_scenario_id,
+)
+from igdrivsim.errors import DataError
+
+ROAD_LINE_OFFSET = 5
+DEFAULT_MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
+
+
+def parse_scenario_proto(data: bytes):
+    """The parsed Scenario message (raises protobuf's DecodeError on malformed bytes)."""
+    return scenario_class().FromString(data)
+
+
+def is_scenario_proto(message) -> bool:
+    """Whether a parsed Scenario message looks like a WOMD scenario (used for auto-detection)."""
+    return len(message.tracks) > 0 and message.HasField("scenario_id")
+
+
+def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX_SPACING
+                          ) -> Scenario:
+    """Decode a serialized (or parsed) WOMD Scenario protobuf into a :class:`Scenario`."""
+    msg = parse_scenario_proto(data) if isinstance(data, bytes | bytearray) else data
+    if not is_scenario_proto(msg):
+        raise DataError("not a WOMD Scenario protobuf (no tracks or no scenario_id)")
+    current = msg.current_time_index if msg.HasField("current_time_index") else CURRENT_INDEX
+    if current != CURRENT_INDEX:
+        raise DataError(f"current_time_index is {current}, expected {CURRENT_INDEX}",
+                        key="current_time_index")
+    trajectory, metadata = _decode_tracks(msg)
+    try:
+        sid = encode_scenario_id(msg.scenario_id)
+    except (UnicodeEncodeError, ValueError) as err:
+        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    return Scenario(trajectory=trajectory, metadata=metadata,
+                    roadgraph=_decode_map(msg.map_features, max_spacing),
+                    traffic_lights=_decode_lights(msg.dynamic_map_states), scenario_id=sid)
+
+
+def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
+    num = len(msg.tracks)
+    cols = ("center_x", "center_y", "center_z", "heading", "velocity_x", "velocity_y", "length",
+            "width", "height", "valid")
+    values = np.zeros((len(cols), num, NUM_STEPS), np.float64)
+    for i, track in enumerate(msg.tracks):
+        if len(track.states) > NUM_STEPS:
+            raise DataError(f"track {i} has {len(track.states)} states, expected <= {NUM_STEPS}",
+                            key="tracks.states")
+        for t, s in enumerate(track.states):  # short tracks (test split) stay invalid-padded
+            values[:, i, t] = (s.center_x, s.center_y, s.center_z, s.heading, s.velocity_x,
+                               s.velocity_y, s.length, s.width, s.height, s.valid)
+    valid = values[-1] > 0
+    if not np.isfinite(values[:, valid]).all():
+        bad = int(np.argwhere(~np.isfinite(values[:, valid]).all(axis=0))[0, 0])
+        raise DataError(f"non-finite value (NaN or inf) in a valid state (#{bad})",
+                        key="tracks.states")
+    f = values[:-1].astype(np.float32)
+    f[:, ~valid] = np.where(np.isfinite(f[:, ~valid]), f[:, ~valid], -1.0)
+    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
+                            length=f[6], width=f[7], height=f[8], valid=valid)
+    if not msg.HasField("sdc_track_index") or not 0 <= msg.sdc_track_index < num:
+        found = msg.sdc_track_index if msg.HasField("sdc_track_index") else "none"
+        raise DataError(f"no SDC: sdc_track_index is {found} with {num} tracks",
+                        key="sdc_track_index")
+    ids = np.array([t.id for t in msg.tracks], np.int32)
+    is_sdc = np.zeros(num, bool)
+    is_sdc[msg.sdc_track_index] = True
+    ttp = np.zeros(num, bool)
+    for req in msg.tracks_to_predict:
+        if 0 <= req.track_index < num:
+            ttp[req.track_index] = True
+    metadata = ObjectMetadata(
+        id=ids, object_type=np.array([t.object_type for t in msg.tracks], np.int32),
+        is_sdc=is_sdc, tracks_to_predict=ttp,
+        objects_of_interest=np.isin(ids, np.asarray(msg.objects_of_interest, np.int64)),
+        valid=valid.any(axis=1),
+    )
+    return trajectory, metadata
+
+
+def densify(points: np.ndarray, max_spacing: float) -> np.ndarray:
+    """Insert evenly spaced points on every segment longer than ``max_spacing`` (keeps vertices)."""
+    if len(points) < 2 or not max_spacing or max_spacing <= 0:
+        return points
+    seg = np.diff(points, axis=0)
+    pieces = np.maximum(1, np.ceil(np.linalg.norm(seg[:, :2], axis=1) / max_spacing - 1e-3))
+    pieces = pieces.astype(int)
+    if (pieces == 1).all():
+        return points
+    starts = np.repeat(points[:-1], pieces, axis=0)
+    frac = np.concatenate([np.arange(n) / n for n in pieces])[:, None]
+    return np.concatenate([starts + frac * np.repeat(seg, pieces, axis=0), points[-1:]])
+
+
+def _directions(points: np.ndarray) -> np.ndarray:
+    d = np.zeros_like(points)
+    seg = np.diff(points, axis=0)
+    norm = np.linalg.norm(seg, axis=1, keepdims=True)
+    d[:-1] = np.where(norm > 0, seg / np.maximum(norm, 1e-12), 0.0)
+    return d
+
+
+def _decode_map(features, max_spacing: float) -> Roadgraph:
+    xyz, dirs, types, ids = [], [], [], []
+    for feature in features:
+        kind = feature.WhichOneof("feature_data")
+        if kind == "lane":
+            rg_type, pts = feature.lane.type, feature.lane.polyline
+        elif kind == "road_line":
+            rg_type, pts = feature.road_line.type + ROAD_LINE_OFFSET, feature.road_line.polyline
+        elif kind == "road_edge":
+            rg_type, pts = feature.road_edge.type + RG_ROAD_EDGE_UNKNOWN, feature.road_edge.polyline
+        elif kind == "stop_sign":
+            rg_type, pts = RG_STOP_SIGN, [feature.stop_sign.position]
+        elif kind in ("crosswalk", "speed_bump"):
+            rg_type = RG_CROSSWALK if kind == "crosswalk" else RG_SPEED_BUMP
+            pts = list(getattr(feature, kind).polygon)
+            pts = pts + pts[:1]  # closed polygon
+        else:  # driveway or unset: no tf.Example type
+            continue
+        if not pts:
+            continue
+        points = densify(np.array([(p.x, p.y, p.z) for p in pts], np.float64), max_spacing)
+        if not np.isfinite(points).all():
+            raise DataError(f"non-finite map point in feature {feature.id}", key="map_features")
+        xyz.append(points)
+        dirs.append(_directions(points))
+        types.append(np.full(len(points), rg_type, np.int32))
+        ids.append(np.full(len(points), feature.id, np.int64))
+    if not xyz:
+        return Roadgraph(xyz=np.zeros((0, 3), np.float32), dir=np.zeros((0, 3), np.float32),
+                         type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
+                         valid=np.zeros(0, bool))
+    n = sum(len(p) for p in xyz)
+    return Roadgraph(xyz=np.concatenate(xyz).astype(np.float32),
+                     dir=np.concatenate(dirs).astype(np.float32),
+                     type=np.concatenate(types), id=np.concatenate(ids).astype(np.int32),
+                     valid=np.ones(n, bool))
+
+
+def _decode_lights(dynamic_states) -> TrafficLights:
+    if len(dynamic_states) > NUM_STEPS:
+        raise DataError(f"{len(dynamic_states)} dynamic map states, expected <= {NUM_STEPS}",
+                        key="dynamic_map_states")
+    slots: dict[int, int] = {}
+    rows = []
+    for t, dms in enumerate(dynamic_states):
+        for ls in dms.lane_states:
+            slot = slots.setdefault(ls.lane, len(slots))
+            p = ls.stop_point
+            rows.append((slot, t, ls.state, p.x, p.y, p.z))
+    num = len(slots)
+    state = np.zeros((num, NUM_STEPS), np.int32)
+    valid = np.zeros((num, NUM_STEPS), bool)
+    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
+    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    lanes = np.array(list(slots), np.int64)
+    for slot, t, s, x, y, z in rows:
+        state[slot, t], valid[slot, t], pos[:, slot, t] = s, True, (x, y, z)
+        lane_id[slot, t] = lanes[slot]
+    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])

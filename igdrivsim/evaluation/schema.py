@@ -1,0 +1,93 @@
+"""Names shared by the evaluation outputs: settings, methods, metrics and the paper's Table I.
+
+The tidy CSVs written by :mod:`igdrivsim.evaluation.rollout` and read by
+:mod:`igdrivsim.evaluation.aggregate` use exactly these names, so a table or a figure never
+has to guess what a column means.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# The six observation settings of the paper, in Table I column order (observation PRESETS names).
+SETTINGS: tuple[str, ...] = (
+    "full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4", "random_masking",
+)
+SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the paper's Table I
+    "full": ("Full obs", ""),
+    "gaussian_noise": ("Gaussian", r"noise ($\sigma$=3)"),
+    "circular_r4": ("Circular", "FoV (r=4)"),
+    "circular_r6": ("Circular", "FoV (r=6)"),
+    "conic_r4": ("Conic FoV", r"(r=4, $\alpha=\frac{2}{3}\pi$)"),
+    "random_masking": ("Random", "masking (p=0.7)"),
+}
+SETTING_SHORT: dict[str, str] = {
+    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
+    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
+}
+
+# Learned methods compared in Table I, and reference rows that need no training.
+BC, BC_RL = "bc", "bc_rl"
+EXPERT, CONSTANT_VELOCITY = "expert", "constant_velocity"
+METHODS: tuple[str, ...] = (BC_RL, BC)
+REFERENCES: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
+METHOD_LABELS: dict[str, str] = {
+    BC_RL: "BC-RL", BC: "BC", EXPERT: "Expert (discretised replay)",
+    CONSTANT_VELOCITY: "Constant velocity",
+}
+# Reference rows do not depend on the observation: their CSV `setting` is this value.
+REFERENCE_SETTING = "none"
+
+# Tidy CSV columns.
+PER_STEP_COLUMNS = ("setting", "method", "seed", "step", "log_divergence", "overlap", "offroad")
+PER_SCENARIO_COLUMNS = (
+    "setting", "method", "seed", "scenario_id",
+    "max_log_divergence", "overlap", "offroad",  # per-scenario: max, any overlap, any offroad
+    "log_divergence", "overlap_steps", "offroad_steps",  # per-step values averaged over steps
+)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One row group of Table I: which per-scenario column, how to scale it, how to name it."""
+
+    key: str  # name in tables and summary.csv
+    column: str  # per_scenario.csv column averaged over scenarios
+    label: tuple[str, str]  # two lines, as in the paper's table
+    scale: float  # 100 for percentages
+    unit: str
+    per_step: bool  # True: a per-step metric (Fig. 3); False: a per-scenario one
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("log_divergence", "log_divergence", ("log", "divergence"), 1.0, "m", True),
+    Metric("max_log_divergence", "max_log_divergence", ("max log", "divergence"), 1.0, "m", False),
+    Metric("overlap", "overlap_steps", ("overlap", r"(\%)"), 100.0, "%", True),
+    Metric("overlap_rate", "overlap", ("overlap", r"rate (\%)"), 100.0, "%", False),
+    Metric("offroad", "offroad_steps", ("offroad", r"(\%)"), 100.0, "%", True),
+    Metric("offroad_rate", "offroad", ("offroad", r"rate (\%)"), 100.0, "%", False),
+)
+METRIC_BY_KEY: dict[str, Metric] = {m.key: m for m in METRICS}
+
+
+def _row(*cells: tuple[float, float]) -> dict[str, tuple[float, float]]:
+    return dict(zip(SETTINGS, cells, strict=True))
+
+
+# The paper's Table I (BC-RL, BC), mean of 3 seeds on the WOMD validation set.
+PAPER_TABLE1: dict[str, dict[str, tuple[float, float]]] = {
+    "log_divergence": _row(
+        (3.67, 3.79), (3.69, 3.85), (4.18, 4.12), (3.87, 3.94), (4.60, 4.19), (3.68, 3.81)),
+    "max_log_divergence": _row(
+        (10.56, 11.00), (10.72, 11.23), (12.54, 12.28), (11.51, 11.74), (14.08, 12.39),
+        (10.68, 11.16)),
+    "overlap": _row(
+        (4.80, 5.06), (4.66, 5.02), (5.28, 5.45), (5.09, 5.31), (3.70, 5.73), (4.95, 5.30)),
+    "overlap_rate": _row(
+        (21.17, 22.24), (20.94, 22.26), (24.25, 24.30), (22.73, 23.47), (24.65, 25.16),
+        (21.70, 23.00)),
+    "offroad": _row(
+        (2.13, 2.54), (2.39, 2.96), (0.77, 2.15), (1.13, 1.68), (1.10, 2.39), (2.20, 2.71)),
+    "offroad_rate": _row(
+        (6.69, 7.78), (7.25, 8.73), (4.28, 7.18), (4.49, 5.73), (7.00, 8.34), (6.85, 7.96)),
+}

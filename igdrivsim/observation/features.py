@@ -1,0 +1,192 @@
+"""The SDC-frame observation: nearest objects and roadgraph points around the ego, as features.
+
+Everything here is a pure function of plain arrays for ONE example (no batch axes); batch with
+``jax.vmap``. The frame is the ego's *believed* pose (``sdc_xy``, ``sdc_yaw``): the origin is
+that position and ``+x`` its heading. Position-noise models (see :mod:`.models`) perturb that pose
+before this transform, so the nearest-N selection and every feature are computed relative to
+where the ego thinks it is.
+
+Feature layout (the contract with :mod:`igdrivsim.policy`):
+
+* ``objects f32[N_obj, 6]``: ``x/100, y/100, cos(yaw), sin(yaw), speed/50, valid`` with ``yaw``
+  relative to the ego heading; the SDC itself is excluded.
+* ``roadgraph f32[N_rg, 25]``: ``x/100, y/100, dir_x, dir_y`` (direction rotated into the ego
+  frame), one-hot type (20), ``valid``.
+* ``sdc_speed f32[1]``: ego speed / 50.
+
+Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from igdrivsim.data.scenario import RG_NUM_TYPES
+
+POSITION_SCALE = 100.0  # metres -> feature units
+SPEED_SCALE = 50.0  # m/s -> feature units
+OBJECT_FEATURES = 6
+ROADGRAPH_FEATURES = 4 + RG_NUM_TYPES + 1  # xy, dir xy, one-hot type, valid = 25
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """Observation capacities (paper: 32 nearest objects, 1,500 nearest roadgraph points)."""
+
+    num_objects: int = 32
+    num_roadgraph_points: int = 1500
+
+    def __post_init__(self) -> None:
+        if self.num_objects < 1 or self.num_roadgraph_points < 1:
+            from igdrivsim.errors import ConfigError
+
+            raise ConfigError(
+                f"observation capacities must be >= 1, got num_objects={self.num_objects}, "
+                f"num_roadgraph_points={self.num_roadgraph_points}")
+
+
+DEFAULT_CONFIG = ObservationConfig()
+
+
+@struct.dataclass
+class Observation:
+    """What the policy sees at one step (shapes for one example; any leading batch axes allowed)."""
+
+    objects: jax.Array  # f32[..., N_obj, 6]
+    objects_valid: jax.Array  # bool[..., N_obj]
+    roadgraph: jax.Array  # f32[..., N_rg, 25]
+    roadgraph_valid: jax.Array  # bool[..., N_rg]
+    sdc_speed: jax.Array  # f32[..., 1]
+
+
+@struct.dataclass
+class Selection:
+    """Which source slots fill the observation (for pictures and debugging), nearest first."""
+
+    object_index: jax.Array  # int32[..., N_obj], index into the scene's object axis
+    roadgraph_index: jax.Array  # int32[..., N_rg], index into the (cropped) roadgraph axis
+
+
+def to_frame(x: jax.Array, y: jax.Array, origin_xy: jax.Array, origin_yaw: jax.Array
+             ) -> tuple[jax.Array, jax.Array]:
+    """Global points ``(x, y)`` in the frame at ``origin_xy`` facing ``origin_yaw``."""
+    dx, dy = x - origin_xy[..., 0], y - origin_xy[..., 1]
+    c, s = jnp.cos(origin_yaw), jnp.sin(origin_yaw)
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def rotate_to_frame(vx: jax.Array, vy: jax.Array, origin_yaw: jax.Array
+                    ) -> tuple[jax.Array, jax.Array]:
+    """Direction vectors ``(vx, vy)`` expressed in a frame rotated by ``origin_yaw``."""
+    c, s = jnp.cos(origin_yaw), jnp.sin(origin_yaw)
+    return c * vx + s * vy, -s * vx + c * vy
+
+
+def nearest(d2: jax.Array, valid: jax.Array, k: int) -> tuple[jax.Array, jax.Array]:
+    """Indices of the ``k`` valid entries with smallest ``d2`` (nearest first) and their validity.
+
+    Uses ``lax.top_k`` on the negated distances: a partial selection, no full sort. When there
+    are fewer than ``k`` candidates the result is padded with index 0 marked invalid.
+    """
+    n = d2.shape[-1]
+    score = jnp.where(valid, -d2, -jnp.inf)
+    _, idx = jax.lax.top_k(score, min(k, n))
+    sel_valid = jnp.take_along_axis(valid, idx, axis=-1)
+    if k > n:
+        pad = k - n
+        idx = jnp.concatenate([idx, jnp.zeros(idx.shape[:-1] + (pad,), idx.dtype)], axis=-1)
+        sel_valid = jnp.concatenate(
+            [sel_valid, jnp.zeros(sel_valid.shape[:-1] + (pad,), bool)], axis=-1)
+    return idx.astype(jnp.int32), sel_valid
+
+
+def observe_arrays(
+    sdc_xy: jax.Array,
+    sdc_yaw: jax.Array,
+    sdc_speed: jax.Array,
+    objects: Any,
+    sdc_index: jax.Array,
+    roadgraph: Any,
+    config: ObservationConfig = DEFAULT_CONFIG,
+) -> tuple[Observation, Selection]:
+    """The SDC-frame observation of one example from plain arrays.
+
+    Args:
+      sdc_xy: ``f32[2]`` the ego's (believed) global position; ``sdc_yaw``: ``f32[]`` heading.
+      sdc_speed: ``f32[]`` ego speed in m/s.
+      objects: anything with ``x, y, yaw, vel_x, vel_y, valid`` arrays of shape ``[O]`` (e.g. the
+        simulator's ``current_objects(state)``), global frame.
+      sdc_index: ``int32[]`` the ego's slot in ``objects`` (excluded from the observation).
+      roadgraph: anything with ``xyz [R, 3], dir [R, 3], type [R], valid [R]`` (global frame).
+      config: capacities.
+
+    Returns ``(observation, selection)``; the selection says which source slots were used.
+    """
+    sdc_xy = jnp.asarray(sdc_xy, jnp.float32)
+    sdc_yaw = jnp.asarray(sdc_yaw, jnp.float32)
+
+    # Objects: nearest valid others, relative pose, speed.
+    ox, oy = to_frame(jnp.asarray(objects.x), jnp.asarray(objects.y), sdc_xy, sdc_yaw)
+    n_obj = ox.shape[-1]
+    not_sdc = jnp.arange(n_obj) != sdc_index
+    obj_ok = jnp.asarray(objects.valid, bool) & not_sdc
+    obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, config.num_objects)
+    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
+    rel_yaw = take(objects.yaw) - sdc_yaw
+    speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
+    obj = jnp.stack([
+        take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE,
+        jnp.cos(rel_yaw), jnp.sin(rel_yaw), speed / SPEED_SCALE,
+        jnp.ones_like(speed),
+    ], axis=-1)
+    obj = jnp.where(obj_valid[..., None], obj, 0.0)
+
+    # Roadgraph: nearest valid points, relative position and direction, one-hot type.
+    xyz = jnp.asarray(roadgraph.xyz, jnp.float32)
+    rx, ry = to_frame(xyz[..., 0], xyz[..., 1], sdc_xy, sdc_yaw)
+    rg_idx, rg_valid = nearest(rx**2 + ry**2, jnp.asarray(roadgraph.valid, bool),
+                               config.num_roadgraph_points)
+    d = jnp.take(jnp.asarray(roadgraph.dir, jnp.float32), rg_idx, axis=-2)
+    dx, dy = rotate_to_frame(d[..., 0], d[..., 1], sdc_yaw)
+    rtype = jnp.take(jnp.asarray(roadgraph.type, jnp.int32), rg_idx, axis=-1)
+    rg = jnp.concatenate([
+        jnp.stack([jnp.take(rx, rg_idx) / POSITION_SCALE, jnp.take(ry, rg_idx) / POSITION_SCALE,
+                   dx, dy], axis=-1),
+        jax.nn.one_hot(rtype, RG_NUM_TYPES, dtype=jnp.float32),
+        jnp.ones(rg_idx.shape + (1,), jnp.float32),
+    ], axis=-1)
+    rg = jnp.where(rg_valid[..., None], rg, 0.0)
+
+    obs = Observation(
+        objects=obj, objects_valid=obj_valid, roadgraph=rg, roadgraph_valid=rg_valid,
+        sdc_speed=jnp.reshape(jnp.asarray(sdc_speed, jnp.float32) / SPEED_SCALE, (1,)),
+    )
+    return obs, Selection(object_index=obj_idx, roadgraph_index=rg_idx)
+
+
+def object_positions(obs: Observation) -> jax.Array:
+    """Object centres in metres in the (believed) ego frame, ``f32[..., N_obj, 2]``."""
+    return obs.objects[..., 0:2] * POSITION_SCALE
+
+
+def roadgraph_positions(obs: Observation) -> jax.Array:
+    """Roadgraph points in metres in the (believed) ego frame, ``f32[..., N_rg, 2]``."""
+    return obs.roadgraph[..., 0:2] * POSITION_SCALE
+
+
+def hide_objects(obs: Observation, keep: jax.Array) -> Observation:
+    """Hide the object slots where ``keep`` is False: invalid and all-zero features."""
+    valid = obs.objects_valid & keep
+    return obs.replace(objects=jnp.where(valid[..., None], obs.objects, 0.0), objects_valid=valid)
+
+
+def hide_roadgraph(obs: Observation, keep: jax.Array) -> Observation:
+    """Hide the roadgraph slots where ``keep`` is False: invalid and all-zero features."""
+    valid = obs.roadgraph_valid & keep
+    return obs.replace(roadgraph=jnp.where(valid[..., None], obs.roadgraph, 0.0),
+                       roadgraph_valid=valid)

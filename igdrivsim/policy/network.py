@@ -1,0 +1,154 @@
+"""The driving policy: object MLP + PointNet roadgraph encoder -> MLP -> GRU -> 3x257 heads.
+
+The network sees one observation step at a time (memory lives in the GRU state). For training,
+``unroll`` scans it over a sequence; ``reset`` flags zero the GRU state at every episode start
+(the original code never reset it). Observations are any pytree with the fields of
+``igdrivsim.observation.Observation``: ``objects [..., N_obj, F_obj]``, ``objects_valid
+[..., N_obj]``, ``roadgraph [..., N_rg, F_rg]``, ``roadgraph_valid [..., N_rg]``,
+``sdc_speed [..., 1]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
+NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Layer widths; the defaults are the paper's (about 4.3M parameters)."""
+
+    object_hidden: tuple[int, ...] = (512, 512)  # per-object MLP, then masked max-pool
+    point_hidden: tuple[int, ...] = (256, 256)  # per-point MLP of the polyline encoder
+    roadgraph_hidden: tuple[int, ...] = (512, 512)  # after concatenating the pooled feature
+    trunk_hidden: tuple[int, ...] = (512,)  # MLP on [objects, roadgraph, sdc_speed]
+    gru_hidden: int = 512
+    actor_hidden: tuple[int, ...] = (512, 512)
+    value_hidden: tuple[int, ...] = (512,)
+    num_bins: int = NUM_BINS
+    remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
+
+
+class MLP(nn.Module):
+    """Dense + ReLU stack (ReLU after every layer)."""
+
+    features: Sequence[int]
+
+    @nn.compact
+    def __call__(self, x):
+        for width in self.features:
+            x = nn.relu(nn.Dense(width)(x))
+        return x
+
+
+def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
+    """Max over ``axis`` of the valid entries; zeros where no entry is valid."""
+    valid = jnp.expand_dims(valid, -1)
+    pooled = jnp.max(jnp.where(valid, x, -jnp.inf), axis=axis)
+    return jnp.where(jnp.any(valid, axis=axis), pooled, 0.0)
+
+
+class PolylineEncoder(nn.Module):
+    """PointNet/MTR-style set encoder: per-point MLP, max-pool, concat back, MLP, max-pool."""
+
+    point_hidden: Sequence[int]
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, points, valid):
+        h = MLP(self.point_hidden)(points)
+        pooled = masked_max(h, valid)
+        h = jnp.concatenate([h, jnp.broadcast_to(pooled[..., None, :], h.shape)], axis=-1)
+        h = MLP(self.hidden)(h)
+        return masked_max(h, valid)
+
+
+class DrivingPolicy(nn.Module):
+    """One recurrent step: ``(carry, obs, reset) -> (carry, logits [..., 3, bins], value [...])``."""
+
+    config: PolicyConfig
+
+    def setup(self):
+        c = self.config
+        self.object_mlp = MLP(c.object_hidden)
+        self.object_norm = nn.LayerNorm()
+        self.roadgraph_encoder = PolylineEncoder(c.point_hidden, c.roadgraph_hidden)
+        self.roadgraph_norm = nn.LayerNorm()
+        self.trunk = MLP(c.trunk_hidden)
+        self.gru = nn.GRUCell(features=c.gru_hidden)
+        self.actor_mlp = MLP(c.actor_hidden)
+        self.actor_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
+        self.value_mlp = MLP(c.value_hidden)
+        self.value_out = nn.Dense(1)
+
+    def encode(self, obs):
+        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]``."""
+        objects = masked_max(self.object_mlp(obs.objects), obs.objects_valid)
+        roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
+        x = jnp.concatenate(
+            [self.object_norm(objects), self.roadgraph_norm(roads), obs.sdc_speed], axis=-1)
+        return self.trunk(x)
+
+    def __call__(self, carry, obs, reset):
+        carry = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(carry), carry)
+        carry, y = self.gru(carry, self.encode(obs))
+        logits = self.actor_out(self.actor_mlp(y))
+        logits = logits.reshape(*logits.shape[:-1], NUM_ACTION_DIMS, self.config.num_bins)
+        value = self.value_out(self.value_mlp(y))[..., 0]
+        return carry, logits, value
+
+
+def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
+    """The zero GRU state, ``[*batch_shape, gru_hidden]``."""
+    return jnp.zeros((*batch_shape, config.gru_hidden), jnp.float32)
+
+
+def init_params(config: PolicyConfig, key: jax.Array, example_obs) -> dict:
+    """Parameters for one seed (example_obs: one unbatched observation)."""
+    model = DrivingPolicy(config)
+    return model.init(key, initial_carry(config), example_obs, jnp.zeros((), bool))
+
+
+def init_params_per_seed(config: PolicyConfig, keys: jax.Array, example_obs) -> dict:
+    """Parameters for each key, stacked on a leading seed axis.
+
+    Seeds are initialised one by one and stacked (vmapping the orthogonal initialiser of the
+    GRU was seen to hang).
+    """
+    init = jax.jit(lambda k: init_params(config, k, example_obs))
+    per_seed = [init(k) for k in keys]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *per_seed)
+
+
+def apply_step(config: PolicyConfig, params, carry, obs, reset):
+    """Functional form of one step: ``(carry, logits, value)``."""
+    return DrivingPolicy(config).apply(params, carry, obs, reset)
+
+
+def unroll(config: PolicyConfig, params, carry, obs_seq, reset_seq):
+    """Scan the policy over time; inputs ``[B, T, ...]`` -> ``(carry, logits [B,T,3,bins],
+    values [B,T])``. ``reset_seq [B, T]`` zeroes the state before the flagged steps."""
+    model = DrivingPolicy(config)
+
+    def body(c, xs):
+        obs, reset = xs
+        c, logits, value = model.apply(params, c, obs, reset)
+        return c, (logits, value)
+
+    if config.remat:
+        body = jax.checkpoint(body)
+    time_major = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), (obs_seq, reset_seq))
+    carry, (logits, values) = jax.lax.scan(body, carry, time_major)
+    return carry, jnp.swapaxes(logits, 0, 1), jnp.swapaxes(values, 0, 1)
+
+
+def count_params(params) -> int:
+    """Number of scalar parameters (of one seed when given unstacked parameters)."""
+    return int(sum(x.size for x in jax.tree.leaves(params)))

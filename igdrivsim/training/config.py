@@ -1,0 +1,204 @@
+"""Typed run configuration (frozen dataclasses with the paper's defaults) and the profiles.
+
+A run is described by :class:`RunConfig` = policy widths + data/input settings + observation
+setting + training hyper-parameters. ``PROFILES`` holds ``smoke`` (seconds, tests/CI),
+``laptop`` (small but honest: 6 settings x 2 methods x 3 seeds in under an hour on a 2-core
+CPU) and ``paper`` (the paper's sizes and schedule). Any field can be overridden with
+``section.field=value`` strings (``--set training.lr=3e-4``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from igdrivsim.errors import ConfigError
+from igdrivsim.policy.network import PolicyConfig
+
+METHODS = ("bc", "bc_rl")
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Which scenarios feed training and how they are batched."""
+
+    batch_size: int = 256  # scenarios per update (per seed, over all devices and hosts)
+    max_scenarios: int = 0  # use at most this many scenarios (0: all)
+    max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
+    max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (near the SDC path)
+    crop_radius: float = 150.0  # metres around the logged SDC path for the load-time crop
+    prefetch: int = 2  # batches prepared ahead by the background thread
+    cache_dir: str = ""  # where decoded+cropped scenarios are cached as .npz ('' = no cache)
+
+
+@dataclass(frozen=True)
+class ObsConfig:
+    """The imitator's observation: a preset name (or 'a+b') and the observation capacities."""
+
+    setting: str = "full"
+    num_objects: int = 32
+    num_roadgraph_points: int = 1500
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation and the BC / BC+PPO loss (paper: Adam, cosine 1e-3 -> 0, w_BC=1, w_RL=0.05)."""
+
+    method: str = "bc"  # "bc" (w_rl forced to 0) or "bc_rl"
+    seeds: int = 3
+    seed_offset: int = 0  # seeds are seed_offset .. seed_offset + seeds - 1
+    epochs: float = 200.0  # passes over the data (ignored when num_updates > 0)
+    num_updates: int = 0
+    lr: float = 1e-3
+    lr_end: float = 0.0
+    grad_clip: float = 1.0  # global gradient-norm clip
+    w_bc: float = 1.0
+    w_rl: float = 0.05
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    ppo_epochs: int = 4  # gradient passes over each batch
+    ppo_minibatches: int = 4  # minibatches (of scenarios) per pass
+    log_every: int = 10
+    checkpoint_every: int = 100
+    max_checkpoints: int = 2
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    profile: str = "paper"
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    observation: ObsConfig = field(default_factory=ObsConfig)
+    training: TrainConfig = field(default_factory=TrainConfig)
+
+    @property
+    def use_rl(self) -> bool:
+        """Static flag: the PPO rollout and loss are built only when this is true."""
+        return self.training.method == "bc_rl" and self.training.w_rl != 0.0
+
+    def validate(self) -> RunConfig:
+        t, d = self.training, self.data
+        if t.method not in METHODS:
+            raise ConfigError(f"training.method must be one of {METHODS}, got {t.method!r}")
+        if t.seeds < 1:
+            raise ConfigError(f"training.seeds must be >= 1, got {t.seeds}")
+        if d.batch_size < 1 or d.batch_size % t.ppo_minibatches:
+            raise ConfigError(f"data.batch_size ({d.batch_size}) must be a positive multiple of "
+                              f"training.ppo_minibatches ({t.ppo_minibatches})")
+        if t.ppo_epochs < 1:
+            raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
+        if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
+            raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
+        return self
+
+
+SECTIONS = ("policy", "data", "observation", "training")
+
+
+def smoke() -> RunConfig:
+    """Seconds on a CPU: tiny network, tiny capacities, a handful of updates."""
+    return RunConfig(
+        profile="smoke",
+        policy=PolicyConfig(object_hidden=(16,), point_hidden=(16,), roadgraph_hidden=(16,),
+                            trunk_hidden=(16,), gru_hidden=16, actor_hidden=(16,),
+                            value_hidden=(16,)),
+        data=DataConfig(batch_size=4, max_scenarios=16, max_objects=8,
+                        max_roadgraph_points=256, prefetch=2),
+        observation=ObsConfig(num_objects=4, num_roadgraph_points=32),
+        training=TrainConfig(seeds=2, num_updates=4, ppo_epochs=2, ppo_minibatches=2,
+                             log_every=1, checkpoint_every=2),
+    )
+
+
+def laptop() -> RunConfig:
+    """Scaled-down but honest: a few minutes per (setting, method) with 3 seeds on 2 CPU cores."""
+    return RunConfig(
+        profile="laptop",
+        policy=PolicyConfig(object_hidden=(64, 64), point_hidden=(32, 32),
+                            roadgraph_hidden=(64,), trunk_hidden=(128,), gru_hidden=128,
+                            actor_hidden=(128,), value_hidden=(64,)),
+        data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
+                        max_roadgraph_points=1024, prefetch=2),
+        observation=ObsConfig(num_objects=16, num_roadgraph_points=128),
+        training=TrainConfig(seeds=3, num_updates=120, lr=3e-3, ppo_epochs=1,
+                             ppo_minibatches=2, log_every=5, checkpoint_every=40),
+    )
+
+
+def paper() -> RunConfig:
+    """The paper: 4.3M-parameter network, 256 scenarios per update, 200 epochs, 3 seeds."""
+    return RunConfig(profile="paper", policy=PolicyConfig(remat=True))
+
+
+PROFILES = {"smoke": smoke, "laptop": laptop, "paper": paper}
+
+
+def get_profile(name: str) -> RunConfig:
+    if name not in PROFILES:
+        raise ConfigError(f"unknown profile {name!r}; choose from {', '.join(PROFILES)}")
+    return PROFILES[name]()
+
+
+def _parse_value(text: str, current: Any, where: str) -> Any:
+    """Parse ``text`` to the type of the current value (JSON syntax for tuples and lists)."""
+    try:
+        if isinstance(current, bool):
+            low = text.strip().lower()
+            if low not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(text)
+            return low in ("true", "1", "yes")
+        if isinstance(current, int):
+            return int(text)
+        if isinstance(current, float):
+            return float(text)
+        if isinstance(current, tuple):
+            value = json.loads(text if text.strip().startswith("[") else f"[{text}]")
+            return tuple(type(current[0])(v) if current else v for v in value)
+        return text
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"bad value {text!r} for {where} (expected {type(current).__name__})"
+                          ) from err
+
+
+def with_overrides(config: RunConfig, overrides: list[str]) -> RunConfig:
+    """Apply ``section.field=value`` overrides (e.g. ``training.lr=3e-4``)."""
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        section, dot, name = key.strip().partition(".")
+        if not sep or not dot:
+            raise ConfigError(f"override {item!r} must look like section.field=value")
+        if section not in SECTIONS:
+            raise ConfigError(f"unknown config section {section!r} in {item!r}; "
+                              f"choose from {', '.join(SECTIONS)}")
+        sub = getattr(config, section)
+        names = {f.name for f in dataclasses.fields(sub)}
+        if name not in names:
+            raise ConfigError(f"unknown field {key!r}; {section} has {', '.join(sorted(names))}")
+        value = _parse_value(text, getattr(sub, name), key)
+        config = dataclasses.replace(config, **{section: dataclasses.replace(sub, **{name: value})})
+    return config
+
+
+def to_dict(config: RunConfig) -> dict:
+    return dataclasses.asdict(config)
+
+
+def from_dict(d: dict) -> RunConfig:
+    """Inverse of :func:`to_dict` (lists become tuples again); unknown keys are errors."""
+    classes = {"policy": PolicyConfig, "data": DataConfig, "observation": ObsConfig,
+               "training": TrainConfig}
+    kwargs: dict[str, Any] = {"profile": d.get("profile", "custom")}
+    for section, cls in classes.items():
+        values = dict(d.get(section, {}))
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(values) - names
+        if unknown:
+            raise ConfigError(f"config.json: unknown key {section}.{sorted(unknown)[0]}")
+        kwargs[section] = cls(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in values.items()})
+    return RunConfig(**kwargs)
