@@ -26,9 +26,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 # `igdrivsim bench NAME`
 BENCHES: dict[str, tuple[str, str]] = {
-    "data": ("igdrivsim.data.commands", "scenarios/s read and decoded"),
-    "sim": ("igdrivsim.simulator.commands", "scenario-steps/s of reset + 80 steps"),
-    "train": ("igdrivsim.training.commands", "training updates/s and scenario-steps/s"),
+    "data": ("igdrivsim.data.bench", "scenarios/s read and decoded"),
+    "sim": ("igdrivsim.simulator.bench", "scenario-steps/s of reset + 80 steps"),
+    "train": ("igdrivsim.training.bench", "training updates/s and scenario-steps/s"),
 }
 
 
