@@ -1,4 +1,4 @@
-"""Pure-JAX maze of paper Fig. 2 (gymnax style: ``reset(key, params)`` / ``step(state, action, params)``).
+"""Pure-JAX maze of paper Fig. 2 (gymnax style: ``reset(key, p)`` / ``step(state, action, p)``).
 
 Layout (MetaMaze grid): a ``(size + 2)``-square array whose outer ring is wall; inside, odd array
 rows are open corridors and even rows have a wall at every even column (pillars). The agent starts
@@ -132,13 +132,18 @@ def goal_in_view(state: MazeState, params: MazeParams) -> jax.Array:
     return jnp.all(jnp.abs(state.goal - state.pos) <= params.receptive_field // 2)
 
 
-def observe(state: MazeState, params: MazeParams, kind: str) -> jax.Array:
-    """Observation of ``kind`` ``"full"`` (expert) or ``"partial"`` (imitator)."""
-    if kind not in OBS_KINDS:
-        raise ConfigError(f"observation kind must be one of {OBS_KINDS}, got {kind!r}")
-    goal = state.goal
-    if kind == "partial":
-        goal = jnp.where(goal_in_view(state, params), goal, -1)
+def observe(state: MazeState, params: MazeParams, kind: str | jax.Array) -> jax.Array:
+    """Observation ``"full"`` (expert) or ``"partial"`` (imitator).
+
+    ``kind`` may also be a boolean array (True = partial), so one compiled function serves both
+    observation kinds (the study ``vmap``s over curves that differ only in this flag).
+    """
+    if isinstance(kind, str):
+        if kind not in OBS_KINDS:
+            raise ConfigError(f"observation kind must be one of {OBS_KINDS}, got {kind!r}")
+        kind = kind == "partial"
+    hidden = jnp.asarray(kind) & ~goal_in_view(state, params)
+    goal = jnp.where(hidden, -1, state.goal)
     return jnp.concatenate([wall_patch(state.pos, params), state.pos.astype(jnp.float32),
                             goal.astype(jnp.float32)])
 

@@ -1,8 +1,11 @@
 """Recurrent PPO (PureJaxRL style): rollout, GAE and minibatch epochs in one jitted function.
 
-``make_ppo(...)`` returns ``init(key) -> PPOState`` and ``train_chunk(PPOState) -> (PPOState,
-metrics)``, a ``lax.scan`` over ``updates`` PPO updates; both are pure and single-seed, so the
-study ``vmap``s them over seeds and calls the chunk repeatedly (one progress-bar tick per chunk).
+``make_ppo(...)`` returns ``init(key, net_params, partial, total_updates) -> PPOState`` and
+``train_chunk(PPOState) -> (PPOState, metrics)``, a ``lax.scan`` over ``chunk_updates`` PPO
+updates; both are pure and single-seed, so the study ``vmap``s them over seeds and calls the chunk
+repeatedly (one progress-bar tick per chunk). The observation kind (``partial``) and the length
+of the learning-rate schedule live in the state as arrays, so one compiled function trains both
+the full- and the partial-observation agent.
 Minibatches split the environments, so every minibatch holds whole sequences and the GRU is
 unrolled from the hidden state it had at the start of the rollout.
 """
@@ -49,13 +52,14 @@ class PPOState:
     opt_state: optax.OptState
     stream: Stream
     key: jax.Array
+    partial: jax.Array  # bool, the agent observes the imitator's (partial) observation
+    update: jax.Array  # int32, updates done so far
+    total_updates: jax.Array  # int32, length of the linear learning-rate decay
 
 
-def make_optimizer(lr: float, max_grad_norm: float, total_updates: int | None = None):
-    """Adam with global-norm clipping; linear decay to 0 over ``total_updates`` when given."""
-    schedule = optax.linear_schedule(lr, 0.0, total_updates) if total_updates else lr
-    return optax.chain(optax.clip_by_global_norm(max_grad_norm),
-                       optax.adam(schedule, eps=1e-5))
+def make_optimizer(max_grad_norm: float):
+    """Global-norm clipping then Adam's scaling; the (annealed) step size is applied by hand."""
+    return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.scale_by_adam(eps=1e-5))
 
 
 def gae(values, rewards, dones, last_value, gamma, lam):
@@ -73,17 +77,16 @@ def gae(values, rewards, dones, last_value, gamma, lam):
     return adv, adv + values
 
 
-def make_ppo(model: GRUPolicy, params: MazeParams, kind: str, cfg: PPOConfig,
-             total_updates: int, chunk_updates: int):
-    """``(init, train_chunk)`` for PPO on observation ``kind`` (see module docstring)."""
-    tx = make_optimizer(cfg.lr, cfg.max_grad_norm,
-                        total_updates * cfg.update_epochs * cfg.num_minibatches
-                        if cfg.anneal_lr else None)
+def make_ppo(model: GRUPolicy, params: MazeParams, cfg: PPOConfig, chunk_updates: int):
+    """``(init, train_chunk)`` for recurrent PPO (see module docstring)."""
+    tx = make_optimizer(cfg.max_grad_norm)
 
-    def init(key: jax.Array, net_params) -> PPOState:
+    def init(key: jax.Array, net_params, partial, total_updates) -> PPOState:
         key_env, key = jax.random.split(key)
         return PPOState(net_params, tx.init(net_params),
-                        start_stream(key_env, cfg.num_envs, model.hidden, params), key)
+                        start_stream(key_env, cfg.num_envs, model.hidden, params), key,
+                        jnp.asarray(partial, bool), jnp.zeros((), jnp.int32),
+                        jnp.asarray(total_updates, jnp.int32))
 
     def loss_fn(net_params, h0, batch, adv, targets):
         _, logits, value = model.apply(net_params, h0, batch.obs, batch.first)
@@ -103,9 +106,12 @@ def make_ppo(model: GRUPolicy, params: MazeParams, kind: str, cfg: PPOConfig,
     def update(state: PPOState, _):
         key, key_roll, key_perm = jax.random.split(state.key, 3)
         h0 = state.stream.h
+        kind = state.partial
         stream, traj = run_stream(model, state.params, state.stream, key_roll, cfg.num_steps,
                                   params, kind)
         last_obs = jax.vmap(observe, (0, None, None))(stream.state, params, kind)
+        frac = 1.0 - state.update / state.total_updates if cfg.anneal_lr else 1.0
+        lr = cfg.lr * jnp.maximum(frac, 0.0)
         _, _, last_value = model.apply(state.params, stream.h, last_obs[None], stream.first[None])
         adv, targets = gae(traj.value, traj.reward, traj.done, last_value[0], cfg.gamma,
                            cfg.gae_lambda)
@@ -120,6 +126,7 @@ def make_ppo(model: GRUPolicy, params: MazeParams, kind: str, cfg: PPOConfig,
                 grads = grad_fn(net_params, h0[idx], jax.tree.map(take, traj), take(adv),
                                 take(targets))
                 updates, opt_state = tx.update(grads, opt_state, net_params)
+                updates = jax.tree.map(lambda u: -lr * u, updates)
                 return (optax.apply_updates(net_params, updates), opt_state), None
 
             return jax.lax.scan(minibatch, (net_params, opt_state), perm)[0], None
@@ -132,7 +139,8 @@ def make_ppo(model: GRUPolicy, params: MazeParams, kind: str, cfg: PPOConfig,
             "length": (traj.length * traj.done).sum() / jnp.maximum(episodes, 1),
             "episodes": episodes,
         }
-        return PPOState(net_params, opt_state, stream, key), metrics
+        return state.replace(params=net_params, opt_state=opt_state, stream=stream, key=key,
+                             update=state.update + 1), metrics
 
     def train_chunk(state: PPOState):
         return jax.lax.scan(update, state, None, length=chunk_updates)

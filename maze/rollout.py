@@ -44,15 +44,17 @@ def _observe(state, params, kind):
 
 
 def run_stream(model: GRUPolicy, net_params, stream: Stream, key: jax.Array, num_steps: int,
-               params: MazeParams, kind: str, other_kind: str | None = None
-               ) -> tuple[Stream, Transition]:
-    """``num_steps`` sampled actions in every env (auto-reset); transitions are ``[T, E, ...]``."""
-    other_kind = other_kind or kind
+               params: MazeParams, kind, other_kind=None) -> tuple[Stream, Transition]:
+    """``num_steps`` sampled actions in every env (auto-reset); transitions are ``[T, E, ...]``.
+
+    ``kind`` / ``other_kind``: ``"full"``, ``"partial"`` or a boolean array (True = partial);
+    ``other_obs`` is the ``other_kind`` observation (the acting one when ``None``).
+    """
 
     def one(carry, key):
         stream = carry
         obs = _observe(stream.state, params, kind)
-        other = obs if other_kind == kind else _observe(stream.state, params, other_kind)
+        other = obs if other_kind is None else _observe(stream.state, params, other_kind)
         h, logits, value = model.apply(net_params, stream.h, obs[None], stream.first[None])
         logits, value = logits[0], value[0]
         action = jax.random.categorical(key, logits)
@@ -67,7 +69,7 @@ def run_stream(model: GRUPolicy, net_params, stream: Stream, key: jax.Array, num
 
 
 def evaluate(model: GRUPolicy, net_params, key: jax.Array, num_episodes: int,
-             params: MazeParams, kind: str) -> tuple[jax.Array, jax.Array]:
+             params: MazeParams, kind) -> tuple[jax.Array, jax.Array]:
     """Mean return and mean length of ``num_episodes`` fresh episodes (sampled actions)."""
     key_reset, key_act = jax.random.split(key)
     state = jax.vmap(maze_env.reset, (0, None))(jax.random.split(key_reset, num_episodes), params)
@@ -86,8 +88,9 @@ def evaluate(model: GRUPolicy, net_params, key: jax.Array, num_episodes: int,
         action = jax.random.categorical(sub, logits[0])
         nxt, reward, now_done = jax.vmap(maze_env.step, (0, 0, None))(state, action, params)
         live = ~done
-        state = jax.tree.map(lambda a, b: jnp.where(live.reshape(live.shape + (1,) * (a.ndim - 1)), a, b),
-                             nxt, state)
+        state = jax.tree.map(
+            lambda a, b: jnp.where(live.reshape(live.shape + (1,) * (a.ndim - 1)), a, b),
+            nxt, state)
         ret = ret + jnp.where(live, reward, 0.0)
         length = length + live
         return state, h, done | now_done, ret, length, key

@@ -110,8 +110,10 @@ def test_build_report_outputs(tmp_path):
     assert "Circ r=4**: yes" in md and "Full**: no significant difference" in md
     vs = (out / "tables" / "vs_paper.md").read_text()
     assert "| Full |" in vs and "3.67" in vs
-    prov = (out / "tables" / "provenance.tex").read_text()
+    prov = (out / "generated" / "provenance.tex").read_text()
     assert r"\newcommand{\ProvProfile}{smoke}" in prov and r"synthetic\_test" in prov
+    verdicts = (out / "generated" / "verdicts.tex").read_text()
+    assert verdicts.count(r"\item") == 6 and "Circular FoV (r=4)" in verdicts
     from PIL import Image
 
     with Image.open(out / "figures" / "fig3_metrics.png") as im:

@@ -1,6 +1,12 @@
 """WOMD data: the Scenario pytree, TFRecord readers (tf.Example and Scenario protobuf), the
 tf.Example writer, sharded sources and the paper's scenario filter."""
 
+from igdrivsim.data.filter import FilterConfig, keep, merge, run_filter, scenario_stats
+from igdrivsim.data.manifest import (
+    iter_manifest_scenarios,
+    load_manifest_scenarios,
+    read_manifest,
+)
 from igdrivsim.data.reader import (
     FORMAT_SCENARIO,
     FORMAT_TFEXAMPLE,
@@ -12,6 +18,7 @@ from igdrivsim.data.reader import (
     iter_scenarios,
     load_records,
     load_scenario,
+    process_pool,
     read_scenarios,
     write_tfexample,
 )
@@ -26,8 +33,10 @@ from igdrivsim.data.scenario import (
 )
 
 __all__ = [
-    "FORMAT_SCENARIO", "FORMAT_TFEXAMPLE", "Capacities", "ReadStats", "Scenario",
+    "FORMAT_SCENARIO", "FORMAT_TFEXAMPLE", "Capacities", "FilterConfig", "ReadStats", "Scenario",
     "ScenarioRecord", "decode_record", "decode_scenario_id", "empty_scenario", "expand_paths",
     "fit_to_capacities", "iter_file", "iter_scenarios", "load_records", "load_scenario",
     "read_scenarios", "sdc_index", "stack_scenarios", "write_tfexample",
+    "iter_manifest_scenarios", "keep", "load_manifest_scenarios", "merge", "process_pool",
+    "read_manifest", "run_filter", "scenario_stats",
 ]

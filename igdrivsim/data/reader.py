@@ -9,6 +9,7 @@ a warning and counted in a :class:`ReadStats`, and the rest of the file is still
 from __future__ import annotations
 
 import glob
+import multiprocessing
 import os
 import re
 import warnings
@@ -21,7 +22,13 @@ from google.protobuf.message import DecodeError
 
 from igdrivsim.data import tfrecord
 from igdrivsim.data.protos import example_class
-from igdrivsim.data.scenario import Capacities, Scenario, fit_to_capacities, index_scenario
+from igdrivsim.data.scenario import (
+    DEFAULT_CAPS,
+    Capacities,
+    Scenario,
+    fit_to_capacities,
+    index_scenario,
+)
 from igdrivsim.data.tfexample import decode_tfexample, encode_tfexample, is_tfexample
 from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
 from igdrivsim.errors import DataError
@@ -50,6 +57,12 @@ class ReadStats:
     def skip(self, err: DataError) -> None:
         self.skipped.append((err.file, err.record, str(err)))
         warnings.warn(f"skipping bad record: {err}", stacklevel=3)
+
+
+def process_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` fresh (spawned) processes: forking a process that runs JAX threads
+    can deadlock, and workers only need NumPy and protobuf."""
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
 
 
 def expand_paths(spec: PathSpec) -> list[str]:
@@ -107,7 +120,7 @@ def _locate(err: DataError, file: str, record: int | None) -> DataError:
                      key=err.key)
 
 
-def iter_file(path: str, caps: Capacities | None = Capacities(), skip_bad: bool = False,
+def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool = False,
               stats: ReadStats | None = None, start: int = 0,
               stop: int | None = None) -> Iterator[ScenarioRecord]:
     """Decode records ``start <= i < stop`` of one TFRecord file (``caps=None``: native sizes)."""
@@ -132,7 +145,7 @@ def iter_file(path: str, caps: Capacities | None = Capacities(), skip_bad: bool 
         yield ScenarioRecord(path, index, fmt, scenario)
 
 
-def iter_scenarios(paths: PathSpec, caps: Capacities | None = Capacities(),
+def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
                    skip_bad: bool = False, stats: ReadStats | None = None, workers: int = 0,
                    chunk: int = 16, progress: bool = False) -> Iterator[ScenarioRecord]:
     """Stream :class:`ScenarioRecord` over all files of ``paths`` in order.
@@ -180,7 +193,7 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
             n = err.record  # read what precedes the broken framing, report the break below
             stats.skip(err)
         tasks += [(path, s, min(s + chunk, n)) for s in range(0, n, chunk)]
-    with ProcessPoolExecutor(workers) as pool:
+    with process_pool(workers) as pool:
         pending = []
         it = iter(tasks)
         for task in it:
@@ -202,16 +215,18 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
                 yield rec
 
 
-def read_scenarios(paths: PathSpec, caps: Capacities = Capacities(), skip_bad: bool = False,
-                   stats: ReadStats | None = None, workers: int = 0) -> Iterator[Scenario]:
+def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,
+                   stats: ReadStats | None = None, workers: int = 0,
+                   progress: bool = False) -> Iterator[Scenario]:
     """Stream the scenarios of ``paths`` (file, dir, glob, ``name@N``, or a list), fitted to
-    ``caps``; the format of each record is detected (tf.Example or Scenario protobuf)."""
-    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers):
+    ``caps``; the format of each record is detected (tf.Example or Scenario protobuf).
+    ``workers > 1`` decodes in that many processes; ``progress`` shows a tqdm bar."""
+    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers, progress=progress):
         yield rec.scenario
 
 
 def load_scenario(path: str | os.PathLike, index: int = 0,
-                  caps: Capacities | None = Capacities()) -> Scenario:
+                  caps: Capacities | None = DEFAULT_CAPS) -> Scenario:
     """Record ``index`` of one file as a :class:`Scenario` fitted to ``caps`` (None: native)."""
     path = os.fspath(path)
     for rec in iter_file(path, caps, start=index, stop=index + 1):
@@ -219,7 +234,7 @@ def load_scenario(path: str | os.PathLike, index: int = 0,
     raise DataError(f"no record {index} (file has fewer records)", file=path, record=index)
 
 
-def load_records(refs: Iterable[tuple[str, int]], caps: Capacities = Capacities()
+def load_records(refs: Iterable[tuple[str, int]], caps: Capacities = DEFAULT_CAPS
                  ) -> Iterator[Scenario]:
     """Scenarios by ``(file, record)`` reference, e.g. the kept rows of a filter manifest.
 

@@ -42,6 +42,9 @@ class Capacities:
     num_steps: int = NUM_STEPS
 
 
+DEFAULT_CAPS = Capacities()
+
+
 @struct.dataclass
 class Trajectory:
     """Per-object logged states, shape ``[..., O, T]`` each. Yaw in radians, SI units."""
@@ -91,7 +94,8 @@ class Roadgraph:
 
 @struct.dataclass
 class TrafficLights:
-    """Traffic-light states, ``[..., L, T]`` each (WOMD stores ``[T, 16]``; we store lanes first)."""
+    """Traffic-light states, ``[..., L, T]`` each (WOMD stores ``[T, 16]``; we store lanes
+    first)."""
 
     state: np.ndarray  # int32, WOMD TrafficSignalLaneState enum
     valid: np.ndarray  # bool
@@ -143,9 +147,10 @@ def sdc_index(scenario: Scenario) -> np.ndarray:
     return np.argmax(np.asarray(scenario.metadata.is_sdc), axis=-1)
 
 
-def empty_scenario(caps: Capacities = Capacities()) -> Scenario:
+def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     """An all-invalid scenario with the given capacities (the padding template)."""
-    o, t, r, nl = caps.max_objects, caps.num_steps, caps.max_roadgraph_points, caps.max_traffic_lights
+    o, t = caps.max_objects, caps.num_steps
+    r, nl = caps.max_roadgraph_points, caps.max_traffic_lights
     f = lambda *s: np.zeros(s, np.float32)  # noqa: E731
     i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
     b = lambda *s: np.zeros(s, bool)  # noqa: E731
@@ -184,7 +189,7 @@ def index_scenario(batch: Scenario, i) -> Scenario:
 
 
 def _select(tree, index: np.ndarray, axis: int, size: int, template):
-    """Take ``index`` along ``axis`` of every leaf and pad with the ``template`` leaves to ``size``."""
+    """Take ``index`` along ``axis`` of every leaf; pad with the ``template`` leaves to ``size``."""
     import jax
 
     def one(x, pad):
@@ -212,7 +217,7 @@ def _keep_nearest(valid: np.ndarray, dist: np.ndarray, capacity: int,
     return np.sort(chosen)
 
 
-def fit_to_capacities(scenario: Scenario, caps: Capacities = Capacities()) -> Scenario:
+def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Scenario:
     """Pad (invalid) or reduce a scenario to exactly ``caps``; arbitrary leading batch dims.
 
     Nothing valid is cut while it fits: if a section already fits, slots keep their positions

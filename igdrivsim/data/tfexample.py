@@ -145,8 +145,12 @@ def encode_tfexample(scenario: Scenario) -> bytes:
         raise ValueError(f"encode_tfexample takes one scenario, got batch {scenario.batch_shape}")
     example = example_class()()
     fm = example.features.feature
-    floats = lambda key, a: fm[key].float_list.value.extend(np.asarray(a, np.float32).ravel().tolist())  # noqa: E731
-    ints = lambda key, a: fm[key].int64_list.value.extend(np.asarray(a, np.int64).ravel().tolist())  # noqa: E731
+
+    def floats(key: str, a) -> None:
+        fm[key].float_list.value.extend(np.asarray(a, np.float32).ravel().tolist())
+
+    def ints(key: str, a) -> None:
+        fm[key].int64_list.value.extend(np.asarray(a, np.int64).ravel().tolist())
 
     tr, md = scenario.trajectory, scenario.metadata
     num_objects = md.is_sdc.shape[-1]

@@ -106,30 +106,43 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
     return trajectory, metadata
 
 
-def densify(points: np.ndarray, max_spacing: float) -> np.ndarray:
-    """Insert evenly spaced points on every segment longer than ``max_spacing`` (keeps vertices)."""
-    if len(points) < 2 or not max_spacing or max_spacing <= 0:
-        return points
-    seg = np.diff(points, axis=0)
-    pieces = np.maximum(1, np.ceil(np.linalg.norm(seg[:, :2], axis=1) / max_spacing - 1e-3))
-    pieces = pieces.astype(int)
+def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Insert evenly spaced points on every segment longer than ``max_spacing`` (2-D length) of
+    the polylines given as vertices ``points [V, 3]`` with polyline index ``poly [V]`` (vertices
+    of one polyline contiguous); vertices are kept. Returns the new ``(points, poly)``."""
+    seg = np.zeros_like(points)
+    inside = poly[1:] == poly[:-1]  # vertex k starts a segment of its polyline
+    seg[:-1] = np.where(inside[:, None], np.diff(points, axis=0), 0.0)
+    pieces = np.ones(len(points), np.int64)
+    if max_spacing and max_spacing > 0:
+        length = np.linalg.norm(seg[:, :2], axis=1)
+        pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
     if (pieces == 1).all():
-        return points
-    starts = np.repeat(points[:-1], pieces, axis=0)
-    frac = np.concatenate([np.arange(n) / n for n in pieces])[:, None]
-    return np.concatenate([starts + frac * np.repeat(seg, pieces, axis=0), points[-1:]])
+        return points, poly
+    source = np.repeat(np.arange(len(points)), pieces)
+    first = np.repeat(np.cumsum(pieces) - pieces, pieces)
+    frac = ((np.arange(len(source)) - first) / pieces[source])[:, None]
+    return points[source] + frac * seg[source], poly[source]
 
 
-def _directions(points: np.ndarray) -> np.ndarray:
+def densify(points: np.ndarray, max_spacing: float) -> np.ndarray:
+    """:func:`densify_polylines` for one polyline ``[N, 3]``."""
+    return densify_polylines(points, np.zeros(len(points), np.int64), max_spacing)[0]
+
+
+def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Unit vector from each point to the next point of its polyline (zero at a polyline end)."""
     d = np.zeros_like(points)
     seg = np.diff(points, axis=0)
     norm = np.linalg.norm(seg, axis=1, keepdims=True)
-    d[:-1] = np.where(norm > 0, seg / np.maximum(norm, 1e-12), 0.0)
+    ok = (poly[1:] == poly[:-1])[:, None] & (norm > 0)
+    d[:-1] = np.where(ok, seg / np.maximum(norm, 1e-12), 0.0)
     return d
 
 
 def _decode_map(features, max_spacing: float) -> Roadgraph:
-    xyz, dirs, types, ids = [], [], [], []
+    xyz, types, ids = [], [], []
     for feature in features:
         kind = feature.WhichOneof("feature_data")
         if kind == "lane":
@@ -148,22 +161,23 @@ def _decode_map(features, max_spacing: float) -> Roadgraph:
             continue
         if not pts:
             continue
-        points = densify(np.array([(p.x, p.y, p.z) for p in pts], np.float64), max_spacing)
+        points = np.array([(p.x, p.y, p.z) for p in pts], np.float64)
         if not np.isfinite(points).all():
             raise DataError(f"non-finite map point in feature {feature.id}", key="map_features")
         xyz.append(points)
-        dirs.append(_directions(points))
-        types.append(np.full(len(points), rg_type, np.int32))
-        ids.append(np.full(len(points), feature.id, np.int64))
+        types.append(rg_type)
+        ids.append(feature.id)
     if not xyz:
         return Roadgraph(xyz=np.zeros((0, 3), np.float32), dir=np.zeros((0, 3), np.float32),
                          type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
                          valid=np.zeros(0, bool))
-    n = sum(len(p) for p in xyz)
-    return Roadgraph(xyz=np.concatenate(xyz).astype(np.float32),
-                     dir=np.concatenate(dirs).astype(np.float32),
-                     type=np.concatenate(types), id=np.concatenate(ids).astype(np.int32),
-                     valid=np.ones(n, bool))
+    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
+    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
+    return Roadgraph(xyz=points.astype(np.float32),
+                     dir=polyline_directions(points, poly).astype(np.float32),
+                     type=np.asarray(types, np.int32)[poly],
+                     id=np.asarray(ids, np.int64)[poly].astype(np.int32),
+                     valid=np.ones(len(points), bool))
 
 
 def _decode_lights(dynamic_states) -> TrafficLights:

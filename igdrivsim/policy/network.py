@@ -116,14 +116,16 @@ def init_params(config: PolicyConfig, key: jax.Array, example_obs) -> dict:
     return model.init(key, initial_carry(config), example_obs, jnp.zeros((), bool))
 
 
+_jit_init = jax.jit(init_params, static_argnums=0)
+
+
 def init_params_per_seed(config: PolicyConfig, keys: jax.Array, example_obs) -> dict:
     """Parameters for each key, stacked on a leading seed axis.
 
     Seeds are initialised one by one and stacked (vmapping the orthogonal initialiser of the
     GRU was seen to hang).
     """
-    init = jax.jit(lambda k: init_params(config, k, example_obs))
-    per_seed = [init(k) for k in keys]
+    per_seed = [_jit_init(config, k, example_obs) for k in keys]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_seed)
 
 

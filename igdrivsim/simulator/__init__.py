@@ -18,7 +18,26 @@ from igdrivsim.simulator.dynamics import (
     undiscretize,
     validate_actions,
 )
+from igdrivsim.simulator.expert import expert_action, expert_discrete_action
+from igdrivsim.simulator.metrics import (
+    ScenarioMetrics,
+    StepMetrics,
+    log_divergence,
+    mean_log_divergence,
+    offroad,
+    overlap,
+    reward,
+    scenario_metrics,
+    step_metrics,
+)
 from igdrivsim.simulator.roadgraph import RoadEdges, crop_roadgraph
+from igdrivsim.simulator.rollout import (
+    ACTORS,
+    constant_velocity_actor,
+    expert_actor,
+    jit_rollout,
+    rollout,
+)
 from igdrivsim.simulator.state import (
     ObjectState,
     SdcTrajectory,
@@ -32,6 +51,10 @@ from igdrivsim.simulator.state import (
 )
 
 __all__ = [
+    "ACTORS", "ScenarioMetrics", "StepMetrics", "constant_velocity_actor", "expert_action",
+    "expert_actor", "expert_discrete_action", "jit_rollout", "log_divergence",
+    "mean_log_divergence", "offroad", "overlap", "reward", "rollout", "scenario_metrics",
+    "step_metrics",
     "ACTION_HIGH", "ACTION_LOW", "NUM_BINS", "NUM_LEVELS", "ObjectState", "RoadEdges",
     "SdcTrajectory", "SimParams", "SimState", "clip_action", "crop_roadgraph", "current_objects",
     "delta_global", "delta_local", "discretize", "inverse_delta_global", "inverse_delta_local",

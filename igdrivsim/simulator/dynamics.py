@@ -43,7 +43,8 @@ def validate_actions(action) -> None:
     """Host-side check: raise :class:`DataError` if any action is NaN or infinite."""
     a = np.asarray(action)
     if a.shape[-1:] != (3,):
-        raise DataError(f"actions must have a trailing dimension of 3 (dx, dy, dyaw), got {a.shape}")
+        raise DataError("actions must have a trailing dimension of 3 (dx, dy, dyaw), "
+                        f"got {a.shape}")
     bad = ~np.isfinite(a)
     if bad.any():
         where = tuple(int(i) for i in np.argwhere(bad)[0])

@@ -43,8 +43,9 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
+    decode_scenario_id,
 )
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.roadgraph import RoadEdges, crop_roadgraph
 
@@ -155,8 +156,34 @@ def _vmap_batch(fn, n: int):
     return fn
 
 
+def check_scenario(scenario: Scenario) -> None:
+    """Host-side check (NumPy inputs) that each scenario of a batch can be simulated: exactly one
+    SDC, valid at the current step (10), and 91 steps. Raises :class:`DataError` naming the
+    scenario (batch index and id)."""
+    is_sdc = np.asarray(scenario.metadata.is_sdc)
+    steps = np.shape(scenario.trajectory.x)[-1]
+    if steps != NUM_STEPS:
+        raise DataError(f"trajectories have {steps} steps, the simulator needs {NUM_STEPS}")
+    count = is_sdc.sum(axis=-1)
+    valid = np.asarray(scenario.trajectory.valid)[..., CURRENT_INDEX]
+    sdc_valid = (valid & is_sdc).any(axis=-1)
+    ids = np.asarray(scenario.scenario_id).reshape(-1, np.shape(scenario.scenario_id)[-1])
+    for flat, (n, ok) in enumerate(zip(count.reshape(-1), sdc_valid.reshape(-1), strict=True)):
+        where = f"scenario {decode_scenario_id(ids[flat])!r} (batch index {flat})"
+        if n != 1:
+            raise DataError(f"{where}: needs exactly one SDC (is_sdc), found {int(n)}")
+        if not ok:
+            raise DataError(f"{where}: the SDC is invalid at the current step {CURRENT_INDEX}")
+
+
 def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
-    """The state at timestep 10 (warm-up replayed from the log) with the roadgraph cropped."""
+    """The state at timestep 10 (warm-up replayed from the log) with the roadgraph cropped.
+
+    Concrete (host) inputs are checked with :func:`check_scenario` first; under ``jit`` a
+    scenario without an SDC uses slot 0 and an invalid SDC yields invalid metrics.
+    """
+    if not any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(scenario)):
+        check_scenario(scenario)
     sc = jax.tree.map(jnp.asarray, scenario)
     traj = sc.trajectory
     sdc_index = jnp.argmax(sc.metadata.is_sdc, axis=-1).astype(jnp.int32)
@@ -195,6 +222,11 @@ def log_sdc_at(state: SimState, t):
     i = state.sdc_index
     lg = state.log
     return tuple(_at_time(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
+
+
+def log_sdc_row(state: SimState) -> Trajectory:
+    """The SDC's logged trajectory ``[..., T]`` (every :class:`Trajectory` field)."""
+    return jax.tree.map(lambda a: _row(a, state.sdc_index), state.log)
 
 
 def _check_concrete_action(action) -> None:

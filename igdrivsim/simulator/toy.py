@@ -21,7 +21,7 @@ from igdrivsim.data.scenario import (
 
 
 def add_polyline(sc: Scenario, start: int, xy: np.ndarray, rg_type: int, poly_id: int) -> int:
-    """Write polyline points ``xy [N, 2]`` at slot ``start`` (dir to the next point); -> next slot."""
+    """Write polyline ``xy [N, 2]`` at slot ``start`` (dir to the next point); -> next slot."""
     rg = sc.roadgraph
     n = len(xy)
     d = np.zeros((n, 2), np.float32)
@@ -51,7 +51,10 @@ def set_object(sc: Scenario, slot: int, x, y, yaw, *, length=4.5, width=2.0, sdc
     md.is_sdc[slot] = sdc
 
 
-def straight_road(caps: Capacities = Capacities(max_objects=8, max_roadgraph_points=600),
+TOY_CAPS = Capacities(max_objects=8, max_roadgraph_points=600)
+
+
+def straight_road(caps: Capacities = TOY_CAPS,
                   speed: float = 10.0, half_width: float = 5.0, spacing: float = 1.0,
                   scenario_id: str = "toy-straight") -> Scenario:
     """A straight road ``y in [-half_width, half_width]``, SDC (slot 0) along ``y = 0`` at

@@ -28,7 +28,8 @@ class DataConfig:
     max_scenarios: int = 0  # use at most this many scenarios (0: all)
     max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
     max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (near the SDC path)
-    crop_radius: float = 150.0  # metres around the logged SDC path for the load-time crop
+    crop_radius: float = 150.0  # metres around the logged SDC path for the crop at reset
+    roadgraph_capacity: int = 6144  # roadgraph points the simulator keeps after that crop
     prefetch: int = 2  # batches prepared ahead by the background thread
     cache_dir: str = ""  # where decoded+cropped scenarios are cached as .npz ('' = no cache)
 

@@ -1,0 +1,105 @@
+"""``igdrivsim bench data``: scenarios/s read + decoded (+ fitted to capacities) and filtered.
+
+Default input: the real WOMD samples in ``../shared/data/womd`` tiled into temporary shards
+(the tf.Example sample ``--records`` times over ``--shards`` shards; the Scenario-protobuf
+sample a tenth as often). Each measurement runs once in one process and once with ``--workers``
+spawned processes; rates are given with and without the worker start-up time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from igdrivsim.errors import ConfigError, DataError
+
+DEFAULT_SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "womd"
+
+
+def bench_data_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("paths", nargs="*", metavar="PATH",
+                        help="WOMD files/folders/globs/name@N (default: tiled real samples)")
+    parser.add_argument("--samples", default=str(DEFAULT_SAMPLES),
+                        help="folder with the real samples to tile (default: %(default)s)")
+    parser.add_argument("--records", type=int, default=400,
+                        help="tf.Example records to tile (default: %(default)s)")
+    parser.add_argument("--shards", type=int, default=4, help="shards to tile them into")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                        help="worker processes for the parallel runs (default: all CPUs)")
+    parser.add_argument("--out", default=None, help="also write the results to this JSON file")
+
+
+def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, list[str]]:
+    """Write the real samples repeated into ``folder``: ``{format: [shard paths]}``."""
+    from igdrivsim.data import tfrecord
+
+    out = {}
+    for fmt, name, n in (("tf_example", "motion_data_one_example.tfrecord", records),
+                         ("scenario_proto", "motion_data_one_scenario.tfrecord",
+                          max(1, records // 10))):
+        path = samples / name
+        if not path.is_file():
+            raise DataError("real sample not found (pass PATH or --samples)", file=str(path))
+        data = tfrecord.read_record(path, 0)
+        k = max(1, min(shards, n))
+        files = [os.path.join(folder, f"{fmt}.tfrecord-{i:05d}-of-{k:05d}") for i in range(k)]
+        for i, f in enumerate(files):
+            tfrecord.write_records(f, [data] * (n // k + (i < n % k)))
+        out[fmt] = files
+    return out
+
+
+def _time_read(paths, workers: int) -> dict:
+    from igdrivsim.data.reader import iter_scenarios
+
+    start = time.perf_counter()
+    first = None
+    n = 0
+    for _ in iter_scenarios(paths, workers=workers, chunk=8):
+        n += 1
+        if first is None:
+            first = time.perf_counter()
+    end = time.perf_counter()
+    steady = n - 1 if n > 1 else 0
+    return {"scenarios": n, "wall_s": round(end - start, 3),
+            "scenarios_per_s": round(n / (end - start), 1),
+            "scenarios_per_s_after_startup": round(steady / (end - first), 1) if steady else None}
+
+
+def _time_filter(paths, workers: int, folder: str) -> dict:
+    from igdrivsim.data.filter import run_filter
+
+    out = tempfile.mkdtemp(prefix="filter-", dir=folder)
+    start = time.perf_counter()
+    counts = run_filter(paths, out, workers=workers, progress=False)
+    wall = time.perf_counter() - start
+    return {"scenarios": counts["scenarios"], "wall_s": round(wall, 3),
+            "scenarios_per_s": round(counts["scenarios"] / wall, 1)}
+
+
+def bench_data_command(args: argparse.Namespace) -> int:
+    from igdrivsim.data.manifest import write_json
+
+    if args.records < 1 or args.shards < 1 or args.workers < 1:
+        raise ConfigError("--records, --shards and --workers must be >= 1")
+    results = {"cpu_count": os.cpu_count(), "workers": args.workers, "runs": []}
+    with tempfile.TemporaryDirectory(prefix="igdrivsim-bench-data-") as folder:
+        if args.paths:
+            inputs = {"given": list(args.paths)}
+        else:
+            inputs = _tile(Path(args.samples), args.records, args.shards, folder)
+        for fmt, paths in inputs.items():
+            for what, fn in (("read", lambda p, w: _time_read(p, w)),
+                             ("filter", lambda p, w: _time_filter(p, w, folder))):
+                for workers in sorted({1, args.workers}):
+                    row = {"input": fmt, "what": what, "workers": workers,
+                           **fn(paths, workers if workers > 1 else 0)}
+                    results["runs"].append(row)
+                    print(json.dumps(row), flush=True)
+    if args.out:
+        write_json(args.out, results)
+    return 0

@@ -1,0 +1,168 @@
+"""Filter manifests: ``manifest.jsonl`` (one line per scenario) and ``counts.json``.
+
+A manifest line is ``{"file", "record", "scenario_id", "sdc_mean_speed", "interactive",
+"objects_of_interest", "kept"}``: ``file`` is an absolute path (a relative one is resolved
+against the manifest's folder), ``record`` the record index in that TFRecord file,
+``objects_of_interest`` the number of objects WOMD flags. The training input pipeline and the
+evaluation read the kept scenarios with :func:`read_manifest` + :func:`load_manifest_scenarios`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Iterator
+
+from igdrivsim.data.reader import iter_file
+from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
+from igdrivsim.data.tfrecord import atomic_path
+from igdrivsim.errors import DataError
+
+MANIFEST, COUNTS = "manifest.jsonl", "counts.json"
+FIELDS = ("file", "record", "scenario_id", "sdc_mean_speed", "interactive",
+          "objects_of_interest", "kept")
+
+
+def write_json(path: str | os.PathLike, obj) -> None:
+    """Write ``obj`` as indented JSON, atomically."""
+    with atomic_path(path, "w") as f:
+        json.dump(obj, f, indent=2, sort_keys=True)
+        f.write("\n")
+
+
+def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
+    """Write manifest lines (fields in :data:`FIELDS` order) atomically; returns the count."""
+    n = 0
+    with atomic_path(path, "w") as f:
+        for entry in entries:
+            f.write(json.dumps({k: entry[k] for k in FIELDS}) + "\n")
+            n += 1
+    return n
+
+
+def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]:
+    """Manifest entries from a ``manifest.jsonl`` file or a folder holding one.
+
+    ``kept_only`` returns only the scenarios the filter kept. Raises :class:`DataError` naming the
+    line for a missing file, bad JSON or a missing field.
+    """
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        path = os.path.join(path, MANIFEST)
+    if not os.path.isfile(path):
+        raise DataError("no filter manifest here (run `igdrivsim filter` first)", file=path)
+    base = os.path.dirname(os.path.abspath(path))
+    entries = []
+    with open(path) as f:
+        for line_no, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError as err:
+                raise DataError(f"line {line_no}: bad JSON ({err.msg})", file=path) from None
+            missing = [k for k in FIELDS if k not in entry] if isinstance(entry, dict) else FIELDS
+            if missing:
+                raise DataError(f"line {line_no}: missing field(s) {', '.join(missing)}",
+                                file=path)
+            entry["file"] = os.path.normpath(os.path.join(base, entry["file"]))
+            entry["record"] = int(entry["record"])
+            entry["line"] = line_no
+            if entry["kept"] or not kept_only:
+                entries.append(entry)
+    return entries
+
+
+def _load_records(file: str, records: list[int], caps: Capacities | None
+                  ) -> list[tuple[int, Scenario]]:
+    """Records ``records`` (sorted) of one file, read in one forward pass."""
+    if not os.path.isfile(file):
+        raise DataError("manifest points at a missing file", file=file)
+    wanted = set(records)
+    found = {rec.record: rec.scenario
+             for rec in iter_file(file, caps, start=records[0], stop=records[-1] + 1)
+             if rec.record in wanted}
+    absent = [r for r in records if r not in found]
+    if absent:
+        raise DataError("manifest points at a record the file does not have", file=file,
+                        record=absent[0])
+    return [(r, found[r]) for r in records]
+
+
+def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
+                            workers: int = 0, chunk: int = 32, check_ids: bool = True,
+                            progress: bool = False) -> Iterator[tuple[dict, Scenario]]:
+    """Stream ``(entry, scenario)`` for manifest ``entries``, grouped by file (files in order of
+    first appearance, records ascending): each file is read once, front to back.
+
+    ``workers > 1`` decodes chunks of ``chunk`` records in that many processes (at most
+    ``2 * workers`` chunks in flight, same order). With ``check_ids`` the scenario id stored in
+    the manifest must match the record's. Raises :class:`DataError` naming the file and record
+    when an entry points at a missing file or record.
+    """
+    groups: dict[str, dict[int, dict]] = {}
+    for e in entries:
+        groups.setdefault(os.fspath(e["file"]), {})[int(e["record"])] = e
+    tasks = []
+    for file, by_record in groups.items():
+        records = sorted(by_record)
+        tasks += [(file, records[i:i + chunk]) for i in range(0, len(records), chunk)]
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn")
+    try:
+        for file, loaded in _run_tasks(tasks, caps, workers):
+            for record, scenario in loaded:
+                entry = groups[file][record]
+                if check_ids and "scenario_id" in entry:
+                    sid = decode_scenario_id(scenario.scenario_id)
+                    if sid != entry["scenario_id"]:
+                        raise DataError(f"scenario id is {sid!r}, the manifest says "
+                                        f"{entry['scenario_id']!r}", file=file, record=record)
+                if bar is not None:
+                    bar.update()
+                yield entry, scenario
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _run_tasks(tasks, caps, workers: int):
+    if workers <= 1:
+        for file, records in tasks:
+            yield file, _load_records(file, records, caps)
+        return
+    from igdrivsim.data.reader import process_pool
+
+    with process_pool(workers) as pool:
+        pending = []
+        todo = iter(tasks)
+        for file, records in todo:
+            pending.append((file, pool.submit(_load_records, file, records, caps)))
+            if len(pending) >= 2 * workers:
+                break
+        try:
+            while pending:
+                file, fut = pending.pop(0)
+                nxt = next(todo, None)
+                if nxt is not None:
+                    pending.append((nxt[0], pool.submit(_load_records, nxt[0], nxt[1], caps)))
+                yield file, fut.result()
+        finally:
+            for _, fut in pending:
+                fut.cancel()
+
+
+def load_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
+                            check_ids: bool = True, workers: int = 0,
+                            progress: bool = False) -> list[Scenario]:
+    """The scenarios of manifest ``entries`` in the given order, fitted to ``caps``; each file
+    is read once, in record order (see :func:`iter_manifest_scenarios`). Holds them all in
+    memory (about 1 MB each at WOMD capacities): stream with the iterator for big sets."""
+    entries = list(entries)
+    found = {(os.fspath(e["file"]), int(e["record"])): s
+             for e, s in iter_manifest_scenarios(entries, caps, workers, check_ids=check_ids,
+                                                 progress=progress)}
+    return [found[(os.fspath(e["file"]), int(e["record"]))] for e in entries]

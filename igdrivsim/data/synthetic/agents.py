@@ -1,0 +1,235 @@
+"""Agents and their longitudinal planner: IDM car-following over a space-time occupancy map.
+
+Agents are planned one after the other in priority order. An agent sees every agent planned
+before it: a vehicle ahead on its route (car following, with that vehicle's speed), and cross
+traffic that will occupy a point of its route before it could clear that point (yielding: the
+point acts as a stopped obstacle). Curves are anticipated through a speed profile limited by
+lateral acceleration and comfortable braking, so the expert slows early for what is far ahead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from igdrivsim.data.scenario import DT, NUM_STEPS, TYPE_VEHICLE
+from igdrivsim.data.synthetic import geometry as geo
+from igdrivsim.data.synthetic.maps import Route
+
+T = NUM_STEPS
+LOOKAHEAD = 120.0  # m of route an agent watches ahead
+A_LAT = 2.2  # m/s^2 comfortable lateral acceleration in curves
+B_MAX = 7.0  # m/s^2 hardest braking
+
+
+@dataclass
+class Agent:
+    """One object: its route, size, driver parameters and (once planned) its trajectory."""
+
+    route: Route
+    s0: float
+    v0: float
+    length: float
+    width: float
+    height: float
+    obj_type: int = TYPE_VEHICLE
+    v_des: float = 12.0
+    accel: float = 1.5  # IDM a
+    brake: float = 2.0  # IDM b (comfortable)
+    headway: float = 1.4  # IDM T
+    min_gap: float = 2.5  # IDM s0
+    static: bool = False  # stands still for the whole log
+    walker: bool = False  # constant-speed pedestrian, ignores others
+    start_step: int = 0  # walkers: first step in motion
+    stop_window: tuple[int, int] | None = None  # braking leader: stop during these steps
+    lateral: tuple[float, float, float] = (0.0, 60.0, 0.0)  # amplitude, wavelength, phase
+    is_sdc: bool = False
+    role: str = "background"
+    # filled by plan()
+    s: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    xy: np.ndarray | None = None
+    yaw: np.ndarray | None = None
+    speed: np.ndarray | None = None
+
+
+def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
+    """Desired speed at each route point: the limit, the curve limit sqrt(A_LAT / |kappa|), and
+    braking early enough (at ``brake``) for every slower point ahead."""
+    kappa = np.abs(geo.curvature(route.points))
+    kappa = np.convolve(np.pad(kappa, 3, mode="edge"), np.ones(7) / 7, "valid")
+    v = np.minimum(v_des, np.sqrt(A_LAT / np.maximum(kappa, 1e-6)))
+    s = route.s
+    # v[k]^2 <= v[j]^2 + 2 b (s_j - s_k) for all j >= k: a reversed running minimum.
+    reach = np.minimum.accumulate((v**2 + 2 * brake * s)[::-1])[::-1]
+    v = np.sqrt(np.maximum(reach - 2 * brake * s, 0.0))
+    return v
+
+
+def _occupancy(agent: Agent, s_route: np.ndarray, yaw_route: np.ndarray, other: Agent):
+    """Where and when ``other`` covers ``agent``'s route: ``(rows, occ [k, T], along [k, T])``.
+
+    ``along`` is other's speed along the route direction (NaN where its heading is not aligned,
+    i.e. it is cross traffic). ``rows`` indexes route points near other's path (pruned)."""
+    pts = agent.route.points
+    xy, yaw = other.xy, other.yaw
+    lo, hi = xy[other.valid].min(0) - 8, xy[other.valid].max(0) + 8
+    rows = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+    if len(rows) == 0:
+        return rows, None, None
+    d = pts[rows, None, :] - xy[None]
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx = np.abs(d[..., 0] * c + d[..., 1] * s) - other.length / 2
+    dy = np.abs(-d[..., 0] * s + d[..., 1] * c) - other.width / 2
+    dist = np.maximum(dx, dy)
+    occ = (dist < agent.width / 2 + 0.4) & other.valid[None]
+    if not occ.any():
+        return rows[:0], None, None
+    keep = occ.any(1)
+    rows, occ = rows[keep], occ[keep]
+    cosang = np.cos(yaw[None] - yaw_route[rows, None])
+    along = np.where(cosang > 0.75, other.speed[None] * cosang, np.nan)
+    return rows, occ, along
+
+
+def plan(agent: Agent, planned: list[Agent]) -> None:
+    """Fill ``agent.s/valid/xy/yaw`` by simulating IDM against the already ``planned`` agents."""
+    route = agent.route
+    s_route = route.s
+    s = np.empty(T)
+    if agent.static or agent.walker:
+        speed = 0.0 if agent.static else agent.v0
+        moving = np.clip(np.arange(T) - agent.start_step, 0, None) * DT
+        s[:] = agent.s0 + speed * moving
+    else:
+        s[:] = _simulate(agent, s_route, planned)
+    _pose(agent, s, s_route)
+
+
+def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
+    yaw_route = agent.route.yaw
+    v_prof = speed_profile(agent.route, agent.v_des, agent.brake)
+    follow_rows, follow_t, follow_v = [], [], []
+    cross_rows, cross_occ = [], []
+    for other in planned:
+        rows, occ, along = _occupancy(agent, s_route, yaw_route, other)
+        if len(rows) == 0:
+            continue
+        k, t = np.nonzero(occ & ~np.isnan(along))
+        follow_rows.append(rows[k]), follow_t.append(t), follow_v.append(along[k, t])
+        cross = occ & np.isnan(along)
+        if cross.any():
+            keep = cross.any(1)
+            cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
+    # Follow obstacles per step: sorted route distances and leader speeds.
+    follow = [(np.empty(0), np.empty(0))] * T
+    if follow_rows:
+        k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
+        order = np.lexsort((k, t))
+        k, t, v = k[order], t[order], v[order]
+        bounds = np.searchsorted(t, np.arange(T + 1))
+        follow = [(s_route[k[bounds[i]:bounds[i + 1]]], v[bounds[i]:bounds[i + 1]])
+                  for i in range(T)]
+    if cross_rows:
+        c_rows = np.concatenate(cross_rows)
+        occ = np.concatenate(cross_occ, 0)
+        times = np.where(occ, np.arange(T)[None], 10 * T).astype(float)
+        next_occ = np.minimum.accumulate(times[:, ::-1], axis=1)[:, ::-1]  # first step >= t
+        c_s = s_route[c_rows]
+    half = agent.length / 2
+    sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
+    pos, v = agent.s0, agent.v0
+    stop_at = 0.0
+    inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
+    out = np.empty(T)
+    for t in range(T):
+        out[t] = pos
+        front = pos + half
+        gap, v_lead = LOOKAHEAD, v
+        ks, vs = follow[t]
+        if len(ks):  # sorted: the first occupied point ahead of our front bumper
+            i = int(np.searchsorted(ks, front - 0.5, side="right"))
+            if i < len(ks) and ks[i] < front + LOOKAHEAD:
+                gap, v_lead = ks[i] - front, max(vs[i], 0.0)
+        if cross_rows:
+            dist = c_s - front
+            commit = v * v / (2 * B_MAX * 0.6)
+            cand = (dist > commit) & (dist < LOOKAHEAD)
+            if cand.any():
+                d = dist[cand]
+                eta = d / np.maximum(v, np.sqrt(agent.accel * d))
+                clear = (agent.length + 4.0) / max(v, 3.0) + 1.0
+                hit = next_occ[cand, t] <= t + (eta + clear) / DT
+                if hit.any():
+                    g = d[hit].min() - 1.5
+                    if g < gap:
+                        gap, v_lead = g, 0.0
+        if agent.stop_window is not None and agent.stop_window[0] <= t < agent.stop_window[1]:
+            if t == agent.stop_window[0]:
+                stop_at = pos + max(v * v / (2 * agent.brake * 1.3), 3.0) + half
+            g = stop_at - front
+            if g < gap:
+                gap, v_lead = g, 0.0
+        k = min(max(int(pos * inv_ds + 0.5), 0), last)
+        v_d = max(v_prof[k], 0.1)
+        s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
+        acc = agent.accel * (1 - (v / v_d) ** 4 - (s_star / max(gap, 0.1)) ** 2)
+        acc = min(max(acc, -B_MAX), agent.accel)
+        v_new = max(v + acc * DT, 0.0)
+        pos += 0.5 * (v + v_new) * DT
+        v = v_new
+    return out
+
+
+def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
+    """Positions and headings along the route, with a smooth lateral wander (human-like)."""
+    pts = agent.route.points
+    valid = (s >= 0) & (s <= s_route[-1] - 0.5)
+    sc = np.clip(s, 0, s_route[-1])
+    x, y = np.interp(sc, s_route, pts[:, 0]), np.interp(sc, s_route, pts[:, 1])
+    yaw_r = np.interp(sc, s_route, agent.route.yaw)
+    amp, wave, phase = agent.lateral
+    k = 2 * np.pi / wave
+    off = amp * np.sin(k * sc + phase)
+    slope = amp * k * np.cos(k * sc + phase)
+    nx, ny = -np.sin(yaw_r), np.cos(yaw_r)
+    agent.s, agent.valid = s, valid
+    agent.xy = np.stack([x + off * nx, y + off * ny], 1)
+    agent.yaw = yaw_r + np.arctan(slope)
+    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
+
+
+def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
+    """Corners ``[..., 4, 2]`` of oriented boxes."""
+    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
+    lx = np.array([1, 1, -1, -1]) * np.asarray(length)[..., None] / 2
+    ly = np.array([1, -1, -1, 1]) * np.asarray(width)[..., None] / 2
+    return np.stack([xy[..., None, 0] + lx * c - ly * s, xy[..., None, 1] + lx * s + ly * c], -1)
+
+
+def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Separating-axis test for convex quads given as corners ``[..., 4, 2]``."""
+    hit = np.ones(a.shape[:-2], bool)
+    for poly in (a, b):
+        edges = np.roll(poly, -1, axis=-2) - poly
+        axes = np.stack([-edges[..., 1], edges[..., 0]], -1)[..., :2, :]  # 2 axes per rectangle
+        for i in range(2):
+            ax = axes[..., i, None, :]
+            pa, pb = (a * ax).sum(-1), (b * ax).sum(-1)
+            hit &= (pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))
+    return hit
+
+
+def collides(a: Agent, b: Agent) -> bool:
+    """Whether two planned agents' boxes overlap at some step where both are valid."""
+    both = a.valid & b.valid
+    if not both.any():
+        return False
+    reach = (np.hypot(a.length, a.width) + np.hypot(b.length, b.width)) / 2
+    near = both & (np.linalg.norm(a.xy - b.xy, axis=1) < reach)
+    if not near.any():
+        return False
+    ca = box_corners(a.xy[near], a.yaw[near], a.length, a.width)
+    cb = box_corners(b.xy[near], b.yaw[near], b.length, b.width)
+    return bool(boxes_overlap(ca, cb).any())

@@ -1,0 +1,80 @@
+"""Pictures of scenarios: road edges, lanes, lines, crosswalks, agents' boxes and trajectories."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from igdrivsim.data.scenario import (
+    CURRENT_INDEX,
+    RG_CROSSWALK,
+    RG_ROAD_EDGE_TYPES,
+    TYPE_PEDESTRIAN,
+    Scenario,
+    decode_scenario_id,
+)
+
+_LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
+
+
+def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
+    """Draw one (unbatched) scenario on a matplotlib axis, centred on the SDC at step 10."""
+    from matplotlib.patches import Polygon
+
+    rg, tr, md = scenario.roadgraph, scenario.trajectory, scenario.metadata
+    xy, t, ids = np.asarray(rg.xyz)[:, :2], np.asarray(rg.type), np.asarray(rg.id)
+    ok = np.asarray(rg.valid)
+    styles = [(_LANES, dict(color="0.75", lw=0.6, ls="--")), (_LINES, dict(color="goldenrod",
+              lw=0.7)), (RG_ROAD_EDGE_TYPES, dict(color="black", lw=1.3)),
+              ((RG_CROSSWALK,), dict(color="tab:blue", lw=0.8))]
+    for types, style in styles:
+        sel = ok & np.isin(t, types)
+        for pid in np.unique(ids[sel]):
+            p = xy[sel & (ids == pid)]
+            ax.plot(p[:, 0], p[:, 1], **style)
+    sdc = int(np.argmax(np.asarray(md.is_sdc)))
+    x, y, yaw = (np.asarray(a) for a in (tr.x, tr.y, tr.yaw))
+    valid = np.asarray(tr.valid)
+    now = CURRENT_INDEX
+    for i in np.flatnonzero(np.asarray(md.valid)):
+        color = "tab:red" if i == sdc else ("tab:green" if md.object_type[i] == TYPE_PEDESTRIAN
+                                            else "tab:blue")
+        v = valid[i]
+        ax.plot(x[i, v], y[i, v], color=color, lw=1.6 if i == sdc else 0.8, alpha=0.7)
+        if v[now]:
+            c, s = np.cos(yaw[i, now]), np.sin(yaw[i, now])
+            half = np.array([tr.length[i, now], tr.width[i, now]]) / 2
+            box = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * half
+            box = box @ np.array([[c, s], [-s, c]]) + [x[i, now], y[i, now]]
+            ax.add_patch(Polygon(box, closed=True, fc=color, ec="black", lw=0.5,
+                                 alpha=1.0 if i == sdc else 0.6))
+    cx, cy = x[sdc, now], y[sdc, now]
+    ax.set_xlim(cx - radius, cx + radius)
+    ax.set_ylim(cy - radius, cy + radius)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title(decode_scenario_id(scenario.scenario_id), fontsize=8)
+
+
+def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
+    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` (k from 1), written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    os.makedirs(out_dir, exist_ok=True)
+    paths = []
+    for k, scenario in enumerate(scenarios, 1):
+        fig, ax = plt.subplots(figsize=(5, 5), dpi=110)
+        draw_scenario(ax, scenario)
+        fig.tight_layout()
+        path = os.path.join(out_dir, f"{prefix}_{k}.png")
+        tmp = path + ".tmp.png"
+        fig.savefig(tmp)
+        plt.close(fig)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths

@@ -1,0 +1,235 @@
+"""``igdrivsim evaluate`` and ``igdrivsim report``.
+
+``igdrivsim evaluate RUN_DIR --data DIR --out DIR [--greedy] [--references]`` evaluates every
+seed of a trained run on the validation scenarios of ``DIR`` under the run's own observation
+setting and writes ``OUT/per_step.csv``, ``OUT/per_scenario.csv`` and ``OUT/eval_config.json``.
+``--references`` also (or, without RUN_DIR, only) evaluates the discretised expert replay and the
+constant-velocity baseline (into ``OUT/references/`` when a run is evaluated too).
+
+``igdrivsim report --evals DIR... --out DIR`` aggregates every evaluation found under the
+``--evals`` folders into Table I, the comparison with the paper and Fig. 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from pathlib import Path
+
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.evaluation.io import atomic_write_csv, atomic_write_text
+
+EVAL_CONFIG = "eval_config.json"
+
+
+# ------------------------------------------------------------------------------ data, runs
+def load_validation(data: str, caps, max_scenarios: int = 0):
+    """Stacked validation scenarios ``[N]`` from a filter output folder (``manifest.jsonl``:
+    the kept scenarios) or from WOMD files (file, folder, glob, ``name@N``)."""
+    from igdrivsim.data import read_scenarios, stack_scenarios
+
+    path = Path(data)
+    if (path / "manifest.jsonl").is_file():
+        from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
+
+        entries = read_manifest(path / "manifest.jsonl", kept_only=True)
+        if max_scenarios:
+            entries = entries[:max_scenarios]
+        scenarios = load_manifest_scenarios(entries, caps)
+    else:
+        if not path.exists() and not any(ch in data for ch in "*?@"):
+            raise DataError("validation data not found", file=data)
+        scenarios = []
+        for sc in read_scenarios(data, caps):
+            scenarios.append(sc)
+            if max_scenarios and len(scenarios) >= max_scenarios:
+                break
+    if not scenarios:
+        raise DataError("no validation scenarios (empty manifest or no records)", file=data)
+    return stack_scenarios(scenarios)
+
+
+def load_trained(run_dir: str):
+    """``(RunConfig, stacked parameters [S], seed list)`` of a training run folder."""
+    from igdrivsim.training.loop import load_run
+
+    config, params = load_run(run_dir)
+    seeds = list(range(config.training.seed_offset,
+                       config.training.seed_offset + config.training.seeds))
+    return config, params, seeds
+
+
+def data_capacities(config):
+    from igdrivsim.data import Capacities
+
+    return Capacities(max_objects=config.data.max_objects,
+                      max_roadgraph_points=config.data.max_roadgraph_points)
+
+
+def _bar(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="scenario", disable=not enabled,
+                file=sys.stderr, dynamic_ncols=True)
+
+
+# -------------------------------------------------------------------------------- evaluate
+def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="*", metavar="RUN_DIR",
+                        help="training run folder(s) (config.json + checkpoints); one output "
+                             "sub-folder per run when several are given")
+    parser.add_argument("--data", required=True,
+                        help="validation data: a filter output folder (manifest.jsonl) or WOMD "
+                             "files (file, folder, glob, name@N)")
+    parser.add_argument("--out", required=True, help="output folder for the tidy CSVs")
+    parser.add_argument("--greedy", action="store_true",
+                        help="take the most likely action level (default: sample, as the paper)")
+    parser.add_argument("--references", action="store_true",
+                        help="also evaluate the discretised expert and constant velocity")
+    parser.add_argument("--like", default=None, metavar="RUN_DIR",
+                        help="for --references without RUN_DIR: use this run's data "
+                             "capacities and simulator settings")
+    parser.add_argument("--max-scenarios", type=int, default=0,
+                        help="evaluate at most this many validation scenarios (0: all)")
+    parser.add_argument("--batch-size", type=int, default=32, help="scenarios per batch")
+    parser.add_argument("--seed", type=int, default=0, help="evaluation key (actions, noise)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
+                 max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
+                 progress: bool = True, scenarios=None) -> Path:
+    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
+
+    ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``.
+    """
+    from igdrivsim.evaluation.rollout import evaluate_policy, scenario_ids_of, tidy_frames
+    from igdrivsim.observation import ObservationConfig
+    from igdrivsim.training.update import sim_params
+
+    if batch_size < 1:
+        raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
+    config, params, seeds = load_trained(run_dir)
+    if scenarios is None:
+        scenarios = load_validation(data, data_capacities(config), max_scenarios)
+    ids = scenario_ids_of(scenarios)
+    setting, method = config.observation.setting, config.training.method
+    obs_config = ObservationConfig(config.observation.num_objects,
+                                   config.observation.num_roadgraph_points)
+    with _bar(len(ids), f"evaluate {setting}/{method}", progress) as bar:
+        outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
+                                  setting=setting, obs_config=obs_config,
+                                  params=sim_params(config), greedy=greedy,
+                                  batch_size=batch_size, seed=seed, progress=bar.update)
+    per_step, per_scenario = tidy_frames(outputs, ids, setting, method, seeds)
+    return _write(out, per_step, per_scenario, dict(
+        run=str(run_dir), data=str(data), setting=setting, method=method, seeds=seeds,
+        profile=config.profile, greedy=greedy, eval_seed=seed, num_scenarios=len(ids),
+        sim=dataclasses.asdict(sim_params(config))))
+
+
+def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
+                        max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
+                        scenarios=None) -> Path:
+    """Evaluate the discretised expert and constant velocity; write their tidy CSVs."""
+    from igdrivsim.data import Capacities
+    from igdrivsim.evaluation.rollout import reference_frames
+    from igdrivsim.simulator import SimParams
+
+    caps = caps or Capacities()
+    sim = sim or SimParams()
+    if scenarios is None:
+        scenarios = load_validation(data, caps, max_scenarios)
+    n = int(scenarios.scenario_id.shape[0])
+    with _bar(2 * n, "evaluate references", progress) as bar:
+        per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
+                                                  progress=bar.update)
+    return _write(out, per_step, per_scenario, dict(
+        references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim)))
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise DataError(f"cannot read JSON ({err})", file=str(path)) from err
+
+
+def _write(out, per_step, per_scenario, info: dict) -> Path:
+    out = Path(out)
+    atomic_write_csv(out / "per_step.csv", per_step.round(6))
+    atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
+    atomic_write_text(out / EVAL_CONFIG, json.dumps(info, indent=2, sort_keys=True) + "\n")
+    return out
+
+
+def evaluate_command(args: argparse.Namespace) -> int:
+    if not args.runs and not args.references:
+        raise ConfigError("give at least one RUN_DIR, or --references")
+    for run in args.runs:
+        if not (Path(run) / "config.json").is_file():
+            raise DataError("not a training run folder (no config.json)", file=run)
+    progress = not args.no_progress
+    for run in args.runs:
+        out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
+        evaluate_run(run, args.data, out, args.greedy, args.max_scenarios, args.batch_size,
+                     args.seed, progress)
+        print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
+    if args.references:
+        sim = caps = None
+        like = args.runs[0] if args.runs else args.like
+        if like:  # the same capacities and simulator settings as that run
+            from igdrivsim.training.config import from_dict
+            from igdrivsim.training.update import sim_params
+
+            record = _read_json(Path(like) / "config.json")
+            config = from_dict(record.get("config", record))
+            caps, sim = data_capacities(config), sim_params(config)
+        out = Path(args.out) / "references" if args.runs else Path(args.out)
+        evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
+                            progress)
+        print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- report
+def report_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--evals", nargs="+", required=True, metavar="DIR",
+                        help="folders holding per_scenario.csv / per_step.csv (searched "
+                             "recursively)")
+    parser.add_argument("--out", default="paper",
+                        help="report folder: writes OUT/tables/* and OUT/figures/fig3_metrics.* "
+                             "(default: paper)")
+    parser.add_argument("--profile", default=None,
+                        help="profile named in the tables (default: read from the evaluations)")
+    parser.add_argument("--data-label", default=None,
+                        help="data named in the tables (default: read from the evaluations)")
+
+
+def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
+    profiles, data = set(), set()
+    for root in eval_dirs:
+        for path in Path(root).rglob(EVAL_CONFIG):
+            try:
+                info = json.loads(path.read_text())
+            except (OSError, json.JSONDecodeError):
+                continue
+            if "profile" in info:
+                profiles.add(str(info["profile"]))
+            if "data" in info:
+                data.add(os.path.basename(os.path.normpath(str(info["data"]))) or info["data"])
+    return (", ".join(sorted(profiles)) or "unknown", ", ".join(sorted(data)) or "unknown")
+
+
+def report_command(args: argparse.Namespace) -> int:
+    from igdrivsim.evaluation.report import Provenance, build_report
+
+    profile, data = _provenance_from(args.evals)
+    prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
+    written = build_report(args.evals, args.out, prov)
+    for path in written:
+        print(f"wrote {path}")
+    return 0

@@ -1,0 +1,370 @@
+"""The whole reproduction as resumable stages (what ``scripts/reproduce.sh`` runs).
+
+Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``filter``
+(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}, every seed of a
+(setting, method) in one run), ``evaluate`` (each run, plus the reference actors), ``maze``
+(paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance)
+and ``pdf`` (when ``latexmk`` is installed).
+
+Resumability: a stage that completes writes ``WORK/stages/<stage>.json``; a later invocation
+skips it while that stamp exists and nothing it depends on ran again. An interrupted training
+stage resumes from its checkpoints (``igdrivsim train --resume``). Every stage logs to
+``WORK/logs/<stage>.log`` and echoes its output (progress bars) on the terminal; a failing stage
+stops the pipeline with a message naming the stage and its log.
+
+Layout: work files (data, filtered manifests, runs, evaluations, logs) under ``WORK``
+(``outputs/<profile>`` by default, ``--out`` when given); the report files under ``PAPER``
+(the repository's ``paper/`` by default, ``OUT/paper`` with ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from igdrivsim.errors import ConfigError, IGDrivSimError
+from igdrivsim.evaluation.io import atomic_write_text
+from igdrivsim.evaluation.schema import METHODS, SETTINGS
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+PAPER_SOURCES = ("main.tex", "references.bib", "Makefile")
+
+
+@dataclass(frozen=True)
+class PipelineProfile:
+    """Sizes of one reproduction profile (training hyper-parameters live in the training
+    profile of the same name)."""
+
+    name: str
+    train_scenarios: int  # synthetic training scenarios generated
+    val_scenarios: int  # synthetic validation scenarios generated
+    seeds: int  # seeds per (setting, method)
+    eval_max_scenarios: int  # 0: every kept validation scenario
+    maze_profile: str  # maze.study profile
+    settings: tuple[str, ...] = SETTINGS
+    eval_batch: int = 32
+
+
+PROFILES: dict[str, PipelineProfile] = {
+    "smoke": PipelineProfile("smoke", train_scenarios=16, val_scenarios=8, seeds=2,
+                             eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
+    "laptop": PipelineProfile("laptop", train_scenarios=512, val_scenarios=128, seeds=3,
+                              eval_max_scenarios=0, maze_profile="default"),
+    "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
+                             eval_max_scenarios=0, maze_profile="default"),
+}
+
+
+class StageError(IGDrivSimError):
+    """A stage failed: the message names the stage and its log."""
+
+
+@dataclass
+class Pipeline:
+    """One reproduction: profile, locations, and how commands run."""
+
+    profile: PipelineProfile
+    work: Path
+    paper: Path
+    train_data: str | None = None  # None: generate synthetic data
+    val_data: str | None = None
+    in_process: bool = False  # run igdrivsim commands in this process (tests: shared compiles)
+    quiet: bool = False  # do not echo stage output on the terminal
+    settings: tuple[str, ...] | None = None
+    methods: tuple[str, ...] = METHODS
+
+    def __post_init__(self):
+        self.work, self.paper = Path(self.work), Path(self.paper)
+        self.settings = tuple(self.settings or self.profile.settings)
+        unknown = [s for s in self.settings if s not in SETTINGS]
+        if unknown:
+            raise ConfigError(f"unknown setting {unknown[0]!r}; choose from {', '.join(SETTINGS)}")
+        self.ran: set[str] = set()  # stages that ran in this invocation
+
+    # ----------------------------------------------------------------------- bookkeeping
+    def log_path(self, stage: str) -> Path:
+        return self.work / "logs" / f"{stage}.log"
+
+    def stamp_path(self, stage: str) -> Path:
+        return self.work / "stages" / f"{stage}.json"
+
+    def done(self, stage: str, depends: Sequence[str] = ()) -> bool:
+        """Complete: stamped, and none of ``depends`` ran again in this invocation."""
+        return self.stamp_path(stage).is_file() and not (set(depends) & self.ran)
+
+    def _say(self, text: str) -> None:
+        print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+    def stage(self, name: str, commands: Sequence[Sequence[str]], depends: Sequence[str] = (),
+              outputs: Sequence[Path] = ()) -> bool:
+        """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
+        ``name`` unless it is complete. Returns True when it ran."""
+        if self.done(name, depends) and all(Path(p).exists() for p in outputs):
+            self._say(f"{name}: complete, skipped")
+            return False
+        log = self.log_path(name)
+        log.parent.mkdir(parents=True, exist_ok=True)
+        self._say(f"{name}: running (log: {log})")
+        start = time.time()
+        with open(log, "a", encoding="utf-8") as fh:
+            fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
+            for argv in commands:
+                fh.write("$ " + " ".join(map(str, argv)) + "\n")
+                fh.flush()
+                rc = self._run(list(map(str, argv)), fh)
+                if rc != 0:
+                    raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
+        missing = [str(p) for p in outputs if not Path(p).exists()]
+        if missing:
+            raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
+        atomic_write_text(self.stamp_path(name), json.dumps(dict(
+            stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
+                                                                         for c in commands],
+            finished=time.strftime("%Y-%m-%d %H:%M:%S")), indent=2) + "\n")
+        self.ran.add(name)
+        self._say(f"{name}: done in {time.time() - start:.0f} s")
+        return True
+
+    def _run(self, argv: list[str], fh) -> int:
+        if self.in_process and argv[0] in ("igdrivsim", "python"):
+            return self._run_in_process(argv, fh)
+        if argv[0] == "igdrivsim":
+            argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
+        elif argv[0] == "python":
+            argv = [sys.executable, *argv[1:]]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                cwd=REPO_ROOT, env=env)
+        assert proc.stdout is not None
+        try:
+            while chunk := os.read(proc.stdout.fileno(), 4096):
+                text = chunk.decode("utf-8", "replace")
+                fh.write(text)
+                fh.flush()
+                if not self.quiet:
+                    sys.stderr.write(text)
+                    sys.stderr.flush()
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            raise
+        return proc.wait()
+
+    def _run_in_process(self, argv: list[str], fh) -> int:
+        """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
+        import importlib
+
+        with contextlib.redirect_stdout(fh), contextlib.redirect_stderr(fh):
+            try:
+                if argv[0] == "igdrivsim":
+                    from igdrivsim.cli import main
+
+                    return int(main(argv[1:]) or 0)
+                if argv[:2] == ["python", "-m"]:
+                    module = importlib.import_module(argv[2])
+                    return int(module.main(argv[3:]) or 0)
+            except SystemExit as err:  # argparse errors
+                return int(err.code or 0) if isinstance(err.code, int) else 1
+            except Exception as err:  # noqa: BLE001 - reported through the stage's log
+                import traceback
+
+                traceback.print_exc()
+                print(f"error: {err}")
+                return 1
+        raise ConfigError(f"cannot run {argv[0]!r} in process")
+
+    # --------------------------------------------------------------------------- stages
+    @property
+    def data_label(self) -> str:
+        if self.train_data is None:
+            return (f"synthetic ({self.profile.train_scenarios} training / "
+                    f"{self.profile.val_scenarios} validation scenarios generated)")
+        return f"{self.train_data} | {self.val_data}"
+
+    def run_data(self) -> tuple[str, str]:
+        if self.train_data is not None:
+            return self.train_data, str(self.val_data)
+        out = self.work / "data"
+        p = self.profile
+        self.stage("data", [["igdrivsim", "generate", "--out", out, "--train",
+                             p.train_scenarios, "--val", p.val_scenarios, "--seed", 0]],
+                   outputs=[out / "training", out / "validation"])
+        return str(out / "training"), str(out / "validation")
+
+    def run_filter(self, train: str, val: str) -> tuple[Path, Path]:
+        outs = []
+        for split, src in (("training", train), ("validation", val)):
+            out = self.work / "filtered" / split
+            self.stage(f"filter_{split}", [["igdrivsim", "filter", src, "--out", out,
+                                            "--workers", 1, "--no-progress"]],
+                       depends=["data"], outputs=[out / "manifest.jsonl"])
+            outs.append(out)
+        return outs[0], outs[1]
+
+    def run_name(self, setting: str, method: str) -> str:
+        return f"{setting}__{method}"
+
+    def run_train(self, train_manifest: Path) -> list[str]:
+        names = []
+        for setting in self.settings:
+            for method in self.methods:
+                name = self.run_name(setting, method)
+                run = self.work / "runs" / name
+                self.stage(f"train_{name}", [[
+                    "igdrivsim", "train", "--profile", self.profile.name, "--obs", setting,
+                    "--method", method, "--seeds", self.profile.seeds, "--data", train_manifest,
+                    "--out", run, "--resume", "--no-progress"]],
+                    depends=["filter_training"], outputs=[run / "DONE"])
+                names.append(name)
+        return names
+
+    def run_evaluate(self, names: list[str], val_manifest: Path) -> Path:
+        evals = self.work / "evals"
+        limit = ["--max-scenarios", self.profile.eval_max_scenarios]
+        common = ["--data", val_manifest, "--batch-size", self.profile.eval_batch, *limit,
+                  "--no-progress"]
+        for name in names:
+            out = evals / name
+            self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
+                                             "--out", out, *common]],
+                       depends=[f"train_{name}", "filter_validation"],
+                       outputs=[out / "per_scenario.csv"])
+        if names:  # the references use the capacities and simulator settings of a run
+            out = evals / "references"
+            self.stage("evaluate_references", [[
+                "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / names[0],
+                "--out", out, *common]],
+                depends=["filter_validation", f"train_{names[0]}"],
+                outputs=[out / "per_scenario.csv"])
+        return evals
+
+    def run_maze(self) -> None:
+        out = self.work / "maze"
+        self.stage("maze", [["python", "-m", "maze.study", "--profile",
+                             self.profile.maze_profile, "--out", out]],
+                   outputs=[out / "figures" / "fig2_maze.png"])
+        for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv")),
+                           ("tables", ("maze_summary.md", "maze_summary.tex"))):
+            for fname in names:
+                src = out / sub / fname
+                if src.exists():
+                    (self.paper / sub).mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(src, self.paper / sub / fname)
+
+    def run_render(self, val: str) -> None:
+        from igdrivsim.data import expand_paths
+
+        files = expand_paths(val)
+        if not files:
+            raise StageError(f"stage 'render': no validation file in {val}")
+        figures = self.paper / "figures"
+        self.stage("render", [["igdrivsim", "render", "--data", files[0], "--out", figures]],
+                   depends=["data"], outputs=[figures / "fig1_observations.png"])
+
+    def run_report(self, evals: Path, upstream: Sequence[str]) -> None:
+        self.stage("report", [["igdrivsim", "report", "--evals", evals, "--out", self.paper,
+                               "--profile", self.profile.name, "--data-label", self.data_label]],
+                   depends=upstream, outputs=[self.paper / "tables" / "table1.tex"])
+
+    def run_pdf(self) -> None:
+        if shutil.which("latexmk") is None:
+            self._say("pdf: latexmk not found, skipping the PDF build (the tables and figures "
+                      "are written)")
+            return
+        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
+            for name in PAPER_SOURCES:  # a self-contained paper folder under --out
+                shutil.copyfile(REPO_ROOT / "paper" / name, self.paper / name)
+        self.ran.discard("pdf")
+        self.stage("pdf", [["make", "-C", self.paper, "pdf"]], depends=["report"])
+
+    def run(self) -> None:
+        """Every stage in order."""
+        self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
+                  f"{self.paper}")
+        atomic_write_text(self.work / "pipeline.json", json.dumps(dict(
+            profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
+            settings=list(self.settings), methods=list(self.methods),
+            paper=str(self.paper)), indent=2) + "\n")
+        train, val = self.run_data()
+        train_manifest, val_manifest = self.run_filter(train, val)
+        names = self.run_train(train_manifest)
+        evals = self.run_evaluate(names, val_manifest)
+        self.run_maze()
+        self.run_render(val)
+        upstream = ["maze", "render", "evaluate_references"] + [f"evaluate_{n}" for n in names]
+        self.run_report(evals, upstream)
+        self.run_pdf()
+        self._say(f"finished: tables in {self.paper / 'tables'}, figures in "
+                  f"{self.paper / 'figures'}")
+
+
+# ------------------------------------------------------------------------------------ CLI
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", description=(
+        "Regenerate every table and figure: data -> filter -> train -> evaluate -> maze -> "
+        "render -> report -> PDF. Resumable: rerun the same command after an interruption."))
+    parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
+                        help="smoke (minutes, CI), laptop (about an hour on 2 cores, default), "
+                             "paper (the paper's sizes; GPUs)")
+    parser.add_argument("--data", nargs="+", metavar="DIR", default=None,
+                        help="real data instead of synthetic: one folder holding training/ and "
+                             "validation/, or two locations TRAIN VAL (files, folders, globs, "
+                             "name@N)")
+    parser.add_argument("--out", default=None,
+                        help="put everything under OUT (work files, and the report in "
+                             "OUT/paper); default: outputs/<profile>/ and paper/")
+    parser.add_argument("--settings", default=None,
+                        help="comma-separated subset of the six observation settings")
+    parser.add_argument("--in-process", action="store_true",
+                        help="run the commands in this Python process (faster for smoke)")
+    parser.add_argument("--quiet", action="store_true", help="do not echo stage output")
+    return parser
+
+
+def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
+    profile = PROFILES[args.profile]
+    train = val = None
+    if args.data:
+        if len(args.data) == 1:
+            root = Path(args.data[0])
+            train, val = str(root / "training"), str(root / "validation")
+            if not (root / "training").exists() or not (root / "validation").exists():
+                raise ConfigError(f"--data {root}: expected training/ and validation/ inside "
+                                  "(or give two locations: --data TRAIN VAL)")
+        elif len(args.data) == 2:
+            train, val = args.data
+        else:
+            raise ConfigError("--data takes one folder or two locations (TRAIN VAL)")
+    if args.out:
+        work, paper = Path(args.out), Path(args.out) / "paper"
+    else:
+        work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
+    settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
+    return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
+                    quiet=args.quiet, settings=settings)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        pipeline_from_args(args).run()
+    except IGDrivSimError as err:
+        print(f"reproduce: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,306 @@
+"""Closed-loop evaluation rollouts -> tidy per-step and per-scenario metrics.
+
+A learned policy is evaluated as in the paper: after the 10 warm-up steps replayed from the log
+(``reset``; the GRU sees their observations, as in training), it drives the SDC for 80 steps
+under its own observation setting, sampling its action from the three categoricals
+(``greedy=True`` takes the most likely level instead). The rollout is a ``lax.scan`` over
+steps, ``vmap``-ped over a batch of scenarios and over the seeds of a run (stacked parameters),
+so one compiled function evaluates every seed at once.
+
+Two reference actors need no training and no observation: the discretised expert replay (the
+inverse dynamics to the next logged pose, quantised to the 257 levels: the floor of the metrics)
+and constant velocity (the SDC keeps its last logged velocity and heading: a naive baseline).
+
+Metric semantics (per step, after each of the 80 actions): ``overlap`` / ``offroad`` are 0/1,
+``log_divergence`` is the distance to the logged SDC position. Steps where the logged SDC is
+invalid are masked out. Per scenario: ``max_log_divergence`` (max over steps), ``overlap`` /
+``offroad`` (any step), and the per-step means ``log_divergence``, ``overlap_steps``,
+``offroad_steps``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from igdrivsim.data.scenario import CURRENT_INDEX, decode_scenario_id
+from igdrivsim.evaluation.schema import (
+    CONSTANT_VELOCITY,
+    EXPERT,
+    PER_SCENARIO_COLUMNS,
+    PER_STEP_COLUMNS,
+    REFERENCE_SETTING,
+)
+from igdrivsim.observation import ObservationConfig, get_setting, observe
+from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
+from igdrivsim.simulator import SimParams, reset, step
+from igdrivsim.simulator.dynamics import undiscretize
+
+EVAL_SEED = 0  # fixed evaluation key: rerunning gives the same CSVs
+DEFAULT_SIM_PARAMS = SimParams()
+DEFAULT_OBS_CONFIG = ObservationConfig()
+
+
+@dataclass(frozen=True)
+class StepOutputs:
+    """Per-step metrics of a batch of episodes, each ``[..., steps]`` (host NumPy)."""
+
+    log_divergence: np.ndarray
+    overlap: np.ndarray
+    offroad: np.ndarray
+    valid: np.ndarray
+
+
+def default_metrics_fn() -> Callable:
+    """The simulator's ``step_metrics(state, params)`` (overlap, offroad, log divergence,
+    valid) of the current step."""
+    from igdrivsim.simulator.metrics import step_metrics
+
+    return step_metrics
+
+
+def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
+    m = metrics_fn(state, params)
+    valid = getattr(m, "valid", None)
+    if valid is None:  # a metrics function without validity: the logged SDC's, at this step
+        valid = jnp.take_along_axis(state.sdc.valid, state.timestep[..., None], axis=-1)[..., 0]
+    return (jnp.asarray(m.log_divergence, jnp.float32), jnp.asarray(m.overlap, jnp.float32),
+            jnp.asarray(m.offroad, jnp.float32), jnp.asarray(valid, bool))
+
+
+# ----------------------------------------------------------------------------------- actors
+def _reference_actor(name: str, params: SimParams):
+    """The simulator's reference actor ``(state, carry, key) -> (action, carry, extras)``."""
+    from igdrivsim.simulator.rollout import ACTORS
+
+    return ACTORS[name](params)
+
+
+REFERENCE_ACTORS: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
+
+
+# --------------------------------------------------------------------------------- rollouts
+def _reference_episode(state, actor, params: SimParams, metrics_fn):
+    def body(s, _):
+        action, _, _ = actor(s, None, None)
+        s = step(s, action, params)
+        return s, _metrics(s, params, metrics_fn)
+
+    _, outs = jax.lax.scan(body, state, None, length=params.num_controlled_steps)
+    return outs  # tuple of [steps]
+
+
+def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
+                    obs_config: ObservationConfig, params: SimParams, greedy: bool, metrics_fn):
+    """One scenario, one seed: per-step metrics ``[steps]`` each.
+
+    As in training: the GRU is reset at t = 0 and warmed on the logged observations of
+    t = 0..9, then the policy drives from t = 10. The episode key is fixed over the episode
+    (position-noise offset), the step key is ``fold_in(episode_key, t)`` (masking draws).
+    """
+    episode_key, action_key = jax.random.split(key)
+
+    def look(s, t):
+        return observe(s, setting, episode_key, jax.random.fold_in(episode_key, t), obs_config)
+
+    def warm(h, t):
+        obs = look(state.replace(timestep=t), t)
+        h, _, _ = apply_step(policy_config, policy_params, h, obs, t == 0)
+        return h, None
+
+    h0, _ = jax.lax.scan(warm, initial_carry(policy_config), jnp.arange(CURRENT_INDEX))
+
+    def body(carry, _):
+        s, h = carry
+        t = s.timestep
+        h, logits, _ = apply_step(policy_config, policy_params, h, look(s, t), jnp.bool_(False))
+        if greedy:
+            level = jnp.argmax(logits, axis=-1)
+        else:
+            level = jax.random.categorical(jax.random.fold_in(action_key, t), logits, axis=-1)
+        s = step(s, undiscretize(level), params)
+        return (s, h), _metrics(s, params, metrics_fn)
+
+    _, outs = jax.lax.scan(body, (state, h0), None, length=params.num_controlled_steps)
+    return outs
+
+
+@partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn"))
+def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn):
+    state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
+    return jax.vmap(lambda s: _reference_episode(s, _reference_actor(actor_name, params), params,
+                                                 metrics_fn))(state)
+
+
+@partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "greedy",
+                                   "metrics_fn"))
+def _policy_batch(policy_params, scenarios, keys, *, policy_config, setting, obs_config, params,
+                  greedy, metrics_fn):
+    """``policy_params`` stacked over seeds ``[S]``; scenarios ``[B]``; keys ``[S, B]``."""
+    state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
+    episode = partial(_policy_episode, policy_config=policy_config, setting=setting,
+                      obs_config=obs_config, params=params, greedy=greedy, metrics_fn=metrics_fn)
+    over_scenarios = jax.vmap(episode, in_axes=(None, 0, 0))
+    return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
+
+
+def _to_host(outs) -> StepOutputs:
+    ld, ov, off, valid = (np.asarray(x) for x in outs)
+    return StepOutputs(ld, ov, off, valid.astype(bool))
+
+
+def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
+    return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis=axis)
+                         for f in ("log_divergence", "overlap", "offroad", "valid")))
+
+
+def _pad_batch(batch, size: int):
+    """Pad a scenario batch ``[n]`` to ``[size]`` by repeating the first one (fixed shapes)."""
+    n = jax.tree.leaves(batch)[0].shape[0]
+    if n == size:
+        return batch
+    return jax.tree.map(lambda x: np.concatenate([x, np.repeat(x[:1], size - n, 0)]), batch)
+
+
+def _batches(scenarios, batch_size: int):
+    n = jax.tree.leaves(scenarios)[0].shape[0]
+    for start in range(0, n, batch_size):
+        stop = min(start + batch_size, n)
+        part = jax.tree.map(lambda x, a=start, b=stop: np.asarray(x)[a:b], scenarios)
+        yield start, stop, _pad_batch(part, min(batch_size, n))
+
+
+def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
+                       batch_size: int = 32, metrics_fn: Callable | None = None,
+                       progress: Callable[[int], Any] | None = None) -> StepOutputs:
+    """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]``."""
+    if actor_name not in REFERENCE_ACTORS:
+        raise KeyError(actor_name)
+    metrics_fn = metrics_fn or default_metrics_fn()
+    parts = []
+    for start, stop, batch in _batches(scenarios, batch_size):
+        outs = _to_host(_reference_batch(batch, params=params, actor_name=actor_name,
+                                         metrics_fn=metrics_fn))
+        parts.append(StepOutputs(*(getattr(outs, f)[: stop - start] for f in
+                                   ("log_divergence", "overlap", "offroad", "valid"))))
+        if progress:
+            progress(stop - start)
+    return _concat(parts, axis=0)
+
+
+def _episode_keys(base, num_seeds: int, index: np.ndarray):
+    """Keys ``[S, B]``: ``fold_in(fold_in(base, seed), scenario_index)``."""
+    per_seed = jax.vmap(lambda s: jax.random.fold_in(base, s))(jnp.arange(num_seeds))
+    return jax.vmap(lambda k: jax.vmap(lambda i: jax.random.fold_in(k, i))(jnp.asarray(index)))(
+        per_seed)
+
+
+def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig, setting: str,
+                    obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
+                    params: SimParams = DEFAULT_SIM_PARAMS, greedy: bool = False,
+                    batch_size: int = 32,
+                    seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
+                    progress: Callable[[int], Any] | None = None) -> StepOutputs:
+    """Evaluate every seed of stacked ``policy_params [S]`` on scenarios ``[N]``.
+
+    Returns metrics ``[S, N, steps]``. The key of scenario ``i`` and seed ``s`` is derived from
+    ``seed``, ``i`` and ``s`` only, so results do not depend on the batch size.
+    """
+    metrics_fn = metrics_fn or default_metrics_fn()
+    setting_obj = get_setting(setting)
+    num_seeds = jax.tree.leaves(policy_params)[0].shape[0]
+    base = jax.random.key(seed)
+    parts = []
+    for start, stop, batch in _batches(scenarios, batch_size):
+        size = jax.tree.leaves(batch)[0].shape[0]
+        index = np.minimum(np.arange(start, start + size), stop - 1)
+        keys = _episode_keys(base, num_seeds, index)
+        outs = _to_host(_policy_batch(policy_params, batch, keys, policy_config=policy_config,
+                                      setting=setting_obj, obs_config=obs_config, params=params,
+                                      greedy=greedy, metrics_fn=metrics_fn))
+        parts.append(StepOutputs(*(getattr(outs, f)[:, : stop - start] for f in
+                                   ("log_divergence", "overlap", "offroad", "valid"))))
+        if progress:
+            progress(stop - start)
+    return _concat(parts, axis=1)
+
+
+# ----------------------------------------------------------------------------- tidy frames
+def _masked_mean(x: np.ndarray, valid: np.ndarray, axis: int) -> np.ndarray:
+    count = valid.sum(axis=axis)
+    total = np.where(valid, x, 0.0).sum(axis=axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, method: str,
+                seeds: list[int]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``(per_step, per_scenario)`` frames in the schema's column order.
+
+    ``outputs`` holds ``[S, N, steps]`` (or ``[N, steps]`` for one seed); ``seeds`` names the
+    seed axis. Per-step rows average over scenarios (valid steps only); step ``k`` is the state
+    after the ``k``-th action (1..80).
+    """
+    arrays = {f: np.asarray(getattr(outputs, f)) for f in
+              ("log_divergence", "overlap", "offroad", "valid")}
+    if arrays["valid"].ndim == 2:
+        arrays = {k: v[None] for k, v in arrays.items()}
+    valid = arrays["valid"]
+    num_seeds, num_scenarios, num_steps = valid.shape
+    if len(seeds) != num_seeds or len(scenario_ids) != num_scenarios:
+        raise ValueError("seeds / scenario_ids do not match the outputs' shape")
+    step_rows, scen_rows = [], []
+    for si, seed in enumerate(seeds):
+        v = valid[si]
+        ld, ov, off = (arrays[k][si] for k in ("log_divergence", "overlap", "offroad"))
+        per_step = {k: _masked_mean(a, v, axis=0) for k, a in
+                    (("log_divergence", ld), ("overlap", ov), ("offroad", off))}
+        for k in range(num_steps):
+            step_rows.append((setting, method, seed, k + 1, per_step["log_divergence"][k],
+                              per_step["overlap"][k], per_step["offroad"][k]))
+        max_ld = np.where(v, ld, -np.inf).max(axis=1)
+        any_ov = (np.where(v, ov, 0.0) > 0).any(axis=1)
+        any_off = (np.where(v, off, 0.0) > 0).any(axis=1)
+        mean_ld, frac_ov, frac_off = (_masked_mean(a, v, axis=1) for a in (ld, ov, off))
+        for i, sid in enumerate(scenario_ids):
+            if not v[i].any():
+                continue  # the logged SDC is never valid: nothing to score
+            scen_rows.append((setting, method, seed, sid, float(max_ld[i]), float(any_ov[i]),
+                              float(any_off[i]), float(mean_ld[i]), float(frac_ov[i]),
+                              float(frac_off[i])))
+    return (pd.DataFrame(step_rows, columns=list(PER_STEP_COLUMNS)),
+            pd.DataFrame(scen_rows, columns=list(PER_SCENARIO_COLUMNS)))
+
+
+def scenario_ids_of(scenarios) -> list[str]:
+    """Decoded scenario ids of stacked scenarios ``[N]``."""
+    ids = np.asarray(scenarios.scenario_id)
+    return [decode_scenario_id(row) for row in ids]
+
+
+def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_size: int = 32,
+                     metrics_fn: Callable | None = None, progress=None
+                     ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Tidy frames of both reference actors (setting ``none``, seed 0)."""
+    ids = scenario_ids_of(scenarios)
+    steps, scens = [], []
+    for name in REFERENCE_ACTORS:
+        outs = evaluate_reference(scenarios, name, params, batch_size, metrics_fn, progress)
+        a, b = tidy_frames(outs, ids, REFERENCE_SETTING, name, [0])
+        steps.append(a)
+        scens.append(b)
+    return pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True)
+
+
+__all__ = [
+    "EVAL_SEED", "REFERENCE_ACTORS", "StepOutputs", "evaluate_policy", "evaluate_reference",
+    "reference_frames",
+    "scenario_ids_of", "tidy_frames",
+]

@@ -1,0 +1,155 @@
+"""An exact, faster batched observation: nearest points from a cached candidate subset.
+
+Why: the per-step cost of the observation is the top-k of the 1,500 nearest roadgraph points.
+Between two steps the ego moves a few decimetres, so the nearest points barely change. We keep,
+per example, a *candidate* subset of ``num_candidates`` roadgraph points (the nearest to the
+believed ego position ``c`` at selection time) and the distance ``R`` from ``c`` to the nearest
+point left out. At each step the top-k runs over the candidates only. The result is provably the
+same as over the whole roadgraph while ``R - |b - c| > d_N`` (``b``: current believed position,
+``d_N``: distance of the N-th selected point): any left-out point ``q`` then has
+``|q - b| >= R - |b - c| > d_N``. When that fails for any example of the batch, the candidates
+of the whole batch are re-selected (a ``lax.cond`` on the batch, so the cost is paid only on
+those steps). With fewer than N valid candidates the check requires that nothing was left out.
+
+Candidate selection bisects a distance threshold (:func:`igdrivsim.simulator.roadgraph
+.select_nearest`), linear in the number of points, no sort. Candidates keep the original point
+order, so ties between equal distances resolve as in the full top-k (lowest index first).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from igdrivsim.observation.features import (
+    DEFAULT_CONFIG,
+    Observation,
+    ObservationConfig,
+    Selection,
+    observe_arrays,
+)
+from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
+from igdrivsim.observation.observe import sdc_pose
+
+
+@dataclass(frozen=True)
+class CandidateConfig:
+    """``num_candidates``: cached points per example (>= the observation's roadgraph capacity;
+    more candidates -> fewer re-selections but a larger per-step top-k).
+    ``max_radius``: candidates lie within this many metres of the ego (bisection range)."""
+
+    num_candidates: int = 3000
+    max_radius: float = 200.0
+
+
+@struct.dataclass
+class RoadCandidates:
+    """Per example (leading batch dims ``...``): the cached candidate subset."""
+
+    index: jax.Array  # int32[..., K] into the roadgraph axis, increasing; padding invalid
+    valid: jax.Array  # bool[..., K]
+    center: jax.Array  # f32[..., 2] believed ego position at selection
+    radius: jax.Array  # f32[...] distance from center to the nearest left-out point (inf: none)
+    reselections: jax.Array  # int32[...] how many times the candidates were (re)selected
+
+
+def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
+    """Candidates of ONE example around ``center``: ``(index, valid, radius)``."""
+    from igdrivsim.simulator.roadgraph import select_nearest
+
+    xy = jnp.asarray(roadgraph.xyz, jnp.float32)[..., :2]
+    d2 = (xy[:, 0] - center[0]) ** 2 + (xy[:, 1] - center[1]) ** 2
+    ok = jnp.asarray(roadgraph.valid, bool)
+    k = min(config.num_candidates, xy.shape[0])
+    idx, valid = select_nearest(d2, ok, config.max_radius, k)
+    kept = jnp.zeros(xy.shape[0], bool).at[idx].max(valid)
+    left = jnp.min(jnp.where(ok & ~kept, d2, jnp.inf))
+    return idx, valid, jnp.sqrt(left)
+
+
+def _believed(states: Any, setting: ObservationSetting, episode_keys, step_keys):
+    from igdrivsim.simulator import current_objects
+
+    objects = current_objects(states)
+    xy, yaw, speed = jax.vmap(sdc_pose)(objects, states.sdc_index)
+    bxy, byaw = jax.vmap(lambda p, a, e, s: perceive_pose(setting, p, a, e, s))(
+        xy, yaw, episode_keys, step_keys)
+    return objects, bxy, byaw, speed
+
+
+def init_candidates(states: Any, setting: ObservationSetting, episode_keys: jax.Array,
+                    config: CandidateConfig = CandidateConfig(),
+                    step_keys: jax.Array | None = None) -> RoadCandidates:
+    """Select the candidates of a batch ``[B]`` of states (e.g. right after reset)."""
+    step_keys = episode_keys if step_keys is None else step_keys
+    _, bxy, _, _ = _believed(states, setting, episode_keys, step_keys)
+    idx, valid, radius = jax.vmap(lambda rg, c: _select(rg, c, config))(states.roadgraph, bxy)
+    return RoadCandidates(index=idx, valid=valid, center=bxy, radius=radius,
+                          reselections=jnp.ones(bxy.shape[:1], jnp.int32))
+
+
+def _observe_one(bxy, byaw, speed, objects, sdc_index, roadgraph, cand_index, cand_valid,
+                 center, radius, config: ObservationConfig):
+    """Observation (before hiding) of one example from its candidates, and whether it is exact."""
+    sub = jax.tree.map(lambda a: jnp.take(a, cand_index, axis=0), roadgraph)
+    sub = sub.replace(valid=jnp.asarray(sub.valid, bool) & cand_valid)
+    obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, sub, config)
+    n = obs.roadgraph_valid.shape[-1]
+    pts = jnp.take(jnp.asarray(sub.xyz, jnp.float32)[:, :2], sel.roadgraph_index, axis=0)
+    d = jnp.sqrt(jnp.sum((pts - bxy) ** 2, axis=-1))
+    full = obs.roadgraph_valid[n - 1]
+    d_last = jnp.where(full, d[n - 1], jnp.inf)
+    moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
+    exact = jnp.where(full, radius - moved > d_last + 1e-3, jnp.isinf(radius))  # float margin
+    sel = Selection(object_index=sel.object_index,
+                    roadgraph_index=jnp.take(cand_index, sel.roadgraph_index))
+    return obs, sel, exact
+
+
+def observe_batch_with_candidates(
+    states: Any,
+    setting: ObservationSetting,
+    episode_keys: jax.Array,
+    step_keys: jax.Array,
+    candidates: RoadCandidates,
+    config: ObservationConfig = DEFAULT_CONFIG,
+    cand_config: CandidateConfig = CandidateConfig(),
+    return_selection: bool = False,
+):
+    """:func:`igdrivsim.observation.observe` for a batch ``[B]`` of states, from candidates.
+
+    Returns ``(observation [B], updated candidates)`` (plus the :class:`Selection` with
+    ``return_selection``); equal to ``vmap(observe)`` (see the module docstring). Call it
+    under ``jit`` WITHOUT an outer ``vmap`` so the re-selection stays a real branch.
+    """
+    objects, bxy, byaw, speed = _believed(states, setting, episode_keys, step_keys)
+    run = jax.vmap(lambda *a: _observe_one(*a, config))
+
+    def with_cands(c: RoadCandidates):
+        return run(bxy, byaw, speed, objects, states.sdc_index, states.roadgraph, c.index,
+                   c.valid, c.center, c.radius)
+
+    obs, sel, exact = with_cands(candidates)
+
+    def reselect(_):
+        idx, valid, radius = jax.vmap(lambda rg, c: _select(rg, c, cand_config))(
+            states.roadgraph, bxy)
+        c = RoadCandidates(index=idx, valid=valid, center=bxy, radius=radius,
+                           reselections=candidates.reselections + 1)
+        o, s, _ = with_cands(c)
+        return o, s, c
+
+    obs, sel, candidates = jax.lax.cond(jnp.all(exact), lambda _: (obs, sel, candidates),
+                                        reselect, None)
+    obs = jax.vmap(lambda o, e, s: apply_setting(setting, o, e, s))(obs, episode_keys, step_keys)
+    if return_selection:
+        return obs, candidates, sel
+    return obs, candidates
+
+
+__all__ = ["CandidateConfig", "RoadCandidates", "init_candidates",
+           "observe_batch_with_candidates", "Observation"]

@@ -1,0 +1,357 @@
+"""Pictures of the observation models (paper Fig. 1) and a rollout animation.
+
+Each panel is drawn in the ego's TRUE frame (ego at the origin facing +x). Underneath, in light
+grey, is the scene as it is: every valid object box and every roadgraph point near the ego.
+On top, in colour, is what the imitator's observation holds, drawn at the positions the
+observation reports: under Gaussian position noise these are shifted (the ego believes it is
+elsewhere), so the coloured layer visibly slides off the grey truth. Objects the setting hides
+stay grey (dashed outline); fields of view are drawn as a dashed circle or cone.
+
+Rendering is host-side NumPy + matplotlib (Agg backend); the observation itself comes from the
+same jitted :func:`igdrivsim.observation.observe_with_selection` that training uses.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from igdrivsim.observation.features import (
+    DEFAULT_CONFIG,
+    POSITION_SCALE,
+    ObservationConfig,
+)
+from igdrivsim.observation.models import (
+    PRESET_TITLES,
+    CircularFieldOfView,
+    ConicFieldOfView,
+    GaussianPositionNoise,
+    ObservationSetting,
+    get_setting,
+)
+from igdrivsim.observation.observe import observe_with_selection
+
+# Roadgraph categories for colouring (WOMD tf.Example type codes).
+ROAD_CATEGORIES: dict[str, tuple[tuple[int, ...], str]] = {
+    "lane centre": ((1, 2, 3), "#4c72b0"),
+    "road line": (tuple(range(5, 14)), "#8c8c8c"),
+    "road edge": ((14, 15, 16), "#222222"),
+    "crosswalk / stop / bump": ((17, 18, 19), "#8172b2"),
+}
+HIDDEN = "#d0d0d0"
+OBSERVED_OBJECT = "#55a868"
+EGO = "#c44e52"
+FOV = "#dd8452"
+
+
+@dataclass
+class Snapshot:
+    """Everything one panel draws (NumPy, ego TRUE frame, metres)."""
+
+    road_xy: np.ndarray  # [R, 2] all valid (cropped) roadgraph points
+    road_type: np.ndarray  # [R]
+    obj_xy: np.ndarray  # [O, 2] all valid other objects
+    obj_yaw: np.ndarray  # [O]
+    obj_size: np.ndarray  # [O, 2] length, width
+    obj_seen: np.ndarray  # [O] bool, object is in the observation
+    ego_size: tuple[float, float]
+    seen_road_xy: np.ndarray  # [N, 2] observed roadgraph points, as the observation reports them
+    seen_road_type: np.ndarray  # [N]
+    seen_obj_xy: np.ndarray  # [M, 2] observed objects, as the observation reports them
+    seen_obj_yaw: np.ndarray  # [M]
+    seen_obj_size: np.ndarray  # [M, 2]
+    noise_offset: np.ndarray | None  # [2] believed minus true ego position (ego frame), if any
+    timestep: int
+
+
+def _to_frame(xy: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = xy - origin
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+
+
+_observe_jit = jax.jit(observe_with_selection, static_argnums=(1, 4))
+
+
+def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Array,
+             step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG) -> Snapshot:
+    """Observe ONE (unbatched) simulator state under ``setting`` and collect what to draw."""
+    from igdrivsim.simulator import current_objects
+
+    setting = get_setting(setting)
+    obs, sel = _observe_jit(state, setting, episode_key, step_key, config)
+    obs, sel = jax.tree.map(np.asarray, (obs, sel))
+    objs = jax.tree.map(np.asarray, current_objects(state))
+    i = int(state.sdc_index)
+    ego_xy = np.array([objs.x[i], objs.y[i]], np.float64)
+    ego_yaw = float(objs.yaw[i])
+
+    rg = jax.tree.map(np.asarray, state.roadgraph)
+    road_xy = _to_frame(rg.xyz[rg.valid, :2].astype(np.float64), ego_xy, ego_yaw)
+
+    others = objs.valid.astype(bool) & (np.arange(objs.x.shape[0]) != i)
+    obj_xy = _to_frame(np.stack([objs.x, objs.y], -1)[others].astype(np.float64), ego_xy, ego_yaw)
+    seen_slots = sel.object_index[obs.objects_valid]
+    seen = np.zeros(objs.x.shape[0], bool)
+    seen[seen_slots] = True
+
+    o = obs.objects[obs.objects_valid]
+    r = obs.roadgraph[obs.roadgraph_valid]
+    noise = None
+    for m in setting.models:
+        if isinstance(m, GaussianPositionNoise):
+            xy, _ = m.perceive_pose(jnp.asarray(ego_xy, jnp.float32), jnp.float32(ego_yaw),
+                                    jax.random.fold_in(episode_key, setting.models.index(m)),
+                                    step_key)
+            noise = _to_frame(np.asarray(xy, np.float64), ego_xy, ego_yaw)
+    return Snapshot(
+        road_xy=road_xy, road_type=rg.type[rg.valid],
+        obj_xy=obj_xy, obj_yaw=objs.yaw[others] - ego_yaw,
+        obj_size=np.stack([objs.length[others], objs.width[others]], -1),
+        obj_seen=seen[others],
+        ego_size=(float(objs.length[i]), float(objs.width[i])),
+        seen_road_xy=r[:, :2] * POSITION_SCALE, seen_road_type=np.argmax(r[:, 4:24], -1),
+        seen_obj_xy=o[:, :2] * POSITION_SCALE, seen_obj_yaw=np.arctan2(o[:, 3], o[:, 2]),
+        seen_obj_size=np.stack([objs.length[seen_slots], objs.width[seen_slots]], -1),
+        noise_offset=noise, timestep=int(state.timestep),
+    )
+
+
+def _box(ax, xy, yaw, size, **kw) -> None:
+    from matplotlib.patches import Polygon
+
+    length, width = size
+    c, s = math.cos(yaw), math.sin(yaw)
+    corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
+    pts = corners @ np.array([[c, s], [-s, c]]) + xy
+    ax.add_patch(Polygon(pts, closed=True, **kw))
+
+
+def _draw_fov(ax, setting: ObservationSetting) -> None:
+    from matplotlib.patches import Circle, Wedge
+
+    for m in setting.models:
+        for fill in (True, False):  # translucent area under everything, outline on top
+            style = (dict(facecolor=FOV, alpha=0.15, lw=0, zorder=1) if fill else
+                     dict(facecolor="none", edgecolor=FOV, lw=1.3, ls="--", zorder=6))
+            if isinstance(m, ConicFieldOfView):
+                half = math.degrees(m.angle) / 2
+                ax.add_patch(Wedge((0, 0), m.radius, -half, half, **style))
+            elif isinstance(m, CircularFieldOfView):
+                ax.add_patch(Circle((0, 0), m.radius, **style))
+
+
+def fov_radius(setting: ObservationSetting) -> float | None:
+    """The smallest field-of-view radius of ``setting`` (None without one)."""
+    radii = [m.radius for m in setting.models
+             if isinstance(m, (CircularFieldOfView, ConicFieldOfView))]
+    return min(radii) if radii else None
+
+
+def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float = 1.0) -> None:
+    """The scene (grey), the field of view, the observation (colour) and the ego on ``ax``."""
+    ax.scatter(snap.road_xy[:, 0], snap.road_xy[:, 1], s=1.0 * marker, c=HIDDEN, lw=0, zorder=0)
+    for xy, yaw, size, seen in zip(snap.obj_xy, snap.obj_yaw, snap.obj_size, snap.obj_seen,
+                                   strict=True):
+        _box(ax, xy, yaw, size, facecolor="none", edgecolor="#9a9a9a",
+             ls="-" if seen else ":", lw=0.8, zorder=2)
+    _draw_fov(ax, setting)
+    for types, colour in ROAD_CATEGORIES.values():
+        pick = np.isin(snap.seen_road_type, types)
+        ax.scatter(snap.seen_road_xy[pick, 0], snap.seen_road_xy[pick, 1], s=2.5 * marker,
+                   c=colour, lw=0, zorder=3)
+    for xy, yaw, size in zip(snap.seen_obj_xy, snap.seen_obj_yaw, snap.seen_obj_size,
+                             strict=True):
+        _box(ax, xy, yaw, size, facecolor=OBSERVED_OBJECT, edgecolor="#2d6a3e", alpha=0.85,
+             lw=0.8, zorder=4)
+    _box(ax, (0.0, 0.0), 0.0, snap.ego_size, facecolor=EGO, edgecolor="#7a1f22", lw=0.8,
+         alpha=0.8, zorder=5)
+    if snap.noise_offset is not None:
+        # The observation is relative to the believed position, so the scene appears shifted
+        # by -offset: draw the believed ego (dashed) and the offset.
+        off = snap.noise_offset
+        _box(ax, off, 0.0, snap.ego_size, facecolor="none", edgecolor=EGO, ls="--", lw=1.0,
+             zorder=5)
+        ax.annotate("", xy=off, xytext=(0, 0), zorder=6,
+                    arrowprops=dict(arrowstyle="->", color=EGO, lw=1.2))
+
+
+def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | None = None,
+               view: float = 30.0, inset: bool = True) -> None:
+    """Draw one observation panel on ``ax`` (see the module docstring).
+
+    The panel spans ``[-view/2, 1.5 view] x [-0.75 view, 0.75 view]`` metres in the ego frame;
+    with a small field of view (and ``inset``) a zoomed inset shows the area around the ego.
+    """
+    draw_layers(ax, snap, setting)
+    ax.set_xlim(-0.5 * view, 1.5 * view)  # more room ahead of the ego than behind
+    ax.set_ylim(-0.75 * view, 0.75 * view)
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
+    ax.set_title(title or setting.name, fontsize=10)
+    info = f"objects seen {int(snap.obj_seen.sum())}/{len(snap.obj_seen)}, " \
+           f"road points {len(snap.seen_road_xy)}"
+    if snap.noise_offset is not None:
+        info += f"; believed ego offset |ε| = {np.hypot(*snap.noise_offset):.1f} m (dashed)"
+    ax.text(0.01, 0.01, info, transform=ax.transAxes, fontsize=7, va="bottom", color="#333333",
+            bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1.5), zorder=7)
+    r = fov_radius(setting)
+    if inset and r is not None and r < view / 3:
+        sub = ax.inset_axes([0.58, 0.52, 0.41, 0.46])
+        draw_layers(sub, snap, setting, marker=4.0)
+        half = r + 3.0
+        sub.set_xlim(-half, half)
+        sub.set_ylim(-half * 0.85, half * 0.85)
+        sub.set_aspect("equal")
+        sub.set_xticks([])
+        sub.set_yticks([])
+        sub.set_title(f"zoom ±{half:.0f} m", fontsize=6, pad=1.5)
+        for side in sub.spines.values():
+            side.set_edgecolor("#555555")
+
+
+def legend_handles() -> list:
+    """Legend entries shared by every panel."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    dots = [Line2D([], [], ls="", marker="o", ms=4, color=c, label=f"observed {n}")
+            for n, (_, c) in ROAD_CATEGORIES.items()]
+    return dots + [
+        Line2D([], [], ls="", marker="o", ms=4, color=HIDDEN, label="road point not observed"),
+        Patch(facecolor=OBSERVED_OBJECT, edgecolor="#2d6a3e", label="observed object"),
+        Patch(facecolor="none", edgecolor="#9a9a9a", ls=":", label="hidden object (true pose)"),
+        Patch(facecolor=EGO, edgecolor="#7a1f22", label="ego (SDC)"),
+        Patch(facecolor=FOV, alpha=0.3, edgecolor=FOV, ls="--", label="field of view"),
+    ]
+
+
+def save_figure(fig, path: str | os.PathLike, **kw) -> str:
+    """Save ``fig`` to ``path`` atomically (temp file in the same directory, then rename)."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    ext = os.path.splitext(path)[1].lstrip(".")
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="." + ext, dir=folder)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format=ext, **kw)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
+                       config: ObservationConfig = DEFAULT_CONFIG):
+    """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ncols = 3 if len(settings) > 2 else len(settings)
+    nrows = math.ceil(len(settings) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.4 * nrows), squeeze=False)
+    episode_key, step_key = jax.random.split(key)
+    for ax, name in zip(axes.flat, settings, strict=False):
+        setting = get_setting(name)
+        snap = snapshot(state, setting, episode_key, step_key, config)
+        draw_panel(ax, snap, setting, PRESET_TITLES.get(setting.name, setting.name), view)
+    for ax in list(axes.flat)[len(settings):]:
+        ax.axis("off")
+    fig.suptitle("What the imitator observes, in the ego's frame (colour: in the observation; "
+                 "grey: the true scene)", fontsize=11)
+    fig.legend(handles=legend_handles(), loc="lower center", ncol=5, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return fig
+
+
+def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: list[str],
+                             key: jax.Array, view: float = 30.0) -> list[str]:
+    """Write ``out_dir/fig1_observations.{pdf,png}``; returns the paths."""
+    import matplotlib.pyplot as plt
+
+    fig = observation_figure(state, settings, key, view)
+    try:
+        return [save_figure(fig, os.path.join(out_dir, f"fig1_observations.{ext}"), dpi=200)
+                for ext in ("pdf", "png")]
+    finally:
+        plt.close(fig)
+
+
+def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[Any]:
+    """The states of a discretised-expert rollout from an (unbatched) reset state, step by step.
+
+    Uses the simulator's ``expert_action`` when available; otherwise the inverse dynamics to the
+    next logged pose, discretised (257 levels) and undiscretised, as the paper's expert.
+    """
+    import igdrivsim.simulator as sim
+    from igdrivsim.simulator.state import log_sdc_at, sdc_pose
+
+    params = sim.SimParams() if params is None else params
+    expert = getattr(sim, "expert_action", None)
+
+    def fallback(s, p):
+        _, inverse = sim.dynamics.DYNAMICS[p.dynamics]
+        x, y, yaw, _ = sdc_pose(s)
+        x1, y1, yaw1, _ = log_sdc_at(s, s.timestep + 1)
+        return inverse(x, y, yaw, x1, y1, yaw1)
+
+    act = expert or fallback
+
+    @jax.jit
+    def advance(s):
+        a = sim.undiscretize(sim.discretize(act(s, params)))
+        return sim.step(s, a, params)
+
+    states = [state]
+    for _ in range(num_steps):
+        states.append(advance(states[-1]))
+    return states
+
+
+def write_rollout_animation(states: list[Any], setting: ObservationSetting | str,
+                            path: str | os.PathLike, key: jax.Array, view: float = 30.0,
+                            fps: int = 10, every: int = 1) -> str:
+    """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import PillowWriter
+    from tqdm import tqdm
+
+    setting = get_setting(setting)
+    episode_key, step_root = jax.random.split(key)
+    title = PRESET_TITLES.get(setting.name, setting.name)
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".gif", dir=folder)
+    os.close(fd)
+    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    writer = PillowWriter(fps=fps)
+    try:
+        with writer.saving(fig, tmp, dpi=90):
+            for s in tqdm(states[::every], desc=f"rollout {setting.name}", unit="frame"):
+                ax.clear()
+                t = int(s.timestep)
+                snap = snapshot(s, setting, episode_key, jax.random.fold_in(step_root, t))
+                draw_panel(ax, snap, setting, f"{title}  (step {t}, t={t / 10:.1f} s)", view)
+                fig.tight_layout()
+                writer.grab_frame()
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path

@@ -1,0 +1,203 @@
+"""``igdrivsim bench sim``: scenario-steps/s of reset + 80 steps with observation and metrics.
+
+Two implementations of the same episode are timed in the same run, on the same batch:
+
+* **naive** (a port of Waymax's approach): no crop. Every step selects the 1,500 nearest points
+  with a top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the
+  distance from the SDC box corners to every roadgraph point (non-edges masked).
+* **fast** (ours): :func:`igdrivsim.simulator.reset` crops the roadgraph once per scenario
+  around the logged SDC path and keeps road edges in their own small array; the observation
+  re-selects a few thousand candidate points only when needed
+  (:mod:`igdrivsim.observation.candidates`), which is exact.
+
+Both run the discretised expert with the observation of ``--setting`` computed at every step (a
+checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
+log divergence). The scenario is a real one tiled to the batch size. Results: one JSON line per
+(batch, implementation) and a table; ``--out FILE`` also writes them as JSON (atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from igdrivsim.errors import ConfigError
+from igdrivsim.observation import ObservationConfig, get_setting, observe
+from igdrivsim.observation.candidates import (
+    CandidateConfig,
+    init_candidates,
+    observe_batch_with_candidates,
+)
+from igdrivsim.simulator import dynamics
+from igdrivsim.simulator.expert import expert_discrete_action
+from igdrivsim.simulator.metrics import step_metrics
+from igdrivsim.simulator.roadgraph import road_edges_from_roadgraph
+from igdrivsim.simulator.state import SimParams, SimState, reset, step
+
+DEFAULT_PARAMS = SimParams()
+
+
+def naive_reset(scenario: Any, params: SimParams = DEFAULT_PARAMS) -> SimState:
+    """Reset WITHOUT the crop: the state keeps every roadgraph point, and every roadgraph slot
+    is a road-edge candidate (non-edges masked), as a direct Waymax port would."""
+    sc = jax.tree.map(jnp.asarray, scenario)
+    one_point = jax.tree.map(lambda a: a[..., :1, :] if a.ndim >= 2 and a.shape[-1] == 3
+                             else a[..., :1], sc.roadgraph)
+    tiny = SimParams(dynamics=params.dynamics, roadgraph_capacity=1, edge_capacity=1,
+                     offroad_method=params.offroad_method)
+    state = reset(sc.replace(roadgraph=one_point), tiny)
+    edges = road_edges_from_roadgraph
+    for _ in range(np.ndim(state.timestep)):
+        edges = jax.vmap(edges)
+    return state.replace(roadgraph=sc.roadgraph, road_edges=edges(sc.roadgraph))
+
+
+def _checksum(obs) -> jax.Array:
+    return (jnp.sum(obs.roadgraph, axis=(-1, -2)) + jnp.sum(obs.objects, axis=(-1, -2))
+            + obs.sdc_speed[..., 0])
+
+
+IMPLS = ("naive", "crop", "fast")
+
+
+def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: str = "full",
+            params: SimParams = DEFAULT_PARAMS, obs_config: ObservationConfig | None = None,
+            cand_config: CandidateConfig | None = None, collect: bool = False):
+    """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
+
+    ``impl``: ``"naive"`` (no crop), ``"crop"`` (crop at reset, plain per-step top-k over the
+    cropped roadgraph) or ``"fast"`` (crop + cached candidates).
+
+    Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B])``
+    (selections: 0 unless ``"fast"``); with ``collect`` also the per-step observations
+    ``[B, T, ...]`` (for the equivalence test; memory heavy).
+    """
+    setting = get_setting(setting_name)
+    obs_config = obs_config or ObservationConfig()
+    cand_config = cand_config or CandidateConfig()
+    if impl not in IMPLS:
+        raise ConfigError(f"unknown implementation {impl!r}; choose from {', '.join(IMPLS)}")
+    fast = impl == "fast"
+    state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
+    batch = state.timestep.shape[0]
+    episode_keys = jax.random.split(key, batch)
+
+    def observe_all(st, cands):
+        step_keys = jax.vmap(jax.random.fold_in)(episode_keys, st.timestep)
+        if fast:
+            return observe_batch_with_candidates(st, setting, episode_keys, step_keys, cands,
+                                                 obs_config, cand_config)
+        obs = jax.vmap(lambda s, e, k: observe(s, setting, e, k, obs_config))(
+            st, episode_keys, step_keys)
+        return obs, cands
+
+    cands = init_candidates(state, setting, episode_keys, cand_config) if fast else None
+
+    def body(carry, _):
+        st, cands = carry
+        obs, cands = observe_all(st, cands)
+        action = dynamics.undiscretize(expert_discrete_action(st, params))
+        st = step(st, action, params)
+        out = (step_metrics(st, params), _checksum(obs))
+        return (st, cands), (out + (obs,) if collect else out)
+
+    (_, cands), outs = jax.lax.scan(body, (state, cands), None,
+                                    length=params.num_controlled_steps)
+    outs = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), outs)
+    selections = cands.reselections if fast else jnp.zeros((batch,), jnp.int32)
+    return outs[:2] + (selections,) + outs[2:]
+
+
+def _tile(scenario: Any, batch: int) -> Any:
+    return jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (batch,) + np.shape(a)).copy(),
+                        scenario)
+
+
+def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float]:
+    """``(compile seconds, best seconds per call)`` of a jitted episode function."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(scenario, key))
+    compile_s = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(scenario, key))
+        best = min(best, time.perf_counter() - t0)
+    return compile_s, best
+
+
+def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", default=None,
+                        help="WOMD file (default: the real tf.Example sample in ../shared)")
+    parser.add_argument("--record", type=int, default=0)
+    parser.add_argument("--batches", default="1,16,64,256",
+                        help="comma-separated batch sizes (default 1,16,64,256)")
+    parser.add_argument("--setting", default="full", help="observation setting")
+    parser.add_argument("--repeats", type=int, default=2, help="timed calls per cell (best)")
+    parser.add_argument("--skip-naive-above", type=int, default=10**9,
+                        help="do not time the naive path above this batch size")
+    parser.add_argument("--out", default=None, help="also write the results to this JSON file")
+
+
+def _write_json(path: str, payload: Any) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
+    with os.fdopen(fd, "w") as f:
+        json.dump(payload, f, indent=2)
+    os.replace(tmp, path)
+
+
+def bench_sim_command(args) -> int:
+    from igdrivsim.data import load_scenario
+    from igdrivsim.observation.commands import _data_path
+
+    try:
+        batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    except ValueError as err:
+        raise ConfigError(f"--batches must be comma-separated integers, got {args.batches!r}"
+                          ) from err
+    if not batches or min(batches) < 1 or args.repeats < 1:
+        raise ConfigError("--batches must be positive integers and --repeats >= 1")
+    get_setting(args.setting)
+    path = _data_path(args)
+    scenario = load_scenario(path, args.record)
+    key = jax.random.PRNGKey(0)
+    fns = {name: jax.jit(lambda sc, k, impl=name: episode(sc, k, impl=impl,
+                                                          setting_name=args.setting)[:3])
+           for name in args.impls.split(",")}
+    steps = DEFAULT_PARAMS.num_controlled_steps
+    rows = []
+    for b in batches:
+        sc = _tile(scenario, b)
+        rate = {}
+        for name, fn in fns.items():
+            if name == "naive" and b > args.skip_naive_above:
+                continue
+            compile_s, sec = time_episode(fn, sc, key, args.repeats)
+            rate[name] = b * steps / sec
+            row = {"batch": b, "impl": name, "scenario_steps_per_s": round(rate[name], 1),
+                   "seconds_per_episode_batch": round(sec, 4), "compile_s": round(compile_s, 2),
+                   "device": jax.devices()[0].platform, "setting": args.setting}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        if len(rate) == 2:
+            rows.append({"batch": b, "speedup": round(rate["fast"] / rate["naive"], 2)})
+    print(f"\n{'batch':>6} {'naive steps/s':>14} {'fast steps/s':>13} {'speedup':>8}")
+    for b in batches:
+        r = {x["impl"]: x["scenario_steps_per_s"] for x in rows
+             if x.get("batch") == b and "impl" in x}
+        sp = f"{r['fast'] / r['naive']:.1f}x" if "naive" in r and "fast" in r else "-"
+        print(f"{b:>6} {r.get('naive', float('nan')):>14,.0f} {r.get('fast', float('nan')):>13,.0f}"
+              f" {sp:>8}")
+    if args.out:
+        _write_json(args.out, {"data": path, "rows": rows, "jax": jax.__version__})
+    return 0

@@ -1,0 +1,180 @@
+"""``igdrivsim replay``: replay an actor (the discretised expert by default) on WOMD scenarios.
+
+Prints one JSON line per scenario: where the *logged* SDC overlaps / is offroad (timesteps
+11..90) next to the same for the replay, and the replay's mean and max log divergence; then a
+summary on stderr. ``--out DIR`` also writes ``DIR/replay.jsonl``, ``DIR/summary.json`` and the
+resolved ``DIR/config.json`` (atomically). ``--gif PATH`` animates the first scenario's replay.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.simulator.metrics import StepMetrics, mean_log_divergence
+from igdrivsim.simulator.rollout import ACTORS, log_metrics, rollout
+from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
+
+DEFAULT_PARAMS = SimParams()
+
+
+@functools.cache
+def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
+    """Jitted ``f(scenario, key) -> (final_state, replay_metrics [80], log_metrics [80])`` for one
+    (unbatched) scenario; cached per ``(actor, params)`` so callers share the compilation."""
+    policy = ACTORS[actor](params)
+
+    @jax.jit
+    def run(scenario, key):
+        state = reset(scenario, params)
+        final, metrics, _ = rollout(state, policy, key, params)
+        return final, metrics, log_metrics(state, params)
+
+    return run
+
+
+def _steps(flags, first_step: int) -> list[int]:
+    return [first_step + int(i) for i in np.flatnonzero(np.asarray(flags))]
+
+
+def scenario_record(scenario_id: str, replay: StepMetrics, log: StepMetrics,
+                    first_step: int = 11) -> dict:
+    """The JSON record of one replayed scenario (per-step metrics ``[80]`` on the host)."""
+    div = np.where(np.asarray(replay.valid), np.asarray(replay.log_divergence), 0.0)
+    return {
+        "scenario_id": scenario_id,
+        "log_overlap_steps": _steps(log.overlap, first_step),
+        "log_offroad_steps": _steps(log.offroad, first_step),
+        "replay_overlap_steps": _steps(replay.overlap, first_step),
+        "replay_offroad_steps": _steps(replay.offroad, first_step),
+        "replay_mean_log_divergence": round(float(mean_log_divergence(replay)), 5),
+        "replay_max_log_divergence": round(float(div.max(initial=0.0)), 5),
+        "valid_steps": int(np.sum(replay.valid)),
+    }
+
+
+def summarize(records: list[dict], num_steps: int) -> dict:
+    """Averages over scenarios (rates in %), as in the paper's Table I."""
+    n = len(records)
+    if n == 0:
+        return {"scenarios": 0}
+
+    def pct(key, any_step=True):
+        vals = [(len(r[key]) > 0) if any_step else len(r[key]) / num_steps for r in records]
+        return round(100.0 * float(np.mean(vals)), 3)
+
+    return {
+        "scenarios": n,
+        "mean_log_divergence": round(float(np.mean([r["replay_mean_log_divergence"]
+                                                    for r in records])), 5),
+        "max_log_divergence": round(float(np.mean([r["replay_max_log_divergence"]
+                                                   for r in records])), 5),
+        "overlap_rate_pct": pct("replay_overlap_steps"),
+        "offroad_rate_pct": pct("replay_offroad_steps"),
+        "overlap_pct": pct("replay_overlap_steps", False),
+        "offroad_pct": pct("replay_offroad_steps", False),
+        "log_overlap_rate_pct": pct("log_overlap_steps"),
+        "log_offroad_rate_pct": pct("log_offroad_steps"),
+        "same_as_log": sum(r["replay_overlap_steps"] == r["log_overlap_steps"]
+                           and r["replay_offroad_steps"] == r["log_offroad_steps"]
+                           for r in records),
+    }
+
+
+def replay_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="WOMD files, directories, globs or name@N shards")
+    parser.add_argument("--limit", type=int, default=None, help="replay at most N scenarios")
+    parser.add_argument("--actor", choices=sorted(ACTORS), default="expert",
+                        help="expert: the discretised expert; constant_velocity: a baseline")
+    parser.add_argument("--offroad", choices=["point", "segment"], default="point",
+                        help="offroad rule: Waymax's nearest point (default) or edge segments")
+    parser.add_argument("--crop-radius", type=float, default=SimParams.crop_radius,
+                        help="roadgraph crop radius around the logged SDC path (m)")
+    parser.add_argument("--json", action="store_true", help="JSON lines only (no summary)")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="also write replay.jsonl, summary.json and config.json here")
+    parser.add_argument("--gif", default=None, metavar="PATH",
+                        help="write an animation of the first scenario's replay (GIF)")
+    parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
+
+
+def _write_json(path: str, text: str) -> None:
+    from igdrivsim.data.tfrecord import atomic_path
+
+    with atomic_path(path, "w") as f:
+        f.write(text)
+
+
+def _write_gif(path: str, final: SimState) -> None:
+    from igdrivsim.observation.render import write_rollout_animation
+
+    states = [final.replace(timestep=jnp.int32(t)) for t in range(10, int(final.timestep) + 1)]
+    write_rollout_animation(states, "full", path, jax.random.key(0))
+
+
+def replay_command(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from igdrivsim.data import decode_scenario_id, iter_scenarios
+
+    if args.limit is not None and args.limit < 1:
+        raise ConfigError(f"--limit must be positive, got {args.limit}")
+    params = SimParams(offroad_method=args.offroad, crop_radius=args.crop_radius)
+    run = replay_fn(args.actor, params)
+    key = jax.random.key(args.seed)
+    records, t0, steps = [], time.perf_counter(), 0
+    if args.out:
+        os.makedirs(args.out, exist_ok=True)
+    out = open(os.path.join(args.out, ".replay.jsonl.partial"), "w") if args.out else None
+    bar = tqdm(total=args.limit, desc="replay", unit="scn", file=sys.stderr,
+               disable=args.json)
+    try:
+        for rec in iter_scenarios(args.files):
+            if args.limit is not None and len(records) >= args.limit:
+                break
+            try:
+                check_scenario(rec.scenario)
+            except DataError as err:
+                raise DataError(err.problem, file=rec.file, record=rec.record) from None
+            final, replay, log = jax.device_get(run(rec.scenario, jax.random.fold_in(
+                key, len(records))))
+            sid = decode_scenario_id(rec.scenario.scenario_id)
+            record = {**scenario_record(sid, replay, log), "file": rec.file,
+                      "record": rec.record}
+            line = json.dumps(record)
+            print(line, flush=True)
+            if out is not None:
+                out.write(line + "\n")
+            if args.gif and not records:
+                _write_gif(args.gif, final)
+            records.append(record)
+            steps += params.num_controlled_steps
+            bar.update(1)
+    finally:
+        bar.close()
+        if out is not None:
+            out.close()
+    elapsed = time.perf_counter() - t0
+    summary = {**summarize(records, params.num_controlled_steps), "actor": args.actor,
+               "offroad_method": args.offroad, "seconds": round(elapsed, 2)}
+    if not args.json:
+        print("summary: " + json.dumps(summary), file=sys.stderr)
+    if args.out:
+        config = {"command": "replay", "files": args.files, "limit": args.limit,
+                  "actor": args.actor, "seed": args.seed, "sim_params": dataclasses.asdict(params)}
+        _write_json(os.path.join(args.out, "config.json"), json.dumps(config, indent=2) + "\n")
+        _write_json(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
+        os.replace(os.path.join(args.out, ".replay.jsonl.partial"),
+                   os.path.join(args.out, "replay.jsonl"))
+    return 0

@@ -1,0 +1,239 @@
+"""Per-step metrics (overlap, offroad, log divergence), the reward, and per-scenario aggregation.
+
+Waymax conventions, evaluated on the state *after* a step (the SDC at its simulated pose at the
+current timestep, every other object at its logged state):
+
+- **overlap**: the SDC's 2-D oriented box (x, y, length, width, yaw) intersects the box of any
+  other object valid at this step (separating-axis test). Boxes that only touch (zero-area
+  intersection) do not overlap.
+- **offroad**: some corner of the SDC box lies outside the road: its signed distance to the road
+  edges (types 15, 16) is positive. The default ``"point"`` rule (Waymax's) takes the nearest
+  road-edge *point* and the sign of ``cross(corner - point, point.dir)``: the road interior is
+  on the left of ``dir``, so a corner on the left gets a negative distance. The ``"segment"``
+  rule measures the distance to the nearest edge *segment* and, when the nearest point of that
+  segment is a vertex, takes the sign from the bisector of the two segment directions there;
+  it avoids the point rule's false offroad next to convex corners of closed edge loops.
+- **log divergence**: L2 distance (m) between the simulated and the logged SDC position.
+
+All functions take a :class:`~igdrivsim.simulator.state.SimState` with any leading batch
+dimensions ``...`` and return ``[...]``. Invalid steps (SDC invalid in the log or simulation)
+report no overlap, no offroad and zero divergence, and ``StepMetrics.valid`` is False.
+The geometry is written as explicit multiply-adds over small fixed axes (4 corners, 4 axes):
+tiny ``jnp.sum``/``jnp.max`` reductions over axes of size 2-4 are 10-40x slower under ``vmap``
+at batch >= 32 on XLA:CPU.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from igdrivsim.simulator.roadgraph import RoadEdges
+from igdrivsim.simulator.state import (
+    SimParams,
+    SimState,
+    current_objects,
+    log_sdc_at,
+    sdc_pose,
+)
+
+DEFAULT_PARAMS = SimParams()
+
+
+def _take(a, i):
+    """``a[..., i]`` for a per-batch index ``i [...]`` (a: ``[..., N]``)."""
+    return jnp.take_along_axis(a, jnp.asarray(i)[..., None], axis=-1)[..., 0]
+
+
+def boxes_overlap(ax, ay, alen, awid, ayaw, bx, by, blen, bwid, byaw):
+    """Whether oriented boxes A and B intersect with positive area (broadcasting arrays).
+
+    Separating-axis test on the four box axes. With ``c, s`` the cosine and sine of the relative
+    yaw, the projection of B's half extents on A's axes is ``hl_b |c| + hw_b |s|`` and
+    ``hl_b |s| + hw_b |c|`` (and symmetrically), so each axis costs a few multiply-adds.
+    """
+    dx, dy = bx - ax, by - ay
+    ca, sa = jnp.cos(ayaw), jnp.sin(ayaw)
+    cb, sb = jnp.cos(byaw), jnp.sin(byaw)
+    c = jnp.abs(ca * cb + sa * sb)  # |cos(byaw - ayaw)|
+    s = jnp.abs(ca * sb - sa * cb)  # |sin(byaw - ayaw)|
+    hla, hwa, hlb, hwb = 0.5 * alen, 0.5 * awid, 0.5 * blen, 0.5 * bwid
+    sep_a1 = jnp.abs(dx * ca + dy * sa) >= hla + hlb * c + hwb * s
+    sep_a2 = jnp.abs(-dx * sa + dy * ca) >= hwa + hlb * s + hwb * c
+    sep_b1 = jnp.abs(dx * cb + dy * sb) >= hlb + hla * c + hwa * s
+    sep_b2 = jnp.abs(-dx * sb + dy * cb) >= hwb + hla * s + hwa * c
+    return ~(sep_a1 | sep_a2 | sep_b1 | sep_b2)
+
+
+def overlap(state: SimState):
+    """``bool[...]``: the SDC box overlaps some other object valid at the current step."""
+    obj = current_objects(state)
+    i = state.sdc_index
+    hit = boxes_overlap(
+        _take(obj.x, i)[..., None], _take(obj.y, i)[..., None], _take(obj.length, i)[..., None],
+        _take(obj.width, i)[..., None], _take(obj.yaw, i)[..., None],
+        obj.x, obj.y, obj.length, obj.width, obj.yaw)
+    others = obj.valid & (jnp.arange(obj.x.shape[-1]) != i[..., None])
+    return jnp.any(hit & others, axis=-1) & _take(obj.valid, i)
+
+
+def box_corners(x, y, length, width, yaw):
+    """The four corners of boxes ``[...]`` as ``(cx, cy)``, each ``[..., 4]`` (counter-clockwise
+    from front-left)."""
+    c, s = jnp.cos(yaw)[..., None], jnp.sin(yaw)[..., None]
+    fl = jnp.asarray([1.0, -1.0, -1.0, 1.0])  # length sign per corner
+    fw = jnp.asarray([1.0, 1.0, -1.0, -1.0])  # width sign per corner
+    lx, ly = 0.5 * length[..., None] * fl, 0.5 * width[..., None] * fw
+    return x[..., None] + c * lx - s * ly, y[..., None] + s * lx + c * ly
+
+
+def signed_distance_point(px, py, edges: RoadEdges):
+    """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point.
+
+    ``edges`` fields ``[..., E]``. Positive means outside the road (on the right of ``dir``).
+    Returns ``f32[..., K]`` (``+inf`` if there is no valid edge point: treated as on-road by
+    :func:`offroad`, see there).
+    """
+    ex, ey = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
+    rx, ry = px[..., :, None] - ex, py[..., :, None] - ey  # [..., K, E]
+    d2 = jnp.where(edges.valid[..., None, :], rx * rx + ry * ry, jnp.inf)
+    j = jnp.argmin(d2, axis=-1)  # [..., K]
+    dmin = jnp.sqrt(jnp.min(d2, axis=-1))
+    gx = jnp.take_along_axis(ex[..., 0, :], j, axis=-1)
+    gy = jnp.take_along_axis(ey[..., 0, :], j, axis=-1)
+    ux = jnp.take_along_axis(edges.dir[..., 0], j, axis=-1)
+    uy = jnp.take_along_axis(edges.dir[..., 1], j, axis=-1)
+    cross = (px - gx) * uy - (py - gy) * ux  # cross(corner - point, dir)
+    return jnp.where(cross > 0, dmin, -dmin)
+
+
+def signed_distance_segment(px, py, edges: RoadEdges):
+    """Signed distance of points ``[..., K]`` to the nearest road-edge segment (``f32[..., K]``).
+
+    Each edge slot is the segment ``xy -> next_xy``. Inside a segment the sign comes from the
+    segment direction; at a vertex from the bisector stored in ``bis_start``/``bis_end``.
+    """
+    ax, ay = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
+    sx = edges.next_xy[..., None, :, 0] - ax
+    sy = edges.next_xy[..., None, :, 1] - ay
+    rx, ry = px[..., :, None] - ax, py[..., :, None] - ay  # [..., K, E]
+    len2 = sx * sx + sy * sy
+    u = jnp.clip((rx * sx + ry * sy) / jnp.maximum(len2, 1e-12), 0.0, 1.0)
+    qx, qy = rx - u * sx, ry - u * sy  # point minus its nearest point on the segment
+    d2 = jnp.where(edges.valid[..., None, :], qx * qx + qy * qy, jnp.inf)
+    j = jnp.argmin(d2, axis=-1)
+    dmin = jnp.sqrt(jnp.min(d2, axis=-1))
+
+    def pick(a):  # a: [..., 1 or K, E] -> [..., K]
+        a = jnp.broadcast_to(a, d2.shape)
+        return jnp.take_along_axis(a, j[..., None], axis=-1)[..., 0]
+
+    uj = pick(u)
+    seg_x, seg_y = pick(sx), pick(sy)
+    seg_n = jnp.sqrt(seg_x * seg_x + seg_y * seg_y)
+    bs, be = edges.bis_start[..., None, :, :], edges.bis_end[..., None, :, :]
+    at_start, at_end = uj <= 0.0, (uj >= 1.0) & (seg_n > 0)
+    dir_x = jnp.where(at_start, pick(bs[..., 0]), jnp.where(
+        at_end, pick(be[..., 0]), seg_x / jnp.maximum(seg_n, 1e-12)))
+    dir_y = jnp.where(at_start, pick(bs[..., 1]), jnp.where(
+        at_end, pick(be[..., 1]), seg_y / jnp.maximum(seg_n, 1e-12)))
+    cross = pick(qx) * dir_y - pick(qy) * dir_x  # cross(point - nearest, direction)
+    return jnp.where(cross > 0, dmin, -dmin)
+
+
+SIGNED_DISTANCE = {"point": signed_distance_point, "segment": signed_distance_segment}
+
+
+def sdc_corners(state: SimState):
+    """Corners of the simulated SDC box at the current step: ``(cx, cy)``, each ``[..., 4]``."""
+    x, y, yaw, _ = sdc_pose(state)
+    i, t = state.sdc_index, state.timestep
+    length = _sdc_log_attr(state.log.length, i, t)
+    width = _sdc_log_attr(state.log.width, i, t)
+    return box_corners(x, y, length, width, yaw)
+
+
+def _sdc_log_attr(a, i, t):
+    """``a[..., i, t]`` for per-batch object index ``i`` and timestep ``t``."""
+    row = jnp.take_along_axis(a, jnp.asarray(i)[..., None, None], axis=-2)[..., 0, :]
+    return _take(row, t)
+
+
+def offroad(state: SimState, method: str = "point"):
+    """``bool[...]``: some SDC box corner is outside the road (see the module docstring).
+
+    Uses the cropped ``state.road_edges``. A scenario without any valid road-edge point is never
+    offroad.
+    """
+    cx, cy = sdc_corners(state)
+    sd = SIGNED_DISTANCE[method](cx, cy, state.road_edges)
+    _, _, _, valid = sdc_pose(state)
+    outside = (sd > 0) & jnp.isfinite(sd)
+    return (outside[..., 0] | outside[..., 1] | outside[..., 2] | outside[..., 3]) & valid
+
+
+def log_divergence(state: SimState):
+    """``f32[...]``: distance (m) between the simulated and the logged SDC position (0 when
+    either is invalid)."""
+    x, y, _, valid = sdc_pose(state)
+    lx, ly, _, lvalid = log_sdc_at(state, state.timestep)
+    d = jnp.sqrt((x - lx) ** 2 + (y - ly) ** 2)
+    return jnp.where(valid & lvalid, d, 0.0)
+
+
+@struct.dataclass
+class StepMetrics:
+    """Metrics of one step, ``[...]`` each (stacked over time by the rollout: ``[..., T]``).
+
+    ``valid``: the SDC is valid at this step in both the simulation and the log; the other
+    fields are False / 0 where it is not.
+    """
+
+    overlap: jax.Array
+    offroad: jax.Array
+    log_divergence: jax.Array
+    valid: jax.Array
+
+
+def step_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetrics:
+    """All per-step metrics of the current step (``params.offroad_method`` picks the rule)."""
+    _, _, _, valid = sdc_pose(state)
+    _, _, _, lvalid = log_sdc_at(state, state.timestep)
+    return StepMetrics(
+        overlap=overlap(state), offroad=offroad(state, params.offroad_method),
+        log_divergence=log_divergence(state), valid=valid & lvalid,
+    )
+
+
+def reward(metrics: StepMetrics):
+    """The paper's penalty-only reward ``-1[overlap] - 1[offroad]`` (``f32[...]``)."""
+    return -(metrics.overlap.astype(jnp.float32) + metrics.offroad.astype(jnp.float32))
+
+
+class ScenarioMetrics(NamedTuple):
+    """Per-scenario metrics, ``f32[...]`` each. Averaging over scenarios gives the paper's
+    overlap rate, offroad rate and (mean) max log divergence."""
+
+    overlap_rate: jax.Array  # 1.0 if the SDC overlaps at any step, else 0.0
+    offroad_rate: jax.Array  # 1.0 if the SDC is offroad at any step, else 0.0
+    max_log_divergence: jax.Array  # over the valid steps (0 if none)
+
+
+def scenario_metrics(per_step: StepMetrics) -> ScenarioMetrics:
+    """Aggregate per-step metrics ``[..., T]`` (the 80 controlled steps) per scenario."""
+    return ScenarioMetrics(
+        overlap_rate=jnp.any(per_step.overlap, axis=-1).astype(jnp.float32),
+        offroad_rate=jnp.any(per_step.offroad, axis=-1).astype(jnp.float32),
+        max_log_divergence=jnp.max(
+            jnp.where(per_step.valid, per_step.log_divergence, 0.0), axis=-1),
+    )
+
+
+def mean_log_divergence(per_step: StepMetrics):
+    """Mean log divergence over the valid steps of each scenario (``f32[...]``, 0 if none)."""
+    n = jnp.sum(per_step.valid, axis=-1)
+    total = jnp.sum(jnp.where(per_step.valid, per_step.log_divergence, 0.0), axis=-1)
+    return total / jnp.maximum(n, 1)

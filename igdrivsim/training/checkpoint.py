@@ -1,0 +1,47 @@
+"""Orbax checkpoints of a run: ``RUN/checkpoints/<updates done>/`` holding params + optimiser.
+
+Orbax writes each step into a temporary folder and renames it when complete, so a run killed
+mid-save leaves the previous checkpoint intact. The step number is the number of updates done;
+everything else (data order, keys, learning rate) is a function of it, so restoring
+``(params, opt_state)`` at step ``k`` resumes the run exactly.
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import orbax.checkpoint as ocp
+
+
+class Checkpoints:
+    """Save / restore ``{"params", "opt_state"}`` (stacked over seeds) under ``run_dir``."""
+
+    def __init__(self, run_dir: str | os.PathLike, max_to_keep: int = 2):
+        self.path = os.path.abspath(os.path.join(os.fspath(run_dir), "checkpoints"))
+        options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True)
+        self.manager = ocp.CheckpointManager(self.path, options=options)
+
+    def latest_step(self) -> int | None:
+        return self.manager.latest_step()
+
+    def save(self, step: int, params, opt_state) -> None:
+        """Save synchronously (returns when the checkpoint is complete on disk)."""
+        if step in self.manager.all_steps():
+            return
+        self.manager.save(step, args=ocp.args.StandardSave(
+            {"params": params, "opt_state": opt_state}))
+        self.manager.wait_until_finished()
+
+    def restore(self, step: int, params_like, opt_state_like):
+        """Restore into the structure (and shardings) of the given templates."""
+
+        def abstract(x):
+            return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
+
+        target = jax.tree.map(abstract, {"params": params_like, "opt_state": opt_state_like})
+        out = self.manager.restore(step, args=ocp.args.StandardRestore(target))
+        return out["params"], out["opt_state"]
+
+    def close(self) -> None:
+        self.manager.close()

@@ -1,0 +1,82 @@
+"""``igdrivsim train``: train BC / BC-RL policies (all seeds of one setting in one program).
+
+Example: ``igdrivsim train --profile laptop --obs circular_r4 --method bc_rl --seeds 3
+--data DATA/train --out runs/circular_r4-bc_rl [--resume] [--set training.lr=3e-4]``.
+A complete run is recognised and left alone (exit 0), so pipelines can re-run the command.
+Several hosts: set ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``
+on each and run the same command; the batch is split over all hosts' devices.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from igdrivsim.training.config import METHODS, PROFILES, get_profile, with_overrides
+
+
+def train_arguments(parser: argparse.ArgumentParser) -> None:
+    from igdrivsim.observation import PRESETS
+
+    parser.add_argument("--profile", choices=list(PROFILES), default="laptop",
+                        help="named configuration (default: laptop)")
+    parser.add_argument("--obs", default=None, metavar="SETTING",
+                        help=f"observation setting: {', '.join(PRESETS)} (compose with '+')")
+    parser.add_argument("--method", choices=METHODS, default=None, help="bc or bc_rl")
+    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (vmapped)")
+    parser.add_argument("--data", required=True,
+                        help="training data: a folder (with a filter manifest.jsonl, or TFRecords)")
+    parser.add_argument("--out", required=True, help="run folder")
+    parser.add_argument("--resume", action="store_true", help="continue an unfinished run")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="SECTION.FIELD=VALUE", help="override a config field (repeatable)")
+    parser.add_argument("--stop-after", type=int, default=None, metavar="K",
+                        help="debug: stop (with a checkpoint) after K updates")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def resolve_config(args: argparse.Namespace):
+    """The run's config: profile, then the shortcut options, then ``--set`` overrides."""
+    config = get_profile(args.profile)
+    shortcuts = []
+    if args.obs is not None:
+        shortcuts.append(f"observation.setting={args.obs}")
+    if args.method is not None:
+        shortcuts.append(f"training.method={args.method}")
+    if args.seeds is not None:
+        shortcuts.append(f"training.seeds={args.seeds}")
+    config = with_overrides(config, shortcuts + list(args.overrides))
+    from igdrivsim.observation import get_setting
+
+    get_setting(config.observation.setting)  # fail early on an unknown setting
+    return config.validate()
+
+
+def maybe_init_distributed() -> None:
+    """``jax.distributed.initialize()`` when the multi-host environment variables are set."""
+    if os.environ.get("JAX_COORDINATOR_ADDRESS") and os.environ.get("JAX_NUM_PROCESSES"):
+        import jax
+
+        jax.distributed.initialize(
+            coordinator_address=os.environ["JAX_COORDINATOR_ADDRESS"],
+            num_processes=int(os.environ["JAX_NUM_PROCESSES"]),
+            process_id=int(os.environ.get("JAX_PROCESS_ID", "0")))
+
+
+def train_command(args: argparse.Namespace) -> int:
+    from igdrivsim.errors import DataError
+
+    config = resolve_config(args)
+    if not os.path.exists(args.data):
+        raise DataError("training data not found", file=args.data)
+    maybe_init_distributed()
+    from igdrivsim.training.loop import train
+
+    result = train(config, args.data, args.out, resume=args.resume, stop_after=args.stop_after,
+                   progress=not args.no_progress)
+    if result.complete and result.updates_done >= 0:
+        print(f"trained {result.num_updates} updates in {result.seconds:.1f} s -> {args.out}")
+    elif not result.complete:
+        print(f"stopped after {result.updates_done}/{result.num_updates} updates "
+              f"(continue with --resume) -> {args.out}")
+    return 0

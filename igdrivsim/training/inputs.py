@@ -1,0 +1,191 @@
+"""The training input pipeline: load once, reset once, cache in memory, shuffle, prefetch.
+
+Scenarios come from a filter manifest (``manifest.jsonl`` in the data folder, kept rows) or,
+without one, from every TFRecord file of the folder. Each is fitted to the profile's capacities
+while decoding, then ``reset`` (warm-up replay + roadgraph crop) ONCE, and the resulting
+:class:`SimState` s are stacked in host memory (NumPy). A batch is then a gather.
+
+Order: seed ``s`` walks through the data in epochs, each a permutation drawn from
+``numpy.random.default_rng([seed, epoch])``; the batch of update ``u`` is positions
+``u*B .. (u+1)*B - 1`` of that stream. It is a pure function of ``(seed, u)``, so a resumed run
+sees exactly the batches an uninterrupted one would. A background thread prepares and places
+the next ``prefetch`` batches on the devices while the current update runs.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import queue
+import threading
+from collections.abc import Iterator, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.simulator import SimParams, SimState, reset
+from igdrivsim.training.config import RunConfig
+
+MANIFEST = "manifest.jsonl"
+
+
+def capacities(config: RunConfig) -> Capacities:
+    return Capacities(max_objects=config.data.max_objects,
+                      max_roadgraph_points=config.data.max_roadgraph_points)
+
+
+def load_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0
+                   ) -> list[Scenario]:
+    """The training scenarios of ``data`` (a folder with or without a manifest, or files)."""
+    from igdrivsim.data import read_scenarios
+
+    path = os.fspath(data)
+    manifest = os.path.join(path, MANIFEST) if os.path.isdir(path) else None
+    if manifest and os.path.isfile(manifest):
+        from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
+
+        entries = read_manifest(manifest)
+        if max_scenarios:
+            entries = entries[:max_scenarios]
+        scenarios = load_manifest_scenarios(entries, caps)
+    else:
+        scenarios = []
+        for sc in read_scenarios(path, caps):
+            scenarios.append(sc)
+            if max_scenarios and len(scenarios) >= max_scenarios:
+                break
+    if not scenarios:
+        raise DataError("no training scenarios found", file=path)
+    return scenarios
+
+
+@functools.lru_cache(maxsize=8)
+def _jit_reset(params: SimParams):
+    return jax.jit(lambda s: reset(s, params))
+
+
+def reset_all(scenarios: Sequence[Scenario], params: SimParams, chunk: int = 64) -> SimState:
+    """``reset`` every scenario (jitted, in chunks), stacked on the host: ``SimState [N]``."""
+    fn = _jit_reset(params)
+    parts = []
+    for start in range(0, len(scenarios), chunk):
+        part = list(scenarios[start:start + chunk])
+        n = len(part)
+        part += [part[0]] * (chunk - n) if len(scenarios) > chunk else []  # one compiled shape
+        state = jax.device_get(fn(stack_scenarios(part)))
+        parts.append(jax.tree.map(lambda x, n=n: np.asarray(x)[:n], state))
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def batch_indices(num_scenarios: int, batch_size: int, seed: int, update: int) -> np.ndarray:
+    """Scenario indices of update ``update`` for seed ``seed`` (epoch-wise permutations)."""
+    pos = np.arange(update * batch_size, (update + 1) * batch_size, dtype=np.int64)
+    epochs, offsets = pos // num_scenarios, pos % num_scenarios
+    out = np.empty(batch_size, np.int64)
+    for e in np.unique(epochs):
+        perm = np.random.default_rng([int(seed), int(e)]).permutation(num_scenarios)
+        out[epochs == e] = perm[offsets[epochs == e]]
+    return out
+
+
+def make_mesh(devices: Sequence | None = None) -> Mesh:
+    """A 1-D mesh ``('data',)`` over all (global) devices: scenarios sharded, params replicated."""
+    return Mesh(np.asarray(list(devices) if devices is not None else jax.devices()), ("data",))
+
+
+def batch_sharding(mesh: Mesh) -> NamedSharding:
+    """Arrays ``[S, B, ...]``: the scenario axis ``B`` split over the mesh."""
+    return NamedSharding(mesh, PartitionSpec(None, "data"))
+
+
+def replicated(mesh: Mesh) -> NamedSharding:
+    return NamedSharding(mesh, PartitionSpec())
+
+
+def place(tree, sharding: NamedSharding):
+    """Host arrays -> global device arrays; every process holds the full host copy and hands
+    over the pieces its local devices own (works for one and for several hosts)."""
+
+    def one(x):
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
+
+    return jax.tree.map(one, tree)
+
+
+class Dataset:
+    """Reset states of all training scenarios in host memory, and the batch sampler."""
+
+    def __init__(self, states: SimState, batch_size: int, seeds: Sequence[int]):
+        self.states = states
+        self.num = int(np.shape(states.timestep)[0])
+        self.batch_size = batch_size
+        self.seeds = [int(s) for s in seeds]
+
+    @classmethod
+    def from_config(cls, config: RunConfig, data, params: SimParams) -> Dataset:
+        """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``."""
+        d, t = config.data, config.training
+        if isinstance(data, (str, os.PathLike)):
+            scenarios = load_scenarios(data, capacities(config), d.max_scenarios)
+        else:
+            scenarios = list(data)[: d.max_scenarios or None]
+        seeds = range(t.seed_offset, t.seed_offset + t.seeds)
+        return cls(reset_all(scenarios, params), d.batch_size, seeds)
+
+    def host_batch(self, update: int) -> SimState:
+        """``SimState [S, B]`` on the host for update ``update``."""
+        idx = np.stack([batch_indices(self.num, self.batch_size, s, update) for s in self.seeds])
+        return jax.tree.map(lambda x: x[idx], self.states)
+
+    def example(self) -> SimState:
+        """One unbatched state (for shapes)."""
+        return jax.tree.map(lambda x: jnp.asarray(x[0]), self.states)
+
+
+def prefetch(dataset: Dataset, updates: range, sharding: NamedSharding, depth: int = 2
+             ) -> Iterator[SimState]:
+    """Yield the placed batches of ``updates`` in order; a daemon thread works ``depth`` ahead."""
+    if depth <= 0:
+        for u in updates:
+            yield place(dataset.host_batch(u), sharding)
+        return
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def work():
+        try:
+            for u in updates:
+                item = place(dataset.host_batch(u), sharding)
+                while not stop.is_set():
+                    try:
+                        q.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as err:  # surface loader errors in the training thread
+            q.put(err)
+
+    thread = threading.Thread(target=work, name="igdrivsim-prefetch", daemon=True)
+    thread.start()
+    try:
+        for _ in updates:
+            item = q.get()
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def check_batch(batch_size: int, mesh: Mesh) -> None:
+    if batch_size % mesh.size:
+        raise ConfigError(f"data.batch_size ({batch_size}) must be a multiple of the number of "
+                          f"devices ({mesh.size})")

@@ -1,0 +1,220 @@
+"""The training driver: config.json, data, parameters, the update loop, metrics, checkpoints.
+
+``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run of
+``config.training.seeds`` seeds. Layout of ``out_dir``:
+
+- ``config.json``: the resolved :class:`RunConfig` (plus ``num_updates`` and the device count);
+- ``metrics.jsonl``: one line per logged update (``update`` = updates done, ``bc_loss``, ``lr``,
+  ``entropy``, ``grad_norm``, ``updates_per_s``, ``scenario_steps_per_s``; BC-RL adds
+  ``mean_return``, ``ppo_loss``, ``value_loss``, ``clip_frac``, ``ratio_dev``); each metric is
+  the mean over seeds, and ``<metric>_seeds`` lists the per-seed values;
+- ``checkpoints/<updates done>/`` (orbax), every ``checkpoint_every`` updates and at the end;
+- ``DONE``: written when the last checkpoint is saved.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import jax
+import numpy as np
+
+from igdrivsim.errors import ConfigError
+from igdrivsim.policy.act import example_observation
+from igdrivsim.policy.network import count_params, init_params_per_seed
+from igdrivsim.training import inputs
+from igdrivsim.training.checkpoint import Checkpoints
+from igdrivsim.training.config import RunConfig, from_dict, to_dict
+from igdrivsim.training.update import UpdateSpec, cosine_lr, make_update, optimizer, update_spec
+
+CONFIG, METRICS, DONE = "config.json", "metrics.jsonl", "DONE"
+_UPDATE_CACHE: dict[UpdateSpec, object] = {}
+
+
+@dataclass
+class TrainResult:
+    params: object  # stacked over seeds
+    updates_done: int
+    num_updates: int
+    complete: bool
+    seconds: float
+
+
+def atomic_write(path: str, text: str) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def total_updates(config: RunConfig, num_scenarios: int) -> int:
+    t = config.training
+    if t.num_updates > 0:
+        return t.num_updates
+    return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
+
+
+def seed_keys(config: RunConfig) -> jax.Array:
+    t = config.training
+    return jax.vmap(jax.random.PRNGKey)(np.arange(t.seed_offset, t.seed_offset + t.seeds))
+
+
+def init_state(config: RunConfig, spec: UpdateSpec):
+    """Parameters and optimiser state for every seed (stacked on axis 0)."""
+    keys = seed_keys(config)
+    init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(keys)
+    params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
+    opt_state = jax.vmap(optimizer(spec).init)(params)
+    return params, opt_state
+
+
+def get_update(spec: UpdateSpec):
+    """The compiled update for ``spec`` (shared by every run in this process)."""
+    if spec not in _UPDATE_CACHE:
+        _UPDATE_CACHE[spec] = make_update(spec)
+    return _UPDATE_CACHE[spec]
+
+
+def is_complete(out_dir: str) -> bool:
+    return os.path.isfile(os.path.join(out_dir, DONE))
+
+
+def _check_config(out_dir: str, record: dict) -> None:
+    path = os.path.join(out_dir, CONFIG)
+    with open(path) as f:
+        old = json.load(f)
+    if old.get("config") != json.loads(json.dumps(record["config"])):
+        raise ConfigError(f"{path}: the run was started with a different configuration; "
+                          "use another --out or the same options")
+
+
+def _truncate_metrics(path: str, upto: int) -> None:
+    """Keep the metric lines of updates ``<= upto`` (a resumed run re-logs the rest)."""
+    if not os.path.isfile(path):
+        return
+    with open(path) as f:
+        lines = [ln for ln in f if ln.strip() and json.loads(ln)["update"] <= upto]
+    atomic_write(path, "".join(lines))
+
+
+def _log_line(update: int, lr: float, metrics: dict, rate: float, steps_rate: float) -> dict:
+    line = {"update": update, "lr": lr, "updates_per_s": rate, "scenario_steps_per_s": steps_rate}
+    for name, values in metrics.items():
+        values = np.asarray(values, np.float64)
+        line[name] = float(values.mean())
+        line[f"{name}_seeds"] = [float(v) for v in values]
+    return line
+
+
+def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
+          stop_after: int | None = None, progress: bool = True, devices=None,
+          log=print) -> TrainResult:
+    """Train (or resume) one run; see the module docstring. ``data``: a folder / files, or a
+    list of :class:`~igdrivsim.data.scenario.Scenario`. ``stop_after``: stop (with a
+    checkpoint) once that many updates are done (a debugging aid for resume tests)."""
+    config = config.validate()
+    out_dir = os.fspath(out_dir)
+    start_time = time.perf_counter()
+    os.makedirs(out_dir, exist_ok=True)
+    record = {"config": to_dict(config)}
+    if os.path.isfile(os.path.join(out_dir, CONFIG)):
+        _check_config(out_dir, record)
+        if is_complete(out_dir):
+            log(f"run {out_dir} is already complete; nothing to do")
+            return TrainResult(None, -1, -1, True, 0.0)
+        if not resume:
+            raise ConfigError(f"{out_dir} holds an unfinished run; pass --resume to continue it")
+    spec = update_spec(config)
+    mesh = inputs.make_mesh(devices)
+    inputs.check_batch(config.data.batch_size, mesh)
+    dataset = inputs.Dataset.from_config(config, data, spec.sim)
+    num_updates = total_updates(config, dataset.num)
+    record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
+               "devices": mesh.size, "processes": jax.process_count()}
+    main = jax.process_index() == 0
+    if main:
+        atomic_write(os.path.join(out_dir, CONFIG), json.dumps(record, indent=2) + "\n")
+
+    params, opt_state = init_state(config, spec)
+    per_seed = count_params(jax.tree.map(lambda x: x[0], params))
+    log(f"policy: {per_seed:,} parameters per seed x {config.training.seeds} seeds; "
+        f"{dataset.num} scenarios, {num_updates} updates of {config.data.batch_size} scenarios "
+        f"on {mesh.size} device(s)")
+    rep = inputs.replicated(mesh)
+    params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
+    ckpt = Checkpoints(out_dir, config.training.max_checkpoints)
+    start = 0
+    if resume and ckpt.latest_step() is not None:
+        start = ckpt.latest_step()
+        params, opt_state = ckpt.restore(start, params, opt_state)
+        log(f"resuming from update {start}")
+    metrics_path = os.path.join(out_dir, METRICS)
+    if main:
+        _truncate_metrics(metrics_path, start if resume else -1)
+    end = num_updates if stop_after is None else min(num_updates, stop_after)
+    update = get_update(spec)
+    keys = inputs.place(seed_keys(config), rep)
+    t = config.training
+    steps_per_update = t.seeds * config.data.batch_size * 80 * t.ppo_epochs
+    bar = None
+    if progress and main:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train", dynamic_ncols=True)
+    batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
+                              config.data.prefetch)
+    last_log, last_time = start, time.perf_counter()
+    with open(metrics_path, "a") if main else open(os.devnull, "w") as metrics_file:
+        for u, batch in zip(range(start, end), batches, strict=True):
+            lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+            params, opt_state, metrics = update(params, opt_state, batch, keys, u, lr)
+            done = u + 1
+            if bar is not None:
+                bar.update()
+            if done % t.log_every == 0 or done == end:
+                metrics = jax.device_get(metrics)
+                now = time.perf_counter()
+                rate = (done - last_log) / max(now - last_time, 1e-9)
+                line = _log_line(done, lr, metrics, rate, rate * steps_per_update)
+                metrics_file.write(json.dumps(line) + "\n")
+                metrics_file.flush()
+                if bar is not None:
+                    bar.set_postfix(bc=f"{line['bc_loss']:.3f}", refresh=False)
+                last_log, last_time = done, now
+            if done % t.checkpoint_every == 0 or done == end:
+                ckpt.save(done, params, opt_state)
+    if bar is not None:
+        bar.close()
+    ckpt.close()
+    complete = end == num_updates
+    if complete and main:
+        atomic_write(os.path.join(out_dir, DONE), f"{num_updates}\n")
+    return TrainResult(params, end, num_updates, complete, time.perf_counter() - start_time)
+
+
+def load_run(run_dir: str | os.PathLike, step: int | None = None):
+    """``(RunConfig, params stacked over seeds)`` from a run folder (latest checkpoint)."""
+    run_dir = os.fspath(run_dir)
+    path = os.path.join(run_dir, CONFIG)
+    if not os.path.isfile(path):
+        raise ConfigError(f"{path}: not a training run (no {CONFIG})")
+    with open(path) as f:
+        config = from_dict(json.load(f)["config"])
+    spec = update_spec(config)
+    params_like, opt_like = jax.eval_shape(lambda: init_state(config, spec))
+    ckpt = Checkpoints(run_dir)
+    step = ckpt.latest_step() if step is None else step
+    if step is None:
+        raise ConfigError(f"{run_dir}: no checkpoint yet")
+    params, _ = ckpt.restore(step, params_like, opt_like)
+    ckpt.close()
+    return config, params
+
+
+def replace_training(config: RunConfig, **changes) -> RunConfig:
+    return dataclasses.replace(config, training=dataclasses.replace(config.training, **changes))

@@ -1,0 +1,85 @@
+"""A strip of maze frames (minigrid rendering, imitator's 3x3 view highlighted): ``python -m
+maze.render [--out DIR]`` writes ``DIR/figures/maze_frames.png``.
+
+The agent follows the exploring planner of :mod:`maze.oracles` (walk to the nearest unseen cell
+until the goal is in view, then take the shortest path), the behaviour an imitator with a 3x3
+view needs and that a full-observation expert never demonstrates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from maze.env import MOVES
+from maze.gym_env import MazeGymEnv
+from maze.oracles import _step_towards
+from maze.report import atomic_write
+
+
+def planner_episode(env: MazeGymEnv, seed: int) -> list[tuple[np.ndarray, int, bool]]:
+    """``(frame, t, goal visible)`` for every step of one planner episode."""
+    obs, info = env.reset(seed=seed)
+    walls, r = env.maze.walls, env.maze.receptive_field // 2
+    cells = {tuple(int(v) for v in c) for c in env.maze.goal_cells}
+    seen: set = set()
+    frames = [(env.render(), 0, bool(obs[-1] >= 0))]
+    done, t = False, 0
+    while not done:
+        pos = info["position"]
+        seen.update((pos[0] + i, pos[1] + j) for i in range(-r, r + 1) for j in range(-r, r + 1))
+        targets = {info["goal"]} if info["goal"] in seen else cells - seen
+        nxt = _step_towards(walls, pos, targets)
+        action = int(np.flatnonzero((MOVES == np.subtract(nxt, pos)).all(axis=1))[0])
+        obs, _, terminated, truncated, info = env.step(action)
+        t += 1
+        done = terminated or truncated
+        frames.append((env.render(), t, bool(obs[-1] >= 0)))
+    return frames
+
+
+def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Path:
+    """Evenly spaced frames of a planner episode side by side (by default the first seed whose
+    episode takes at least 25 steps, so the exploration shows)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env = MazeGymEnv(render_mode="rgb_array", tile_size=16)
+    if seed is None:
+        seed = 0
+        while len(frames := planner_episode(env, seed)) <= 25:
+            seed += 1
+    else:
+        frames = planner_episode(env, seed)
+    picks = np.unique(np.linspace(0, len(frames) - 1, num_frames).round().astype(int))
+    fig, axes = plt.subplots(1, len(picks), figsize=(2.0 * len(picks), 2.3))
+    for ax, i in zip(np.atleast_1d(axes), picks, strict=True):
+        img, t, visible = frames[i]
+        ax.imshow(img)
+        ax.set_title(f"t = {t}" + (", goal in view" if visible else ""), fontsize=8)
+        ax.axis("off")
+    fig.suptitle("Imitator's 3x3 view (highlighted) while it explores for the goal (green)",
+                 fontsize=9)
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=150), ".png")
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m maze.render", description=__doc__.split(
+        "\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("paper"))
+    parser.add_argument("--seed", type=int, default=None)
+    args = parser.parse_args(argv)
+    print(save_frames(args.out / "figures" / "maze_frames.png", args.seed))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,141 @@
+"""Figure 2, its CSV and the summary tables of the maze study (written atomically)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+# curve name -> (legend label, colour close to the paper's figure)
+CURVES: dict[str, tuple[str, str]] = {
+    "rl_full": ("RL, full obs. (PPO)", "#1f3b73"),
+    "rl_partial": ("RL, partial obs. (PPO)", "#8c564b"),
+    "bc_full_from_full": ("BC: full expert $\\to$ full imitator", "#1f77b4"),
+    "bc_partial_from_full": ("BC: full expert $\\to$ partial imitator", "#17becf"),
+    "bc_partial_from_partial": ("BC: partial expert $\\to$ partial imitator", "#e377c2"),
+}
+PLAIN = {"rl_full": "RL full obs. (PPO)", "rl_partial": "RL partial obs. (PPO)",
+         "bc_full_from_full": "BC full -> full", "bc_partial_from_full": "BC full -> partial",
+         "bc_partial_from_partial": "BC partial -> partial"}
+
+
+def ci95(values) -> float:
+    """Half-width of the Student-t 95% confidence interval of the mean (0 for one value)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    if values.size < 2:
+        return 0.0
+    sem = values.std(ddof=1) / np.sqrt(values.size)
+    return float(stats.t.ppf(0.975, values.size - 1) * sem)
+
+
+def atomic_write(path: Path, write: Callable[[str], None], suffix: str = "") -> None:
+    """Call ``write(tmp_path)`` on a temp file next to ``path``, then move it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def write_text(path: Path, text: str) -> None:
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def summarise(curves: pd.DataFrame) -> pd.DataFrame:
+    """One row per curve: final return (and length) mean and 95% CI over seeds."""
+    rows = []
+    for name in CURVES:
+        final = curves[(curves.curve == name) & (curves.final)]
+        if final.empty:
+            continue
+        rows.append({"curve": name, "final_return_mean": final["return"].mean(),
+                     "final_return_ci95": ci95(final["return"]),
+                     "final_length_mean": final["length"].mean(),
+                     "final_length_ci95": ci95(final["length"]), "seeds": len(final)})
+    return pd.DataFrame(rows)
+
+
+def summary_markdown(summary: pd.DataFrame, refs: dict, note: str) -> str:
+    lines = ["# Maze study (paper Fig. 2): final return per curve", "",
+             "| curve | return (mean +- 95% CI) | episode length | seeds |",
+             "|---|---|---|---|"]
+    for r in summary.itertuples():
+        lines.append(f"| {PLAIN[r.curve]} | {r.final_return_mean:.2f} +- {r.final_return_ci95:.2f}"
+                     f" | {r.final_length_mean:.1f} +- {r.final_length_ci95:.1f} | {r.seeds} |")
+    lines += [f"| shortest-path oracle (full obs., exact) | {refs['oracle_full'][0]:.2f} | "
+              f"{refs['oracle_full'][1]:.1f} | - |",
+              f"| exploring planner (partial obs., exact) | {refs['planner_partial'][0]:.2f} | "
+              f"{refs['planner_partial'][1]:.1f} | - |", "", note, ""]
+    return "\n".join(lines)
+
+
+def summary_latex(summary: pd.DataFrame, refs: dict) -> str:
+    tex = {"rl_full": "RL, full obs.\\ (PPO)", "rl_partial": "RL, partial obs.\\ (PPO)",
+           "bc_full_from_full": "BC full $\\to$ full",
+           "bc_partial_from_full": "BC full $\\to$ partial",
+           "bc_partial_from_partial": "BC partial $\\to$ partial"}
+    lines = ["\\begin{tabular}{lcc}", "\\toprule",
+             "Curve & Final return & Episode length \\\\", "\\midrule"]
+    for r in summary.itertuples():
+        lines.append(f"{tex[r.curve]} & ${r.final_return_mean:.2f} \\pm {r.final_return_ci95:.2f}$"
+                     f" & ${r.final_length_mean:.1f} \\pm {r.final_length_ci95:.1f}$ \\\\")
+    lines += ["\\midrule",
+              f"Shortest-path oracle (full) & {refs['oracle_full'][0]:.2f} & "
+              f"{refs['oracle_full'][1]:.1f} \\\\",
+              f"Exploring planner (partial) & {refs['planner_partial'][0]:.2f} & "
+              f"{refs['planner_partial'][1]:.1f} \\\\", "\\bottomrule", "\\end{tabular}", ""]
+    return "\n".join(lines)
+
+
+def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) -> None:
+    """Mean return vs training progress, t-based 95% CI bands, dashed RL bounds, dotted refs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    sns.set_theme(style="whitegrid", context="paper")
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    data = curves.assign(label=curves.curve.map(lambda c: CURVES[c][0]))
+    names = [c for c in CURVES if c in set(curves.curve)]
+    palette = {CURVES[c][0]: CURVES[c][1] for c in names}
+
+    def band(values):
+        m = float(np.mean(values))
+        h = ci95(values)
+        return m - h, m + h
+
+    sns.lineplot(data=data, x="progress", y="return", hue="label", hue_order=[
+        CURVES[c][0] for c in names], palette=palette, errorbar=band, ax=ax, linewidth=1.6)
+    final = summary.set_index("curve").final_return_mean
+    for name, text in (("rl_full", "converged RL, full obs."),
+                       ("rl_partial", "converged RL, partial obs.")):
+        if name in final:
+            ax.axhline(final[name], color=CURVES[name][1], ls="--", lw=1.1, label=text)
+    ax.axhline(refs["oracle_full"][0], color="0.35", ls=":", lw=1.1,
+               label="shortest-path oracle (full obs.)")
+    ax.axhline(refs["planner_partial"][0], color="0.6", ls=":", lw=1.1,
+               label="exploring planner (partial obs.)")
+    ax.set_xlabel("training progress (fraction of each run)")
+    ax.set_ylabel("mean episodic return")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 10.3)
+    ax.legend(fontsize=6.5, loc="lower right", framealpha=0.9)
+    ax.set_title("13x13 maze, imitator receptive field 3 (mean, 95% CI over seeds)", fontsize=8)
+    fig.tight_layout()
+    for ext in ("pdf", "png"):
+        atomic_write(stem.with_suffix(f".{ext}"),
+                     lambda tmp, ext=ext: fig.savefig(tmp, format=ext, dpi=200), f".{ext}")
+    plt.close(fig)

@@ -1,0 +1,321 @@
+"""The whole maze study of paper Fig. 2: ``python -m maze.study [--profile default|smoke]``.
+
+Stages (each cached under ``--work`` so an interrupted run resumes at the stage level):
+``rl_full`` and ``rl_partial`` (recurrent PPO, the experts and the dashed RL bounds), then ``bc``
+(three BC curves, ``vmap``ped over curves x seeds: full->full, full->partial, partial->partial,
+labels = the expert's sampled actions on the states it visits). Every curve point is the mean
+return of fresh evaluation episodes; the final point uses ``final_eval_rounds`` times more.
+Outputs under ``--out`` (default ``paper/``): ``figures/fig2_maze.{pdf,png,csv}``,
+``tables/maze_summary.{md,tex,csv}`` and ``maze_config.json``. Deterministic for a given config.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from igdrivsim.errors import ConfigError, IGDrivSimError
+from maze import report
+from maze.bc import BCConfig, collect_demos, make_bc
+from maze.env import make_params
+from maze.network import init_stacked, make_policy
+from maze.oracles import reference_returns
+from maze.ppo import PPOConfig, make_ppo
+from maze.rollout import evaluate
+
+BC_CURVES = {  # name -> (expert curve, expert partial?, imitator partial?)
+    "bc_full_from_full": ("rl_full", False, False),
+    "bc_partial_from_full": ("rl_full", False, True),
+    "bc_partial_from_partial": ("rl_partial", True, True),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyConfig:
+    """Resolved configuration (written next to the outputs)."""
+
+    profile: str = "default"
+    seeds: int = 10
+    seed: int = 0
+    size: int = 13
+    receptive_field: int = 3
+    max_steps: int = 200
+    hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
+    ppo: PPOConfig = PPOConfig()
+    rl_full_updates: int = 60
+    rl_partial_updates: int = 160
+    chunk_updates: int = 10
+    bc: BCConfig = BCConfig()
+    bc_chunk_epochs: int = 3
+    eval_episodes: int = 256
+    final_eval_rounds: int = 4
+
+    def validate(self) -> None:
+        make_params(self.size, self.receptive_field, self.max_steps)
+        if self.seeds < 1:
+            raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
+        if self.hidden < 1:
+            raise ConfigError(f"--hidden must be >= 1, got {self.hidden}")
+        for name in ("rl_full_updates", "rl_partial_updates"):
+            if getattr(self, name) % self.chunk_updates:
+                raise ConfigError(f"{name} must be a multiple of chunk_updates")
+        if self.bc.epochs % self.bc_chunk_epochs:
+            raise ConfigError("bc.epochs must be a multiple of bc_chunk_epochs")
+        if self.ppo.num_envs % self.ppo.num_minibatches or (
+                self.bc.num_envs % self.bc.num_minibatches):
+            raise ConfigError("num_envs must be a multiple of num_minibatches")
+
+
+PROFILES = {
+    "default": StudyConfig(),
+    "smoke": StudyConfig(
+        profile="smoke", seeds=2, hidden=16,
+        ppo=PPOConfig(num_envs=8, num_steps=32, num_minibatches=2, update_epochs=2),
+        rl_full_updates=4, rl_partial_updates=4, chunk_updates=2,
+        bc=BCConfig(num_envs=8, num_steps=64, epochs=2, num_minibatches=2),
+        bc_chunk_epochs=1, eval_episodes=16, final_eval_rounds=1),
+}
+
+
+def config_dict(cfg: StudyConfig) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def _key(cfg: StudyConfig, *path: int) -> jax.Array:
+    key = jax.random.PRNGKey(cfg.seed)
+    for p in path:
+        key = jax.random.fold_in(key, p)
+    return key
+
+
+class Study:
+    """Compiled functions shared by every stage (one compile each for all curves)."""
+
+    def __init__(self, cfg: StudyConfig):
+        self.cfg = cfg
+        self.params = make_params(cfg.size, cfg.receptive_field, cfg.max_steps)
+        self.model = make_policy(cfg.hidden, self.params)
+        ppo_init, ppo_chunk = make_ppo(self.model, self.params, cfg.ppo, cfg.chunk_updates)
+        self.ppo_init = jax.jit(jax.vmap(ppo_init))
+        self.ppo_chunk = jax.jit(jax.vmap(ppo_chunk))
+        bc_init, bc_chunk = make_bc(self.model, cfg.bc, cfg.bc_chunk_epochs)
+        self.bc_init = jax.jit(jax.vmap(bc_init))
+        self.bc_chunk = jax.jit(jax.vmap(bc_chunk))
+        self.collect = jax.jit(jax.vmap(
+            lambda p, k, e, i: collect_demos(self.model, p, k, cfg.bc, self.params, e, i)))
+        self.evaluate = jax.jit(jax.vmap(
+            lambda p, k, partial: evaluate(self.model, p, k, cfg.eval_episodes, self.params,
+                                           partial)))
+
+    def init_params(self, curve: int, rows: int):
+        return init_stacked(self.model, _key(self.cfg, curve, 0), rows, self.params.obs_dim)
+
+    def eval_rows(self, net_params, partial: bool, key: jax.Array, rounds: int = 1):
+        """Mean return and length per row (seed) over ``rounds * eval_episodes`` episodes."""
+        rows = jax.tree.leaves(net_params)[0].shape[0]
+        flags = jnp.full(rows, partial)
+        out = [self.evaluate(net_params, jax.random.split(jax.random.fold_in(key, r), rows), flags)
+               for r in range(rounds)]
+        ret = np.mean([np.asarray(o[0]) for o in out], axis=0)
+        length = np.mean([np.asarray(o[1]) for o in out], axis=0)
+        return ret, length
+
+
+def _records(curve: str, unit: str, points: list, seeds: int) -> list[dict]:
+    """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``."""
+    rows = []
+    last = len(points) - 1
+    for i, (step, ret, length) in enumerate(points):
+        for s in range(seeds):
+            rows.append({"curve": curve, "seed": s, "progress": i / last, "step": step,
+                         "unit": unit, "return": float(ret[s]), "length": float(length[s]),
+                         "final": i == last})
+    return rows
+
+
+def run_rl(study: Study, name: str, partial: bool, bar: tqdm) -> dict:
+    cfg = study.cfg
+    total = cfg.rl_full_updates if name == "rl_full" else cfg.rl_partial_updates
+    curve_id = 1 if name == "rl_full" else 2  # stable small ints for the PRNG keys
+    net = study.init_params(curve_id, cfg.seeds)
+    keys = jnp.stack([_key(cfg, curve_id, 1, s) for s in range(cfg.seeds)])
+    state = study.ppo_init(keys, net, jnp.full(cfg.seeds, partial),
+                           jnp.full(cfg.seeds, total, jnp.int32))
+    eval_key = _key(cfg, curve_id, 2)
+    points = [(0, *study.eval_rows(state.params, partial, eval_key))]
+    t0 = time.perf_counter()
+    n_chunks = total // cfg.chunk_updates
+    for c in range(n_chunks):
+        state, _ = study.ppo_chunk(state)
+        last = c == n_chunks - 1
+        ret, length = study.eval_rows(state.params, partial, jax.random.fold_in(eval_key, c + 1),
+                                      cfg.final_eval_rounds if last else 1)
+        points.append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, ret, length))
+        bar.update(1)
+        bar.set_postfix_str(f"{name} return {ret.mean():.2f}")
+    seconds = time.perf_counter() - t0
+    return {"records": _records(name, "env_steps_per_seed", points, cfg.seeds),
+            "params": jax.device_get(state.params), "seconds": seconds}
+
+
+def run_bc(study: Study, experts: dict, bar: tqdm) -> dict:
+    cfg = study.cfg
+    names = list(BC_CURVES)
+    n, s = len(names), cfg.seeds
+    t0 = time.perf_counter()
+    expert = jax.tree.map(lambda *xs: jnp.concatenate(xs),
+                          *[experts[BC_CURVES[c][0]] for c in names])
+    e_flags = jnp.repeat(jnp.array([BC_CURVES[c][1] for c in names]), s)
+    i_flags = jnp.repeat(jnp.array([BC_CURVES[c][2] for c in names]), s)
+    keys = jnp.stack([_key(cfg, 3 + i, 1, j) for i in range(n) for j in range(s)])
+    demos = study.collect(expert, keys, e_flags, i_flags)
+    net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
+                       *[study.init_params(3 + i, s) for i in range(n)])
+    state = study.bc_init(jnp.stack([_key(cfg, 3 + i, 3, j) for i in range(n) for j in range(s)]),
+                          net, demos)
+
+    def evaluate_all(chunk: int, rounds: int = 1):
+        out = []
+        for i, c in enumerate(names):
+            rows = jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], state.params)
+            out.append(study.eval_rows(rows, BC_CURVES[c][2],
+                                       jax.random.fold_in(_key(cfg, 3 + i, 2), chunk), rounds))
+        return out
+
+    points = [[(0, *r)] for r in evaluate_all(0)]
+    n_chunks = cfg.bc.epochs // cfg.bc_chunk_epochs
+    losses = []
+    for c in range(n_chunks):
+        state, loss = study.bc_chunk(state)
+        losses.append(np.asarray(loss).reshape(n, s).mean(axis=1))
+        last = c == n_chunks - 1
+        for i, r in enumerate(evaluate_all(c + 1, cfg.final_eval_rounds if last else 1)):
+            points[i].append(((c + 1) * cfg.bc_chunk_epochs, *r))
+        bar.update(1)
+        bar.set_postfix_str(f"bc loss {np.round(losses[-1], 3).tolist()}")
+    records = []
+    for i, c in enumerate(names):
+        records += _records(c, "bc_epochs", points[i], s)
+    return {"records": records, "seconds": time.perf_counter() - t0,
+            "losses": np.asarray(losses).tolist()}
+
+
+def _cached(path: Path, fn):
+    """Result of ``fn()``, stored as a pickle at ``path`` (atomic) and reused when present."""
+    if path.exists():
+        with path.open("rb") as f:
+            return pickle.load(f), True
+    result = fn()
+    report.atomic_write(path, lambda tmp: Path(tmp).write_bytes(pickle.dumps(result)))
+    return result, False
+
+
+OUTPUTS = ("figures/fig2_maze.pdf", "figures/fig2_maze.png", "figures/fig2_maze.csv",
+           "tables/maze_summary.md", "tables/maze_summary.tex", "tables/maze_summary.csv",
+           "maze_config.json")
+
+
+def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False) -> pd.DataFrame:
+    """Run (or resume) the study and write every output; returns the summary table."""
+    cfg.validate()
+    resolved = config_dict(cfg)
+    config_path = out / "maze_config.json"
+    if not force and all((out / p).exists() for p in OUTPUTS):
+        if json.loads(config_path.read_text()).get("config") == resolved:
+            print(f"maze study: outputs in {out} are up to date with this config; skipping "
+                  "(--force to rerun)")
+            return pd.read_csv(out / "tables/maze_summary.csv")
+    digest = hashlib.sha256(json.dumps(resolved, sort_keys=True).encode()).hexdigest()[:12]
+    stage_dir = work / digest
+    study = Study(cfg)
+    n_bar = (cfg.rl_full_updates + cfg.rl_partial_updates) // cfg.chunk_updates + (
+        cfg.bc.epochs // cfg.bc_chunk_epochs)
+    t_start = time.perf_counter()
+    results = {}
+    with tqdm(total=n_bar, desc="maze study", unit="chunk", dynamic_ncols=True) as bar:
+        for name, partial in (("rl_full", False), ("rl_partial", True)):
+            results[name], hit = _cached(stage_dir / f"{name}.pkl",
+                                         lambda n=name, p=partial: run_rl(study, n, p, bar))
+            if hit:
+                bar.update(getattr(cfg, f"{name}_updates") // cfg.chunk_updates)
+        experts = {n: results[n]["params"] for n in ("rl_full", "rl_partial")}
+        results["bc"], hit = _cached(stage_dir / "bc.pkl", lambda: run_bc(study, experts, bar))
+        if hit:
+            bar.update(cfg.bc.epochs // cfg.bc_chunk_epochs)
+    wall = time.perf_counter() - t_start
+    curves = pd.DataFrame(results["rl_full"]["records"] + results["rl_partial"]["records"]
+                          + results["bc"]["records"])
+    summary = report.summarise(curves)
+    refs = reference_returns(study.params)
+    timings = {"rl_full_s": results["rl_full"]["seconds"],
+               "rl_partial_s": results["rl_partial"]["seconds"],
+               "bc_all_three_s": results["bc"]["seconds"], "this_invocation_wall_s": wall}
+    note = (f"{cfg.seeds} seeds, GRU-{cfg.hidden}; PPO lr {cfg.ppo.lr}, "
+            f"{cfg.rl_full_updates * cfg.ppo.steps_per_update:,} (full) / "
+            f"{cfg.rl_partial_updates * cfg.ppo.steps_per_update:,} (partial) env steps per seed;"
+            f" BC {cfg.bc.epochs} epochs on {cfg.bc.dataset_size:,} expert transitions per seed. "
+            "Stage seconds (compile included): "
+            + ", ".join(f"{k} {v:.0f}" for k, v in timings.items()))
+    report.write_text(out / "figures/fig2_maze.csv", curves.to_csv(index=False))
+    report.write_text(out / "tables/maze_summary.csv", summary.to_csv(index=False))
+    report.write_text(out / "tables/maze_summary.md", report.summary_markdown(summary, refs, note))
+    report.write_text(out / "tables/maze_summary.tex", report.summary_latex(summary, refs))
+    report.plot(curves, summary, refs, out / "figures/fig2_maze")
+    meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
+            "timings_s": timings, "bc_loss_per_chunk": results["bc"]["losses"],
+            "jax": jax.__version__, "device": str(jax.devices()[0])}
+    report.write_text(config_path, json.dumps(meta, indent=2) + "\n")
+    print(summary.to_string(index=False))
+    print(f"maze study: wrote {', '.join(OUTPUTS)} under {out} ({wall:.0f} s)")
+    return summary
+
+
+def study_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per curve (default 10)")
+    parser.add_argument("--seed", type=int, default=None, help="base PRNG seed")
+    parser.add_argument("--hidden", type=int, default=None, help="GRU width (default 64)")
+    parser.add_argument("--out", type=Path, default=Path("paper"), help="output directory")
+    parser.add_argument("--work", type=Path, default=Path("runs/maze"),
+                        help="stage cache (resume) directory")
+    parser.add_argument("--force", action="store_true", help="rerun even if outputs are current")
+
+
+def resolve(args: argparse.Namespace) -> StudyConfig:
+    cfg = PROFILES[args.profile]
+    overrides = {k: getattr(args, k) for k in ("seeds", "seed", "hidden")
+                 if getattr(args, k) is not None}
+    return dataclasses.replace(cfg, **overrides)
+
+
+def study_command(args: argparse.Namespace) -> int:
+    run_study(resolve(args), args.out, args.work, args.force)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m maze.study", description=__doc__.split(
+        "\n")[0])
+    study_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return study_command(args)
+    except IGDrivSimError as err:
+        print(f"maze study: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
