@@ -20,14 +20,34 @@ class GRUPolicy(nn.Module):
 
     hidden: int = 128
     num_actions: int = 4
-    coord_scale: float = 1.0 / 14.0  # positions are divided by the array side (raw obs otherwise)
-    patch_size: int = 9  # leading wall-patch entries (left unscaled)
+    side: int = 15  # maze array side; coordinates are divided by ``side - 1``
+    patch_size: int = 9  # leading wall-patch entries
+    encoding: str = "onehot"  # "raw" (scaled obs only) or "onehot" (see ``features``)
+
+    def features(self, obs: jax.Array) -> jax.Array:
+        """Input features computed from the observation (no extra information).
+
+        ``raw``: the observation with coordinates scaled to [0, 1]. ``onehot`` adds a goal-visible
+        flag, the goal offset from the agent (0 when hidden) and one-hot rows and columns of the
+        agent and the goal: a position-to-action map (what an exploring policy needs) is then
+        linear in the input, which makes partial-observation PPO learn several times faster.
+        """
+        patch, pos, goal = (obs[..., :self.patch_size], obs[..., self.patch_size:-2],
+                            obs[..., -2:])
+        scale = 1.0 / (self.side - 1)
+        parts = [patch, pos * scale, goal * scale]
+        if self.encoding == "onehot":
+            visible = (goal[..., :1] >= 0).astype(obs.dtype)
+            cells = jnp.arange(self.side)
+            onehot = lambda x: (x[..., None] == cells).astype(obs.dtype).reshape(  # noqa: E731
+                *x.shape[:-1], -1)
+            parts += [visible, (goal - pos) * scale * visible, onehot(pos), onehot(goal)]
+        return jnp.concatenate(parts, axis=-1)
 
     @nn.compact
     def __call__(self, h: jax.Array, obs: jax.Array, first: jax.Array):
         hid = self.hidden
-        scale = jnp.where(jnp.arange(obs.shape[-1]) < self.patch_size, 1.0, self.coord_scale)
-        x_proj = nn.Dense(3 * hid, name="input")(obs * scale)  # [T, B, 3H], all steps at once
+        x_proj = nn.Dense(3 * hid, name="input")(self.features(obs))  # [T, B, 3H], all at once
         w_h = self.param("recurrent", nn.initializers.orthogonal(), (hid, 3 * hid))
         b_hn = self.param("recurrent_bias", nn.initializers.zeros, (hid,))
 
@@ -48,9 +68,9 @@ class GRUPolicy(nn.Module):
         return h, logits, value[..., 0]
 
 
-def make_policy(hidden: int, params: MazeParams) -> GRUPolicy:
-    return GRUPolicy(hidden=hidden, coord_scale=1.0 / (params.size + 1),
-                     patch_size=params.receptive_field**2)
+def make_policy(hidden: int, params: MazeParams, encoding: str = "onehot") -> GRUPolicy:
+    return GRUPolicy(hidden=hidden, side=params.size + 2, patch_size=params.receptive_field**2,
+                     encoding=encoding)
 
 
 def init_stacked(model: GRUPolicy, key: jax.Array, num_seeds: int, obs_dim: int):

@@ -20,30 +20,27 @@ from maze.oracles import _step_towards
 from maze.report import atomic_write
 
 
-def planner_episode(env: MazeGymEnv, seed: int) -> list[tuple[np.ndarray, int, bool]]:
-    """``(frame, t, goal visible)`` for every step of one planner episode."""
+def planner_actions(env: MazeGymEnv, seed: int) -> list[int]:
+    """Actions of one exploring-planner episode from ``env.reset(seed=seed)``."""
     obs, info = env.reset(seed=seed)
     walls, r = env.maze.walls, env.maze.receptive_field // 2
     cells = {tuple(int(v) for v in c) for c in env.maze.goal_cells}
     seen: set = set()
-    frames = [(env.render(), 0, bool(obs[-1] >= 0))]
-    done, t = False, 0
+    actions, done = [], False
     while not done:
         pos = info["position"]
         seen.update((pos[0] + i, pos[1] + j) for i in range(-r, r + 1) for j in range(-r, r + 1))
         targets = {info["goal"]} if info["goal"] in seen else cells - seen
         nxt = _step_towards(walls, pos, targets)
-        action = int(np.flatnonzero((MOVES == np.subtract(nxt, pos)).all(axis=1))[0])
-        obs, _, terminated, truncated, info = env.step(action)
-        t += 1
+        actions.append(int(np.flatnonzero((MOVES == np.subtract(nxt, pos)).all(axis=1))[0]))
+        obs, _, terminated, truncated, info = env.step(actions[-1])
         done = terminated or truncated
-        frames.append((env.render(), t, bool(obs[-1] >= 0)))
-    return frames
+    return actions
 
 
 def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Path:
     """Evenly spaced frames of a planner episode side by side (by default the first seed whose
-    episode takes at least 25 steps, so the exploration shows)."""
+    episode takes more than 25 steps, so the exploration shows)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -52,14 +49,20 @@ def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Pat
     env = MazeGymEnv(render_mode="rgb_array", tile_size=16)
     if seed is None:
         seed = 0
-        while len(frames := planner_episode(env, seed)) <= 25:
+        while len(actions := planner_actions(env, seed)) <= 25:
             seed += 1
     else:
-        frames = planner_episode(env, seed)
-    picks = np.unique(np.linspace(0, len(frames) - 1, num_frames).round().astype(int))
-    fig, axes = plt.subplots(1, len(picks), figsize=(2.0 * len(picks), 2.3))
-    for ax, i in zip(np.atleast_1d(axes), picks, strict=True):
-        img, t, visible = frames[i]
+        actions = planner_actions(env, seed)
+    picks = set(np.linspace(0, len(actions), num_frames).round().astype(int).tolist())
+    obs, _ = env.reset(seed=seed)
+    frames = []
+    for t in range(len(actions) + 1):
+        if t in picks:
+            frames.append((env.render(), t, bool(obs[-1] >= 0)))
+        if t < len(actions):
+            obs, *_ = env.step(actions[t])
+    fig, axes = plt.subplots(1, len(frames), figsize=(2.0 * len(frames), 2.3))
+    for ax, (img, t, visible) in zip(np.atleast_1d(axes), frames, strict=True):
         ax.imshow(img)
         ax.set_title(f"t = {t}" + (", goal in view" if visible else ""), fontsize=8)
         ax.axis("off")

@@ -33,6 +33,7 @@ from maze.env import make_params
 from maze.network import init_stacked, make_policy
 from maze.oracles import reference_returns
 from maze.ppo import PPOConfig, make_ppo
+from maze.render import save_frames
 from maze.rollout import evaluate
 
 BC_CURVES = {  # name -> (expert curve, expert partial?, imitator partial?)
@@ -54,11 +55,11 @@ class StudyConfig:
     max_steps: int = 200
     hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
     ppo: PPOConfig = PPOConfig()
-    rl_full_updates: int = 60
+    rl_full_updates: int = 80
     rl_partial_updates: int = 160
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig()
-    bc_chunk_epochs: int = 3
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=384, epochs=20)
+    bc_chunk_epochs: int = 2
     eval_episodes: int = 256
     final_eval_rounds: int = 4
 
@@ -145,9 +146,10 @@ def _records(curve: str, unit: str, points: list, seeds: int) -> list[dict]:
     return rows
 
 
-def run_rl(study: Study, name: str, partial: bool, bar: tqdm) -> dict:
+def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | None = None) -> dict:
+    """PPO curve ``name`` (``updates`` overrides the config's length)."""
     cfg = study.cfg
-    total = cfg.rl_full_updates if name == "rl_full" else cfg.rl_partial_updates
+    total = updates or getattr(cfg, f"{name}_updates")
     curve_id = 1 if name == "rl_full" else 2  # stable small ints for the PRNG keys
     net = study.init_params(curve_id, cfg.seeds)
     keys = jnp.stack([_key(cfg, curve_id, 1, s) for s in range(cfg.seeds)])
@@ -224,11 +226,15 @@ def _cached(path: Path, fn):
 
 OUTPUTS = ("figures/fig2_maze.pdf", "figures/fig2_maze.png", "figures/fig2_maze.csv",
            "tables/maze_summary.md", "tables/maze_summary.tex", "tables/maze_summary.csv",
-           "maze_config.json")
+           "figures/maze_frames.png", "maze_config.json")
 
 
-def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False) -> pd.DataFrame:
-    """Run (or resume) the study and write every output; returns the summary table."""
+def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
+              study: Study | None = None) -> pd.DataFrame:
+    """Run (or resume) the study and write every output; returns the summary table.
+
+    ``study`` reuses already compiled functions (tests); it must have been built from ``cfg``.
+    """
     cfg.validate()
     resolved = config_dict(cfg)
     config_path = out / "maze_config.json"
@@ -237,21 +243,25 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False) -> p
             print(f"maze study: outputs in {out} are up to date with this config; skipping "
                   "(--force to rerun)")
             return pd.read_csv(out / "tables/maze_summary.csv")
-    digest = hashlib.sha256(json.dumps(resolved, sort_keys=True).encode()).hexdigest()[:12]
-    stage_dir = work / digest
-    study = Study(cfg)
+    def digest(d: dict) -> str:
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+    # RL stages do not depend on the BC settings: changing those reuses the trained experts.
+    rl_dir = work / digest({k: v for k, v in resolved.items() if not k.startswith("bc")})
+    bc_dir = rl_dir / digest(resolved)
+    study = study or Study(cfg)
     n_bar = (cfg.rl_full_updates + cfg.rl_partial_updates) // cfg.chunk_updates + (
         cfg.bc.epochs // cfg.bc_chunk_epochs)
     t_start = time.perf_counter()
     results = {}
     with tqdm(total=n_bar, desc="maze study", unit="chunk", dynamic_ncols=True) as bar:
         for name, partial in (("rl_full", False), ("rl_partial", True)):
-            results[name], hit = _cached(stage_dir / f"{name}.pkl",
+            results[name], hit = _cached(rl_dir / f"{name}.pkl",
                                          lambda n=name, p=partial: run_rl(study, n, p, bar))
             if hit:
                 bar.update(getattr(cfg, f"{name}_updates") // cfg.chunk_updates)
         experts = {n: results[n]["params"] for n in ("rl_full", "rl_partial")}
-        results["bc"], hit = _cached(stage_dir / "bc.pkl", lambda: run_bc(study, experts, bar))
+        results["bc"], hit = _cached(bc_dir / "bc.pkl", lambda: run_bc(study, experts, bar))
         if hit:
             bar.update(cfg.bc.epochs // cfg.bc_chunk_epochs)
     wall = time.perf_counter() - t_start
@@ -273,6 +283,7 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False) -> p
     report.write_text(out / "tables/maze_summary.md", report.summary_markdown(summary, refs, note))
     report.write_text(out / "tables/maze_summary.tex", report.summary_latex(summary, refs))
     report.plot(curves, summary, refs, out / "figures/fig2_maze")
+    save_frames(out / "figures/maze_frames.png")
     meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
             "timings_s": timings, "bc_loss_per_chunk": results["bc"]["losses"],
             "jax": jax.__version__, "device": str(jax.devices()[0])}

@@ -195,6 +195,16 @@ def test_run_filter_manifest_counts_resume_parts(tmp_path, monkeypatch):
     assert merged == counts
     assert read_manifest(tmp_path / "merged", kept_only=False) == rows
 
+    # A regenerated input shard is filtered again, the unchanged one is not.
+    write_tfexample(files[0], [scene(0.1, [], sid="new")])
+    calls = []
+    real_filter_shard = filt.filter_shard
+    monkeypatch.setattr(filt, "filter_shard", lambda f, *a: calls.append(f) or
+                        real_filter_shard(f, *a))
+    counts = run_filter(files, str(out), progress=False)
+    assert calls == [files[0]] and counts["scenarios"] == 3
+    assert [r["scenario_id"] for r in read_manifest(out, False)] == ["new", "b0", "b1"]
+
 
 def test_manifest_errors(tmp_path):
     files = _shards(tmp_path)
@@ -219,8 +229,11 @@ def test_cli_filter_parallel_and_inspect(tmp_path, capsys):
     out = tmp_path / "cli"
     assert main(["filter", *files, "--out", str(out), "--workers", "2", "--skip-bad",
                  "--min-speed", "1.5", "--no-progress"]) == 0
-    counts = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    counts = json.loads(captured.out)
     assert counts["kept"] == 1 and counts["min_speed"] == 1.5
+    assert "skipped 1 bad record(s)" in captured.err
+    assert "record 2" in (out / "bad_records.jsonl").read_text()
     assert main(["filter", *files, "--out", str(tmp_path / "strict"), "--no-progress",
                  "--workers", "1"]) == 2
     err = capsys.readouterr().err.strip()
@@ -249,3 +262,17 @@ def test_bench_data_small(tmp_path, capsys):
         ("tf_example", "read", 4), ("tf_example", "filter", 4),
         ("scenario_proto", "read", 1), ("scenario_proto", "filter", 1)]
     assert json.loads(out.read_text())["runs"] == rows
+
+
+def test_iter_manifest_scenarios_groups_by_file(tmp_path):
+    from igdrivsim.data.manifest import iter_manifest_scenarios
+
+    files = _shards(tmp_path)
+    run_filter(files, str(tmp_path / "o"), skip_bad=True, progress=False)
+    rows = read_manifest(tmp_path / "o", kept_only=False)
+    shuffled = [rows[3], rows[0], rows[2], rows[1]]  # b1, a0, b0, a1
+    got = [(e["scenario_id"], decode_scenario_id(s.scenario_id))
+           for e, s in iter_manifest_scenarios(shuffled, None, chunk=1)]
+    assert got == [("b0", "b0"), ("b1", "b1"), ("a0", "a0"), ("a1", "a1")]
+    loaded = load_manifest_scenarios(shuffled, None)
+    assert [decode_scenario_id(s.scenario_id) for s in loaded] == ["b1", "a0", "b0", "a1"]

@@ -26,6 +26,7 @@ from igdrivsim.data import (
 from igdrivsim.data.protos import example_class, scenario_class
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
+    NUM_STEPS,
     RG_ROAD_EDGE_TYPES,
     empty_scenario,
     encode_scenario_id,
@@ -277,6 +278,9 @@ def test_truncated_and_missing_files(tmp_path):
     assert len(stats.skipped) == 1
     with pytest.raises(DataError, match="no such file"):
         list(read_scenarios(tmp_path / "missing.tfrecord"))
+    (tmp_path / "text.tfrecord").write_text("this is not a TFRecord file at all\n")
+    with pytest.raises(DataError, match=r"record 0: corrupt record: length CRC mismatch"):
+        list(read_scenarios(tmp_path / "text.tfrecord"))
     with pytest.raises(DataError, match="no record 5"):
         load_scenario(path, index=5)
 
@@ -306,3 +310,71 @@ def test_parallel_reading_matches_serial(tmp_path):
     for a, b in zip(par, ser, strict=True):
         assert_same(a.scenario, b.scenario)
     assert os.path.basename(par[0].file) == "many.tfrecord"
+
+
+def test_constructed_scenario_proto(tmp_path):
+    msg = scenario_class()()
+    msg.scenario_id, msg.sdc_track_index, msg.current_time_index = "proto-1", 1, 10
+    for tid, n in ((7, 91), (9, 91), (11, 5)):  # the last track is short (test-split style)
+        track = msg.tracks.add(id=tid, object_type=1)
+        for t in range(n):
+            track.states.add(center_x=t * 1.0, center_y=float(tid), heading=0.1, velocity_x=10.0,
+                             length=4.0, width=2.0, height=1.5, valid=t != 3)
+    msg.objects_of_interest.extend([11])
+    msg.tracks_to_predict.add(track_index=2)
+    lane = msg.map_features.add(id=100)
+    lane.lane.type = 2
+    for x in (0.0, 2.0):
+        lane.lane.polyline.add(x=x, y=0.0, z=0.0)
+    edge = msg.map_features.add(id=101)
+    edge.road_edge.type = 1
+    for x, y in ((0.0, -3.0), (0.0, 3.0)):  # vertex order kept: dir = +y
+        edge.road_edge.polyline.add(x=x, y=y, z=0.0)
+    cw = msg.map_features.add(id=102)
+    for x, y in ((5.0, 0.0), (6.0, 0.0), (6.0, 1.0)):
+        cw.crosswalk.polygon.add(x=x, y=y, z=0.0)
+    msg.map_features.add(id=103).stop_sign.position.x = 9.0
+    msg.map_features.add(id=104).driveway.polygon.add(x=1.0)  # no tf.Example type: skipped
+    for t in range(NUM_STEPS):
+        dms = msg.dynamic_map_states.add()
+        dms.lane_states.add(lane=100, state=4, stop_point={"x": 1.0, "y": 2.0})
+        if t >= 50:
+            dms.lane_states.add(lane=200, state=6)
+    path = tmp_path / "p.tfrecord"
+    tfrecord.write_records(path, [msg.SerializeToString()])
+    (rec,) = list(iter_file(str(path), caps=None))
+    s = rec.scenario
+    assert rec.format == FORMAT_SCENARIO and decode_scenario_id(s.scenario_id) == "proto-1"
+    tr, md, rg, tl = s.trajectory, s.metadata, s.roadgraph, s.traffic_lights
+    assert md.is_sdc.tolist() == [False, True, False] and md.id.tolist() == [7, 9, 11]
+    assert md.objects_of_interest.tolist() == [False, False, True]
+    assert md.tracks_to_predict.tolist() == [False, False, True]
+    assert tr.valid[0].sum() == 90 and not tr.valid[0, 3]
+    assert tr.valid[2].tolist() == [True, True, True, False, True] + [False] * 86
+    np.testing.assert_array_equal(tr.x[1, :5], [0, 1, 2, 3, 4])
+    assert np.allclose(tr.vel_x[tr.valid], 10.0) and np.allclose(tr.yaw[tr.valid], 0.1)
+    # Lane 0..2 m at 0.5 m: 5 points; edge 6 m: 13 points; crosswalk closed: 1+1+1.414 m.
+    counts = {int(i): int((rg.id == i).sum()) for i in np.unique(rg.id)}
+    assert counts == {100: 5, 101: 13, 102: 2 + 2 + 3 + 1, 103: 1}
+    assert rg.type[rg.id == 100].tolist() == [2] * 5 and set(rg.type[rg.id == 101]) == {15}
+    assert set(rg.type[rg.id == 102]) == {18} and rg.type[rg.id == 103].tolist() == [17]
+    np.testing.assert_allclose(rg.xyz[rg.id == 100, 0], [0, 0.5, 1, 1.5, 2])
+    np.testing.assert_allclose(rg.dir[rg.id == 101], [[0, 1, 0]] * 12 + [[0, 0, 0]])
+    assert tl.state.shape == (2, NUM_STEPS) and tl.valid[0].all() and tl.valid[1].sum() == 41
+    assert tl.lane_id[0, 0] == 100 and tl.lane_id[1, 60] == 200 and tl.lane_id[1, 10] == -1
+    assert tl.state[0, 0] == 4 and tl.x[0, 5] == 1.0 and tl.y[0, 5] == 2.0
+
+
+def test_trimmed_writing_round_trips_after_fitting(tmp_path):
+    caps = Capacities(max_objects=8, max_roadgraph_points=40, max_traffic_lights=4)
+    s = fit_to_capacities(make_scenario(num_objects=3, num_points=12, num_lights=2), caps)
+    write_tfexample(tmp_path / "full.tfrecord", s)
+    write_tfexample(tmp_path / "trim.tfrecord", s, trim=True)
+    trimmed = load_scenario(tmp_path / "trim.tfrecord", caps=None)
+    assert trimmed.num_objects == 3 and trimmed.num_roadgraph_points <= 12
+    assert_same(load_scenario(tmp_path / "trim.tfrecord", caps=caps), s)
+    full, small = (os.path.getsize(tmp_path / n) for n in ("full.tfrecord", "trim.tfrecord"))
+    assert small < full
+    umask = os.umask(0)
+    os.umask(umask)
+    assert os.stat(tmp_path / "trim.tfrecord").st_mode & 0o777 == 0o666 & ~umask

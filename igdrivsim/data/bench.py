@@ -3,7 +3,8 @@
 Default input: the real WOMD samples in ``../shared/data/womd`` tiled into temporary shards
 (the tf.Example sample ``--records`` times over ``--shards`` shards; the Scenario-protobuf
 sample a tenth as often). Each measurement runs once in one process and once with ``--workers``
-spawned processes; rates are given with and without the worker start-up time.
+spawned processes; rates are given with and without the worker start-up time, plus the CPU time
+per scenario (this process and its workers), which a busy machine does not distort.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from igdrivsim.data.reader import available_cpus
 from igdrivsim.errors import ConfigError, DataError
 
 DEFAULT_SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "womd"
@@ -28,7 +30,7 @@ def bench_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--records", type=int, default=400,
                         help="tf.Example records to tile (default: %(default)s)")
     parser.add_argument("--shards", type=int, default=4, help="shards to tile them into")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    parser.add_argument("--workers", type=int, default=available_cpus(),
                         help="worker processes for the parallel runs (default: all CPUs)")
     parser.add_argument("--out", default=None, help="also write the results to this JSON file")
 
@@ -51,6 +53,14 @@ def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, li
             tfrecord.write_records(f, [data] * (n // k + (i < n % k)))
         out[fmt] = files
     return out
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished (joined) worker processes."""
+    import resource
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def _time_read(paths, workers: int) -> dict:
@@ -86,7 +96,7 @@ def bench_data_command(args: argparse.Namespace) -> int:
 
     if args.records < 1 or args.shards < 1 or args.workers < 1:
         raise ConfigError("--records, --shards and --workers must be >= 1")
-    results = {"cpu_count": os.cpu_count(), "workers": args.workers, "runs": []}
+    results = {"cpu_count": available_cpus(), "workers": args.workers, "runs": []}
     with tempfile.TemporaryDirectory(prefix="igdrivsim-bench-data-") as folder:
         if args.paths:
             inputs = {"given": list(args.paths)}
@@ -96,8 +106,12 @@ def bench_data_command(args: argparse.Namespace) -> int:
             for what, fn in (("read", lambda p, w: _time_read(p, w)),
                              ("filter", lambda p, w: _time_filter(p, w, folder))):
                 for workers in sorted({1, args.workers}):
+                    cpu = _cpu_s()
                     row = {"input": fmt, "what": what, "workers": workers,
                            **fn(paths, workers if workers > 1 else 0)}
+                    # CPU time (incl. worker start-up) per scenario: robust to a busy machine.
+                    row["cpu_ms_per_scenario"] = round(
+                        1000 * (_cpu_s() - cpu) / max(row["scenarios"], 1), 2)
                     results["runs"].append(row)
                     print(json.dumps(row), flush=True)
     if args.out:

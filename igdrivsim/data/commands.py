@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from igdrivsim.data.filter import FilterConfig, intersecting_objects, sdc_mean_speed
+from igdrivsim.data.reader import available_cpus
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     RG_ROAD_EDGE_TYPES,
@@ -85,7 +86,7 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
                              "default) or WOMD's objects_of_interest flag")
     parser.add_argument("--min-speed", type=float, default=None,
                         help="minimum SDC mean speed over its valid steps, m/s (default 0.7)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    parser.add_argument("--workers", type=int, default=available_cpus(),
                         help="worker processes, one shard each at a time (default: all CPUs)")
     parser.add_argument("--part", default=None, metavar="i/n",
                         help="process only shards i, i+n, ... (0 <= i < n) for cluster arrays; "
@@ -117,5 +118,8 @@ def filter_command(args: argparse.Namespace) -> int:
             print(f"igdrivsim filter: part {args.part} done; join the parts with "
                   f"`igdrivsim filter --merge {args.out} ... --out DIR`", file=sys.stderr)
             return 0
+    if counts.get("bad_records"):
+        print(f"igdrivsim filter: warning: skipped {counts['bad_records']} bad record(s), listed "
+              f"in {os.path.join(args.out, 'bad_records.jsonl')}", file=sys.stderr)
     print(json.dumps(counts))
     return 0

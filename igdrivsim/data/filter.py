@@ -205,6 +205,7 @@ def filter_shard(file: str, result_path: str, skip_bad: bool = False) -> tuple[i
     from igdrivsim.data.reader import ReadStats, iter_file
 
     file = os.path.abspath(file)
+    signature = _signature(file)  # before reading: a file changed meanwhile is redone next time
     stats = ReadStats()
     entries = []
     with warnings.catch_warnings():
@@ -212,18 +213,33 @@ def filter_shard(file: str, result_path: str, skip_bad: bool = False) -> tuple[i
         for rec in iter_file(file, caps=None, skip_bad=skip_bad, stats=stats):
             entries.append({"file": file, "record": rec.record, **scenario_stats(rec.scenario)})
     bad = [{"file": f, "record": r, "error": msg} for f, r, msg in stats.skipped]
-    write_json(result_path, {"file": file, "entries": entries, "bad": bad})
+    write_json(result_path, {"file": file, "entries": entries, "bad": bad, **signature})
     return len(entries), len(bad)
 
 
-def _read_shard_result(path: str) -> dict | None:
-    """A finished partial result, or None if it is absent or unreadable (then it is redone)."""
+def _signature(file: str) -> dict:
+    st = os.stat(file)
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def _read_shard_result(path: str, file: str | None = None) -> dict | None:
+    """A finished partial result, or None if it is absent, unreadable or (given the input
+    ``file``) made from a different version of that file; then it is redone."""
     try:
         with open(path) as f:
             result = json.load(f)
     except (OSError, json.JSONDecodeError):
         return None
-    return result if isinstance(result, dict) and "entries" in result else None
+    if not isinstance(result, dict) or "entries" not in result:
+        return None
+    if file is not None:
+        try:
+            current = _signature(file)
+        except OSError:
+            return None
+        if any(result.get(k) != v for k, v in current.items()):
+            return None
+    return result
 
 
 def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers: int = 0,
@@ -250,7 +266,7 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
                 "part": None if part is None else f"{part[0]}/{part[1]}", "skip_bad": skip_bad}
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
     write_json(os.path.join(out, name), resolved)
-    todo = [f for f in files if _read_shard_result(shard_result_path(out, f)) is None]
+    todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f) is None]
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -302,11 +318,14 @@ def _write_outputs(out: str, result_paths: list[str], config: FilterConfig) -> d
     for e in entries:
         e["kept"] = keep(e, config)
     write_manifest(os.path.join(out, MANIFEST), entries)
+    bad_path = os.path.join(out, BAD_FILE)
     if bad:
         from igdrivsim.data.tfrecord import atomic_path
 
-        with atomic_path(os.path.join(out, BAD_FILE), "w") as f:
+        with atomic_path(bad_path, "w") as f:
             f.writelines(json.dumps(b) + "\n" for b in bad)
+    elif os.path.exists(bad_path):
+        os.remove(bad_path)  # left from an earlier run over other inputs
     counts = count(entries, config, bad_records=len(bad))
     counts["files"] = len(seen)
     write_json(os.path.join(out, COUNTS), counts)

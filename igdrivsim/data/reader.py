@@ -28,6 +28,7 @@ from igdrivsim.data.scenario import (
     Scenario,
     fit_to_capacities,
     index_scenario,
+    trim_padding,
 )
 from igdrivsim.data.tfexample import decode_tfexample, encode_tfexample, is_tfexample
 from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
@@ -57,6 +58,14 @@ class ReadStats:
     def skip(self, err: DataError) -> None:
         self.skipped.append((err.file, err.record, str(err)))
         warnings.warn(f"skipping bad record: {err}", stacklevel=3)
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (a cluster job's allocation, not the whole node)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def process_pool(workers: int) -> ProcessPoolExecutor:
@@ -190,7 +199,7 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
         except DataError as err:
             if not skip_bad:
                 raise
-            n = err.record  # read what precedes the broken framing, report the break below
+            n = err.record or 0  # read what precedes the broken framing; report the break
             stats.skip(err)
         tasks += [(path, s, min(s + chunk, n)) for s in range(0, n, chunk)]
     with process_pool(workers) as pool:
@@ -265,8 +274,16 @@ def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
             yield from unbatch([index_scenario(s, i)])
 
 
-def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario) -> int:
-    """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns count."""
+def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario,
+                    trim: bool = False) -> int:
+    """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns count.
+
+    ``trim=True`` drops trailing padding slots first (:func:`trim_padding`): much smaller files
+    that this package reads back identically once fitted to capacities (other WOMD readers
+    expect the fixed sizes: 128 objects, 20,000 roadgraph points, 16 traffic lights).
+    """
     if isinstance(scenarios, Scenario):
         scenarios = [scenarios]
-    return tfrecord.write_records(path, (encode_tfexample(s) for s in unbatch(scenarios)))
+    prepare = trim_padding if trim else (lambda s: s)
+    return tfrecord.write_records(path, (encode_tfexample(prepare(s))
+                                         for s in unbatch(scenarios)))

@@ -272,3 +272,29 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
                  tl_valid.any(axis=1), tl_dist)
     return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
                     traffic_lights=lights, scenario_id=np.asarray(scenario.scenario_id, np.uint8))
+
+
+def trim_padding(scenario: Scenario) -> Scenario:
+    """Drop trailing padding (invalid slots after the last valid object, SDC, roadgraph point
+    and traffic light) of one unbatched scenario; :func:`fit_to_capacities` pads it back.
+    Slot positions of everything kept are unchanged. Used to write compact files."""
+    import jax
+
+    if scenario.batch_shape:
+        raise ValueError(f"trim_padding takes one scenario, got batch {scenario.batch_shape}")
+
+    def used(mask) -> int:
+        idx = np.flatnonzero(np.asarray(mask))
+        return int(idx[-1]) + 1 if len(idx) else 0
+
+    md = scenario.metadata
+    num_objects = used(np.asarray(md.valid) | np.asarray(md.is_sdc)
+                       | np.asarray(scenario.trajectory.valid).any(-1))
+    num_points = used(scenario.roadgraph.valid)
+    num_lights = used(np.asarray(scenario.traffic_lights.valid).any(-1))
+    cut = lambda tree, n: jax.tree.map(lambda x: np.asarray(x)[:n], tree)  # noqa: E731
+    return Scenario(trajectory=cut(scenario.trajectory, num_objects),
+                    metadata=cut(md, num_objects),
+                    roadgraph=cut(scenario.roadgraph, num_points),
+                    traffic_lights=cut(scenario.traffic_lights, num_lights),
+                    scenario_id=np.asarray(scenario.scenario_id, np.uint8))

@@ -106,7 +106,11 @@ def count_records(path: str | os.PathLike) -> int:
     """Number of records, checking only the framing (length CRCs), not the data CRCs."""
     n = 0
     path = os.fspath(path)
-    with open(path, "rb") as f:
+    try:
+        f = open(path, "rb")
+    except OSError as err:
+        raise DataError(f"cannot open: {err.strerror}", file=path) from None
+    with f:
         while header := f.read(_HEADER.size):
             if len(header) < _HEADER.size:
                 raise DataError("truncated record header", file=path, record=n)
@@ -116,6 +120,16 @@ def count_records(path: str | os.PathLike) -> int:
             f.seek(length + 4, os.SEEK_CUR)
             n += 1
     return n
+
+
+def _file_mode() -> int:
+    """Permissions for new files: ``0o666`` minus the umask (``mkstemp`` alone gives 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_FILE_MODE = _file_mode()
 
 
 @contextmanager
@@ -128,6 +142,7 @@ def atomic_path(path: str | os.PathLike, mode: str = "wb"):
     try:
         with os.fdopen(fd, mode) as f:
             yield f
+        os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -70,13 +70,19 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
     cols = ("center_x", "center_y", "center_z", "heading", "velocity_x", "velocity_y", "length",
             "width", "height", "valid")
     values = np.zeros((len(cols), num, NUM_STEPS), np.float64)
+    rows, lengths = [], []
     for i, track in enumerate(msg.tracks):
         if len(track.states) > NUM_STEPS:
             raise DataError(f"track {i} has {len(track.states)} states, expected <= {NUM_STEPS}",
                             key="tracks.states")
-        for t, s in enumerate(track.states):  # short tracks (test split) stay invalid-padded
-            values[:, i, t] = (s.center_x, s.center_y, s.center_z, s.heading, s.velocity_x,
-                               s.velocity_y, s.length, s.width, s.height, s.valid)
+        lengths.append(len(track.states))  # short tracks (test split) stay invalid-padded
+        rows += [(s.center_x, s.center_y, s.center_z, s.heading, s.velocity_x, s.velocity_y,
+                  s.length, s.width, s.height, s.valid) for s in track.states]
+    if rows:
+        lengths = np.asarray(lengths)
+        track_of = np.repeat(np.arange(num), lengths)
+        step_of = np.arange(len(rows)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        values[:, track_of, step_of] = np.asarray(rows, np.float64).T
     valid = values[-1] > 0
     if not np.isfinite(values[:, valid]).all():
         bad = int(np.argwhere(~np.isfinite(values[:, valid]).all(axis=0))[0, 0])
@@ -196,8 +202,9 @@ def _decode_lights(dynamic_states) -> TrafficLights:
     valid = np.zeros((num, NUM_STEPS), bool)
     lane_id = np.full((num, NUM_STEPS), -1, np.int32)
     pos = np.zeros((3, num, NUM_STEPS), np.float32)
-    lanes = np.array(list(slots), np.int64)
-    for slot, t, s, x, y, z in rows:
-        state[slot, t], valid[slot, t], pos[:, slot, t] = s, True, (x, y, z)
-        lane_id[slot, t] = lanes[slot]
+    if rows:
+        lanes = np.array(list(slots), np.int64)
+        slot, t, s = (np.array([r[k] for r in rows], np.int64) for k in range(3))
+        state[slot, t], valid[slot, t], lane_id[slot, t] = s, True, lanes[slot]
+        pos[:, slot, t] = np.array([r[3:] for r in rows], np.float64).T
     return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])

@@ -141,7 +141,10 @@ class Pipeline:
             argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
         elif argv[0] == "python":
             argv = [sys.executable, *argv[1:]]
+        # Programs compiled by one stage are reused by later ones with the same shapes (the
+        # evaluation of BC and BC-RL of a setting) and by a resumed pipeline.
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 cwd=REPO_ROOT, env=env)
         assert proc.stdout is not None
@@ -163,7 +166,8 @@ class Pipeline:
         """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
         import importlib
 
-        with contextlib.redirect_stdout(fh), contextlib.redirect_stderr(fh):
+        out = fh if self.quiet else _Tee(fh, sys.stderr)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
             try:
                 if argv[0] == "igdrivsim":
                     from igdrivsim.cli import main
@@ -195,8 +199,10 @@ class Pipeline:
             return self.train_data, str(self.val_data)
         out = self.work / "data"
         p = self.profile
+        workers = ["--workers", 1] if self.in_process else []  # no process pool in tests
         self.stage("data", [["igdrivsim", "generate", "--out", out, "--train",
-                             p.train_scenarios, "--val", p.val_scenarios, "--seed", 0]],
+                             p.train_scenarios, "--val", p.val_scenarios, "--seed", 0,
+                             *workers]],
                    outputs=[out / "training", out / "validation"])
         return str(out / "training"), str(out / "validation")
 
@@ -204,8 +210,9 @@ class Pipeline:
         outs = []
         for split, src in (("training", train), ("validation", val)):
             out = self.work / "filtered" / split
+            workers = ["--workers", 1] if self.in_process else []
             self.stage(f"filter_{split}", [["igdrivsim", "filter", src, "--out", out,
-                                            "--workers", 1, "--no-progress"]],
+                                            *workers]],
                        depends=["data"], outputs=[out / "manifest.jsonl"])
             outs.append(out)
         return outs[0], outs[1]
@@ -222,7 +229,7 @@ class Pipeline:
                 self.stage(f"train_{name}", [[
                     "igdrivsim", "train", "--profile", self.profile.name, "--obs", setting,
                     "--method", method, "--seeds", self.profile.seeds, "--data", train_manifest,
-                    "--out", run, "--resume", "--no-progress"]],
+                    "--out", run, "--resume"]],
                     depends=["filter_training"], outputs=[run / "DONE"])
                 names.append(name)
         return names
@@ -230,8 +237,7 @@ class Pipeline:
     def run_evaluate(self, names: list[str], val_manifest: Path) -> Path:
         evals = self.work / "evals"
         limit = ["--max-scenarios", self.profile.eval_max_scenarios]
-        common = ["--data", val_manifest, "--batch-size", self.profile.eval_batch, *limit,
-                  "--no-progress"]
+        common = ["--data", val_manifest, "--batch-size", self.profile.eval_batch, *limit]
         for name in names:
             out = evals / name
             self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
@@ -250,10 +256,10 @@ class Pipeline:
     def run_maze(self) -> None:
         out = self.work / "maze"
         self.stage("maze", [["python", "-m", "maze.study", "--profile",
-                             self.profile.maze_profile, "--out", out]],
+                             self.profile.maze_profile, "--out", out, "--work", out / "work"]],
                    outputs=[out / "figures" / "fig2_maze.png"])
         for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv")),
-                           ("tables", ("maze_summary.md", "maze_summary.tex"))):
+                           ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv"))):
             for fname in names:
                 src = out / sub / fname
                 if src.exists():
@@ -283,7 +289,6 @@ class Pipeline:
         if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
             for name in PAPER_SOURCES:  # a self-contained paper folder under --out
                 shutil.copyfile(REPO_ROOT / "paper" / name, self.paper / name)
-        self.ran.discard("pdf")
         self.stage("pdf", [["make", "-C", self.paper, "pdf"]], depends=["report"])
 
     def run(self) -> None:
@@ -305,6 +310,25 @@ class Pipeline:
         self.run_pdf()
         self._say(f"finished: tables in {self.paper / 'tables'}, figures in "
                   f"{self.paper / 'figures'}")
+
+
+class _Tee:
+    """A text stream writing to a log file and to the terminal (in-process stages)."""
+
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, text: str) -> int:
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        for stream in self.streams:
+            stream.flush()
+
+    def isatty(self) -> bool:
+        return False
 
 
 # ------------------------------------------------------------------------------------ CLI

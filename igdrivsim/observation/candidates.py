@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
     Observation,
@@ -98,11 +99,10 @@ def _observe_one(bxy, byaw, speed, objects, sdc_index, roadgraph, cand_index, ca
     sub = jax.tree.map(lambda a: jnp.take(a, cand_index, axis=0), roadgraph)
     sub = sub.replace(valid=jnp.asarray(sub.valid, bool) & cand_valid)
     obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, sub, config)
-    n = obs.roadgraph_valid.shape[-1]
     pts = jnp.take(jnp.asarray(sub.xyz, jnp.float32)[:, :2], sel.roadgraph_index, axis=0)
     d = jnp.sqrt(jnp.sum((pts - bxy) ** 2, axis=-1))
-    full = obs.roadgraph_valid[n - 1]
-    d_last = jnp.where(full, d[n - 1], jnp.inf)
+    full = jnp.all(obs.roadgraph_valid)
+    d_last = jnp.max(jnp.where(obs.roadgraph_valid, d, 0.0))
     moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
     exact = jnp.where(full, radius - moved > d_last + 1e-3, jnp.isinf(radius))  # float margin
     sel = Selection(object_index=sel.object_index,
@@ -126,6 +126,9 @@ def observe_batch_with_candidates(
     ``return_selection``); equal to ``vmap(observe)`` (see the module docstring). Call it
     under ``jit`` WITHOUT an outer ``vmap`` so the re-selection stays a real branch.
     """
+    if cand_config.num_candidates < config.num_roadgraph_points:
+        raise ConfigError(f"CandidateConfig.num_candidates ({cand_config.num_candidates}) must be "
+                          f">= num_roadgraph_points ({config.num_roadgraph_points})")
     objects, bxy, byaw, speed = _believed(states, setting, episode_keys, step_keys)
     run = jax.vmap(lambda *a: _observe_one(*a, config))
 

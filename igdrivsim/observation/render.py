@@ -212,7 +212,8 @@ def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | Non
         sub.set_aspect("equal")
         sub.set_xticks([])
         sub.set_yticks([])
-        sub.set_title(f"zoom ±{half:.0f} m", fontsize=6, pad=1.5)
+        sub.text(0.03, 0.97, f"zoom ±{half:.0f} m", transform=sub.transAxes, fontsize=6,
+                 va="top", color="#333333")
         for side in sub.spines.values():
             side.set_edgecolor("#555555")
 
@@ -233,6 +234,14 @@ def legend_handles() -> list:
     ]
 
 
+def _publish(tmp: str, path: str) -> None:
+    """Give the temp file ordinary permissions (mkstemp makes it private), then rename it."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
+
+
 def save_figure(fig, path: str | os.PathLike, **kw) -> str:
     """Save ``fig`` to ``path`` atomically (temp file in the same directory, then rename)."""
     path = os.fspath(path)
@@ -243,7 +252,7 @@ def save_figure(fig, path: str | os.PathLike, **kw) -> str:
     os.close(fd)
     try:
         fig.savefig(tmp, format=ext, **kw)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -341,7 +350,7 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     writer = PillowWriter(fps=fps)
     try:
-        with writer.saving(fig, tmp, dpi=90):
+        with writer.saving(fig, tmp, dpi=110):
             for s in tqdm(states[::every], desc=f"rollout {setting.name}", unit="frame"):
                 ax.clear()
                 t = int(s.timestep)
@@ -349,7 +358,7 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
                 draw_panel(ax, snap, setting, f"{title}  (step {t}, t={t / 10:.1f} s)", view)
                 fig.tight_layout()
                 writer.grab_frame()
-        os.replace(tmp, path)
+        _publish(tmp, path)
     finally:
         plt.close(fig)
         if os.path.exists(tmp):

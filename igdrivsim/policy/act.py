@@ -20,11 +20,12 @@ import jax.numpy as jnp
 
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ROADGRAPH_FEATURES, Observation, ObservationConfig, observe
+from igdrivsim.observation.features import DEFAULT_CONFIG
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator.dynamics import undiscretize
 
 
-def example_observation(obs_config: ObservationConfig = ObservationConfig()) -> Observation:
+def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Observation:
     """An all-zero unbatched observation (shapes for parameter initialisation)."""
     n, m = obs_config.num_objects, obs_config.num_roadgraph_points
     return Observation(objects=jnp.zeros((n, 6)), objects_valid=jnp.zeros((n,), bool),

@@ -71,7 +71,7 @@ class PolylineEncoder(nn.Module):
 
 
 class DrivingPolicy(nn.Module):
-    """One recurrent step: ``(carry, obs, reset) -> (carry, logits [..., 3, bins], value [...])``."""
+    """One recurrent step: ``(carry, obs, reset) -> (carry, logits [..., 3, bins], value)``."""
 
     config: PolicyConfig
 

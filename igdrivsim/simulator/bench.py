@@ -28,6 +28,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import ObservationConfig, get_setting, observe
@@ -74,14 +75,16 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: 
     """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
 
     ``impl``: ``"naive"`` (no crop), ``"crop"`` (crop at reset, plain per-step top-k over the
-    cropped roadgraph) or ``"fast"`` (crop + cached candidates).
+    cropped roadgraph) or ``"fast"`` (crop + cached candidates + unsorted exact selection,
+    ``ObservationConfig.roadgraph_order="index"``).
 
     Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B])``
     (selections: 0 unless ``"fast"``); with ``collect`` also the per-step observations
     ``[B, T, ...]`` (for the equivalence test; memory heavy).
     """
     setting = get_setting(setting_name)
-    obs_config = obs_config or ObservationConfig()
+    if obs_config is None:  # the fast path selects the same points without sorting them
+        obs_config = ObservationConfig(roadgraph_order="index" if impl == "fast" else "nearest")
     cand_config = cand_config or CandidateConfig()
     if impl not in IMPLS:
         raise ConfigError(f"unknown implementation {impl!r}; choose from {', '.join(IMPLS)}")
@@ -121,17 +124,17 @@ def _tile(scenario: Any, batch: int) -> Any:
                         scenario)
 
 
-def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float]:
-    """``(compile seconds, best seconds per call)`` of a jitted episode function."""
+def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float, Any]:
+    """``(compile seconds, best seconds per call, last output)`` of a jitted episode function."""
     t0 = time.perf_counter()
-    jax.block_until_ready(fn(scenario, key))
+    out = jax.block_until_ready(fn(scenario, key))
     compile_s = time.perf_counter() - t0
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(fn(scenario, key))
+        out = jax.block_until_ready(fn(scenario, key))
         best = min(best, time.perf_counter() - t0)
-    return compile_s, best
+    return compile_s, best, out
 
 
 def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
@@ -141,6 +144,8 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batches", default="1,16,64,256",
                         help="comma-separated batch sizes (default 1,16,64,256)")
     parser.add_argument("--setting", default="full", help="observation setting")
+    parser.add_argument("--impls", default=",".join(IMPLS),
+                        help=f"implementations to time (default {','.join(IMPLS)})")
     parser.add_argument("--repeats", type=int, default=2, help="timed calls per cell (best)")
     parser.add_argument("--skip-naive-above", type=int, default=10**9,
                         help="do not time the naive path above this batch size")
@@ -153,6 +158,7 @@ def _write_json(path: str, payload: Any) -> None:
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
     with os.fdopen(fd, "w") as f:
         json.dump(payload, f, indent=2)
+    os.chmod(tmp, 0o644)  # mkstemp files are private
     os.replace(tmp, path)
 
 
@@ -171,33 +177,51 @@ def bench_sim_command(args) -> int:
     path = _data_path(args)
     scenario = load_scenario(path, args.record)
     key = jax.random.PRNGKey(0)
+    impls = [i.strip() for i in args.impls.split(",") if i.strip()]
+    if not impls or any(i not in IMPLS for i in impls):
+        raise ConfigError(f"--impls must be a comma-separated subset of {','.join(IMPLS)}")
     fns = {name: jax.jit(lambda sc, k, impl=name: episode(sc, k, impl=impl,
                                                           setting_name=args.setting)[:3])
-           for name in args.impls.split(",")}
+           for name in impls}
     steps = DEFAULT_PARAMS.num_controlled_steps
-    rows = []
+    rows: list[dict] = []
+    bar = tqdm(total=len(batches) * len(impls), desc="bench sim", unit="cell")
     for b in batches:
         sc = _tile(scenario, b)
-        rate = {}
         for name, fn in fns.items():
             if name == "naive" and b > args.skip_naive_above:
+                bar.update()
                 continue
-            compile_s, sec = time_episode(fn, sc, key, args.repeats)
-            rate[name] = b * steps / sec
-            row = {"batch": b, "impl": name, "scenario_steps_per_s": round(rate[name], 1),
-                   "seconds_per_episode_batch": round(sec, 4), "compile_s": round(compile_s, 2),
+            compile_s, sec, out = time_episode(fn, sc, key, args.repeats)
+            metrics = out[0]
+            row = {"batch": b, "impl": name, "scenario_steps_per_s": round(b * steps / sec, 1),
+                   "seconds_per_call": round(sec, 4), "compile_s": round(compile_s, 2),
+                   "candidate_selections": int(np.max(out[2])),
+                   "overlap_steps": int(np.sum(metrics.overlap[0])),
+                   "offroad_steps": int(np.sum(metrics.offroad[0])),
                    "device": jax.devices()[0].platform, "setting": args.setting}
             rows.append(row)
-            print(json.dumps(row), flush=True)
-        if len(rate) == 2:
-            rows.append({"batch": b, "speedup": round(rate["fast"] / rate["naive"], 2)})
-    print(f"\n{'batch':>6} {'naive steps/s':>14} {'fast steps/s':>13} {'speedup':>8}")
-    for b in batches:
-        r = {x["impl"]: x["scenario_steps_per_s"] for x in rows
-             if x.get("batch") == b and "impl" in x}
-        sp = f"{r['fast'] / r['naive']:.1f}x" if "naive" in r and "fast" in r else "-"
-        print(f"{b:>6} {r.get('naive', float('nan')):>14,.0f} {r.get('fast', float('nan')):>13,.0f}"
-              f" {sp:>8}")
+            bar.update()
+            tqdm.write(json.dumps(row))
+    bar.close()
+    print(format_table(rows, impls))
     if args.out:
-        _write_json(args.out, {"data": path, "rows": rows, "jax": jax.__version__})
+        _write_json(args.out, {"data": path, "rows": rows, "jax": jax.__version__,
+                               "steps_per_episode": steps, "setting": args.setting})
     return 0
+
+
+def format_table(rows: list[dict], impls: list[str]) -> str:
+    """A plain-text table: scenario-steps/s per batch and implementation, speedup over naive."""
+    head = f"{'batch':>6}" + "".join(f" {i + ' steps/s':>15}" for i in impls)
+    others = [i for i in impls if i != "naive"] if "naive" in impls else []
+    head += "".join(f" {i + '/naive':>12}" for i in others)
+    lines = [head]
+    for b in sorted({r["batch"] for r in rows}):
+        rate = {r["impl"]: r["scenario_steps_per_s"] for r in rows if r["batch"] == b}
+        line = f"{b:>6}" + "".join(
+            f" {rate[i]:>15,.0f}" if i in rate else f" {'-':>15}" for i in impls)
+        line += "".join(f" {rate[i] / rate['naive']:>11.1f}x" if "naive" in rate and i in rate
+                        else f" {'-':>12}" for i in others)
+        lines.append(line)
+    return "\n".join(lines)

@@ -88,19 +88,28 @@ def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetr
     return _time_last(metrics, jnp.ndim(start))
 
 
-@functools.cache
 def jit_rollout(policy_fn: PolicyFn, params: SimParams = DEFAULT_PARAMS):
     """A jitted ``f(state, key, carry=None)`` for a fixed policy and params (cached per pair)."""
+    return _jit_rollout(policy_fn, params)
+
+
+@functools.cache
+def _jit_rollout(policy_fn: PolicyFn, params: SimParams):
     return jax.jit(lambda state, key, carry=None: rollout(state, policy_fn, key, params, carry))
 
 
-@functools.cache
 def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> PolicyFn:
     """The expert as a policy: the discretised expert (default) or the continuous one.
 
-    Extras: the discrete action ``int32[..., 3]`` (or the continuous ``f32[..., 3]``).
+    Extras: the discrete action ``int32[..., 3]`` (or the continuous ``f32[..., 3]``). The same
+    ``(params, discrete)`` always gives the same function object, so jitted callers that take
+    it as a static argument compile once.
     """
+    return _expert_actor(params, discrete)
 
+
+@functools.cache
+def _expert_actor(params: SimParams, discrete: bool) -> PolicyFn:
     def policy(state, carry, key):
         del key
         if discrete:
@@ -112,9 +121,13 @@ def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> P
     return policy
 
 
-@functools.cache
 def constant_velocity_actor(params: SimParams = DEFAULT_PARAMS) -> PolicyFn:
     """Keep the current velocity vector and heading (a simple baseline). Extras: the action."""
+    return _constant_velocity_actor(params)
+
+
+@functools.cache
+def _constant_velocity_actor(params: SimParams) -> PolicyFn:
     _, inverse = dynamics.DYNAMICS[params.dynamics]
 
     def policy(state, carry, key):

@@ -36,8 +36,11 @@ class Checkpoints:
     def restore(self, step: int, params_like, opt_state_like):
         """Restore into the structure (and shardings) of the given templates."""
 
+        default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+
         def abstract(x):
-            return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None))
+            sharding = getattr(x, "sharding", None) or default
+            return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
 
         target = jax.tree.map(abstract, {"params": params_like, "opt_state": opt_state_like})
         out = self.manager.restore(step, args=ocp.args.StandardRestore(target))

@@ -103,15 +103,19 @@ def _take(tree, idx, axis: int):
 def _loss(spec: UpdateSpec, params, mb: dict):
     """``w_bc * BC + w_rl * PPO`` on one minibatch (time-major arrays ``[T, b, ...]``)."""
     carry = env.warm_carry(spec.policy, params, mb["warm_obs"])
-    _, logits, _ = env.scan_policy(spec.policy, params, carry, mb["expert_obs"], False)
+    obs, b = mb["expert_obs"], carry.shape[0]
+    if spec.use_rl:  # one pass of the network over both episodes (expert- and policy-driven)
+        obs = jax.tree.map(lambda x, y: jnp.concatenate([x, y], 1), obs, mb["policy_obs"])
+        carry = jnp.concatenate([carry, carry], 0)
+    _, logits_all, values_all = env.scan_policy(spec.policy, params, carry, obs, False)
+    logits = logits_all[:, :b] if spec.use_rl else logits_all
     bc = bc_loss(logits, mb["expert_actions"], mb["expert_valid"])
     ent = masked_mean(entropy(logits), mb["expert_valid"])
     aux = {"bc_loss": bc, "entropy": ent}
     total = spec.w_bc * bc
     if spec.use_rl:
         mask = mb["valid"]
-        _, logits_pi, values = env.scan_policy(spec.policy, params, carry, mb["policy_obs"],
-                                               False)
+        logits_pi, values = logits_all[:, b:], values_all[:, b:]
         logp = action_log_prob(logits_pi, mb["actions"])
         pg = clipped_surrogate(logp, mb["log_probs"], mb["advantages"], spec.clip_eps, mask)
         vl = value_loss(values, mb["returns"], mask)
@@ -159,7 +163,7 @@ def update_one_seed(spec: UpdateSpec, params, opt_state, batch: SimState, key, l
         (_, aux), grads = grad_fn(params, mb)
         updates, opt_state = tx.update(grads, opt_state, params)
         params = optax.apply_updates(params, jax.tree.map(lambda u: -lr * u, updates))
-        aux["grad_norm"] = optax.global_norm(grads)
+        aux["grad_norm"] = optax.tree.norm(grads)
         return (params, opt_state), aux
 
     def epoch(carry, k):

@@ -21,6 +21,7 @@ T = NUM_STEPS
 LOOKAHEAD = 120.0  # m of route an agent watches ahead
 A_LAT = 2.2  # m/s^2 comfortable lateral acceleration in curves
 B_MAX = 7.0  # m/s^2 hardest braking
+STOP_WAIT = 8  # steps an agent stands at a stop sign
 
 
 @dataclass
@@ -52,6 +53,9 @@ class Agent:
     xy: np.ndarray | None = None
     yaw: np.ndarray | None = None
     speed: np.ndarray | None = None
+    lo: np.ndarray | None = None  # bounding box of the valid centre positions
+    hi: np.ndarray | None = None
+    reach: float = 0.0  # half the box diagonal
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
@@ -73,19 +77,26 @@ def _occupancy(agent: Agent, s_route: np.ndarray, yaw_route: np.ndarray, other: 
     ``along`` is other's speed along the route direction (NaN where its heading is not aligned,
     i.e. it is cross traffic). ``rows`` indexes route points near other's path (pruned)."""
     pts = agent.route.points
-    xy, yaw = other.xy, other.yaw
-    lo, hi = xy[other.valid].min(0) - 8, xy[other.valid].max(0) + 8
-    rows = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+    lo, hi = agent.route.bounds
+    reach = other.reach + agent.width / 2 + 1.0
+    if (other.lo[0] - reach > hi[0] or other.hi[0] + reach < lo[0]
+            or other.lo[1] - reach > hi[1] or other.hi[1] + reach < lo[1]):
+        return pts[:0, 0].astype(int), None, None
+    rows = np.flatnonzero(np.all((pts >= other.lo - reach) & (pts <= other.hi + reach), axis=1))
     if len(rows) == 0:
         return rows, None, None
+    # A standing object occupies the same points at every step: compute one step, broadcast.
+    steps = slice(0, 1) if other.static else slice(None)
+    xy, yaw = other.xy[steps], other.yaw[steps]
     d = pts[rows, None, :] - xy[None]
     c, s = np.cos(yaw), np.sin(yaw)
     dx = np.abs(d[..., 0] * c + d[..., 1] * s) - other.length / 2
     dy = np.abs(-d[..., 0] * s + d[..., 1] * c) - other.width / 2
     dist = np.maximum(dx, dy)
-    occ = (dist < agent.width / 2 + 0.4) & other.valid[None]
+    occ = np.broadcast_to(dist < agent.width / 2 + 0.4, (len(rows), T)) & other.valid[None]
     if not occ.any():
         return rows[:0], None, None
+    yaw = np.broadcast_to(yaw, (T,))
     keep = occ.any(1)
     rows, occ = rows[keep], occ[keep]
     cosang = np.cos(yaw[None] - yaw_route[rows, None])
@@ -141,6 +152,9 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
     pos, v = agent.s0, agent.v0
     stop_at = 0.0
+    stop_line, waited = agent.route.stop_at, 0
+    if stop_line is not None and agent.s0 + half > stop_line - 0.5:
+        stop_line = None  # already past it
     inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
     out = np.empty(T)
     for t in range(T):
@@ -165,12 +179,23 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                     g = d[hit].min() - 1.5
                     if g < gap:
                         gap, v_lead = g, 0.0
+        if stop_line is not None:  # stop sign: come to a full stop, wait, then go
+            g = stop_line - front
+            if g < -1.0 or waited >= STOP_WAIT:
+                stop_line = None
+            else:
+                waited += v < 0.3 and g < 2.0
+                g += agent.min_gap - 0.5  # stand just behind the line, not min_gap before it
+                if g < gap:
+                    gap, v_lead = max(g, 0.05), 0.0
         if agent.stop_window is not None and agent.stop_window[0] <= t < agent.stop_window[1]:
             if t == agent.stop_window[0]:
                 stop_at = pos + max(v * v / (2 * agent.brake * 1.3), 3.0) + half
             g = stop_at - front
             if g < gap:
                 gap, v_lead = g, 0.0
+        if t == 0:  # start at a speed the situation allows (no brake slam at step 0)
+            v = min(v, _entry_speed(agent, gap, v_lead, sqrt_ab))
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
         s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
@@ -180,6 +205,17 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         pos += 0.5 * (v + v_new) * DT
         v = v_new
     return out
+
+
+def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> float:
+    """Largest speed whose IDM desired gap ``s*`` is at most ``1.2 gap`` (quadratic in v)."""
+    a = 1.0 / sqrt_ab
+    b = agent.headway - v_lead / sqrt_ab
+    c = agent.min_gap - 1.2 * gap
+    disc = b * b - 4 * a * c
+    if disc < 0:
+        return 0.0
+    return max((-b + disc**0.5) / (2 * a), 0.0)
 
 
 def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
@@ -198,6 +234,9 @@ def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
     agent.xy = np.stack([x + off * nx, y + off * ny], 1)
     agent.yaw = yaw_r + np.arctan(slope)
     agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
+    where = agent.xy[valid] if valid.any() else agent.xy[:1]
+    agent.lo, agent.hi = where.min(0), where.max(0)
+    agent.reach = float(np.hypot(agent.length, agent.width) / 2)
 
 
 def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
@@ -226,7 +265,10 @@ def collides(a: Agent, b: Agent) -> bool:
     both = a.valid & b.valid
     if not both.any():
         return False
-    reach = (np.hypot(a.length, a.width) + np.hypot(b.length, b.width)) / 2
+    reach = a.reach + b.reach
+    if (a.lo[0] - reach > b.hi[0] or a.hi[0] + reach < b.lo[0]
+            or a.lo[1] - reach > b.hi[1] or a.hi[1] + reach < b.lo[1]):
+        return False
     near = both & (np.linalg.norm(a.xy - b.xy, axis=1) < reach)
     if not near.any():
         return False

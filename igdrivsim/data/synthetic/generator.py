@@ -72,6 +72,9 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
               role=role)
     for key, value in kw.items():
         setattr(a, key, value)
+    if route.stop_at is not None and s0 < route.stop_at:  # able to stop comfortably in time
+        room = max(route.stop_at - s0 - length / 2 - 1.0, 0.0)
+        a.v0 = min(a.v0, float(np.sqrt(2 * 1.5 * room)))
     return a
 
 
@@ -98,7 +101,7 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
     groups = sorted(m.lanes)
     g = int(rng.choice(groups))
     lane = next(r for r in m.routes if r.group == g)
-    s0 = rng.uniform(10, 60)
+    s0 = rng.uniform(50, 110)  # with road behind the SDC too
     neighbours = [h for h in groups if m.lanes[h][1] == m.lanes[g][1]
                   and abs(m.lanes[h][0] - m.lanes[g][0]) < 5]
     neighbours = [h for h in neighbours if h != g]
@@ -107,7 +110,17 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
         route = lane_change_route(m, g, int(rng.choice(neighbours)), s0 + rng.uniform(20, 60),
                                   rng.uniform(30, 50))
     agents = [_sdc(rng, route, s0)]
-    if rng.random() < 0.3:  # a stalled car around the next bend
+    for strip in m.parking:  # parked cars along the kerb
+        at = rng.uniform(0, 12)
+        while at < strip.s[-1] - 6:
+            if rng.random() < 0.6:
+                agents.append(_vehicle(rng, strip, at, "parked", static=True, v0=0.0))
+            at += rng.uniform(6.5, 14)
+    if rng.random() < 0.08:  # the SDC waits in a queue (filtered out by the speed criterion)
+        agents[0].v0 = 0.0
+        agents.append(_vehicle(rng, route, s0 + rng.uniform(7.0, 8.0), "stalled", static=True,
+                               v0=0.0))
+    elif rng.random() < 0.3:  # a stalled car around the next bend
         s = geo.arc_length(route.points)
         kappa = np.abs(geo.curvature(route.points))
         window = (s > s0 + 50) & (s < s0 + 120)
@@ -119,16 +132,24 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
                                stop_window=(t0, t0 + int(rng.integers(15, 60)))))
     if neighbours and rng.random() < 0.4:  # a cut-in from the next lane
         h = int(rng.choice(neighbours))
-        at = s0 + rng.uniform(2, 20)
+        at = s0 + rng.uniform(8, 30)
         cut = lane_change_route(m, h, g, at + rng.uniform(5, 25), rng.uniform(25, 45))
-        agents.append(_vehicle(rng, cut, at, "cut_in", v_scale=rng.uniform(0.8, 1.0)))
+        v = agents[0].v0 * rng.uniform(0.95, 1.15)
+        agents.append(_vehicle(rng, cut, at, "cut_in", v0=v, v_des=max(v, cut.speed_limit)))
     for walk in m.walk_paths:
         for _ in range(int(rng.integers(1, 4))):
             agents.append(_walker(rng, walk))
+    for walk in m.sidewalks:  # pedestrians strolling or standing beside the road
+        for _ in range(int(rng.integers(0, 3))):
+            stroll = _walker(rng, walk, static=rng.random() < 0.3)
+            stroll.s0 = rng.uniform(0, stroll.route.s[-1] - 20)
+            stroll.start_step = 0
+            agents.append(stroll)
     for h in groups:  # background traffic on every lane
         routes = [r for r in m.routes if r.group == h]
         for _ in range(int(rng.integers(0, 5))):
-            agents.append(_vehicle(rng, routes[0], rng.uniform(0, 220), "background"))
+            agents.append(_vehicle(rng, routes[0], rng.uniform(0, routes[0].s[-1] - 40),
+                                   "background"))
     if rng.random() < 0.15:
         right = min(groups, key=lambda h: (m.lanes[h][1] != m.lanes[g][1], m.lanes[h][0]))
         bike = _vehicle(rng, next(r for r in m.routes if r.group == right), rng.uniform(20, 120),
@@ -180,7 +201,8 @@ def _priority(rng, agents: list[Agent]) -> list[Agent]:
 
     def key(a: Agent):
         first = 0 if (a.walker or a.static) else 1 if a.role == "cut_in" else 2
-        return (first, rank[a.route.group], -a.s0)
+        stop = a.route.stop_at is not None  # stop-sign approaches give way to the others
+        return (first, stop, rank[a.route.group], -a.s0)
 
     return sorted(agents, key=key)
 
@@ -269,7 +291,17 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     caps = Capacities(max_objects=config.max_objects,
                       max_roadgraph_points=config.max_roadgraph_points)
     order = rng.permutation(len(agents))
-    agents = [agents[i] for i in order][: caps.max_objects]
+    agents = [agents[i] for i in order]
+    # Like a perception log, objects are valid only within sensor range of the SDC.
+    sdc_xy = next(a.xy for a in agents if a.is_sdc)
+    sensor = rng.uniform(90, 130)
+    seen = [a.valid & (np.linalg.norm(a.xy - sdc_xy, axis=1) <= sensor) for a in agents]
+    keep = [k for k, a in enumerate(agents) if seen[k].any() or a.is_sdc]
+    agents, seen = [agents[k] for k in keep], [seen[k] for k in keep]
+    if len(agents) > caps.max_objects:  # keep the SDC and the objects nearest to it
+        near = np.argsort([np.linalg.norm(a.xy - sdc_xy, axis=1).min() for a in agents])
+        chosen = np.sort(near[: caps.max_objects])
+        agents, seen = [agents[k] for k in chosen], [seen[k] for k in chosen]
     n = len(agents)
     if n > caps.max_objects or not any(a.is_sdc for a in agents):
         raise RuntimeError("synthetic generator: SDC lost while packing objects")
@@ -283,7 +315,7 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
                                     max_traffic_lights=caps.max_traffic_lights))
     tr = out.trajectory
     xy = np.stack([place(a.xy) for a in agents])  # [n, T, 2]
-    valid = np.stack([a.valid for a in agents])
+    valid = np.stack(seen)
     vel = np.gradient(xy, 0.1, axis=1)
     vel[~valid] = 0
     yaw = np.stack([a.yaw for a in agents]) + angle

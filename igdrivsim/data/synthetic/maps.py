@@ -18,11 +18,14 @@ from igdrivsim.data.scenario import (
     RG_LANE_SURFACE_STREET,
     RG_ROAD_EDGE_BOUNDARY,
     RG_ROAD_EDGE_MEDIAN,
+    RG_STOP_SIGN,
 )
 from igdrivsim.data.synthetic import geometry as geo
 
-BROKEN_WHITE, SOLID_WHITE, BROKEN_YELLOW, SOLID_DOUBLE_YELLOW = 6, 7, 9, 12
+BROKEN_WHITE, SOLID_WHITE, BROKEN_YELLOW = 6, 7, 9
+SOLID_DOUBLE_YELLOW, PASSING_DOUBLE_YELLOW = 12, 13
 ROUTE_SPACING = 1.0  # m between route samples used for planning
+STOP_LINE = 4.5  # m before the junction box (behind the crosswalk) where stop signs stop cars
 
 
 @dataclass
@@ -38,11 +41,17 @@ class Route:
     kind: str = "lane"
     speed_limit: float = 13.0
     entry: float = 0.0  # intersection routes: arc length where the route enters the junction
+    stop_at: float | None = None  # arc length of a stop line (stop sign) on the route
 
     @cached_property
     def s(self) -> np.ndarray:
         """Arc length at each point."""
         return geo.arc_length(self.points)
+
+    @cached_property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box ``(lo, hi)`` of the points."""
+        return self.points.min(0), self.points.max(0)
 
     @cached_property
     def yaw(self) -> np.ndarray:
@@ -55,9 +64,12 @@ class MapData:
     features: list[tuple[np.ndarray, int]] = field(default_factory=list)  # (points [N,2], type)
     routes: list[Route] = field(default_factory=list)
     walk_paths: list[np.ndarray] = field(default_factory=list)  # pedestrian crossings [2, 2]
+    sidewalks: list[np.ndarray] = field(default_factory=list)  # paths beside the road [N, 2]
     kind: str = "road"
     ref: np.ndarray | None = None  # road maps: the centre line the lanes are offsets of
     lanes: dict[int, tuple[float, int]] = field(default_factory=dict)  # group -> (offset, dir)
+    parking: list[Route] = field(default_factory=list)  # kerbside strips with parked cars
+    stop_arms: set[int] = field(default_factory=set)  # intersection arms with stop signs
 
     def add(self, points: np.ndarray, rg_type: int) -> None:
         self.features.append((np.asarray(points, float), int(rg_type)))
@@ -115,7 +127,7 @@ def _reference_curve(rng: np.random.Generator, length: float) -> np.ndarray:
 
 def road_map(rng: np.random.Generator) -> MapData:
     """A curved road, 1-3 lanes each way (or one-way), sometimes divided, maybe a crosswalk."""
-    ref = _reference_curve(rng, rng.uniform(320, 380))
+    ref = _reference_curve(rng, rng.uniform(340, 400))
     m = MapData(kind="road", ref=ref)
     n_fwd = int(rng.choice([1, 2, 2, 3]))
     n_back = int(rng.choice([0, 1, 2], p=[0.15, 0.45, 0.4]))
@@ -141,15 +153,30 @@ def road_map(rng: np.random.Generator) -> MapData:
             line = geo.offset(ref, (offs[j] + offs[j + 1]) / 2)
             m.add(line if direction > 0 else rev(line), BROKEN_WHITE)
         group += len(offs)
-    right = -(n_fwd * w + half_m + shoulder)
-    left = n_back * w + half_m + shoulder if n_back else shoulder
+    park_r = rng.uniform(2.3, 2.7) if rng.random() < 0.45 else 0.0
+    park_l = rng.uniform(2.3, 2.7) if n_back and rng.random() < 0.35 else 0.0
+    right = -(n_fwd * w + half_m + park_r + shoulder)
+    left = (n_back * w + half_m + park_l if n_back else 0.0) + shoulder
+    if park_r:  # parking strips: routes (never driven) where parked cars stand
+        m.parking.append(_route(geo.offset(ref, -(n_fwd * w + half_m + park_r / 2)), -2,
+                                "parking", 0.0))
+    if park_l:
+        m.parking.append(_route(geo.offset(ref, n_back * w + half_m + park_l / 2)[::-1], -3,
+                                "parking", 0.0))
     m.add(geo.offset(ref, right), RG_ROAD_EDGE_BOUNDARY)
     m.add(rev(geo.offset(ref, left)), RG_ROAD_EDGE_BOUNDARY)
     if median > 0:
         m.add(rev(geo.offset(ref, -half_m)), RG_ROAD_EDGE_MEDIAN)
         m.add(geo.offset(ref, half_m), RG_ROAD_EDGE_MEDIAN)
     elif n_back:
-        m.add(geo.offset(ref, 0.0), SOLID_DOUBLE_YELLOW)
+        m.add(geo.offset(ref, 0.0), int(rng.choice(
+            [SOLID_DOUBLE_YELLOW, BROKEN_YELLOW, PASSING_DOUBLE_YELLOW], p=[0.6, 0.25, 0.15])))
+    if park_r:  # a solid white line separates the parking strip from the traffic lane
+        m.add(geo.offset(ref, -(n_fwd * w + half_m)), SOLID_WHITE)
+    if park_l:
+        m.add(geo.offset(ref, n_back * w + half_m)[::-1], SOLID_WHITE)
+    for side in (right - 2.0, left + 2.0):  # sidewalks, 2 m outside the road edges
+        m.sidewalks.append(geo.offset(ref, side))
     if rng.random() < 0.6:  # a crosswalk somewhere in the middle third
         s = geo.arc_length(ref)
         i = int(np.searchsorted(s, rng.uniform(0.3, 0.6) * s[-1]))
@@ -175,6 +202,15 @@ def intersection_map(rng: np.random.Generator) -> MapData:
     corner = rng.uniform(5.0, 10.0)
     length = rng.uniform(140, 170)
     limit = rng.uniform(9, 13)
+    control = rng.choice(["none", "two_way", "all_way"], p=[0.35, 0.4, 0.25])
+    if control == "all_way":
+        stop_arms = set(range(n_arms))
+    elif control == "two_way":
+        parity = int(rng.integers(2))
+        stop_arms = {a for a in range(n_arms) if a % 2 == parity} or {0}
+    else:
+        stop_arms = set()
+    m.stop_arms = stop_arms
     gaps = np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi]))
     half_width = np.maximum(n_in, n_out) * w
     r = float(half_width.max() / np.sin(min(gaps.min(), np.pi / 2)) + corner * 0.7 + 1.0)
@@ -193,6 +229,8 @@ def intersection_map(rng: np.random.Generator) -> MapData:
         for j in range(1, n_out[a]):
             m.add(geo.resample(line(a, -j * w, r, length), 1.0), BROKEN_WHITE)
         m.add(geo.resample(line(a, 0.0, r, length), 1.0), SOLID_DOUBLE_YELLOW)
+        if a in stop_arms:  # WOMD stop signs are single points beside the stop line
+            m.add(along(a, n_in[a] * w + 0.8)(r + STOP_LINE)[None], RG_STOP_SIGN)
         _crosswalk(m, u[a] * (r + 2.0) + nrm[a] * (n_in[a] - n_out[a]) * w / 2, nrm[a],
                    (n_in[a] + n_out[a]) * w / 2, 1.5)
     # Corners: arm a's left side (inwards) -> rounded corner -> next arm's right side (outwards).
@@ -229,6 +267,8 @@ def intersection_map(rng: np.random.Generator) -> MapData:
                 path = geo.concat(ins[a, j], conn, outs[b, k])
                 route = _route(path, group, kind, limit)
                 route.entry = float(geo.arc_length(ins[a, j])[-1])
+                if a in stop_arms:
+                    route.stop_at = route.entry - STOP_LINE
                 m.routes.append(route)
             group += 1
     return m

@@ -19,7 +19,8 @@ _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
 
 
 def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
-    """Draw one (unbatched) scenario on a matplotlib axis, centred on the SDC at step 10."""
+    """Draw one (unbatched) scenario on a matplotlib axis: boxes at step 10, the whole logged
+    trajectories, the view centred on the middle of the SDC's log."""
     from matplotlib.patches import Polygon
 
     rg, tr, md = scenario.roadgraph, scenario.trajectory, scenario.metadata
@@ -49,13 +50,26 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
             box = box @ np.array([[c, s], [-s, c]]) + [x[i, now], y[i, now]]
             ax.add_patch(Polygon(box, closed=True, fc=color, ec="black", lw=0.5,
                                  alpha=1.0 if i == sdc else 0.6))
-    cx, cy = x[sdc, now], y[sdc, now]
+    mid = np.flatnonzero(valid[sdc])  # centre the view on the middle of the SDC's log
+    mid = mid[len(mid) // 2] if len(mid) else now
+    cx, cy = x[sdc, mid], y[sdc, mid]
     ax.set_xlim(cx - radius, cx + radius)
     ax.set_ylim(cy - radius, cy + radius)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
     ax.set_title(decode_scenario_id(scenario.scenario_id), fontsize=8)
+
+
+def add_legend(ax) -> None:
+    """Explain the colours of :func:`draw_scenario` (small, lower left)."""
+    from matplotlib.lines import Line2D
+
+    items = [("SDC (box at t=1 s, log)", "tab:red", "-"), ("vehicles", "tab:blue", "-"),
+             ("pedestrians", "tab:green", "-"), ("road edges", "black", "-"),
+             ("lane centres", "0.75", "--"), ("road lines", "goldenrod", "-")]
+    handles = [Line2D([], [], color=c, ls=ls, lw=1.5) for _, c, ls in items]
+    ax.legend(handles, [n for n, _, _ in items], loc="lower left", fontsize=6, framealpha=0.85)
 
 
 def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
@@ -70,6 +84,7 @@ def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthe
     for k, scenario in enumerate(scenarios, 1):
         fig, ax = plt.subplots(figsize=(5, 5), dpi=110)
         draw_scenario(ax, scenario)
+        add_legend(ax)
         fig.tight_layout()
         path = os.path.join(out_dir, f"{prefix}_{k}.png")
         tmp = path + ".tmp.png"

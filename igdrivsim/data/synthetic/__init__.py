@@ -1,0 +1,13 @@
+"""Synthetic WOMD-format scenarios: the embedded default data set (see ``generator.py``)."""
+
+from igdrivsim.data.synthetic.generator import (
+    GeneratorConfig,
+    generate_scenario,
+    paths_intersect,
+    plan_scenario,
+    scenario_rng,
+    to_scenario,
+)
+
+__all__ = ["GeneratorConfig", "generate_scenario", "paths_intersect", "plan_scenario",
+           "scenario_rng", "to_scenario"]

@@ -1,0 +1,94 @@
+"""``igdrivsim bench train``: training updates/s and scenario-steps/s of a profile's network.
+
+Times the real jitted update (warm-up observations, expert rollout, forward + backward through
+the recurrent network over the 90-step episode, Adam; plus the policy rollout and PPO for
+``--method bc_rl``) on constructed straight-road scenarios, after one compile run. A
+*scenario-step* is one scenario at one of the 80 controlled steps, trained forward+backward:
+``seeds * batch * 80 * ppo_epochs`` per update. Prints one JSON line per profile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import numpy as np
+
+
+def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profiles", default="laptop,paper",
+                        help="comma-separated profiles (default: laptop,paper)")
+    parser.add_argument("--method", choices=("bc", "bc_rl"), default="bc")
+    parser.add_argument("--batch", type=int, default=0,
+                        help="scenarios per update (0: the profile's; paper on CPU uses 8)")
+    parser.add_argument("--seeds", type=int, default=0, help="seeds (0: the profile's)")
+    parser.add_argument("--updates", type=int, default=3, help="timed updates (after compile)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="SECTION.FIELD=VALUE")
+
+
+def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int = 0,
+                  updates: int = 3, overrides: tuple[str, ...] = ()) -> dict:
+    """Measure one profile; returns the JSON record."""
+    from igdrivsim.simulator import toy
+    from igdrivsim.training import inputs
+    from igdrivsim.training.config import get_profile, with_overrides
+    from igdrivsim.training.loop import get_update, init_state, seed_keys
+    from igdrivsim.training.update import update_spec
+
+    cpu = jax.default_backend() == "cpu"
+    sets = [f"training.method={method}"]
+    if batch or (profile == "paper" and cpu):
+        sets.append(f"data.batch_size={batch or 8}")
+    if seeds or (profile == "paper" and cpu):
+        sets.append(f"training.seeds={seeds or 1}")
+    config = with_overrides(get_profile(profile), sets + list(overrides))
+    minibatches = min(config.training.ppo_minibatches, config.data.batch_size)
+    config = with_overrides(config, [f"training.ppo_minibatches={minibatches}"]).validate()
+    spec = update_spec(config)
+    mesh = inputs.make_mesh()
+    inputs.check_batch(config.data.batch_size, mesh)
+    caps = inputs.capacities(config)
+    scenarios = [toy.straight_road(caps, speed=4.0 + i % 8) for i in range(config.data.batch_size)]
+    dataset = inputs.Dataset.from_config(config, scenarios, spec.sim)
+    rep = inputs.replicated(mesh)
+    params, opt_state = init_state(config, spec)
+    n_params = int(sum(x[0].size for x in jax.tree.leaves(params)))
+    params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
+    keys = inputs.place(seed_keys(config), rep)
+    batch = inputs.place(dataset.host_batch(0), inputs.batch_sharding(mesh))
+    update = get_update(spec)
+    t0 = time.perf_counter()
+    params, opt_state, m = update(params, opt_state, batch, keys, 0, 1e-3)
+    jax.block_until_ready(params)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for u in range(1, updates + 1):
+        params, opt_state, m = update(params, opt_state, batch, keys, u, 1e-3)
+    jax.block_until_ready(params)
+    per_update = (time.perf_counter() - t0) / updates
+    t = config.training
+    steps = t.seeds * config.data.batch_size * 80 * t.ppo_epochs
+    return {"profile": profile, "method": method, "backend": jax.default_backend(),
+            "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
+            "batch": config.data.batch_size, "compile_plus_first_s": round(compile_s, 2),
+            "seconds_per_update": round(per_update, 4),
+            "updates_per_s": round(1.0 / per_update, 3),
+            "scenario_steps_per_s": round(steps / per_update, 1),
+            "bc_loss": float(np.mean(jax.device_get(m["bc_loss"])))}
+
+
+def bench_train_command(args: argparse.Namespace) -> int:
+    from igdrivsim.errors import ConfigError
+    from igdrivsim.training.config import PROFILES
+
+    names = [p.strip() for p in args.profiles.split(",") if p.strip()]
+    for name in names:
+        if name not in PROFILES:
+            raise ConfigError(f"unknown profile {name!r}; choose from {', '.join(PROFILES)}")
+    for name in names:
+        print(json.dumps(bench_profile(name, args.method, args.batch, args.seeds, args.updates,
+                                       tuple(args.overrides))), flush=True)
+    return 0

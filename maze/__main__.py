@@ -1,0 +1,33 @@
+"""``python -m maze --out DIR [--seeds 10] [--quick]``: the maze study (see :mod:`maze.study`).
+
+``--quick`` runs the seconds-long smoke profile. Besides the study's outputs this writes
+``DIR/summary.csv`` (``curve,final_return_mean,final_return_ci95``, one row per curve).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from igdrivsim.errors import IGDrivSimError
+from maze import report, study
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m maze", description=__doc__.split("\n")[0])
+    study.study_arguments(parser)
+    parser.add_argument("--quick", action="store_true", help="tiny smoke run (seconds)")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.profile = "smoke"
+    try:
+        summary = study.run_study(study.resolve(args), args.out, args.work, args.force)
+    except IGDrivSimError as err:
+        print(f"maze: error: {err}", file=sys.stderr)
+        return 2
+    report.write_text(args.out / "summary.csv", summary.to_csv(index=False))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

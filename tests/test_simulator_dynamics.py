@@ -1,0 +1,148 @@
+"""Dynamics, discretiser, reset/step semantics, the roadgraph crop and bad input."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from igdrivsim.data.scenario import (
+    CURRENT_INDEX,
+    NUM_STEPS,
+    RG_ROAD_EDGE_TYPES,
+    encode_scenario_id,
+)
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.simulator import (
+    SimParams,
+    current_objects,
+    delta_global,
+    delta_local,
+    discretize,
+    inverse_delta_global,
+    inverse_delta_local,
+    reset,
+    step,
+    undiscretize,
+)
+from igdrivsim.simulator.roadgraph import crop_roadgraph, subsample_path
+from igdrivsim.simulator.toy import straight_road
+
+PARAMS = SimParams(roadgraph_capacity=256, edge_capacity=256)  # as in test_simulator_metrics
+_reset = jax.jit(reset, static_argnums=1)
+_step = jax.jit(step, static_argnums=2)
+
+
+@pytest.fixture(scope="module")
+def state():
+    return _reset(straight_road(), PARAMS)
+
+
+@pytest.mark.parametrize("forward,inverse", [(delta_local, inverse_delta_local),
+                                              (delta_global, inverse_delta_global)])
+def test_inverse_dynamics_recovers_the_action(forward, inverse):
+    rng = np.random.default_rng(0)
+    pose = rng.uniform(-50, 50, (3, 64)).astype(np.float32)
+    pose[2] = rng.uniform(-np.pi, np.pi, 64)
+    action = rng.uniform([-6, -6, -np.pi], [6, 6, np.pi], (64, 3)).astype(np.float32)
+    x1, y1, yaw1, vx, vy = forward(*pose, action)
+    np.testing.assert_allclose(inverse(*pose, x1, y1, yaw1), action, atol=2e-4)
+    # velocity is the displacement over one step (0.1 s)
+    np.testing.assert_allclose(vx, (x1 - pose[0]) / 0.1, atol=2e-2)
+    np.testing.assert_allclose(vy, (y1 - pose[1]) / 0.1, atol=2e-2)
+
+
+def test_delta_local_moves_in_the_ego_frame():
+    x, y, yaw, _, _ = delta_local(jnp.float32(1.0), jnp.float32(2.0), jnp.float32(np.pi / 2),
+                                  jnp.asarray([1.0, 0.5, 0.1]))
+    np.testing.assert_allclose([x, y, yaw], [0.5, 3.0, np.pi / 2 + 0.1], atol=1e-6)
+
+
+def test_discretiser_levels_bounds_and_round_trip():
+    idx = discretize(jnp.asarray([[0.0, 0.0, 0.0], [-6.0, 6.0, -np.pi], [100.0, -100.0, 9.0]]))
+    np.testing.assert_array_equal(idx, [[128, 128, 128], [0, 256, 0], [256, 0, 256]])
+    step_size = np.asarray(undiscretize(jnp.asarray([1, 1, 1]))) - np.asarray(
+        undiscretize(jnp.asarray([0, 0, 0])))
+    np.testing.assert_allclose(step_size, [12 / 256, 12 / 256, 2 * np.pi / 256], rtol=1e-5)
+    a = np.random.default_rng(1).uniform([-6, -6, -np.pi], [6, 6, np.pi], (200, 3))
+    err = np.abs(np.asarray(undiscretize(discretize(jnp.asarray(a, jnp.float32)))) - a)
+    assert np.all(err <= step_size / 2 + 1e-5)
+    np.testing.assert_array_equal(discretize(jnp.asarray([np.nan, 1.0, 1.0])), [128] * 3)
+
+
+def test_reset_replays_the_warm_up_and_step_follows_the_log(state):
+    assert int(state.timestep) == CURRENT_INDEX
+    sdc = state.sdc
+    np.testing.assert_array_equal(sdc.valid, np.arange(NUM_STEPS) <= CURRENT_INDEX)
+    np.testing.assert_allclose(sdc.x[:CURRENT_INDEX + 1], state.log.x[0, :CURRENT_INDEX + 1])
+    nxt = _step(state, jnp.asarray([2.0, 0.5, 0.0]), PARAMS)  # SDC faces +x
+    assert int(nxt.timestep) == CURRENT_INDEX + 1
+    obj = current_objects(nxt)
+    np.testing.assert_allclose([obj.x[0], obj.y[0]], [float(sdc.x[10]) + 2.0, 0.5], atol=1e-5)
+    np.testing.assert_allclose([obj.vel_x[0], obj.vel_y[0]], [20.0, 5.0], atol=1e-3)
+    # other objects replay their log
+    np.testing.assert_allclose(obj.x[1], state.log.x[1, CURRENT_INDEX + 1])
+
+
+def test_actions_are_clipped_and_nan_is_rejected_or_masked(state):
+    far = _step(state, jnp.asarray([100.0, 0.0, 0.0]), PARAMS)
+    assert float(current_objects(far).x[0] - state.sdc.x[10]) == pytest.approx(6.0, abs=1e-4)
+    with pytest.raises(DataError, match="non-finite"):
+        step(state, np.asarray([np.nan, 0.0, 0.0], np.float32), PARAMS)
+    masked = _step(state, jnp.asarray([jnp.nan, 1.0, 0.0]), PARAMS)  # traced: zero action
+    assert float(current_objects(masked).x[0]) == pytest.approx(float(state.sdc.x[10]))
+
+
+def test_stepping_past_the_end_stays_at_the_last_step(state):
+    end = state.replace(timestep=jnp.int32(NUM_STEPS - 1))
+    assert int(_step(end, jnp.zeros(3), PARAMS).timestep) == NUM_STEPS - 1
+
+
+def test_bad_scenarios_raise_a_clear_error_before_tracing():
+    sc = straight_road(scenario_id="bad-one")
+    sc.metadata.is_sdc[:] = False
+    with pytest.raises(DataError, match=r"'bad-one'.*exactly one SDC \(is_sdc\), found 0"):
+        reset(sc, PARAMS)
+    sc = straight_road()
+    sc.trajectory.valid[0, CURRENT_INDEX] = False
+    with pytest.raises(DataError, match="invalid at the current step"):
+        reset(sc, PARAMS)
+    with pytest.raises(ConfigError, match="offroad_method"):
+        SimParams(offroad_method="nearest")
+    with pytest.raises(ConfigError, match="crop_radius"):
+        SimParams(crop_radius=0.0)
+
+
+def test_crop_keeps_points_near_the_path_nearest_first_and_edges_only():
+    sc = straight_road()  # SDC path along y = 0 from x = -10 to x = 80; points x in -30..169
+    rg = sc.roadgraph
+    path = np.stack([sc.trajectory.x[0], sc.trajectory.y[0]], -1)
+    valid = np.ones(NUM_STEPS, bool)
+    crop = jax.jit(crop_roadgraph, static_argnames=(
+        "radius", "capacity", "edge_radius", "edge_capacity", "path_stride"))
+    cropped, edges = crop(rg, path, valid, radius=30.0, capacity=400, edge_radius=10.0,
+                          edge_capacity=300, path_stride=1)
+    xy = np.asarray(cropped.xyz)[np.asarray(cropped.valid), :2]
+    # along x the path spans -10..80: points within 30 m are x in -30..110 on the 3 lines
+    assert len(xy) == 3 * 140 - 20  # capacity 400 < 420 candidates: the farthest are dropped
+    assert np.abs(xy[:, 0] - np.clip(xy[:, 0], -10, 80)).max() <= 29.0
+    ev = np.asarray(edges.valid)
+    assert ev.sum() == 2 * 107  # |dx| <= sqrt(10**2 - 5**2): x in -18..88 on both edges
+    assert set(np.unique(np.asarray(rg.type)[np.isin(rg.type, RG_ROAD_EDGE_TYPES)])) <= {15, 16}
+    # segments run to the next point of the same polyline
+    d = np.asarray(edges.next_xy)[ev] - np.asarray(edges.xy)[ev]
+    np.testing.assert_allclose(np.abs(d).sum(-1), 1.0, atol=1e-5)
+
+
+def test_subsampled_path_keeps_every_fifth_valid_point_and_the_last():
+    xy = np.stack([np.arange(12.0), np.zeros(12)], -1)
+    valid = np.ones(12, bool)
+    valid[[0, 1, 7]] = False
+    pts, ok = subsample_path(xy, valid, 5)
+    # valid steps 2,3,4,5,6,8,9,10,11 -> every 5th: 2, 8 (then padding repeats 11), and 11
+    assert set(np.asarray(pts)[:, 0].tolist()) == {2.0, 8.0, 11.0} and bool(np.all(ok))
+    _, ok = subsample_path(xy, np.zeros(12, bool), 5)
+    assert not bool(np.any(ok))
+
+
+def test_scenario_id_survives_reset(state):
+    np.testing.assert_array_equal(state.scenario_id, encode_scenario_id("toy-straight"))

@@ -1,0 +1,88 @@
+"""PPO and BC learn on a tiny maze; the study runs end to end; bad arguments fail clearly.
+
+One small configuration (5x5 maze, GRU-16) is compiled once and shared by every test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from igdrivsim.errors import ConfigError
+from maze import study as S
+from maze.bc import BCConfig
+from maze.ppo import PPOConfig
+
+TINY = dataclasses.replace(
+    S.PROFILES["smoke"], profile="test", size=5, max_steps=30, seeds=2, hidden=16,
+    ppo=PPOConfig(num_envs=16, num_steps=32, num_minibatches=2, update_epochs=4, lr=5e-3),
+    rl_full_updates=64, rl_partial_updates=8, chunk_updates=8,
+    bc=BCConfig(num_envs=8, num_steps=64, epochs=2, num_minibatches=2, lr=1e-2),
+    bc_chunk_epochs=1, eval_episodes=32)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One tiny study (PPO on full obs. long enough to learn, so BC has a real expert)."""
+    out = tmp_path_factory.mktemp("maze")
+    study = S.Study(TINY)
+    summary = S.run_study(TINY, out / "out", out / "work", study=study)
+    return study, out, summary
+
+
+def test_ppo_learns_on_a_tiny_maze(run):
+    _, out, _ = run
+    curves = pd.read_csv(out / "out/figures/fig2_maze.csv")
+    rl = curves[curves.curve == "rl_full"]
+    start = rl[rl.progress == 0]["return"].mean()
+    end = rl[rl.final]["return"].mean()
+    assert end > start + 2.0, (start, end)
+    assert end > 6.0  # 5x5 maze, goal at most 8 moves away: the optimum is above 7.5
+
+
+def test_bc_loss_goes_down(run):
+    _, out, _ = run
+    losses = np.asarray(json.loads((out / "out/maze_config.json").read_text())[
+        "bc_loss_per_chunk"])  # [chunks, curves]
+    assert (losses[-1] < losses[0]).all(), losses
+    assert losses[-1][0] < 1.2  # full -> full imitates a trained expert: well below ln 4
+
+
+def test_study_writes_every_output_and_resumes(run, capsys):
+    study, tmp, summary = run
+    out, work = tmp / "out", tmp / "work"
+    for rel in S.OUTPUTS:
+        assert (out / rel).stat().st_size > 0, rel
+    assert list(summary.curve) == ["rl_full", "rl_partial", *S.BC_CURVES]
+    curves = pd.read_csv(out / "figures/fig2_maze.csv")
+    assert set(curves.seed) == {0, 1} and curves["final"].sum() == 5 * 2
+    meta = json.loads((out / "maze_config.json").read_text())
+    assert meta["config"]["size"] == 5 and meta["config"]["hidden"] == 16
+    assert "timings_s" in meta
+    first = pd.read_csv(out / "tables/maze_summary.csv")
+    capsys.readouterr()
+    # Same config again: nothing is recomputed.
+    S.run_study(TINY, out, work, study=study)
+    assert "up to date" in capsys.readouterr().out
+    # Outputs removed but stage caches kept: resumes from the caches, same numbers.
+    (out / "maze_config.json").unlink()
+    again = S.run_study(TINY, out, work, study=study)
+    pd.testing.assert_frame_equal(first, again.reset_index(drop=True), check_dtype=False)
+
+
+@pytest.mark.parametrize("argv", [["--seeds", "0"], ["--hidden", "0"]])
+def test_bad_arguments_exit_with_one_line(argv, capsys, tmp_path):
+    assert S.main([*argv, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("maze study: error:") and "\n" not in err
+
+
+def test_bad_maze_config_raises():
+    with pytest.raises(ConfigError):
+        dataclasses.replace(TINY, size=6).validate()
+    with pytest.raises(ConfigError):
+        dataclasses.replace(TINY, receptive_field=7).validate()

@@ -1,0 +1,96 @@
+"""The smoke profile of ``scripts/reproduce.sh`` end to end, in process (shared compiles).
+
+One pipeline run (module fixture): synthetic data -> filter -> train (one observation setting x
+{BC, BC-RL}; all six settings compile one training program each, too slow for the suite) ->
+evaluate (+ references) -> maze smoke -> render -> report. Then: every expected output exists
+and parses, a rerun skips every stage, and re-running evaluation gives identical tables.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from igdrivsim.evaluation import pipeline as pl
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
+
+SETTING = "circular_r4"
+for module in ("igdrivsim.training.commands", "maze.study", "igdrivsim.data.synthetic.commands",
+               "igdrivsim.observation.commands"):
+    pytest.importorskip(module)
+
+
+def make(tmp: Path) -> pl.Pipeline:
+    return pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "work" / "paper",
+                       in_process=True, quiet=True, settings=(SETTING,))
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("smoke")
+    pipe = make(tmp)
+    pipe.run()
+    return pipe
+
+
+def test_every_output_exists_and_parses(done):
+    paper, work = done.paper, done.work
+    for stem in ("fig1_observations", "fig2_maze", "fig3_metrics"):
+        assert (paper / "figures" / f"{stem}.pdf").read_bytes().startswith(b"%PDF")
+        from PIL import Image
+
+        with Image.open(paper / "figures" / f"{stem}.png") as im:
+            assert im.size[0] > 200 and im.size[1] > 100
+    tex = (paper / "tables" / "table1.tex").read_text()
+    assert r"\begin{table*}" in tex and tex.count(r"\midrule") == 6
+    md = (paper / "tables" / "table1.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| log divergence | BC-RL"))
+    assert row.count("--") == 5  # five settings not trained in this test, one with numbers
+    assert "Expert (discretised replay)" in md and "Constant velocity" in md
+    assert "| Circ r=4 |" in (paper / "tables" / "vs_paper.md").read_text()
+    prov = (paper / "generated" / "provenance.tex").read_text()
+    assert r"\newcommand{\ProvProfile}{smoke}" in prov and "synthetic" in prov
+    assert (paper / "generated" / "verdicts.tex").read_text().count(r"\item") == 6
+    for method in ("bc", "bc_rl"):
+        run = f"{SETTING}__{method}"
+        assert (work / "runs" / run / "DONE").is_file()
+        steps = pd.read_csv(work / "evals" / run / "per_step.csv")
+        scen = pd.read_csv(work / "evals" / run / "per_scenario.csv")
+        assert list(steps.columns) == list(PER_STEP_COLUMNS)
+        assert list(scen.columns) == list(PER_SCENARIO_COLUMNS)
+        assert set(scen.method) == {method} and scen.seed.nunique() == pl.PROFILES["smoke"].seeds
+        assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()
+        info = json.loads((work / "evals" / run / "eval_config.json").read_text())
+        assert info["setting"] == SETTING and info["greedy"] is False
+    refs = pd.read_csv(work / "evals" / "references" / "per_scenario.csv")
+    assert set(refs.method) == {"expert", "constant_velocity"}
+    assert refs[refs.method == "expert"].log_divergence.max() < 0.2
+    for stage in ("data", "filter_training", "maze", "render", "report"):
+        assert (work / "logs" / f"{stage}.log").is_file()
+        assert (work / "stages" / f"{stage}.json").is_file()
+
+
+def test_rerun_skips_and_reevaluation_gives_same_tables(done, capsys):
+    paper, work = done.paper, done.work
+    before = (paper / "tables" / "table1.md").read_bytes()
+    again = make(work.parent)
+    again.run()
+    assert again.ran == set()  # everything complete: nothing ran
+    # Force one evaluation to run again: same numbers, hence the same tables.
+    (work / "stages" / f"evaluate_{SETTING}__bc.json").unlink()
+    third = make(work.parent)
+    third.run()
+    assert third.ran == {f"evaluate_{SETTING}__bc", "report"}
+    assert (paper / "tables" / "table1.md").read_bytes() == before
+
+
+def test_failing_stage_names_stage_and_log(tmp_path):
+    pipe = make(tmp_path)
+    with pytest.raises(pl.StageError, match=r"stage 'evaluate_x' failed .*evaluate_x\.log"):
+        pipe.stage("evaluate_x", [["igdrivsim", "evaluate", tmp_path / "no_run", "--data",
+                                   tmp_path, "--out", tmp_path / "o"]])
+    assert "not a training run" in (tmp_path / "work" / "logs" / "evaluate_x.log").read_text()
+    assert not (tmp_path / "work" / "stages" / "evaluate_x.json").exists()

@@ -1,0 +1,105 @@
+"""BC / PPO loss terms on hand-made inputs, and the GRU reset of the policy network."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from igdrivsim.policy.act import example_observation, policy_step
+from igdrivsim.policy.network import PolicyConfig, apply_step, init_params_per_seed
+from igdrivsim.training.losses import (
+    action_log_prob,
+    bc_loss,
+    clipped_surrogate,
+    entropy,
+    gae,
+    normalize,
+    value_loss,
+)
+from igdrivsim.training.update import cosine_lr
+
+
+def test_bc_loss_uniform_and_peaked():
+    k = 257
+    uniform = jnp.zeros((2, 5, 3, k))
+    actions = jnp.zeros((2, 5, 3), jnp.int32)
+    assert float(bc_loss(uniform, actions)) == pytest.approx(3 * math.log(k), rel=1e-5)
+    peaked = jnp.full((1, 3, k), -1e9).at[0, :, 7].set(0.0)
+    assert float(bc_loss(peaked, jnp.full((1, 3), 7))) == pytest.approx(0.0, abs=1e-5)
+    # The mask drops the steps it marks: only the first (peaked, correct) step counts.
+    logits = jnp.stack([peaked[0], uniform[0, 0]])
+    mask = jnp.array([True, False])
+    assert float(bc_loss(logits, jnp.full((2, 3), 7), mask)) == pytest.approx(0.0, abs=1e-5)
+
+
+def test_action_log_prob_sums_three_dimensions():
+    logits = jnp.log(jnp.array([[0.5, 0.5, 0.0 + 1e-30], [0.25, 0.25, 0.5], [1.0, 1e-30, 1e-30]]))
+    lp = action_log_prob(logits, jnp.array([0, 2, 0]))
+    assert float(lp) == pytest.approx(math.log(0.5) + math.log(0.5) + 0.0, abs=1e-5)
+    assert float(entropy(jnp.zeros((3, 4)))) == pytest.approx(3 * math.log(4), rel=1e-6)
+
+
+def test_gae_by_hand():
+    rewards = jnp.array([[1.0, 0.0, 2.0]])
+    values = jnp.array([[0.5, 1.0, 1.5]])
+    gamma, lam = 0.9, 0.8
+    adv, ret = gae(rewards, values, jnp.array([0.0]), gamma, lam)
+    d2 = 2.0 + 0.0 - 1.5
+    d1 = 0.0 + gamma * 1.5 - 1.0
+    d0 = 1.0 + gamma * 1.0 - 0.5
+    a2, a1 = d2, d1 + gamma * lam * d2
+    a0 = d0 + gamma * lam * a1
+    np.testing.assert_allclose(adv[0], [a0, a1, a2], rtol=1e-6)
+    np.testing.assert_allclose(ret, adv + values, rtol=1e-6)
+
+
+def test_clipped_surrogate_clips_and_value_loss_shapes():
+    adv = jnp.array([1.0, -1.0])
+    # Ratio 2 with positive advantage is clipped at 1.2; ratio 0.5 with negative at 0.8.
+    logp_new = jnp.log(jnp.array([2.0, 0.5]))
+    loss = clipped_surrogate(logp_new, jnp.zeros(2), adv, 0.2)
+    assert float(loss) == pytest.approx(-(1.2 * 1.0 + 0.8 * -1.0) / 2, rel=1e-6)
+    # Equal log-probs: ratio 1, the loss is -mean(A).
+    assert float(clipped_surrogate(jnp.zeros(2), jnp.zeros(2), adv, 0.2)) == pytest.approx(0.0)
+    assert float(value_loss(jnp.ones((4, 3)), jnp.zeros((4, 3)))) == pytest.approx(0.5)
+    with pytest.raises(ValueError):
+        value_loss(jnp.ones((4, 3)), jnp.zeros((4, 3, 1)))
+    x = normalize(jnp.array([1.0, 2.0, 3.0, 100.0]), jnp.array([True, True, True, False]))
+    np.testing.assert_allclose(np.asarray(x[:3]).mean(), 0.0, atol=1e-6)
+
+
+def test_cosine_schedule():
+    assert cosine_lr(0, 100, 1e-3, 0.0) == pytest.approx(1e-3)
+    assert cosine_lr(50, 100, 1e-3, 0.0) == pytest.approx(5e-4)
+    assert cosine_lr(100, 100, 1e-3, 0.0) == pytest.approx(0.0, abs=1e-12)
+
+
+TINY = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
+                    trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
+
+
+def test_gru_reset_zeroes_the_state():
+    from igdrivsim.observation import ObservationConfig
+
+    obs = example_observation(ObservationConfig(3, 5))
+    obs = obs.replace(sdc_speed=jnp.ones((1,)), objects=jnp.ones((3, 6)),
+                      objects_valid=jnp.ones((3,), bool))
+    params = jax.tree.map(lambda x: x[0], init_params_per_seed(TINY, [jax.random.PRNGKey(0)], obs))
+    step = jax.jit(apply_step, static_argnums=0)
+    hot = jnp.full((8,), 0.7)
+    zero = jnp.zeros((8,))
+    c_reset, logits_reset, _ = step(TINY, params, hot, obs, jnp.array(True))
+    c_zero, logits_zero, _ = step(TINY, params, zero, obs, jnp.array(False))
+    c_keep, logits_keep, _ = step(TINY, params, hot, obs, jnp.array(False))
+    np.testing.assert_allclose(c_reset, c_zero, atol=1e-6)
+    np.testing.assert_allclose(logits_reset, logits_zero, atol=1e-6)
+    assert not np.allclose(c_keep, c_zero)
+    # policy_step: greedy picks the arg-max level and returns a bounded continuous action.
+    act = jax.jit(policy_step, static_argnums=(0, 5))
+    action, _, levels = act(TINY, params, zero, obs, jax.random.PRNGKey(1), True)
+    np.testing.assert_array_equal(levels, jnp.argmax(logits_zero, -1))
+    assert action.shape == (3,) and float(jnp.abs(action[:2]).max()) <= 6.0
