@@ -55,10 +55,10 @@ class StudyConfig:
     max_steps: int = 200
     hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
     ppo: PPOConfig = PPOConfig()
-    rl_full_updates: int = 80
-    rl_partial_updates: int = 160
+    rl_full_updates: int = 40
+    rl_partial_updates: int = 120
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig(num_envs=64, num_steps=384, epochs=20)
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=384, epochs=16)
     bc_chunk_epochs: int = 2
     eval_episodes: int = 256
     final_eval_rounds: int = 4
@@ -246,9 +246,13 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     def digest(d: dict) -> str:
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
-    # RL stages do not depend on the BC settings: changing those reuses the trained experts.
-    rl_dir = work / digest({k: v for k, v in resolved.items() if not k.startswith("bc")})
-    bc_dir = rl_dir / digest(resolved)
+    # Each RL stage depends on neither the BC settings nor the other RL stage's length, so
+    # changing those reuses the trained experts.
+    shared = {k: v for k, v in resolved.items()
+              if not k.startswith("bc") and not k.endswith("_updates")}
+    stage_dirs = {name: work / digest({**shared, "updates": resolved[f"{name}_updates"]})
+                  for name in ("rl_full", "rl_partial")}
+    bc_dir = work / digest(resolved)
     study = study or Study(cfg)
     n_bar = (cfg.rl_full_updates + cfg.rl_partial_updates) // cfg.chunk_updates + (
         cfg.bc.epochs // cfg.bc_chunk_epochs)
@@ -256,7 +260,7 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     results = {}
     with tqdm(total=n_bar, desc="maze study", unit="chunk", dynamic_ncols=True) as bar:
         for name, partial in (("rl_full", False), ("rl_partial", True)):
-            results[name], hit = _cached(rl_dir / f"{name}.pkl",
+            results[name], hit = _cached(stage_dirs[name] / f"{name}.pkl",
                                          lambda n=name, p=partial: run_rl(study, n, p, bar))
             if hit:
                 bar.update(getattr(cfg, f"{name}_updates") // cfg.chunk_updates)

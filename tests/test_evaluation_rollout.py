@@ -1,10 +1,12 @@
-"""Evaluation rollouts: tidy frames by hand, reference actors and a tiny policy on a real scene."""
+"""Evaluation rollouts: tidy frames by hand, reference actors on a real scene, CLI errors.
+
+Policy evaluation end to end (and its determinism) is covered by test_pipeline_smoke.py.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
 
@@ -62,29 +64,6 @@ def test_reference_actors_on_real_scene(scene):
     assert expert.log_divergence.max() < 0.1 and expert.overlap.sum() == 0
     assert cv.max_log_divergence.min() > 1.0  # this SDC turns/brakes: a straight line drifts
     assert per_step.groupby("method").step.max().eq(80).all()
-
-
-def test_policy_evaluation_is_seeded(scene):
-    from igdrivsim.observation import ObservationConfig, get_setting, observe
-    from igdrivsim.policy.network import PolicyConfig, init_params_per_seed
-    from igdrivsim.simulator import reset
-
-    scenarios, params = scene
-    config = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
-                          trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
-    obs_config = ObservationConfig(4, 32)
-    one = jax.tree.map(lambda x: x[0], scenarios)
-    example = observe(reset(one, params), get_setting("full"), jax.random.key(0),
-                      jax.random.key(1), obs_config)
-    stacked = init_params_per_seed(config, list(jax.random.split(jax.random.key(0), 2)), example)
-    kwargs = dict(policy_config=config, setting="random_masking", obs_config=obs_config,
-                  params=params)
-    a = rollout.evaluate_policy(stacked, scenarios, batch_size=2, **kwargs)
-    b = rollout.evaluate_policy(stacked, scenarios, batch_size=2, **kwargs)
-    assert a.log_divergence.shape == (2, 3, 80) and a.valid.all()
-    np.testing.assert_array_equal(a.log_divergence, b.log_divergence)
-    # Same scene three times, different action keys: sampled rollouts differ.
-    assert not np.allclose(a.log_divergence[0, 0], a.log_divergence[0, 1])
 
 
 def test_evaluate_cli_errors_are_one_line(tmp_path, capsys):

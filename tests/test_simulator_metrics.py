@@ -229,3 +229,39 @@ def test_reward_and_scenario_aggregation():
     np.testing.assert_array_equal(agg.offroad_rate, [1.0, 0.0])
     np.testing.assert_allclose(agg.max_log_divergence, [2.0, 3.0])  # step 3 of row 0 invalid
     np.testing.assert_allclose(mean_log_divergence(m), [1.25, 4.0 / 3.0])
+
+
+def _reference_signed_distances(px, py, edges):
+    """NumPy argmin version of both rules (float64), for random-point checks."""
+    xy, nxt = np.asarray(edges.xy, np.float64), np.asarray(edges.next_xy, np.float64)
+    dirs, ok = np.asarray(edges.dir, np.float64), np.asarray(edges.valid)
+    xy, nxt, dirs = xy[ok], nxt[ok], dirs[ok]
+    bs, be = np.asarray(edges.bis_start)[ok], np.asarray(edges.bis_end)[ok]
+    point, segment = [], []
+    for p in np.stack([px, py], -1):
+        r = p - xy
+        j = np.argmin((r * r).sum(-1))
+        c = r[j, 0] * dirs[j, 1] - r[j, 1] * dirs[j, 0]
+        point.append(np.hypot(*r[j]) * (1 if c > 0 else -1))
+        s = nxt - xy
+        len2 = (s * s).sum(-1)
+        u = np.clip((r * s).sum(-1) / np.maximum(len2, 1e-12), 0, 1)
+        q = r - u[:, None] * s
+        j = np.argmin((q * q).sum(-1))
+        d = bs[j] if u[j] <= 0 else be[j] if (u[j] >= 1 and len2[j] > 0) else s[j]
+        c = q[j, 0] * d[1] - q[j, 1] * d[0]
+        segment.append(np.hypot(*q[j]) * (1 if c > 0 else -1))
+    return np.array(point), np.array(segment)
+
+
+def test_signed_distances_match_an_argmin_reference_on_random_points():
+    square = [(0, 0), (0, 4), (3, 4), (3, 0), (0, 0)]  # clockwise island, 1-4 m segments
+    edges = _edges([(square, RG_ROAD_EDGE_MEDIAN),
+                    ([(-5, -3), (-1, -3.5), (4, -3), (8, -2)], RG_ROAD_EDGE_BOUNDARY)])
+    rng = np.random.default_rng(3)
+    px, py = rng.uniform(-6, 9, 64).astype(np.float32), rng.uniform(-5, 6, 64).astype(np.float32)
+    want_point, want_segment = _reference_signed_distances(px, py, edges)
+    np.testing.assert_allclose(_sd_point(jnp.asarray(px), jnp.asarray(py), edges), want_point,
+                               atol=1e-4)
+    np.testing.assert_allclose(_sd_segment(jnp.asarray(px), jnp.asarray(py), edges),
+                               want_segment, atol=1e-4)

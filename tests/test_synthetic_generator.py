@@ -199,3 +199,36 @@ def test_cli_rejects_bad_arguments_and_changed_config(generated, tmp_path, capsy
     changed = [a if a != "7" else "8" for a in argv]  # another seed into the same folder
     assert cli_main(changed) == 2
     assert "different configuration" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["road", "intersection"])
+def test_every_route_lies_inside_the_road_edges(kind):
+    from igdrivsim.data.synthetic.generator import _edges
+    from igdrivsim.data.synthetic.maps import intersection_map, road_map
+
+    for seed in range(6):
+        m = (road_map if kind == "road" else intersection_map)(np.random.default_rng(seed))
+        tree, table = _edges(m)
+        edge_types = {t for _, t in m.features} & set(RG_ROAD_EDGE_TYPES)
+        assert edge_types, "a map without road edges"
+        for route in m.routes:  # lane centres, lane changes and turns: >= 1 m inside
+            p = route.points[::3]
+            _, j = tree.query(p)
+            rel, d = p - table[j, :2], table[j, 2:]
+            inside = d[:, 0] * rel[:, 1] - d[:, 1] * rel[:, 0] >= 0  # 0: at a polyline end
+            assert inside.all() and np.linalg.norm(rel, axis=1).min() > 1.0
+        for walk in m.walk_paths:  # crossings start and end on the pavement, off the road
+            _, j = tree.query(walk)
+            rel, d = walk - table[j, :2], table[j, 2:]
+            assert (d[:, 0] * rel[:, 1] - d[:, 1] * rel[:, 0] < 0).all()
+
+
+def test_compact_shards_read_back_identically(tmp_path):
+    argv = ["generate", "--out", str(tmp_path), "--train", "2", "--val", "0", "--seed", "7",
+            "--workers", "1", "--compact"]
+    assert cli_main(argv) == 0
+    back = list(read_scenarios(tmp_path / "training"))
+    assert len(back) == 2
+    for x, y in zip(jax.tree.leaves(back[1]), jax.tree.leaves(generate_scenario(7, 1)),
+                    strict=True):
+        np.testing.assert_array_equal(x, y)

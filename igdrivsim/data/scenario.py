@@ -224,7 +224,8 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
     (so WOMD's SDC slot stays put) and padding is appended. If there are more slots than the
     capacity, invalid slots go first; if the valid ones still do not fit, the SDC and the objects
     nearest to it (closest approach over the steps where both are valid), the roadgraph points
-    and traffic lights nearest to the SDC's current position are kept, in their original order.
+    nearest to the SDC's valid logged path (so the kept map covers where the ego drives) and the
+    traffic lights nearest to its current position are kept, in their original order.
     """
     if scenario.batch_shape:
         n = scenario.batch_shape[0]
@@ -262,8 +263,13 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
     metadata = fit(md, template.metadata, num_objects, caps.max_objects, obj_valid, obj_dist,
                    is_sdc)
     rg_xy = np.asarray(rg.xyz)[:, :2]
+    path = xy[sdc, sdc_valid][::2] if sdc_valid.any() else ref[None]
+    rg_dist = np.full(rg_xy.shape[0], np.inf)
+    for chunk in np.array_split(path, max(1, len(path) // 8)):  # bounded memory
+        rg_dist = np.minimum(rg_dist, np.linalg.norm(rg_xy[:, None] - chunk[None], axis=-1)
+                             .min(axis=1))
     roadgraph = fit(rg, template.roadgraph, rg_xy.shape[0], caps.max_roadgraph_points,
-                    np.asarray(rg.valid), np.linalg.norm(rg_xy - ref, axis=-1))
+                    np.asarray(rg.valid), rg_dist)
     tl_valid = np.asarray(tl.valid)
     tl_xy = np.stack([np.asarray(tl.x), np.asarray(tl.y)], -1)
     tl_dist = np.where(tl_valid, np.linalg.norm(tl_xy - ref, axis=-1), np.inf).min(

@@ -57,7 +57,7 @@ class PipelineProfile:
 PROFILES: dict[str, PipelineProfile] = {
     "smoke": PipelineProfile("smoke", train_scenarios=16, val_scenarios=8, seeds=2,
                              eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
-    "laptop": PipelineProfile("laptop", train_scenarios=512, val_scenarios=128, seeds=3,
+    "laptop": PipelineProfile("laptop", train_scenarios=512, val_scenarios=256, seeds=3,
                               eval_max_scenarios=0, maze_profile="default"),
     "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
                              eval_max_scenarios=0, maze_profile="default"),
@@ -291,14 +291,29 @@ class Pipeline:
                 shutil.copyfile(REPO_ROOT / "paper" / name, self.paper / name)
         self.stage("pdf", [["make", "-C", self.paper, "pdf"]], depends=["report"])
 
+    def check_work_folder(self) -> None:
+        """Record the options in ``WORK/pipeline.json``; refuse a folder made with other data or
+        another profile (its complete stages would be wrongly skipped)."""
+        record = json.loads(json.dumps(dict(  # JSON types, comparable with the stored record
+            profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
+            paper=str(self.paper))))
+        path = self.work / "pipeline.json"
+        if path.is_file():
+            try:
+                old = json.loads(path.read_text())
+            except (OSError, json.JSONDecodeError):
+                old = {}
+            for key in ("profile", "train_data", "val_data"):
+                if key in old and old[key] != record[key]:
+                    raise ConfigError(f"{path}: this work folder was made with another {key} "
+                                      f"({old[key]!r}); use another --out or the same options")
+        atomic_write_text(path, json.dumps(record, indent=2) + "\n")
+
     def run(self) -> None:
         """Every stage in order."""
         self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
                   f"{self.paper}")
-        atomic_write_text(self.work / "pipeline.json", json.dumps(dict(
-            profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
-            settings=list(self.settings), methods=list(self.methods),
-            paper=str(self.paper)), indent=2) + "\n")
+        self.check_work_folder()
         train, val = self.run_data()
         train_manifest, val_manifest = self.run_filter(train, val)
         names = self.run_train(train_manifest)

@@ -38,7 +38,8 @@ METHOD_LABELS: dict[str, str] = {
 # Reference rows do not depend on the observation: their CSV `setting` is this value.
 REFERENCE_SETTING = "none"
 
-# Tidy CSV columns.
+# Tidy CSV columns. per_step: one row per (setting, method, seed, step), the mean over scenarios
+# of the metric after the step-th policy action (step 1..80; overlap/offroad as fractions).
 PER_STEP_COLUMNS = ("setting", "method", "seed", "step", "log_divergence", "overlap", "offroad")
 PER_SCENARIO_COLUMNS = (
     "setting", "method", "seed", "scenario_id",

@@ -14,11 +14,7 @@ Feature layout (the contract with :mod:`igdrivsim.policy`):
   frame), one-hot type (20), ``valid``.
 * ``sdc_speed f32[1]``: ego speed / 50.
 
-Invalid (padding or hidden) slots have all-zero features. Object slots are ordered nearest
-first. Roadgraph slots too by default (``ObservationConfig.roadgraph_order="nearest"``, a top-k);
-``"index"`` selects exactly the same points in their roadgraph order (valid slots first) without
-sorting them, several times faster on CPU, where sorting the 1,500 selected points dominates the
-top-k. The policy pools over points (permutation invariant), so either order serves it.
+Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first.
 """
 
 from __future__ import annotations
@@ -40,20 +36,12 @@ ROADGRAPH_FEATURES = 4 + RG_NUM_TYPES + 1  # xy, dir xy, one-hot type, valid = 2
 
 @dataclass(frozen=True)
 class ObservationConfig:
-    """Observation capacities (paper: 32 nearest objects, 1,500 nearest roadgraph points) and the
-    order of the roadgraph slots (``"nearest"`` first, or ``"index"``: see the module docstring).
-    """
+    """Observation capacities (paper: 32 nearest objects, 1,500 nearest roadgraph points)."""
 
     num_objects: int = 32
     num_roadgraph_points: int = 1500
-    roadgraph_order: str = "nearest"
 
     def __post_init__(self) -> None:
-        if self.roadgraph_order not in ("nearest", "index"):
-            from igdrivsim.errors import ConfigError
-
-            raise ConfigError("ObservationConfig.roadgraph_order must be 'nearest' or 'index', "
-                              f"got {self.roadgraph_order!r}")
         if self.num_objects < 1 or self.num_roadgraph_points < 1:
             from igdrivsim.errors import ConfigError
 
@@ -117,35 +105,6 @@ def nearest(d2: jax.Array, valid: jax.Array, k: int) -> tuple[jax.Array, jax.Arr
     return idx.astype(jnp.int32), sel_valid
 
 
-def nearest_unordered(d2: jax.Array, valid: jax.Array, k: int) -> tuple[jax.Array, jax.Array]:
-    """The same ``k`` entries as :func:`nearest` (ties: lowest index), in increasing index order.
-
-    Finds the k-th smallest ``d2`` exactly by bisection on its float32 bit pattern (31 passes of
-    compare-and-count, no sort), keeps everything below it plus the lowest-index ties, and
-    compacts with ``nonzero``. Valid entries come first; padding is index 0 marked invalid.
-    """
-    n = d2.shape[-1]
-    k_eff = min(k, n)
-    valid = jnp.asarray(valid, bool)
-    d2 = jnp.maximum(jnp.asarray(d2, jnp.float32), 0.0)  # non-negative: int order == float order
-    bits = jax.lax.bitcast_convert_type(jnp.where(valid, d2, jnp.inf), jnp.int32)
-
-    def body(_, lohi):
-        lo, hi = lohi
-        mid = lo + (hi - lo) // 2
-        ok = jnp.sum(bits <= mid) >= k_eff
-        return jnp.where(ok, lo, mid + 1), jnp.where(ok, mid, hi)
-
-    inf_bits = jnp.int32(0x7F800000)
-    _, kth = jax.lax.fori_loop(0, 31, body, (jnp.int32(0), inf_bits))
-    less = bits < kth
-    tie = bits == kth
-    rank = jnp.cumsum(tie.astype(jnp.int32)) - 1
-    keep = (less | (tie & (rank < k_eff - jnp.sum(less)))) & valid
-    (idx,) = jnp.nonzero(keep, size=k, fill_value=0)
-    return idx.astype(jnp.int32), jnp.arange(k) < jnp.sum(keep)
-
-
 def observe_arrays(
     sdc_xy: jax.Array,
     sdc_yaw: jax.Array,
@@ -190,9 +149,8 @@ def observe_arrays(
     # Roadgraph: nearest valid points, relative position and direction, one-hot type.
     xyz = jnp.asarray(roadgraph.xyz, jnp.float32)
     rx, ry = to_frame(xyz[..., 0], xyz[..., 1], sdc_xy, sdc_yaw)
-    select = nearest if config.roadgraph_order == "nearest" else nearest_unordered
-    rg_idx, rg_valid = select(rx**2 + ry**2, jnp.asarray(roadgraph.valid, bool),
-                              config.num_roadgraph_points)
+    rg_idx, rg_valid = nearest(rx**2 + ry**2, jnp.asarray(roadgraph.valid, bool),
+                               config.num_roadgraph_points)
     d = jnp.take(jnp.asarray(roadgraph.dir, jnp.float32), rg_idx, axis=-2)
     dx, dy = rotate_to_frame(d[..., 0], d[..., 1], sdc_yaw)
     rtype = jnp.take(jnp.asarray(roadgraph.type, jnp.int32), rg_idx, axis=-1)

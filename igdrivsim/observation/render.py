@@ -157,7 +157,8 @@ def fov_radius(setting: ObservationSetting) -> float | None:
 
 def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float = 1.0) -> None:
     """The scene (grey), the field of view, the observation (colour) and the ego on ``ax``."""
-    ax.scatter(snap.road_xy[:, 0], snap.road_xy[:, 1], s=1.0 * marker, c=HIDDEN, lw=0, zorder=0)
+    ax.scatter(snap.road_xy[:, 0], snap.road_xy[:, 1], s=1.0 * marker, c=HIDDEN, lw=0, zorder=0,
+               rasterized=True)
     for xy, yaw, size, seen in zip(snap.obj_xy, snap.obj_yaw, snap.obj_size, snap.obj_seen,
                                    strict=True):
         _box(ax, xy, yaw, size, facecolor="none", edgecolor="#9a9a9a",
@@ -166,7 +167,7 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
     for types, colour in ROAD_CATEGORIES.values():
         pick = np.isin(snap.seen_road_type, types)
         ax.scatter(snap.seen_road_xy[pick, 0], snap.seen_road_xy[pick, 1], s=2.5 * marker,
-                   c=colour, lw=0, zorder=3)
+                   c=colour, lw=0, zorder=3, rasterized=True)
     for xy, yaw, size in zip(snap.seen_obj_xy, snap.seen_obj_yaw, snap.seen_obj_size,
                              strict=True):
         _box(ax, xy, yaw, size, facecolor=OBSERVED_OBJECT, edgecolor="#2d6a3e", alpha=0.85,

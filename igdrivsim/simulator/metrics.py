@@ -20,7 +20,8 @@ dimensions ``...`` and return ``[...]``. Invalid steps (SDC invalid in the log o
 report no overlap, no offroad and zero divergence, and ``StepMetrics.valid`` is False.
 The geometry is written as explicit multiply-adds over small fixed axes (4 corners, 4 axes):
 tiny ``jnp.sum``/``jnp.max`` reductions over axes of size 2-4 are 10-40x slower under ``vmap``
-at batch >= 32 on XLA:CPU.
+at batch >= 32 on XLA:CPU; likewise the nearest road-edge point is found with plain ``min`` /
+masked ``max`` reductions instead of ``argmin`` plus gathers (20-40x faster at batch 256).
 """
 
 from __future__ import annotations
@@ -90,31 +91,39 @@ def box_corners(x, y, length, width, yaw):
     return x[..., None] + c * lx - s * ly, y[..., None] + s * lx + c * ly
 
 
+def _signed_at_nearest(d2, cross):
+    """Signed distance ``[..., K]`` from squared distances and crosses ``[..., K, E]``: the
+    distance to the nearest candidate, positive when the cross product there is positive.
+
+    The sign is read with a masked ``max`` (ties: outside wins) rather than ``argmin`` plus
+    gathers: on XLA:CPU the variadic argmin reduction and the gathers were 20-40x slower.
+    """
+    m2 = jnp.min(d2, axis=-1)
+    c = jnp.max(jnp.where(d2 <= m2[..., None], cross, -jnp.inf), axis=-1)
+    d = jnp.sqrt(m2)
+    return jnp.where(c > 0, d, -d)
+
+
 def signed_distance_point(px, py, edges: RoadEdges):
     """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point.
 
     ``edges`` fields ``[..., E]``. Positive means outside the road (on the right of ``dir``).
-    Returns ``f32[..., K]`` (``+inf`` if there is no valid edge point: treated as on-road by
-    :func:`offroad`, see there).
+    Returns ``f32[..., K]`` (``+-inf`` if there is no valid edge point: :func:`offroad` treats
+    it as on the road).
     """
-    ex, ey = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
-    rx, ry = px[..., :, None] - ex, py[..., :, None] - ey  # [..., K, E]
+    rx = px[..., :, None] - edges.xy[..., None, :, 0]  # [..., K, E]
+    ry = py[..., :, None] - edges.xy[..., None, :, 1]
     d2 = jnp.where(edges.valid[..., None, :], rx * rx + ry * ry, jnp.inf)
-    j = jnp.argmin(d2, axis=-1)  # [..., K]
-    dmin = jnp.sqrt(jnp.min(d2, axis=-1))
-    gx = jnp.take_along_axis(ex[..., 0, :], j, axis=-1)
-    gy = jnp.take_along_axis(ey[..., 0, :], j, axis=-1)
-    ux = jnp.take_along_axis(edges.dir[..., 0], j, axis=-1)
-    uy = jnp.take_along_axis(edges.dir[..., 1], j, axis=-1)
-    cross = (px - gx) * uy - (py - gy) * ux  # cross(corner - point, dir)
-    return jnp.where(cross > 0, dmin, -dmin)
+    cross = rx * edges.dir[..., None, :, 1] - ry * edges.dir[..., None, :, 0]
+    return _signed_at_nearest(d2, cross)  # cross(corner - point, dir)
 
 
 def signed_distance_segment(px, py, edges: RoadEdges):
     """Signed distance of points ``[..., K]`` to the nearest road-edge segment (``f32[..., K]``).
 
-    Each edge slot is the segment ``xy -> next_xy``. Inside a segment the sign comes from the
-    segment direction; at a vertex from the bisector stored in ``bis_start``/``bis_end``.
+    Each edge slot is the segment ``xy -> next_xy`` (a single point at a polyline's end). Inside
+    a segment the sign comes from the segment direction; at a vertex from the bisector stored
+    in ``bis_start``/``bis_end``.
     """
     ax, ay = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
     sx = edges.next_xy[..., None, :, 0] - ax
@@ -124,24 +133,12 @@ def signed_distance_segment(px, py, edges: RoadEdges):
     u = jnp.clip((rx * sx + ry * sy) / jnp.maximum(len2, 1e-12), 0.0, 1.0)
     qx, qy = rx - u * sx, ry - u * sy  # point minus its nearest point on the segment
     d2 = jnp.where(edges.valid[..., None, :], qx * qx + qy * qy, jnp.inf)
-    j = jnp.argmin(d2, axis=-1)
-    dmin = jnp.sqrt(jnp.min(d2, axis=-1))
-
-    def pick(a):  # a: [..., 1 or K, E] -> [..., K]
-        a = jnp.broadcast_to(a, d2.shape)
-        return jnp.take_along_axis(a, j[..., None], axis=-1)[..., 0]
-
-    uj = pick(u)
-    seg_x, seg_y = pick(sx), pick(sy)
-    seg_n = jnp.sqrt(seg_x * seg_x + seg_y * seg_y)
     bs, be = edges.bis_start[..., None, :, :], edges.bis_end[..., None, :, :]
-    at_start, at_end = uj <= 0.0, (uj >= 1.0) & (seg_n > 0)
-    dir_x = jnp.where(at_start, pick(bs[..., 0]), jnp.where(
-        at_end, pick(be[..., 0]), seg_x / jnp.maximum(seg_n, 1e-12)))
-    dir_y = jnp.where(at_start, pick(bs[..., 1]), jnp.where(
-        at_end, pick(be[..., 1]), seg_y / jnp.maximum(seg_n, 1e-12)))
-    cross = pick(qx) * dir_y - pick(qy) * dir_x  # cross(point - nearest, direction)
-    return jnp.where(cross > 0, dmin, -dmin)
+    at_start, at_end = u <= 0.0, (u >= 1.0) & (len2 > 0)
+    # inside a segment, q is perpendicular to it: the sign of cross(q, s) is all we need
+    dir_x = jnp.where(at_start, bs[..., 0], jnp.where(at_end, be[..., 0], sx))
+    dir_y = jnp.where(at_start, bs[..., 1], jnp.where(at_end, be[..., 1], sy))
+    return _signed_at_nearest(d2, qx * dir_y - qy * dir_x)
 
 
 SIGNED_DISTANCE = {"point": signed_distance_point, "segment": signed_distance_segment}

@@ -4,7 +4,8 @@ Times the real jitted update (warm-up observations, expert rollout, forward + ba
 the recurrent network over the 90-step episode, Adam; plus the policy rollout and PPO for
 ``--method bc_rl``) on constructed straight-road scenarios, after one compile run. A
 *scenario-step* is one scenario at one of the 80 controlled steps, trained forward+backward:
-``seeds * batch * 80 * ppo_epochs`` per update. Prints one JSON line per profile.
+``seeds * batch * 80 * ppo_epochs`` per update. Prints one JSON line per profile
+(``cpu_seconds_per_update``: process CPU time, all threads; useful on a shared machine).
 """
 
 from __future__ import annotations
@@ -64,17 +65,19 @@ def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int =
     params, opt_state, m = update(params, opt_state, batch, keys, 0, 1e-3)
     jax.block_until_ready(params)
     compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for u in range(1, updates + 1):
         params, opt_state, m = update(params, opt_state, batch, keys, u, 1e-3)
     jax.block_until_ready(params)
     per_update = (time.perf_counter() - t0) / updates
+    cpu_per_update = (time.process_time() - c0) / updates
     t = config.training
     steps = t.seeds * config.data.batch_size * 80 * t.ppo_epochs
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
             "batch": config.data.batch_size, "compile_plus_first_s": round(compile_s, 2),
             "seconds_per_update": round(per_update, 4),
+            "cpu_seconds_per_update": round(cpu_per_update, 4),
             "updates_per_s": round(1.0 / per_update, 3),
             "scenario_steps_per_s": round(steps / per_update, 1),
             "bc_loss": float(np.mean(jax.device_get(m["bc_loss"])))}

@@ -28,7 +28,7 @@ class DataConfig:
     max_scenarios: int = 0  # use at most this many scenarios (0: all)
     max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
     max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (near the SDC path)
-    crop_radius: float = 150.0  # metres around the logged SDC path for the crop at reset
+    crop_radius: float = 80.0  # metres around the logged SDC path for the crop at reset
     roadgraph_capacity: int = 6144  # roadgraph points the simulator keeps after that crop
     prefetch: int = 2  # batches prepared ahead by the background thread
     cache_dir: str = ""  # where decoded+cropped scenarios are cached as .npz ('' = no cache)
@@ -120,12 +120,13 @@ def laptop() -> RunConfig:
     """Scaled-down but honest: a few minutes per (setting, method) with 3 seeds on 2 CPU cores."""
     return RunConfig(
         profile="laptop",
-        policy=PolicyConfig(object_hidden=(64, 64), point_hidden=(32, 32),
-                            roadgraph_hidden=(64,), trunk_hidden=(128,), gru_hidden=128,
+        policy=PolicyConfig(object_hidden=(32, 32), point_hidden=(16,),
+                            roadgraph_hidden=(32,), trunk_hidden=(128,), gru_hidden=128,
                             actor_hidden=(128,), value_hidden=(64,)),
         data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
-                        max_roadgraph_points=1024, prefetch=2),
-        observation=ObsConfig(num_objects=16, num_roadgraph_points=128),
+                        max_roadgraph_points=20_000, crop_radius=40.0, roadgraph_capacity=2048,
+                        prefetch=2),
+        observation=ObsConfig(num_objects=16, num_roadgraph_points=256),
         training=TrainConfig(seeds=3, num_updates=120, lr=3e-3, ppo_epochs=1,
                              ppo_minibatches=2, log_every=5, checkpoint_every=40),
     )

@@ -38,9 +38,10 @@ def capacities(config: RunConfig) -> Capacities:
                       max_roadgraph_points=config.data.max_roadgraph_points)
 
 
-def load_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0
-                   ) -> list[Scenario]:
-    """The training scenarios of ``data`` (a folder with or without a manifest, or files)."""
+def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
+                   chunk: int = 64) -> Iterator[list[Scenario]]:
+    """Chunks of the training scenarios of ``data``: the kept rows of ``DIR/manifest.jsonl``
+    when there is one, else every record of the folder's (or path's) TFRecord files."""
     from igdrivsim.data import read_scenarios
 
     path = os.fspath(data)
@@ -48,19 +49,22 @@ def load_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int
     if manifest and os.path.isfile(manifest):
         from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
 
-        entries = read_manifest(manifest)
-        if max_scenarios:
-            entries = entries[:max_scenarios]
-        scenarios = load_manifest_scenarios(entries, caps)
-    else:
-        scenarios = []
-        for sc in read_scenarios(path, caps):
-            scenarios.append(sc)
-            if max_scenarios and len(scenarios) >= max_scenarios:
-                break
-    if not scenarios:
-        raise DataError("no training scenarios found", file=path)
-    return scenarios
+        entries = read_manifest(manifest)[: max_scenarios or None]
+        for start in range(0, len(entries), chunk):
+            yield load_manifest_scenarios(entries[start:start + chunk], caps)
+        return
+    part: list[Scenario] = []
+    count = 0
+    for sc in read_scenarios(path, caps):
+        part.append(sc)
+        count += 1
+        if len(part) == chunk:
+            yield part
+            part = []
+        if max_scenarios and count >= max_scenarios:
+            break
+    if part:
+        yield part
 
 
 @functools.lru_cache(maxsize=8)
@@ -68,16 +72,31 @@ def _jit_reset(params: SimParams):
     return jax.jit(lambda s: reset(s, params))
 
 
-def reset_all(scenarios: Sequence[Scenario], params: SimParams, chunk: int = 64) -> SimState:
-    """``reset`` every scenario (jitted, in chunks), stacked on the host: ``SimState [N]``."""
-    fn = _jit_reset(params)
+def reset_chunk(scenarios: Sequence[Scenario], params: SimParams, size: int) -> SimState:
+    """``reset`` (jitted; padded to ``size`` for one compiled shape) -> host ``SimState [n]``."""
+    n = len(scenarios)
+    part = list(scenarios) + [scenarios[0]] * (size - n)
+    state = jax.device_get(_jit_reset(params)(stack_scenarios(part)))
+    return jax.tree.map(lambda x: np.asarray(x)[:n], state)
+
+
+def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False) -> SimState:
+    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
+    Decoded scenarios (full roadgraph) are dropped once reset (cropped along the SDC path)."""
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(desc="loading", unit="scn", dynamic_ncols=True)
     parts = []
-    for start in range(0, len(scenarios), chunk):
-        part = list(scenarios[start:start + chunk])
-        n = len(part)
-        part += [part[0]] * (chunk - n) if len(scenarios) > chunk else []  # one compiled shape
-        state = jax.device_get(fn(stack_scenarios(part)))
-        parts.append(jax.tree.map(lambda x, n=n: np.asarray(x)[:n], state))
+    for scenarios in chunks:
+        parts.append(reset_chunk(scenarios, params, chunk))
+        if bar is not None:
+            bar.update(len(scenarios))
+    if bar is not None:
+        bar.close()
+    if not parts:
+        raise DataError("no training scenarios found")
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
@@ -127,15 +146,19 @@ class Dataset:
         self.seeds = [int(s) for s in seeds]
 
     @classmethod
-    def from_config(cls, config: RunConfig, data, params: SimParams) -> Dataset:
+    def from_config(cls, config: RunConfig, data, params: SimParams, progress: bool = False,
+                    chunk: int = 64) -> Dataset:
         """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``."""
         d, t = config.data, config.training
         if isinstance(data, (str, os.PathLike)):
-            scenarios = load_scenarios(data, capacities(config), d.max_scenarios)
+            if not os.path.exists(data):
+                raise DataError("training data not found", file=os.fspath(data))
+            chunks = iter_scenarios(data, capacities(config), d.max_scenarios, chunk)
         else:
             scenarios = list(data)[: d.max_scenarios or None]
+            chunks = (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
         seeds = range(t.seed_offset, t.seed_offset + t.seeds)
-        return cls(reset_all(scenarios, params), d.batch_size, seeds)
+        return cls(reset_all(chunks, params, chunk, progress), d.batch_size, seeds)
 
     def host_batch(self, update: int) -> SimState:
         """``SimState [S, B]`` on the host for update ``update``."""

@@ -132,11 +132,11 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     spec = update_spec(config)
     mesh = inputs.make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
-    dataset = inputs.Dataset.from_config(config, data, spec.sim)
+    main = jax.process_index() == 0
+    dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main)
     num_updates = total_updates(config, dataset.num)
     record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
                "devices": mesh.size, "processes": jax.process_count()}
-    main = jax.process_index() == 0
     if main:
         atomic_write(os.path.join(out_dir, CONFIG), json.dumps(record, indent=2) + "\n")
 

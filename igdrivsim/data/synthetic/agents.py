@@ -198,13 +198,30 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             v = min(v, _entry_speed(agent, gap, v_lead, sqrt_ab))
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
-        s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
-        acc = agent.accel * (1 - (v / v_d) ** 4 - (s_star / max(gap, 0.1)) ** 2)
+        free = agent.accel * (1 - (v / v_d) ** 4)
+        if v_lead < 0.3 and gap < LOOKAHEAD:
+            acc = min(free, _stopping(agent, gap - agent.min_gap, v))
+        else:
+            s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
+            acc = free - agent.accel * (s_star / max(gap, 0.1)) ** 2
         acc = min(max(acc, -B_MAX), agent.accel)
         v_new = max(v + acc * DT, 0.0)
         pos += 0.5 * (v + v_new) * DT
         v = v_new
     return out
+
+
+def _stopping(agent: Agent, room: float, v: float) -> float:
+    """Acceleration to stop ``room`` metres ahead like a driver: roll on while the needed
+    deceleration is below 0.8 of the comfortable one, then brake at the needed constant rate
+    (no IDM creeping towards a standing obstacle or a stop line)."""
+    if room <= 0.2:
+        return -min(v / DT, B_MAX)
+    need = v * v / (2 * room)
+    start = 0.8 * agent.brake
+    if need < start:
+        return agent.accel * (1 - need / start)  # ease off as it approaches
+    return -need
 
 
 def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> float:

@@ -31,10 +31,13 @@ def shard_ranges(count: int, shards: int) -> list[range]:
     return [range(bounds[k], bounds[k + 1]) for k in range(shards)]
 
 
-def _encode_chunk(seed: int, split: str, start: int, stop: int, config: GeneratorConfig):
+def _encode_chunk(seed: int, split: str, start: int, stop: int, config: GeneratorConfig,
+                  compact: bool = False):
+    from igdrivsim.data.scenario import trim_padding
     from igdrivsim.data.tfexample import encode_tfexample
 
-    return [encode_tfexample(generate_scenario(seed, i, split, config))
+    prepare = trim_padding if compact else (lambda s: s)
+    return [encode_tfexample(prepare(generate_scenario(seed, i, split, config)))
             for i in range(start, stop)]
 
 
@@ -51,6 +54,9 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fraction of intersection maps (others are curved roads)")
     parser.add_argument("--plot", type=int, default=0, metavar="N",
                         help="also draw the first N training scenarios to DIR/pictures/")
+    parser.add_argument("--compact", action="store_true",
+                        help="drop trailing padding slots (about 5x smaller files that igdrivsim "
+                             "reads back identically; other WOMD readers expect fixed sizes)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace shards written with a different configuration")
 
@@ -79,8 +85,8 @@ def generate_command(args: argparse.Namespace) -> int:
         if count:
             shards = args.shards or max(1, round(count / 250))
             plan[split] = (count, min(shards, count))
-    resolved = {"generator": config.to_dict(), "splits": {s: {"scenarios": c, "shards": k}
-                                                          for s, (c, k) in plan.items()}}
+    splits = {s: {"scenarios": c, "shards": k} for s, (c, k) in plan.items()}
+    resolved = {"generator": config.to_dict(), "compact": args.compact, "splits": splits}
     os.makedirs(args.out, exist_ok=True)
     config_path = os.path.join(args.out, "generator_config.json")
     if os.path.exists(config_path) and not args.overwrite:
@@ -107,7 +113,8 @@ def generate_command(args: argparse.Namespace) -> int:
         with tqdm(total=total, desc="generating", unit="scn") as bar:
             for split, path, indices in todo:
                 os.makedirs(os.path.dirname(path), exist_ok=True)
-                chunks = [(args.seed, split, i, min(i + CHUNK, indices.stop), config)
+                chunks = [(args.seed, split, i, min(i + CHUNK, indices.stop), config,
+                           args.compact)
                           for i in range(indices.start, indices.stop, CHUNK)]
                 results = (pool.map(_encode_chunk, *zip(*chunks, strict=True)) if pool
                            else (_encode_chunk(*c) for c in chunks))

@@ -162,7 +162,8 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
 
 def _cast_intersection(rng, m: MapData) -> list[Agent]:
     route = m.routes[int(rng.integers(len(m.routes)))]
-    s0 = route.entry - rng.uniform(12, 70)
+    # Closer to a stop sign, so that the stop, the wait and the crossing fit in the 9 s log.
+    s0 = route.entry - (rng.uniform(10, 40) if route.stop_at is not None else rng.uniform(12, 70))
     sdc = _sdc(rng, route, s0)
     agents = [sdc]
     eta = (route.entry - s0) / max(sdc.v0, 3.0)
@@ -183,9 +184,12 @@ def _cast_intersection(rng, m: MapData) -> list[Agent]:
             agents.append(_vehicle(rng, r, r.entry - d, "cross"))
             if rng.random() < 0.4:
                 agents.append(_vehicle(rng, pick(), r.entry - d - rng.uniform(12, 35), "cross"))
-        if rng.random() < 0.3:  # already through the junction, driving away
+        if rng.random() < 0.5:  # already through the junction, driving away
             r = pick()
             agents.append(_vehicle(rng, r, r.entry + rng.uniform(25, 60), "leaving"))
+        if rng.random() < 0.4:  # further back on the approach
+            r = pick()
+            agents.append(_vehicle(rng, r, rng.uniform(0, r.entry - 60), "background"))
     for walk in m.walk_paths:
         if rng.random() < 0.4:
             agents.append(_walker(rng, walk))

@@ -14,13 +14,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import pipeline as pl
 from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
 
 SETTING = "circular_r4"
-for module in ("igdrivsim.training.commands", "maze.study", "igdrivsim.data.synthetic.commands",
-               "igdrivsim.observation.commands"):
-    pytest.importorskip(module)
 
 
 def make(tmp: Path) -> pl.Pipeline:
@@ -94,3 +92,12 @@ def test_failing_stage_names_stage_and_log(tmp_path):
                                    tmp_path, "--out", tmp_path / "o"]])
     assert "not a training run" in (tmp_path / "work" / "logs" / "evaluate_x.log").read_text()
     assert not (tmp_path / "work" / "stages" / "evaluate_x.json").exists()
+
+
+def test_work_folder_refuses_other_data(tmp_path):
+    make(tmp_path).check_work_folder()
+    make(tmp_path).check_work_folder()  # same options: fine
+    other = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "paper",
+                        train_data="womd/training", val_data="womd/validation")
+    with pytest.raises(ConfigError, match="another train_data"):
+        other.check_work_folder()
