@@ -107,7 +107,7 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) ->
     import seaborn as sns
 
     sns.set_theme(style="whitegrid", context="paper")
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(8.6, 4.0))
     data = curves.assign(label=curves.curve.map(lambda c: CURVES[c][0]))
     names = [c for c in CURVES if c in set(curves.curve)]
     palette = {CURVES[c][0]: CURVES[c][1] for c in names}
@@ -132,7 +132,7 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) ->
     ax.set_ylabel("mean episodic return")
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 10.3)
-    ax.legend(fontsize=6.5, loc="lower right", framealpha=0.9)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     ax.set_title("13x13 maze, imitator receptive field 3 (mean, 95% CI over seeds)", fontsize=8)
     fig.tight_layout()
     for ext in ("pdf", "png"):

@@ -55,11 +55,11 @@ class StudyConfig:
     max_steps: int = 200
     hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
     ppo: PPOConfig = PPOConfig()
-    rl_full_updates: int = 40
+    rl_full_updates: int = 80
     rl_partial_updates: int = 120
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig(num_envs=64, num_steps=384, epochs=16)
-    bc_chunk_epochs: int = 2
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=24)
+    bc_chunk_epochs: int = 3
     eval_episodes: int = 256
     final_eval_rounds: int = 4
 

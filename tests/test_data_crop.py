@@ -7,7 +7,8 @@ import pytest
 
 from igdrivsim.data import Capacities, fit_to_capacities, load_scenario
 
-SAMPLE = Path(__file__).resolve().parents[1] / "../shared/data/womd/motion_data_one_example.tfrecord"
+SAMPLE = (Path(__file__).resolve().parents[1]
+          / "../shared/data/womd/motion_data_one_example.tfrecord")
 
 
 @pytest.mark.skipif(not SAMPLE.exists(), reason="real WOMD sample not present")

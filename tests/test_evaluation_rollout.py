@@ -62,6 +62,7 @@ def test_reference_actors_on_real_scene(scene):
     assert len(expert) == 3 and (per_scenario.setting == "none").all()
     # The discretised expert tracks the log to a few centimetres and never crashes.
     assert expert.log_divergence.max() < 0.1 and expert.overlap.sum() == 0
+    assert expert.offroad.sum() == 0  # the load-time crop keeps the road along the whole path
     assert cv.max_log_divergence.min() > 1.0  # this SDC turns/brakes: a straight line drifts
     assert per_step.groupby("method").step.max().eq(80).all()
 

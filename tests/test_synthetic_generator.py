@@ -125,6 +125,9 @@ def test_sdc_log_stays_inside_road_edges(generated):
 def test_simulator_offroad_rule_agrees(generated):
     metrics = pytest.importorskip("igdrivsim.simulator.metrics")
     roadgraph = pytest.importorskip("igdrivsim.simulator.roadgraph")
+    if not (hasattr(metrics, "signed_distance_point")
+            and hasattr(roadgraph, "road_edges_from_roadgraph")):
+        pytest.skip("simulator offroad helpers not available")
     s = generated[1][0]
     i = sdc_of(s)
     tr = s.trajectory
@@ -206,8 +209,12 @@ def test_every_route_lies_inside_the_road_edges(kind):
     from igdrivsim.data.synthetic.generator import _edges
     from igdrivsim.data.synthetic.maps import intersection_map, road_map
 
+    features = set()
     for seed in range(6):
         m = (road_map if kind == "road" else intersection_map)(np.random.default_rng(seed))
+        features |= {"parking"} if m.parking else set()
+        features |= {"lane drop"} if m.dropped else set()
+        features |= {"stop signs"} if m.stop_arms else set()
         tree, table = _edges(m)
         edge_types = {t for _, t in m.features} & set(RG_ROAD_EDGE_TYPES)
         assert edge_types, "a map without road edges"
@@ -221,6 +228,7 @@ def test_every_route_lies_inside_the_road_edges(kind):
             _, j = tree.query(walk)
             rel, d = walk - table[j, :2], table[j, 2:]
             assert (d[:, 0] * rel[:, 1] - d[:, 1] * rel[:, 0] < 0).all()
+    assert features == ({"parking", "lane drop"} if kind == "road" else {"stop signs"})
 
 
 def test_compact_shards_read_back_identically(tmp_path):

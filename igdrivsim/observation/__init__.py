@@ -4,8 +4,16 @@ Pipeline per step (one example; ``jax.vmap`` for batches): the setting's pose mo
 ego's believed pose (Gaussian position noise, one offset per episode) -> the nearest objects and
 roadgraph points in that frame as features (:mod:`.features`) -> the setting's hiding models
 (fields of view, random masking; :mod:`.models`). ``PRESETS`` holds the paper's six settings.
+:mod:`.candidates` computes the same observation for a batch from cached candidate points;
+:mod:`.render` draws the settings (paper Fig. 1) and rollout animations.
 """
 
+from igdrivsim.observation.candidates import (
+    CandidateConfig,
+    RoadCandidates,
+    init_candidates,
+    observe_batch_with_candidates,
+)
 from igdrivsim.observation.features import (
     OBJECT_FEATURES,
     POSITION_SCALE,
@@ -50,4 +58,5 @@ __all__ = [
     "FunctionModel", "GaussianPositionNoise", "ObservationModel", "ObservationSetting",
     "RandomMasking", "apply_setting", "get_setting", "perceive_pose",
     "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
+    "CandidateConfig", "RoadCandidates", "init_candidates", "observe_batch_with_candidates",
 ]

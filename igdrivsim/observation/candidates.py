@@ -12,8 +12,11 @@ of the whole batch are re-selected (a ``lax.cond`` on the batch, so the cost is 
 those steps). With fewer than N valid candidates the check requires that nothing was left out.
 
 Candidate selection bisects a distance threshold (:func:`igdrivsim.simulator.roadgraph
-.select_nearest`), linear in the number of points, no sort. Candidates keep the original point
-order, so ties between equal distances resolve as in the full top-k (lowest index first).
+.select_nearest`), linear in the number of points; the selected candidates are then sorted once
+by their distance to the centre (stable), because XLA:CPU's top-k is much cheaper on nearly
+sorted input. Identical points keep their index order, so ties resolve as in the full top-k
+(lowest index first). The candidates' coordinates, directions and types are copied once per
+selection so that a step reads a small contiguous array instead of gathering from the roadgraph.
 """
 
 from __future__ import annotations
@@ -48,11 +51,21 @@ class CandidateConfig:
 
 
 @struct.dataclass
+class CandidatePoints:
+    """The candidates' own copy of what the observation reads (no per-step gather)."""
+
+    xyz: jax.Array  # f32[..., K, 2] (x, y only)
+    dir: jax.Array  # f32[..., K, 2]
+    type: jax.Array  # int32[..., K]
+    valid: jax.Array  # bool[..., K] (padding False)
+
+
+@struct.dataclass
 class RoadCandidates:
     """Per example (leading batch dims ``...``): the cached candidate subset."""
 
-    index: jax.Array  # int32[..., K] into the roadgraph axis, increasing; padding invalid
-    valid: jax.Array  # bool[..., K]
+    index: jax.Array  # int32[..., K] into the roadgraph axis, nearest first; padding invalid
+    points: CandidatePoints
     center: jax.Array  # f32[..., 2] believed ego position at selection
     radius: jax.Array  # f32[...] distance from center to the nearest left-out point (inf: none)
     reselections: jax.Array  # int32[...] how many times the candidates were (re)selected
@@ -67,9 +80,16 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     ok = jnp.asarray(roadgraph.valid, bool)
     k = min(config.num_candidates, xy.shape[0])
     idx, valid = select_nearest(d2, ok, config.max_radius, k)
+    # Store them nearest-first from the centre (stable: identical points keep index order):
+    # XLA:CPU's top-k is ~1.6x faster on such nearly sorted input at the following steps.
+    order = jnp.argsort(jnp.where(valid, d2[idx], jnp.inf), stable=True)
+    idx, valid = idx[order], valid[order]
     kept = jnp.zeros(xy.shape[0], bool).at[idx].max(valid)
     left = jnp.min(jnp.where(ok & ~kept, d2, jnp.inf))
-    return idx, valid, jnp.sqrt(left)
+    points = CandidatePoints(xyz=xy[idx], dir=jnp.asarray(roadgraph.dir, jnp.float32)[idx, :2],
+                             type=jnp.asarray(roadgraph.type, jnp.int32)[idx],
+                             valid=valid & ok[idx])
+    return idx, points, jnp.sqrt(left)
 
 
 def _believed(states: Any, setting: ObservationSetting, episode_keys, step_keys):
@@ -88,18 +108,16 @@ def init_candidates(states: Any, setting: ObservationSetting, episode_keys: jax.
     """Select the candidates of a batch ``[B]`` of states (e.g. right after reset)."""
     step_keys = episode_keys if step_keys is None else step_keys
     _, bxy, _, _ = _believed(states, setting, episode_keys, step_keys)
-    idx, valid, radius = jax.vmap(lambda rg, c: _select(rg, c, config))(states.roadgraph, bxy)
-    return RoadCandidates(index=idx, valid=valid, center=bxy, radius=radius,
+    idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, config))(states.roadgraph, bxy)
+    return RoadCandidates(index=idx, points=points, center=bxy, radius=radius,
                           reselections=jnp.ones(bxy.shape[:1], jnp.int32))
 
 
-def _observe_one(bxy, byaw, speed, objects, sdc_index, roadgraph, cand_index, cand_valid,
-                 center, radius, config: ObservationConfig):
+def _observe_one(bxy, byaw, speed, objects, sdc_index, cand_index, points, center, radius,
+                 config: ObservationConfig):
     """Observation (before hiding) of one example from its candidates, and whether it is exact."""
-    sub = jax.tree.map(lambda a: jnp.take(a, cand_index, axis=0), roadgraph)
-    sub = sub.replace(valid=jnp.asarray(sub.valid, bool) & cand_valid)
-    obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, sub, config)
-    pts = jnp.take(jnp.asarray(sub.xyz, jnp.float32)[:, :2], sel.roadgraph_index, axis=0)
+    obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, points, config)
+    pts = jnp.take(points.xyz, sel.roadgraph_index, axis=0)
     d = jnp.sqrt(jnp.sum((pts - bxy) ** 2, axis=-1))
     full = jnp.all(obs.roadgraph_valid)
     d_last = jnp.max(jnp.where(obs.roadgraph_valid, d, 0.0))
@@ -133,15 +151,15 @@ def observe_batch_with_candidates(
     run = jax.vmap(lambda *a: _observe_one(*a, config))
 
     def with_cands(c: RoadCandidates):
-        return run(bxy, byaw, speed, objects, states.sdc_index, states.roadgraph, c.index,
-                   c.valid, c.center, c.radius)
+        return run(bxy, byaw, speed, objects, states.sdc_index, c.index, c.points, c.center,
+                   c.radius)
 
     obs, sel, exact = with_cands(candidates)
 
     def reselect(_):
-        idx, valid, radius = jax.vmap(lambda rg, c: _select(rg, c, cand_config))(
+        idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, cand_config))(
             states.roadgraph, bxy)
-        c = RoadCandidates(index=idx, valid=valid, center=bxy, radius=radius,
+        c = RoadCandidates(index=idx, points=points, center=bxy, radius=radius,
                            reselections=candidates.reselections + 1)
         o, s, _ = with_cands(c)
         return o, s, c
@@ -154,5 +172,5 @@ def observe_batch_with_candidates(
     return obs, candidates
 
 
-__all__ = ["CandidateConfig", "RoadCandidates", "init_candidates",
+__all__ = ["CandidateConfig", "CandidatePoints", "RoadCandidates", "init_candidates",
            "observe_batch_with_candidates", "Observation"]

@@ -137,12 +137,14 @@ def replay_command(args: argparse.Namespace) -> int:
     params = SimParams(offroad_method=args.offroad, crop_radius=args.crop_radius)
     run = replay_fn(args.actor, params)
     key = jax.random.key(args.seed)
-    records, t0, steps = [], time.perf_counter(), 0
-    if args.out:
+    records, t0 = [], time.perf_counter()
+    partial = os.path.join(args.out, ".replay.jsonl.partial") if args.out else None
+    if partial:
         os.makedirs(args.out, exist_ok=True)
-    out = open(os.path.join(args.out, ".replay.jsonl.partial"), "w") if args.out else None
+    out = open(partial, "w") if partial else None
     bar = tqdm(total=args.limit, desc="replay", unit="scn", file=sys.stderr,
                disable=args.json)
+    ok = False
     try:
         for rec in iter_scenarios(args.files):
             if args.limit is not None and len(records) >= args.limit:
@@ -163,12 +165,14 @@ def replay_command(args: argparse.Namespace) -> int:
             if args.gif and not records:
                 _write_gif(args.gif, final)
             records.append(record)
-            steps += params.num_controlled_steps
             bar.update(1)
+        ok = True
     finally:
         bar.close()
         if out is not None:
             out.close()
+            if not ok:
+                os.remove(partial)
     elapsed = time.perf_counter() - t0
     summary = {**summarize(records, params.num_controlled_steps), "actor": args.actor,
                "offroad_method": args.offroad, "seconds": round(elapsed, 2)}
@@ -179,6 +183,5 @@ def replay_command(args: argparse.Namespace) -> int:
                   "actor": args.actor, "seed": args.seed, "sim_params": dataclasses.asdict(params)}
         _write_json(os.path.join(args.out, "config.json"), json.dumps(config, indent=2) + "\n")
         _write_json(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
-        os.replace(os.path.join(args.out, ".replay.jsonl.partial"),
-                   os.path.join(args.out, "replay.jsonl"))
+        os.replace(partial, os.path.join(args.out, "replay.jsonl"))
     return 0

@@ -127,7 +127,7 @@ def laptop() -> RunConfig:
                         max_roadgraph_points=20_000, crop_radius=40.0, roadgraph_capacity=2048,
                         prefetch=2),
         observation=ObsConfig(num_objects=16, num_roadgraph_points=256),
-        training=TrainConfig(seeds=3, num_updates=120, lr=3e-3, ppo_epochs=1,
+        training=TrainConfig(seeds=3, num_updates=100, lr=3e-3, ppo_epochs=1,
                              ppo_minibatches=2, log_every=5, checkpoint_every=40),
     )
 

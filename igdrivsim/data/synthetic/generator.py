@@ -100,11 +100,15 @@ def _walker(rng, path: np.ndarray, static: bool = False) -> Agent:
 def _cast_road(rng, m: MapData) -> list[Agent]:
     groups = sorted(m.lanes)
     g = int(rng.choice(groups))
+    if m.dropped and rng.random() < 0.5:  # the SDC's lane ends ahead: it has to merge
+        g = min(m.dropped)
     lane = next(r for r in m.routes if r.group == g)
     s0 = rng.uniform(50, 110)  # with road behind the SDC too
     neighbours = [h for h in groups if m.lanes[h][1] == m.lanes[g][1]
                   and abs(m.lanes[h][0] - m.lanes[g][0]) < 5]
-    neighbours = [h for h in neighbours if h != g]
+    neighbours = [h for h in neighbours if h != g and h not in m.dropped]
+    if g in m.dropped:  # the SDC's lane ends: it merges; no further lane change or cut-in
+        neighbours = []
     route = lane
     if neighbours and rng.random() < 0.15:
         route = lane_change_route(m, g, int(rng.choice(neighbours)), s0 + rng.uniform(20, 60),

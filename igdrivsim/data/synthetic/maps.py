@@ -33,7 +33,7 @@ class Route:
     """A path an agent can drive: ``points [K, 2]`` at ~1 m spacing.
 
     ``group`` names the lane the route starts on (routes of one group share their beginning);
-    ``kind`` is "lane", "change", "straight", "left" or "right".
+    ``kind`` is "lane", "change", "merge", "straight", "left" or "right".
     """
 
     points: np.ndarray
@@ -70,6 +70,7 @@ class MapData:
     lanes: dict[int, tuple[float, int]] = field(default_factory=dict)  # group -> (offset, dir)
     parking: list[Route] = field(default_factory=list)  # kerbside strips with parked cars
     stop_arms: set[int] = field(default_factory=set)  # intersection arms with stop signs
+    dropped: set[int] = field(default_factory=set)  # road lanes that end (their traffic merges)
 
     def add(self, points: np.ndarray, rg_type: int) -> None:
         self.features.append((np.asarray(points, float), int(rg_type)))
@@ -126,7 +127,8 @@ def _reference_curve(rng: np.random.Generator, length: float) -> np.ndarray:
 
 
 def road_map(rng: np.random.Generator) -> MapData:
-    """A curved road, 1-3 lanes each way (or one-way), sometimes divided, maybe a crosswalk."""
+    """A curved road, 1-3 lanes each way (or one-way), sometimes divided, parking strips, a lane
+    drop (the rightmost lane ends and its traffic merges), maybe a crosswalk."""
     ref = _reference_curve(rng, rng.uniform(340, 400))
     m = MapData(kind="road", ref=ref)
     n_fwd = int(rng.choice([1, 2, 2, 3]))
@@ -141,22 +143,41 @@ def road_map(rng: np.random.Generator) -> MapData:
     rev = lambda p: p[::-1]  # noqa: E731
     fwd_off = [-(j + 0.5) * w - half_m for j in range(n_fwd)]
     back_off = [(j + 0.5) * w + half_m for j in range(n_back)]
+    park_r = rng.uniform(2.3, 2.7) if rng.random() < 0.45 else 0.0
+    park_l = rng.uniform(2.3, 2.7) if n_back and rng.random() < 0.35 else 0.0
+    s_ref = geo.arc_length(ref)
+    smooth = lambda u: np.clip(u, 0, 1) ** 2 * (3 - 2 * np.clip(u, 0, 1))  # noqa: E731
+    # Lane drop: the rightmost lane tapers away over [drop - taper, drop]; its traffic merges.
+    drop = rng.uniform(170, 240) if n_fwd >= 2 and not park_r and rng.random() < 0.5 else None
+    taper = rng.uniform(50, 80)
+    before_drop = s_ref < (drop - taper if drop else np.inf)
     group = 0
     for offs, direction in ((fwd_off, 1), (back_off, -1)):
         lanes = [geo.offset(ref, d) for d in offs]
         lanes = [lane if direction > 0 else rev(lane) for lane in lanes]
         for j, lane in enumerate(lanes):
-            m.add(lane, lane_type)
             m.lanes[group + j] = (offs[j], direction)
+            if drop and direction > 0 and j == len(offs) - 1:
+                m.add(lane[before_drop], lane_type)
+                start = drop - taper - rng.uniform(25, 70)
+                merge = offs[j] + (offs[j - 1] - offs[j]) * smooth(
+                    (s_ref - start) / rng.uniform(25, 45))
+                m.routes.append(_route(geo.offset(ref, merge), group + j, "merge", limit))
+                m.dropped.add(group + j)
+                continue
+            m.add(lane, lane_type)
             m.routes.append(_route(lane, group + j, "lane", limit))
         for j in range(len(offs) - 1):
             line = geo.offset(ref, (offs[j] + offs[j + 1]) / 2)
+            if drop and direction > 0 and j == len(offs) - 2:
+                line = line[before_drop]
             m.add(line if direction > 0 else rev(line), BROKEN_WHITE)
         group += len(offs)
-    park_r = rng.uniform(2.3, 2.7) if rng.random() < 0.45 else 0.0
-    park_l = rng.uniform(2.3, 2.7) if n_back and rng.random() < 0.35 else 0.0
     right = -(n_fwd * w + half_m + park_r + shoulder)
+    if drop:
+        right = right + w * smooth((s_ref - (drop - taper)) / taper)
     left = (n_back * w + half_m + park_l if n_back else 0.0) + shoulder
+    right = np.broadcast_to(right, s_ref.shape)
     if park_r:  # parking strips: routes (never driven) where parked cars stand
         m.parking.append(_route(geo.offset(ref, -(n_fwd * w + half_m + park_r / 2)), -2,
                                 "parking", 0.0))
@@ -178,12 +199,11 @@ def road_map(rng: np.random.Generator) -> MapData:
     for side in (right - 2.0, left + 2.0):  # sidewalks, 2 m outside the road edges
         m.sidewalks.append(geo.offset(ref, side))
     if rng.random() < 0.6:  # a crosswalk somewhere in the middle third
-        s = geo.arc_length(ref)
-        i = int(np.searchsorted(s, rng.uniform(0.3, 0.6) * s[-1]))
+        i = int(np.searchsorted(s_ref, rng.uniform(0.3, 0.6) * s_ref[-1]))
         t = geo.tangents(ref)[i]
         normal = np.array([-t[1], t[0]])
-        mid = ref[i] + normal * (left + right) / 2
-        _crosswalk(m, mid, normal, (left - right) / 2, 1.6)
+        mid = ref[i] + normal * (left + right[i]) / 2
+        _crosswalk(m, mid, normal, (left - right[i]) / 2, 1.6)
     return m
 
 

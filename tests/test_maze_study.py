@@ -11,6 +11,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError
 from maze import study as S
@@ -21,7 +22,7 @@ TINY = dataclasses.replace(
     S.PROFILES["smoke"], profile="test", size=5, max_steps=30, seeds=2, hidden=16,
     ppo=PPOConfig(num_envs=16, num_steps=32, num_minibatches=2, update_epochs=4, lr=5e-3),
     rl_full_updates=64, rl_partial_updates=8, chunk_updates=8,
-    bc=BCConfig(num_envs=8, num_steps=64, epochs=2, num_minibatches=2, lr=1e-2),
+    bc=BCConfig(num_envs=8, num_steps=64, epochs=4, num_minibatches=2, lr=1e-2),
     bc_chunk_epochs=1, eval_episodes=32)
 
 
@@ -49,7 +50,7 @@ def test_bc_loss_goes_down(run):
     losses = np.asarray(json.loads((out / "out/maze_config.json").read_text())[
         "bc_loss_per_chunk"])  # [chunks, curves]
     assert (losses[-1] < losses[0]).all(), losses
-    assert losses[-1][0] < 1.2  # full -> full imitates a trained expert: well below ln 4
+    assert losses[-1][0] < np.log(4) - 0.05, losses  # imitating a trained expert: below ln 4
 
 
 def test_study_writes_every_output_and_resumes(run, capsys):
@@ -72,6 +73,15 @@ def test_study_writes_every_output_and_resumes(run, capsys):
     (out / "maze_config.json").unlink()
     again = S.run_study(TINY, out, work, study=study)
     pd.testing.assert_frame_equal(first, again.reset_index(drop=True), check_dtype=False)
+
+
+def test_runs_are_deterministic(run):
+    study, out, _ = run
+    with tqdm(disable=True) as bar:
+        rerun = pd.DataFrame(S.run_rl(study, "rl_partial", True, bar)["records"])
+    curves = pd.read_csv(out / "out/figures/fig2_maze.csv")
+    before = curves[curves.curve == "rl_partial"].reset_index(drop=True)
+    np.testing.assert_allclose(rerun["return"], before["return"], rtol=1e-6)
 
 
 @pytest.mark.parametrize("argv", [["--seeds", "0"], ["--hidden", "0"]])
