@@ -268,8 +268,12 @@ class Pipeline:
 
     def run_render(self, val: str) -> None:
         from igdrivsim.data import expand_paths
+        from igdrivsim.observation.commands import DEFAULT_DATA
 
+        # Fig. 1 shows a real WOMD scenario: the user's data, else the bundled real sample.
         files = expand_paths(val)
+        if self.train_data is None and DEFAULT_DATA.is_file():
+            files = [str(DEFAULT_DATA)]
         if not files:
             raise StageError(f"stage 'render': no validation file in {val}")
         figures = self.paper / "figures"
