@@ -9,6 +9,7 @@ and parses, a rerun skips every stage, and re-running evaluation gives identical
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -81,7 +82,8 @@ def test_rerun_skips_and_reevaluation_gives_same_tables(done, capsys):
     (work / "stages" / f"evaluate_{SETTING}__bc.json").unlink()
     third = make(work.parent)
     third.run()
-    assert third.ran == {f"evaluate_{SETTING}__bc", "report"}
+    tex = shutil.which("latexmk") or (shutil.which("pdflatex") and shutil.which("bibtex"))
+    assert third.ran == {f"evaluate_{SETTING}__bc", "report"} | ({"pdf"} if tex else set())
     assert (paper / "tables" / "table1.md").read_bytes() == before
 
 
