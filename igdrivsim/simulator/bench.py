@@ -29,8 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
 import time
 from typing import Any
 
@@ -39,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
+from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.candidates import (
@@ -170,13 +169,8 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _write_json(path: str, payload: Any) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
-    with os.fdopen(fd, "w") as f:
+    with atomic_path(path, "w") as f:
         json.dump(payload, f, indent=2)
-    os.chmod(tmp, 0o644)  # mkstemp files are private
-    os.replace(tmp, path)
 
 
 def bench_sim_command(args) -> int:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
+from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import count_params, init_params_per_seed
@@ -46,10 +47,8 @@ class TrainResult:
 
 
 def atomic_write(path: str, text: str) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
+    with atomic_path(path, "w") as f:
         f.write(text)
-    os.replace(tmp, path)
 
 
 def total_updates(config: RunConfig, num_scenarios: int) -> int:

@@ -15,6 +15,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
+from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
 
 CHUNK = 8  # scenarios per worker task
@@ -95,10 +96,8 @@ def generate_command(args: argparse.Namespace) -> int:
         if previous != resolved:
             raise ConfigError(f"{config_path} holds a different configuration; use another --out "
                               "or --overwrite")
-    tmp = config_path + ".tmp"
-    with open(tmp, "w") as f:
+    with atomic_path(config_path, "w") as f:
         json.dump(resolved, f, indent=2)
-    os.replace(tmp, config_path)
 
     todo = []
     for split, (count, shards) in plan.items():
