@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from igdrivsim.io import atomic_savefig
 from maze.env import MOVES
 from maze.gym_env import MazeGymEnv
 from maze.oracles import _step_towards
-from maze.report import atomic_write
 
 
 def planner_actions(env: MazeGymEnv, seed: int) -> list[int]:
@@ -69,7 +69,7 @@ def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Pat
     fig.suptitle("Imitator's 3x3 view (highlighted) while it explores for the goal (green)",
                  fontsize=9)
     fig.tight_layout()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=150), ".png")
+    atomic_savefig(fig, path, format="png", dpi=150)
     plt.close(fig)
     return path
 

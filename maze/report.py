@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from igdrivsim.io import atomic_savefig, atomic_write_text
 
 # curve name -> (legend label, colour close to the paper's figure)
 CURVES: dict[str, tuple[str, str]] = {
@@ -34,22 +33,9 @@ def ci95(values) -> float:
     return float(stats.t.ppf(0.975, values.size - 1) * sem)
 
 
-def atomic_write(path: Path, write: Callable[[str], None], suffix: str = "") -> None:
-    """Call ``write(tmp_path)`` on a temp file next to ``path``, then move it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-
-
 def write_text(path: Path, text: str) -> None:
-    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+    """Write ``text`` to ``path`` atomically (see :mod:`igdrivsim.io`)."""
+    atomic_write_text(path, text)
 
 
 def summarise(curves: pd.DataFrame) -> pd.DataFrame:
@@ -136,6 +122,5 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) ->
     ax.set_title("13x13 maze, imitator receptive field 3 (mean, 95% CI over seeds)", fontsize=8)
     fig.tight_layout()
     for ext in ("pdf", "png"):
-        atomic_write(stem.with_suffix(f".{ext}"),
-                     lambda tmp, ext=ext: fig.savefig(tmp, format=ext, dpi=200), f".{ext}")
+        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
     plt.close(fig)

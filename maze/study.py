@@ -27,6 +27,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
+from igdrivsim.io import atomic_write_bytes
 from maze import report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.env import make_params
@@ -220,7 +221,7 @@ def _cached(path: Path, fn):
         with path.open("rb") as f:
             return pickle.load(f), True
     result = fn()
-    report.atomic_write(path, lambda tmp: Path(tmp).write_bytes(pickle.dumps(result)))
+    atomic_write_bytes(path, pickle.dumps(result))
     return result, False
 
 

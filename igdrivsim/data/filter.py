@@ -28,6 +28,7 @@ import numpy as np
 
 from igdrivsim.data.scenario import Scenario, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.io import atomic_path
 
 CRITERIA = ("paper", "objects_of_interest")
 
@@ -320,8 +321,6 @@ def _write_outputs(out: str, result_paths: list[str], config: FilterConfig) -> d
     write_manifest(os.path.join(out, MANIFEST), entries)
     bad_path = os.path.join(out, BAD_FILE)
     if bad:
-        from igdrivsim.data.tfrecord import atomic_path
-
         with atomic_path(bad_path, "w") as f:
             f.writelines(json.dumps(b) + "\n" for b in bad)
     elif os.path.exists(bad_path):

@@ -15,8 +15,8 @@ from collections.abc import Iterable, Iterator
 
 from igdrivsim.data.reader import iter_file
 from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
-from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import DataError
+from igdrivsim.io import atomic_path, atomic_write_json
 
 MANIFEST, COUNTS = "manifest.jsonl", "counts.json"
 FIELDS = ("file", "record", "scenario_id", "sdc_mean_speed", "interactive",
@@ -25,9 +25,7 @@ FIELDS = ("file", "record", "scenario_id", "sdc_mean_speed", "interactive",
 
 def write_json(path: str | os.PathLike, obj) -> None:
     """Write ``obj`` as indented JSON, atomically."""
-    with atomic_path(path, "w") as f:
-        json.dump(obj, f, indent=2, sort_keys=True)
-        f.write("\n")
+    atomic_write_json(path, obj, indent=2, sort_keys=True)
 
 
 def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:

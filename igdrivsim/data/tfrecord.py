@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import os
 import struct
-import tempfile
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
 
 import google_crc32c
 
 from igdrivsim.errors import DataError
+from igdrivsim.io import atomic_path  # also re-exported for older callers
 
 _MASK_DELTA = 0xA282EAD8
 _HEADER = struct.Struct("<QI")
@@ -120,34 +119,6 @@ def count_records(path: str | os.PathLike) -> int:
             f.seek(length + 4, os.SEEK_CUR)
             n += 1
     return n
-
-
-def _file_mode() -> int:
-    """Permissions for new files: ``0o666`` minus the umask (``mkstemp`` alone gives 0600)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-_FILE_MODE = _file_mode()
-
-
-@contextmanager
-def atomic_path(path: str | os.PathLike, mode: str = "wb"):
-    """Open a temp file next to ``path``; on success it replaces ``path`` atomically."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, mode) as f:
-            yield f
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_records(path: str | os.PathLike, records: Iterable[bytes]) -> int:

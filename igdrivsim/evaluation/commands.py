@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.io import atomic_write_csv, atomic_write_text
+from igdrivsim.io import atomic_write_csv, atomic_write_json
 
 EVAL_CONFIG = "eval_config.json"
 
@@ -162,7 +162,7 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
     out = Path(out)
     atomic_write_csv(out / "per_step.csv", per_step.round(6))
     atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
-    atomic_write_text(out / EVAL_CONFIG, json.dumps(info, indent=2, sort_keys=True) + "\n")
+    atomic_write_json(out / EVAL_CONFIG, info, indent=2, sort_keys=True)
     return out
 
 

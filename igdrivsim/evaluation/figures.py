@@ -18,7 +18,6 @@ import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
 
 from igdrivsim.evaluation.aggregate import CONFIDENCE, t_interval  # noqa: E402
-from igdrivsim.evaluation.io import atomic_savefig  # noqa: E402
 from igdrivsim.evaluation.schema import (  # noqa: E402
     BC,
     BC_RL,
@@ -27,6 +26,7 @@ from igdrivsim.evaluation.schema import (  # noqa: E402
     SETTING_SHORT,
     SETTINGS,
 )
+from igdrivsim.io import atomic_savefig  # noqa: E402
 
 PALETTE = {METHOD_LABELS[BC]: "#4C9BE8", METHOD_LABELS[BC_RL]: "#F28E2B"}  # blue / orange
 PANELS = ("log_divergence", "overlap", "offroad")

@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
-from igdrivsim.evaluation.io import atomic_write_text
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
+from igdrivsim.io import atomic_write_json, atomic_write_text
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 PAPER_SOURCES = ("main.tex", "references.bib", "Makefile")
@@ -321,7 +321,7 @@ class Pipeline:
                 if key in old and old[key] != record[key]:
                     raise ConfigError(f"{path}: this work folder was made with another {key} "
                                       f"({old[key]!r}); use another --out or the same options")
-        atomic_write_text(path, json.dumps(record, indent=2) + "\n")
+        atomic_write_json(path, record, indent=2)
 
     def run(self) -> None:
         """Every stage in order."""

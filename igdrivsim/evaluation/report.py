@@ -18,7 +18,6 @@ from pathlib import Path
 
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.evaluation.figures import fig3_metrics, save_figure
-from igdrivsim.evaluation.io import atomic_write_csv, atomic_write_text
 from igdrivsim.evaluation.schema import SETTING_LABELS
 from igdrivsim.evaluation.tables import (
     safety_verdicts,
@@ -26,6 +25,7 @@ from igdrivsim.evaluation.tables import (
     table1_markdown,
     vs_paper_markdown,
 )
+from igdrivsim.io import atomic_write_csv, atomic_write_text
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from igdrivsim.io import atomic_savefig, atomic_write
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
     POSITION_SCALE,
@@ -235,29 +235,10 @@ def legend_handles() -> list:
     ]
 
 
-def _publish(tmp: str, path: str) -> None:
-    """Give the temp file ordinary permissions (mkstemp makes it private), then rename it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
-
-
 def save_figure(fig, path: str | os.PathLike, **kw) -> str:
-    """Save ``fig`` to ``path`` atomically (temp file in the same directory, then rename)."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    ext = os.path.splitext(path)[1].lstrip(".")
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="." + ext, dir=folder)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format=ext, **kw)
-        _publish(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return path
+    """Save ``fig`` to ``path`` atomically (format from the suffix); returns ``path``."""
+    atomic_savefig(fig, path, **kw)
+    return os.fspath(path)
 
 
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
@@ -343,14 +324,10 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
     setting = get_setting(setting)
     episode_key, step_root = jax.random.split(key)
     title = PRESET_TITLES.get(setting.name, setting.name)
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".gif", dir=folder)
-    os.close(fd)
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     writer = PillowWriter(fps=fps)
-    try:
+
+    def write(tmp: os.PathLike) -> None:
         with writer.saving(fig, tmp, dpi=110):
             for s in tqdm(states[::every], desc=f"rollout {setting.name}", unit="frame"):
                 ax.clear()
@@ -359,9 +336,9 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
                 draw_panel(ax, snap, setting, f"{title}  (step {t}, t={t / 10:.1f} s)", view)
                 fig.tight_layout()
                 writer.grab_frame()
-        _publish(tmp, path)
+
+    try:
+        atomic_write(path, write, suffix=".gif")  # a GIF whatever the name
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return path
+    return os.fspath(path)

@@ -37,8 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
+from igdrivsim.io import atomic_write_json
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.candidates import (
     CandidateConfig,
@@ -169,8 +169,7 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _write_json(path: str, payload: Any) -> None:
-    with atomic_path(path, "w") as f:
-        json.dump(payload, f, indent=2)
+    atomic_write_json(path, payload, indent=2)
 
 
 def bench_sim_command(args) -> int:

@@ -9,6 +9,7 @@ resolved ``DIR/config.json`` (atomically). ``--gif PATH`` animates the first sce
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import json
@@ -21,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.io import atomic_path, atomic_write_json
 from igdrivsim.simulator.metrics import StepMetrics, mean_log_divergence
 from igdrivsim.simulator.rollout import ACTORS, log_metrics, rollout
 from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
@@ -113,13 +115,6 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
 
 
-def _write_json(path: str, text: str) -> None:
-    from igdrivsim.data.tfrecord import atomic_path
-
-    with atomic_path(path, "w") as f:
-        f.write(text)
-
-
 def _write_gif(path: str, final: SimState) -> None:
     from igdrivsim.observation.render import write_rollout_animation
 
@@ -138,14 +133,12 @@ def replay_command(args: argparse.Namespace) -> int:
     run = replay_fn(args.actor, params)
     key = jax.random.key(args.seed)
     records, t0 = [], time.perf_counter()
-    partial = os.path.join(args.out, ".replay.jsonl.partial") if args.out else None
-    if partial:
-        os.makedirs(args.out, exist_ok=True)
-    out = open(partial, "w") if partial else None
-    bar = tqdm(total=args.limit, desc="replay", unit="scn", file=sys.stderr,
-               disable=args.json)
-    ok = False
-    try:
+    with contextlib.ExitStack() as stack:
+        # replay.jsonl is streamed into a temp file, published only if every scenario replayed
+        out = (stack.enter_context(atomic_path(os.path.join(args.out, "replay.jsonl"), "w"))
+               if args.out else None)
+        bar = stack.enter_context(tqdm(total=args.limit, desc="replay", unit="scn",
+                                       file=sys.stderr, disable=args.json))
         for rec in iter_scenarios(args.files):
             if args.limit is not None and len(records) >= args.limit:
                 break
@@ -166,13 +159,6 @@ def replay_command(args: argparse.Namespace) -> int:
                 _write_gif(args.gif, final)
             records.append(record)
             bar.update(1)
-        ok = True
-    finally:
-        bar.close()
-        if out is not None:
-            out.close()
-            if not ok:
-                os.remove(partial)
     elapsed = time.perf_counter() - t0
     summary = {**summarize(records, params.num_controlled_steps), "actor": args.actor,
                "offroad_method": args.offroad, "seconds": round(elapsed, 2)}
@@ -181,7 +167,6 @@ def replay_command(args: argparse.Namespace) -> int:
     if args.out:
         config = {"command": "replay", "files": args.files, "limit": args.limit,
                   "actor": args.actor, "seed": args.seed, "sim_params": dataclasses.asdict(params)}
-        _write_json(os.path.join(args.out, "config.json"), json.dumps(config, indent=2) + "\n")
-        _write_json(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
-        os.replace(partial, os.path.join(args.out, "replay.jsonl"))
+        atomic_write_json(os.path.join(args.out, "config.json"), config, indent=2)
+        atomic_write_json(os.path.join(args.out, "summary.json"), summary, indent=2)
     return 0

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
-from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
+from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import count_params, init_params_per_seed
 from igdrivsim.training import inputs
@@ -44,11 +44,6 @@ class TrainResult:
     num_updates: int
     complete: bool
     seconds: float
-
-
-def atomic_write(path: str, text: str) -> None:
-    with atomic_path(path, "w") as f:
-        f.write(text)
 
 
 def total_updates(config: RunConfig, num_scenarios: int) -> int:
@@ -98,7 +93,7 @@ def _truncate_metrics(path: str, upto: int) -> None:
         return
     with open(path) as f:
         lines = [ln for ln in f if ln.strip() and json.loads(ln)["update"] <= upto]
-    atomic_write(path, "".join(lines))
+    atomic_write_text(path, "".join(lines))
 
 
 def _log_line(update: int, lr: float, metrics: dict, rate: float, steps_rate: float) -> dict:
@@ -137,7 +132,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
                "devices": mesh.size, "processes": jax.process_count()}
     if main:
-        atomic_write(os.path.join(out_dir, CONFIG), json.dumps(record, indent=2) + "\n")
+        atomic_write_json(os.path.join(out_dir, CONFIG), record, indent=2)
 
     params, opt_state = init_state(config, spec)
     per_seed = count_params(jax.tree.map(lambda x: x[0], params))
@@ -192,7 +187,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     ckpt.close()
     complete = end == num_updates
     if complete and main:
-        atomic_write(os.path.join(out_dir, DONE), f"{num_updates}\n")
+        atomic_write_text(os.path.join(out_dir, DONE), f"{num_updates}\n")
     return TrainResult(params, end, num_updates, complete, time.perf_counter() - start_time)
 
 

@@ -15,8 +15,8 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
-from igdrivsim.data.tfrecord import atomic_path
 from igdrivsim.errors import ConfigError
+from igdrivsim.io import atomic_write_json
 
 CHUNK = 8  # scenarios per worker task
 
@@ -96,8 +96,7 @@ def generate_command(args: argparse.Namespace) -> int:
         if previous != resolved:
             raise ConfigError(f"{config_path} holds a different configuration; use another --out "
                               "or --overwrite")
-    with atomic_path(config_path, "w") as f:
-        json.dump(resolved, f, indent=2)
+    atomic_write_json(config_path, resolved, indent=2)
 
     todo = []
     for split, (count, shards) in plan.items():

@@ -14,6 +14,7 @@ from igdrivsim.data.scenario import (
     Scenario,
     decode_scenario_id,
 )
+from igdrivsim.io import atomic_savefig
 
 _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
 
@@ -87,9 +88,9 @@ def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthe
         add_legend(ax)
         fig.tight_layout()
         path = os.path.join(out_dir, f"{prefix}_{k}.png")
-        tmp = path + ".tmp.png"
-        fig.savefig(tmp)
-        plt.close(fig)
-        os.replace(tmp, path)
+        try:
+            atomic_savefig(fig, path)
+        finally:
+            plt.close(fig)
         paths.append(path)
     return paths

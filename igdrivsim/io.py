@@ -1,0 +1,133 @@
+"""Atomic file writers: write to a temp file in the target's folder, then ``os.replace`` it.
+
+Every output of the package (data shards, manifests, configs, metrics, tables, figures, GIFs)
+goes through these helpers, so a reader or a resumed pipeline never sees a half-written file:
+an error or a crash mid-write leaves the old file (or no file), and errors remove the temp file
+(a killed process may leave one behind, hidden as ``.<name>.*``). Files get ordinary permissions,
+``0o666`` minus the umask, not ``mkstemp``'s private 0600. There is no fsync: this guards
+against process crashes, not power loss.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes",
+           "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode"]
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where Linux allows (thread-safe)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def file_mode() -> int:
+    """Permissions for new files: ``0o666`` minus the umask."""
+    return 0o666 & ~_umask()
+
+
+def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    return fd, Path(tmp)
+
+
+def _publish(tmp: Path, path: Path) -> None:
+    os.chmod(tmp, file_mode())
+    os.replace(tmp, path)
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike[str], mode: str = "wb",
+                **open_kwargs: Any) -> Iterator[IO[Any]]:
+    """Yield an open temp file next to ``path``; on a clean exit it replaces ``path``.
+
+    ``mode`` and ``open_kwargs`` (e.g. ``encoding``) go to :func:`os.fdopen`. On an exception
+    the temp file is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    fd, tmp = _temp_for(path, ".tmp")
+    try:
+        try:
+            f = os.fdopen(fd, mode, **open_kwargs)
+        except BaseException:
+            os.close(fd)
+            raise
+        with f:
+            yield f
+        _publish(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
+                 suffix: str | None = None) -> Path:
+    """Call ``write(tmp)`` with a temp path next to ``path``, then move it into place.
+
+    For libraries that want a file name (GIF writers, ``to_csv`` with compression): the temp
+    name ends with ``suffix``, by default ``path``'s, so they infer the same format as ``path``
+    would give. Returns ``path``.
+    """
+    path = Path(path)
+    fd, tmp = _temp_for(path, path.suffix if suffix is None else suffix)
+    os.close(fd)
+    try:
+        write(tmp)
+        _publish(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically; returns ``path``."""
+    with atomic_path(path, "w", encoding=encoding) as f:
+        f.write(text)
+    return Path(path)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns ``path``."""
+    with atomic_path(path, "wb") as f:
+        f.write(data)
+    return Path(path)
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj: Any, **json_kwargs: Any) -> Path:
+    """Write ``json.dumps(obj, **json_kwargs)`` plus a final newline atomically."""
+    return atomic_write_text(path, json.dumps(obj, **json_kwargs) + "\n")
+
+
+def atomic_write_csv(path: str | os.PathLike[str], frame: Any) -> Path:
+    """Write a pandas DataFrame as CSV (no index) atomically; compression follows the suffix."""
+    return atomic_write(path, lambda tmp: frame.to_csv(tmp, index=False))
+
+
+def atomic_savefig(fig: Any, path: str | os.PathLike[str], **kwargs: Any) -> Path:
+    """Save a matplotlib figure atomically; the format is ``path``'s suffix (not the temp name's).
+
+    Without a suffix, matplotlib's ``savefig.format`` is used (and no extension is appended).
+    """
+    fmt = kwargs.pop("format", None) or Path(path).suffix.lstrip(".")
+    if not fmt:
+        import matplotlib
+
+        fmt = matplotlib.rcParams["savefig.format"]
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, **kwargs))
