@@ -12,11 +12,14 @@ of the whole batch are re-selected (a ``lax.cond`` on the batch, so the cost is 
 those steps). With fewer than N valid candidates the check requires that nothing was left out.
 
 Candidate selection bisects a distance threshold (:func:`igdrivsim.simulator.roadgraph
-.select_nearest`), linear in the number of points; the selected candidates are then sorted once
-by their distance to the centre (stable), because XLA:CPU's top-k is much cheaper on nearly
-sorted input. Identical points keep their index order, so ties resolve as in the full top-k
-(lowest index first). The candidates' coordinates, directions and types are copied once per
-selection so that a step reads a small contiguous array instead of gathering from the roadgraph.
+.select_nearest`), linear in the number of points; the selected candidates are then ordered once
+by their distance to the centre, because XLA:CPU's top-k is much cheaper on nearly sorted input.
+That order uses the distance quantised to ``max_radius / 2**(31 - log2 K)`` (about 0.4 mm), ties
+by roadgraph index, packed into one int32 key: a single-key integer sort is ~5x faster than an
+argsort on XLA:CPU, and the order only needs to be nearly sorted. Identical points keep their
+index order, so ties resolve as in the full top-k (lowest index first). The candidates'
+coordinates, directions and types are copied once per selection so that a step reads a small
+contiguous array instead of gathering from the roadgraph.
 """
 
 from __future__ import annotations
@@ -71,6 +74,16 @@ class RoadCandidates:
     reselections: jax.Array  # int32[...] how many times the candidates were (re)selected
 
 
+def _distance_order(e: jax.Array, max_radius: float) -> jax.Array:
+    """Permutation ordering ``e`` (``inf`` last) by its quantised value, ties by position."""
+    k = e.shape[0]
+    bits = max(1, (k - 1).bit_length())
+    top = (1 << (31 - bits)) - 1
+    q = jnp.where(jnp.isfinite(e), jnp.floor(e * (top / max_radius)), top)
+    key = (jnp.clip(q, 0, top).astype(jnp.int32) << bits) | jnp.arange(k, dtype=jnp.int32)
+    return jnp.sort(key) & ((1 << bits) - 1)
+
+
 def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     """Candidates of ONE example around ``center``: ``(index, valid, radius)``."""
     from igdrivsim.simulator.roadgraph import select_nearest
@@ -79,10 +92,8 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     d2 = (xy[:, 0] - center[0]) ** 2 + (xy[:, 1] - center[1]) ** 2
     ok = jnp.asarray(roadgraph.valid, bool)
     k = min(config.num_candidates, xy.shape[0])
-    idx, valid = select_nearest(d2, ok, config.max_radius, k)
-    # Store them nearest-first from the centre (stable: identical points keep index order):
-    # XLA:CPU's top-k is ~1.6x faster on such nearly sorted input at the following steps.
-    order = jnp.argsort(jnp.where(valid, d2[idx], jnp.inf), stable=True)
+    idx, valid = select_nearest(d2, ok, config.max_radius, k)  # increasing roadgraph index
+    order = _distance_order(jnp.sqrt(jnp.where(valid, d2[idx], jnp.inf)), config.max_radius)
     idx, valid = idx[order], valid[order]
     kept = jnp.zeros(xy.shape[0], bool).at[idx].max(valid)
     left = jnp.min(jnp.where(ok & ~kept, d2, jnp.inf))

@@ -105,6 +105,42 @@ def nearest(d2: jax.Array, valid: jax.Array, k: int) -> tuple[jax.Array, jax.Arr
     return idx.astype(jnp.int32), sel_valid
 
 
+def roadgraph_features(x: jax.Array, y: jax.Array, dir_x: jax.Array, dir_y: jax.Array,
+                       rtype: jax.Array, valid: jax.Array) -> jax.Array:
+    """The ``f32[..., 25]`` roadgraph features of selected points already in the ego frame.
+
+    Written as one elementwise select over the feature axis (not stack + one-hot + concatenate):
+    XLA:CPU then fuses it into a single loop, ~4x faster for 1,500 points, same values.
+    """
+    col = jnp.arange(ROADGRAPH_FEATURES)
+    e = lambda a: a[..., None]  # noqa: E731
+    onehot = (col == e(rtype) + 4) | (col == ROADGRAPH_FEATURES - 1)
+    rg = jnp.where(col == 0, e(x / POSITION_SCALE), jnp.where(
+        col == 1, e(y / POSITION_SCALE), jnp.where(
+            col == 2, e(dir_x), jnp.where(col == 3, e(dir_y), onehot.astype(jnp.float32)))))
+    return jnp.where(e(valid), rg, 0.0)
+
+
+def object_features(sdc_xy: jax.Array, sdc_yaw: jax.Array, objects: Any, sdc_index: jax.Array,
+                    num_objects: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The ``num_objects`` nearest valid other objects: ``(features f32[N, 6], valid, index)``."""
+    ox, oy = to_frame(jnp.asarray(objects.x), jnp.asarray(objects.y), sdc_xy, sdc_yaw)
+    n_obj = ox.shape[-1]
+    not_sdc = jnp.arange(n_obj) != sdc_index
+    obj_ok = jnp.asarray(objects.valid, bool) & not_sdc
+    obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, num_objects)
+    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
+    rel_yaw = take(objects.yaw) - sdc_yaw
+    speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
+    obj = jnp.stack([
+        take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE,
+        jnp.cos(rel_yaw), jnp.sin(rel_yaw), speed / SPEED_SCALE,
+        jnp.ones_like(speed),
+    ], axis=-1)
+    obj = jnp.where(obj_valid[..., None], obj, 0.0)
+    return obj, obj_valid, obj_idx
+
+
 def observe_arrays(
     sdc_xy: jax.Array,
     sdc_yaw: jax.Array,
@@ -130,21 +166,8 @@ def observe_arrays(
     sdc_xy = jnp.asarray(sdc_xy, jnp.float32)
     sdc_yaw = jnp.asarray(sdc_yaw, jnp.float32)
 
-    # Objects: nearest valid others, relative pose, speed.
-    ox, oy = to_frame(jnp.asarray(objects.x), jnp.asarray(objects.y), sdc_xy, sdc_yaw)
-    n_obj = ox.shape[-1]
-    not_sdc = jnp.arange(n_obj) != sdc_index
-    obj_ok = jnp.asarray(objects.valid, bool) & not_sdc
-    obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, config.num_objects)
-    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
-    rel_yaw = take(objects.yaw) - sdc_yaw
-    speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
-    obj = jnp.stack([
-        take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE,
-        jnp.cos(rel_yaw), jnp.sin(rel_yaw), speed / SPEED_SCALE,
-        jnp.ones_like(speed),
-    ], axis=-1)
-    obj = jnp.where(obj_valid[..., None], obj, 0.0)
+    obj, obj_valid, obj_idx = object_features(sdc_xy, sdc_yaw, objects, sdc_index,
+                                              config.num_objects)
 
     # Roadgraph: nearest valid points, relative position and direction, one-hot type.
     xyz = jnp.asarray(roadgraph.xyz, jnp.float32)
@@ -154,13 +177,7 @@ def observe_arrays(
     d = jnp.take(jnp.asarray(roadgraph.dir, jnp.float32), rg_idx, axis=-2)
     dx, dy = rotate_to_frame(d[..., 0], d[..., 1], sdc_yaw)
     rtype = jnp.take(jnp.asarray(roadgraph.type, jnp.int32), rg_idx, axis=-1)
-    rg = jnp.concatenate([
-        jnp.stack([jnp.take(rx, rg_idx) / POSITION_SCALE, jnp.take(ry, rg_idx) / POSITION_SCALE,
-                   dx, dy], axis=-1),
-        jax.nn.one_hot(rtype, RG_NUM_TYPES, dtype=jnp.float32),
-        jnp.ones(rg_idx.shape + (1,), jnp.float32),
-    ], axis=-1)
-    rg = jnp.where(rg_valid[..., None], rg, 0.0)
+    rg = roadgraph_features(jnp.take(rx, rg_idx), jnp.take(ry, rg_idx), dx, dy, rtype, rg_valid)
 
     obs = Observation(
         objects=obj, objects_valid=obj_valid, roadgraph=rg, roadgraph_valid=rg_valid,
