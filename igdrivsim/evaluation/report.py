@@ -37,12 +37,14 @@ class Provenance:
 
 
 def git_commit(repo: str | Path | None = None) -> str:
-    """Short commit of the repository holding this package (``-dirty`` if modified)."""
+    """Short commit of the repository holding this package (``-dirty`` if files other than
+    the report's own outputs under ``paper/`` are modified)."""
     repo = Path(repo) if repo else Path(__file__).resolve().parents[2]
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, text=True,
                                 capture_output=True, check=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                                ".", ":(exclude)paper"],
                                cwd=repo, text=True, capture_output=True, timeout=10).stdout
         return commit + ("-dirty" if dirty.strip() else "")
     except (OSError, subprocess.SubprocessError):

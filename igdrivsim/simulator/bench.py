@@ -12,12 +12,12 @@ Three implementations of the same episode are timed in the same run, on the same
   cached candidate points, re-selected only when an exactness bound fails
   (:mod:`igdrivsim.observation.candidates`); results equal the naive ones slot for slot.
 
-Where the time goes (CPU, batch 64, per scenario-step, measured with process CPU time on a
-shared 2-core machine): naive ~500 us (top-k over 20,000 points ~270, offroad over 20,000 points
-~250); fast ~190 us (observation ~140, of which the sorted top-k of 1,500 points ~40 and
-building the 1,500 x 25 features ~50; roadgraph crop at reset ~23 amortised; step, expert and
-metrics ~7). Measured speedups: 2-3x over naive (see the README); the sorted top-k and the
-feature tensor are a floor for this observation.
+Where the time goes (CPU, batch 64, per scenario-step): naive ~500 us on the earlier machine
+(top-k over 20,000 points ~270, offroad over 20,000 points ~250); fast: the observation from the
+candidates ~150 us (on the slower machine of the README's (B) rows), of which the top-k of
+1,500 of 3,000 candidates ~90 (XLA:CPU's TopK is a comparator sort); roadgraph crop at reset
+~23 amortised; step, expert and metrics ~7. Measured speedups: 2.5-2.8x over naive (see the
+README); the sorted top-k is the floor for this observation.
 
 All three run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
