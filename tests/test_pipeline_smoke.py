@@ -103,3 +103,23 @@ def test_work_folder_refuses_other_data(tmp_path):
                         train_data="womd/training", val_data="womd/validation")
     with pytest.raises(ConfigError, match="another train_data"):
         other.check_work_folder()
+
+
+def test_changed_command_reruns_stage_and_overrides_are_checked(tmp_path, capsys):
+    def sub():
+        return pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
+                           quiet=True)
+
+    ok = [["python", "-c", "print('one')"]]
+    assert sub().stage("tiny", ok) is True
+    assert sub().stage("tiny", ok) is False  # same command: skipped
+    assert sub().stage("tiny", [["python", "-c", "print('two')"]]) is True
+    make(tmp_path).check_work_folder()
+    changed = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
+                          overrides=("training.num_updates=7",))
+    with pytest.raises(ConfigError, match="another overrides"):
+        changed.check_work_folder()
+    assert pl.main(["--profile", "smoke", "--out", str(tmp_path / "x"),
+                    "--set", "training.no_such_field=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("reproduce: error:") and "no_such_field" in err[-1]

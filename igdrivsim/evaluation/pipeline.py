@@ -81,6 +81,7 @@ class Pipeline:
     quiet: bool = False  # do not echo stage output on the terminal
     settings: tuple[str, ...] | None = None
     methods: tuple[str, ...] = METHODS
+    overrides: tuple[str, ...] = ()  # ``section.field=value`` for every training run
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
@@ -97,9 +98,20 @@ class Pipeline:
     def stamp_path(self, stage: str) -> Path:
         return self.work / "stages" / f"{stage}.json"
 
-    def done(self, stage: str, depends: Sequence[str] = ()) -> bool:
-        """Complete: stamped, and none of ``depends`` ran again in this invocation."""
-        return self.stamp_path(stage).is_file() and not (set(depends) & self.ran)
+    def done(self, stage: str, depends: Sequence[str] = (),
+             commands: Sequence[Sequence[str]] | None = None) -> bool:
+        """Complete: stamped (with the same ``commands``, when given), and none of ``depends``
+        ran again in this invocation."""
+        path = self.stamp_path(stage)
+        if not path.is_file() or set(depends) & self.ran:
+            return False
+        if commands is None:
+            return True
+        try:
+            stamped = json.loads(path.read_text(encoding="utf-8")).get("commands")
+        except (OSError, ValueError):
+            return False
+        return stamped == [list(map(str, c)) for c in commands]
 
     def _say(self, text: str) -> None:
         print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
@@ -108,7 +120,7 @@ class Pipeline:
               outputs: Sequence[Path] = ()) -> bool:
         """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
         ``name`` unless it is complete. Returns True when it ran."""
-        if self.done(name, depends) and all(Path(p).exists() for p in outputs):
+        if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):
             self._say(f"{name}: complete, skipped")
             return False
         log = self.log_path(name)
@@ -229,7 +241,7 @@ class Pipeline:
                 self.stage(f"train_{name}", [[
                     "igdrivsim", "train", "--profile", self.profile.name, "--obs", setting,
                     "--method", method, "--seeds", self.profile.seeds, "--data", train_manifest,
-                    "--out", run, "--resume"]],
+                    "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
                     depends=["filter_training"], outputs=[run / "DONE"])
                 names.append(name)
         return names
@@ -306,18 +318,19 @@ class Pipeline:
             self._say(f"pdf: WARNING, the PDF was not built: {err}")
 
     def check_work_folder(self) -> None:
-        """Record the options in ``WORK/pipeline.json``; refuse a folder made with other data or
-        another profile (its complete stages would be wrongly skipped)."""
+        """Record the options in ``WORK/pipeline.json``; refuse a folder made with other data,
+        another profile or other ``--set`` overrides (its complete stages would be wrongly
+        skipped)."""
         record = json.loads(json.dumps(dict(  # JSON types, comparable with the stored record
             profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
-            paper=str(self.paper))))
+            paper=str(self.paper), overrides=list(self.overrides))))
         path = self.work / "pipeline.json"
         if path.is_file():
             try:
                 old = json.loads(path.read_text())
             except (OSError, json.JSONDecodeError):
                 old = {}
-            for key in ("profile", "train_data", "val_data"):
+            for key in ("profile", "train_data", "val_data", "overrides"):
                 if key in old and old[key] != record[key]:
                     raise ConfigError(f"{path}: this work folder was made with another {key} "
                                       f"({old[key]!r}); use another --out or the same options")
@@ -377,6 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "OUT/paper); default: outputs/<profile>/ and paper/")
     parser.add_argument("--settings", default=None,
                         help="comma-separated subset of the six observation settings")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="SECTION.FIELD=VALUE",
+                        help="override a training field for every run (repeatable), e.g. "
+                             "--set training.num_updates=400; use a fresh --out for it")
     parser.add_argument("--in-process", action="store_true",
                         help="run the commands in this Python process (faster for smoke)")
     parser.add_argument("--quiet", action="store_true", help="do not echo stage output")
@@ -402,8 +419,11 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
     else:
         work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
     settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
+    from igdrivsim.training.config import get_profile, with_overrides
+
+    with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
     return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
-                    quiet=args.quiet, settings=settings)
+                    quiet=args.quiet, settings=settings, overrides=tuple(args.overrides))
 
 
 def main(argv: list[str] | None = None) -> int:
