@@ -1,25 +1,33 @@
 """An exact, faster batched observation: nearest points from a cached candidate subset.
 
-Why: the per-step cost of the observation is the top-k of the 1,500 nearest roadgraph points.
+Why: the per-step cost of the observation is selecting the 1,500 nearest roadgraph points.
 Between two steps the ego moves a few decimetres, so the nearest points barely change. We keep,
 per example, a *candidate* subset of ``num_candidates`` roadgraph points (the nearest to the
 believed ego position ``c`` at selection time) and the distance ``R`` from ``c`` to the nearest
-point left out. At each step the top-k runs over the candidates only. The result is provably the
-same as over the whole roadgraph while ``R - |b - c| > d_N`` (``b``: current believed position,
-``d_N``: distance of the N-th selected point): any left-out point ``q`` then has
-``|q - b| >= R - |b - c| > d_N``. When that fails for any example of the batch, the candidates
-of the whole batch are re-selected (a ``lax.cond`` on the batch, so the cost is paid only on
-those steps). With fewer than N valid candidates the check requires that nothing was left out.
+point left out. At each step the selection runs over the candidates only. The result is
+provably the same as over the whole roadgraph while ``R - |b - c| > d_N`` (``b``: current
+believed position, ``d_N``: distance of the N-th selected point): any left-out point ``q`` then
+has ``|q - b| >= R - |b - c| > d_N``. When that fails for any example of the batch, the
+candidates of the whole batch are re-selected (a ``lax.cond`` on the batch, so the cost is paid
+only on those steps). With fewer than N valid candidates the check requires that nothing was
+left out.
+
+The per-step selection (:func:`_packed_nearest`) avoids XLA:CPU's TopK (a comparator sort): it
+packs ``(distance quantised to 2 max_radius / 2**(31 - log2 K), 0.8 mm by default, position)``
+into one int32 and sorts that (a single-key integer sort, several times faster), then re-ranks
+the 16 entries around the N-th exactly by ``(distance, roadgraph index)``, the full top-k's tie
+rule. The observed *set* of points is the top-k's; the slots are nearest-first up to the quantum
+(the policy's encoders pool over points, so the order does not matter to them;
+:func:`igdrivsim.observation.observe` gives the exact order). If more than 8 entries share the
+quantum at the boundary (piles of duplicate points), that step falls back to the re-selection
+branch, which uses the exact top-k.
 
 Candidate selection bisects a distance threshold (:func:`igdrivsim.simulator.roadgraph
-.select_nearest`), linear in the number of points; the selected candidates are then ordered once
-by their distance to the centre, because XLA:CPU's top-k is much cheaper on nearly sorted input.
-That order uses the distance quantised to ``max_radius / 2**(31 - log2 K)`` (about 0.4 mm), ties
-by roadgraph index, packed into one int32 key: a single-key integer sort is ~5x faster than an
-argsort on XLA:CPU, and the order only needs to be nearly sorted. Identical points keep their
-index order, so ties resolve as in the full top-k (lowest index first). The candidates'
-coordinates, directions and types are copied once per selection so that a step reads a small
-contiguous array instead of gathering from the roadgraph.
+.select_nearest`), linear in the number of points; the candidates are then ordered by their
+distance to the centre with the same int32 packing (the per-step sort is cheaper on nearly
+sorted input). Identical points keep their index order. The candidates' coordinates, directions
+and types are copied once per selection so that a step reads a small contiguous array instead
+of gathering from the roadgraph.
 """
 
 from __future__ import annotations
@@ -34,10 +42,15 @@ from flax import struct
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
+    SPEED_SCALE,
     Observation,
     ObservationConfig,
     Selection,
+    object_features,
     observe_arrays,
+    roadgraph_features,
+    rotate_to_frame,
+    to_frame,
 )
 from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
 from igdrivsim.observation.observe import sdc_pose
@@ -139,6 +152,61 @@ def _observe_one(bxy, byaw, speed, objects, sdc_index, cand_index, points, cente
     return obs, sel, exact
 
 
+_BOUNDARY = 8  # entries on each side of the N-th nearest whose order is resolved exactly
+
+
+def _packed_nearest(d2: jax.Array, valid: jax.Array, tie: jax.Array, n: int, scale: float):
+    """The ``n`` nearest valid entries of ``d2 [K]`` as a set, approximately nearest first.
+
+    One int32 sort of ``(distance quantised to scale / 2**(31 - log2 K), position)`` orders
+    them; the ``2 * _BOUNDARY`` entries around the ``n``-th are then re-ranked exactly by
+    ``(d2, tie)`` (``tie``: roadgraph index, as the full top-k breaks ties). Returns
+    ``(positions int32[n], ok)``; ``ok`` is False when the quantisation could hide the true
+    boundary (more than ``_BOUNDARY`` entries within one quantum of it): use the top-k then.
+    """
+    k = d2.shape[0]
+    bits = max(1, (k - 1).bit_length())
+    top = (1 << (31 - bits)) - 1  # reserved for invalid entries, so valid ones sort first
+    q = jnp.where(valid, jnp.clip(jnp.floor(jnp.sqrt(d2) * (top / scale)), 0, top - 1), top)
+    q = q.astype(jnp.int32)
+    order = jnp.sort((q << bits) | jnp.arange(k, dtype=jnp.int32)) & ((1 << bits) - 1)
+    h = min(_BOUNDARY, n, k - n)
+    if h == 0:
+        return order[:n], jnp.bool_(True)
+    win = order[n - h:n + h]
+    wd, wt = jnp.where(valid[win], d2[win], jnp.inf), tie[win]
+    a, b = (slice(None), None), (None, slice(None))  # first[i, j]: entry i precedes entry j
+    first = (wd[a] < wd[b]) | ((wd[a] == wd[b]) & (
+        (wt[a] < wt[b]) | ((wt[a] == wt[b]) & (win[a] < win[b]))))
+    ranked = jnp.zeros_like(win).at[jnp.sum(first, axis=0)].set(win)
+    qw = q[ranked]
+    ok = jnp.bool_(True)
+    if n - h > 0:  # everything left of the window precedes every unselected window entry
+        ok &= (q[order[n - h - 1]] < qw[h]) | (jnp.sum(valid) <= n)
+    if n + h < k:  # everything right of it follows every selected one
+        ok &= (q[order[n + h]] > qw[h - 1]) | (q[order[n + h]] == top)
+    return jnp.concatenate([order[:n - h], ranked[:h]]), ok
+
+
+def _observe_packed(bxy, byaw, speed, objects, sdc_index, cand_index, points, center, radius,
+                    config: ObservationConfig, scale: float):
+    """:func:`_observe_one` with :func:`_packed_nearest` instead of the sorted top-k."""
+    obj, obj_valid, obj_idx = object_features(bxy, byaw, objects, sdc_index, config.num_objects)
+    rx, ry = to_frame(points.xyz[:, 0], points.xyz[:, 1], bxy, byaw)
+    d2 = rx**2 + ry**2
+    pos, ok = _packed_nearest(d2, points.valid, cand_index, config.num_roadgraph_points, scale)
+    valid = points.valid[pos]
+    dx, dy = rotate_to_frame(points.dir[pos, 0], points.dir[pos, 1], byaw)
+    obs = Observation(
+        objects=obj, objects_valid=obj_valid,
+        roadgraph=roadgraph_features(rx[pos], ry[pos], dx, dy, points.type[pos], valid),
+        roadgraph_valid=valid, sdc_speed=jnp.reshape(speed / SPEED_SCALE, (1,)))
+    d_last = jnp.sqrt(jnp.max(jnp.where(valid, d2[pos], 0.0)))
+    moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
+    exact = ok & jnp.where(jnp.all(valid), radius - moved > d_last + 1e-3, jnp.isinf(radius))
+    return obs, Selection(object_index=obj_idx, roadgraph_index=cand_index[pos]), exact
+
+
 def observe_batch_with_candidates(
     states: Any,
     setting: ObservationSetting,
@@ -152,7 +220,8 @@ def observe_batch_with_candidates(
     """:func:`igdrivsim.observation.observe` for a batch ``[B]`` of states, from candidates.
 
     Returns ``(observation [B], updated candidates)`` (plus the :class:`Selection` with
-    ``return_selection``); equal to ``vmap(observe)`` (see the module docstring). Call it
+    ``return_selection``); equal to ``vmap(observe)`` up to the order of the roadgraph slots
+    (see the module docstring). Call it
     under ``jit`` WITHOUT an outer ``vmap`` so the re-selection stays a real branch.
     """
     if cand_config.num_candidates < config.num_roadgraph_points:
@@ -165,7 +234,10 @@ def observe_batch_with_candidates(
         return run(bxy, byaw, speed, objects, states.sdc_index, c.index, c.points, c.center,
                    c.radius)
 
-    obs, sel, exact = with_cands(candidates)
+    packed = jax.vmap(lambda *a: _observe_packed(*a, config, 2.0 * cand_config.max_radius))
+    c = candidates
+    obs, sel, exact = packed(bxy, byaw, speed, objects, states.sdc_index, c.index, c.points,
+                             c.center, c.radius)
 
     def reselect(_):
         idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, cand_config))(

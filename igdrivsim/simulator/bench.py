@@ -8,16 +8,16 @@ Three implementations of the same episode are timed in the same run, on the same
 * **crop**: :func:`igdrivsim.simulator.reset` crops the roadgraph once per scenario around the
   logged SDC path (6,144 points) and keeps road edges in their own small array (1,024); the
   observation's top-k runs over the cropped roadgraph.
-* **fast** (``observe`` elsewhere uses the crop path): crop + the observation's top-k over 3,000
-  cached candidate points, re-selected only when an exactness bound fails
-  (:mod:`igdrivsim.observation.candidates`); results equal the naive ones slot for slot.
+* **fast** (``observe`` elsewhere uses the crop path): crop + the observation's selection over
+  3,000 cached candidate points (one int32 sort, exact boundary), re-selected only when an
+  exactness bound fails (:mod:`igdrivsim.observation.candidates`); the same metrics and observed
+  points as naive (roadgraph slots nearest-first up to ~1 mm).
 
-Where the time goes (CPU, batch 64, per scenario-step): naive ~500 us on the earlier machine
-(top-k over 20,000 points ~270, offroad over 20,000 points ~250); fast: the observation from the
-candidates ~150 us (on the slower machine of the README's (B) rows), of which the top-k of
-1,500 of 3,000 candidates ~90 (XLA:CPU's TopK is a comparator sort); roadgraph crop at reset
-~23 amortised; step, expert and metrics ~7. Measured speedups: 2.5-2.8x over naive (see the
-README); the sorted top-k is the floor for this observation.
+Where the time goes (CPU, batch 64, per scenario-step, wall clock on the README's machine (B)):
+naive ~700 us (top-k over 20,000 points and offroad over 20,000 points); fast ~180 us, of which
+the per-step selection (an int32 sort of 3,000 packed keys) ~65; the rest is the features of the
+1,500 points, objects, step, expert, metrics, and re-selections and the crop amortised.
+Measured speedups: 2.8-4.1x over naive (3.5x at batch 256; see the README).
 
 All three run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
