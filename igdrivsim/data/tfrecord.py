@@ -14,7 +14,7 @@ from collections.abc import Iterable, Iterator
 import google_crc32c
 
 from igdrivsim.errors import DataError
-from igdrivsim.io import atomic_path  # also re-exported for older callers
+from igdrivsim.io import atomic_path
 
 _MASK_DELTA = 0xA282EAD8
 _HEADER = struct.Struct("<QI")

@@ -87,14 +87,17 @@ class RoadCandidates:
     reselections: jax.Array  # int32[...] how many times the candidates were (re)selected
 
 
-def _distance_order(e: jax.Array, max_radius: float) -> jax.Array:
-    """Permutation ordering ``e`` (``inf`` last) by its quantised value, ties by position."""
+def _packed_order(e: jax.Array, valid: jax.Array, scale: float):
+    """Order ``e [K]`` by one int32 sort of ``(e quantised to scale / 2**(31 - log2 K),
+    position)``, invalid entries last. Returns ``(order, q, top)``: the permutation, each
+    entry's quantised value, and the value reserved for invalid entries."""
     k = e.shape[0]
     bits = max(1, (k - 1).bit_length())
     top = (1 << (31 - bits)) - 1
-    q = jnp.where(jnp.isfinite(e), jnp.floor(e * (top / max_radius)), top)
-    key = (jnp.clip(q, 0, top).astype(jnp.int32) << bits) | jnp.arange(k, dtype=jnp.int32)
-    return jnp.sort(key) & ((1 << bits) - 1)
+    q = jnp.where(valid, jnp.clip(jnp.floor(e * (top / scale)), 0, top - 1), top)
+    q = q.astype(jnp.int32)
+    order = jnp.sort((q << bits) | jnp.arange(k, dtype=jnp.int32)) & ((1 << bits) - 1)
+    return order, q, top
 
 
 def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
@@ -106,7 +109,7 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     ok = jnp.asarray(roadgraph.valid, bool)
     k = min(config.num_candidates, xy.shape[0])
     idx, valid = select_nearest(d2, ok, config.max_radius, k)  # increasing roadgraph index
-    order = _distance_order(jnp.sqrt(jnp.where(valid, d2[idx], jnp.inf)), config.max_radius)
+    order, _, _ = _packed_order(jnp.sqrt(d2[idx]), valid, config.max_radius)
     idx, valid = idx[order], valid[order]
     kept = jnp.zeros(xy.shape[0], bool).at[idx].max(valid)
     left = jnp.min(jnp.where(ok & ~kept, d2, jnp.inf))
@@ -165,11 +168,7 @@ def _packed_nearest(d2: jax.Array, valid: jax.Array, tie: jax.Array, n: int, sca
     boundary (more than ``_BOUNDARY`` entries within one quantum of it): use the top-k then.
     """
     k = d2.shape[0]
-    bits = max(1, (k - 1).bit_length())
-    top = (1 << (31 - bits)) - 1  # reserved for invalid entries, so valid ones sort first
-    q = jnp.where(valid, jnp.clip(jnp.floor(jnp.sqrt(d2) * (top / scale)), 0, top - 1), top)
-    q = q.astype(jnp.int32)
-    order = jnp.sort((q << bits) | jnp.arange(k, dtype=jnp.int32)) & ((1 << bits) - 1)
+    order, q, top = _packed_order(jnp.sqrt(d2), valid, scale)
     h = min(_BOUNDARY, n, k - n)
     if h == 0:
         return order[:n], jnp.bool_(True)

@@ -168,10 +168,6 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, help="also write the results to this JSON file")
 
 
-def _write_json(path: str, payload: Any) -> None:
-    atomic_write_json(path, payload, indent=2)
-
-
 def bench_sim_command(args) -> int:
     from igdrivsim.data import load_scenario
     from igdrivsim.observation.commands import _data_path
@@ -224,7 +220,7 @@ def bench_sim_command(args) -> int:
     print("scenario-steps per CPU-second of this process (robust to a shared CPU):")
     print(format_table(rows, impls, "scenario_steps_per_cpu_s"))
     if args.out:
-        _write_json(args.out, {"data": path, "rows": rows, "jax": jax.__version__,
+        atomic_write_json(args.out, {"data": path, "rows": rows, "jax": jax.__version__,
                                "steps_per_episode": steps, "setting": args.setting})
     return 0
 
