@@ -33,6 +33,7 @@ of gathering from the roadgraph.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import jax
@@ -60,18 +61,25 @@ from igdrivsim.observation.observe import sdc_pose
 class CandidateConfig:
     """``num_candidates``: cached points per example (>= the observation's roadgraph capacity;
     more candidates -> fewer re-selections but a larger per-step top-k).
-    ``max_radius``: candidates lie within this many metres of the ego (bisection range)."""
+    ``max_radius``: candidates lie within this many metres of the ego (bisection range).
+    ``band``: a step re-ranks only the candidates at positions ``[N - band, N + band)`` of the
+    stored order (more -> fewer re-sorts but a larger per-step sort)."""
 
     num_candidates: int = 3000
     max_radius: float = 200.0
+    band: int = 256
 
 
 @struct.dataclass
 class CandidatePoints:
-    """The candidates' own copy of what the observation reads (no per-step gather)."""
+    """The candidates' own copy of what the observation reads (no per-step gather), one array
+    per field: on XLA:CPU a loop over ``xy[:, 0]`` and ``xy[:, 1]`` of an ``[K, 2]`` array runs
+    ~30x slower than over two ``[K]`` arrays."""
 
-    xyz: jax.Array  # f32[..., K, 2] (x, y only)
-    dir: jax.Array  # f32[..., K, 2]
+    x: jax.Array  # f32[..., K]
+    y: jax.Array  # f32[..., K]
+    dir_x: jax.Array  # f32[..., K]
+    dir_y: jax.Array  # f32[..., K]
     type: jax.Array  # int32[..., K]
     valid: jax.Array  # bool[..., K] (padding False)
 
@@ -85,6 +93,7 @@ class RoadCandidates:
     center: jax.Array  # f32[..., 2] believed ego position at selection
     radius: jax.Array  # f32[...] distance from center to the nearest left-out point (inf: none)
     reselections: jax.Array  # int32[...] how many times the candidates were (re)selected
+    resorts: jax.Array  # int32[...] how many times they were re-sorted around the ego
 
 
 def _packed_order(e: jax.Array, valid: jax.Array, scale: float):
@@ -94,8 +103,8 @@ def _packed_order(e: jax.Array, valid: jax.Array, scale: float):
     k = e.shape[0]
     bits = max(1, (k - 1).bit_length())
     top = (1 << (31 - bits)) - 1
-    q = jnp.where(valid, jnp.clip(jnp.floor(e * (top / scale)), 0, top - 1), top)
-    q = q.astype(jnp.int32)
+    q = jnp.clip(jnp.floor(e * (top / scale)), 0, 1 << 30).astype(jnp.int32)  # int: top may
+    q = jnp.where(valid, jnp.minimum(q, top - 1), top)  # not be a float32 (small K)
     order = jnp.sort((q << bits) | jnp.arange(k, dtype=jnp.int32)) & ((1 << bits) - 1)
     return order, q, top
 
@@ -113,7 +122,8 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     idx, valid = idx[order], valid[order]
     kept = jnp.zeros(xy.shape[0], bool).at[idx].max(valid)
     left = jnp.min(jnp.where(ok & ~kept, d2, jnp.inf))
-    points = CandidatePoints(xyz=xy[idx], dir=jnp.asarray(roadgraph.dir, jnp.float32)[idx, :2],
+    dirs = jnp.asarray(roadgraph.dir, jnp.float32)
+    points = CandidatePoints(x=xy[idx, 0], y=xy[idx, 1], dir_x=dirs[idx, 0], dir_y=dirs[idx, 1],
                              type=jnp.asarray(roadgraph.type, jnp.int32)[idx],
                              valid=valid & ok[idx])
     return idx, points, jnp.sqrt(left)
@@ -137,15 +147,19 @@ def init_candidates(states: Any, setting: ObservationSetting, episode_keys: jax.
     _, bxy, _, _ = _believed(states, setting, episode_keys, step_keys)
     idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, config))(states.roadgraph, bxy)
     return RoadCandidates(index=idx, points=points, center=bxy, radius=radius,
-                          reselections=jnp.ones(bxy.shape[:1], jnp.int32))
+                          reselections=jnp.ones(bxy.shape[:1], jnp.int32),
+                          resorts=jnp.zeros(bxy.shape[:1], jnp.int32))
 
 
 def _observe_one(bxy, byaw, speed, objects, sdc_index, cand_index, points, center, radius,
                  config: ObservationConfig):
     """Observation (before hiding) of one example from its candidates, and whether it is exact."""
-    obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, points, config)
-    pts = jnp.take(points.xyz, sel.roadgraph_index, axis=0)
-    d = jnp.sqrt(jnp.sum((pts - bxy) ** 2, axis=-1))
+    as_roadgraph = SimpleNamespace(xyz=jnp.stack([points.x, points.y], -1),
+                                   dir=jnp.stack([points.dir_x, points.dir_y], -1),
+                                   type=points.type, valid=points.valid)
+    obs, sel = observe_arrays(bxy, byaw, speed, objects, sdc_index, as_roadgraph, config)
+    pos = sel.roadgraph_index
+    d = jnp.sqrt((points.x[pos] - bxy[0]) ** 2 + (points.y[pos] - bxy[1]) ** 2)
     full = jnp.all(obs.roadgraph_valid)
     d_last = jnp.max(jnp.where(obs.roadgraph_valid, d, 0.0))
     moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
@@ -187,23 +201,78 @@ def _packed_nearest(d2: jax.Array, valid: jax.Array, tie: jax.Array, n: int, sca
     return jnp.concatenate([order[:n - h], ranked[:h]]), ok
 
 
-def _observe_packed(bxy, byaw, speed, objects, sdc_index, cand_index, points, center, radius,
-                    config: ObservationConfig, scale: float):
-    """:func:`_observe_one` with :func:`_packed_nearest` instead of the sorted top-k."""
+def _covers(bxy, center, radius, d_last, full):
+    """The candidates hold the true nearest N: any left-out point is farther than the N-th."""
+    moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
+    return jnp.where(full, radius - moved > d_last + 1e-3, jnp.isinf(radius))  # float margin
+
+
+def _band_select(d2: jax.Array, valid: jax.Array, tie: jax.Array, n: int, band: int,
+                 scale: float):
+    """The ``n`` nearest valid entries of ``d2 [K]`` when the stored order is nearly sorted.
+
+    The first ``n - band`` entries are taken as they are and the ``band`` nearest of the next
+    ``2 band`` are picked by :func:`_packed_nearest`. That is the exact top-``n`` set when every
+    taken entry is nearer than every entry left (checked on the exact distances; ties fail),
+    or when at most ``n`` entries are valid and they come first. Returns ``(positions
+    int32[n], exact, squared distance of the farthest taken entry)``; positions ``< n - band``
+    are the identity (callers slice them instead of gathering).
+    """
+    k = d2.shape[0]
+    w = min(band, n, k - n)
+    lo, hi = n - w, n + w
+    d2 = jnp.where(valid, d2, jnp.inf)
+    few = jnp.sum(valid) <= n
+    if w == 0:
+        return jnp.arange(n), jnp.bool_(True), jnp.max(jnp.where(valid[:n], d2[:n], 0.0))
+    band_pos, ok = _packed_nearest(d2[lo:hi], valid[lo:hi], tie[lo:hi], w, scale)
+    taken = jnp.zeros(2 * w, bool).at[band_pos].set(True)
+    inf = jnp.float32(jnp.inf)
+    head_max = jnp.max(d2[:lo]) if lo > 0 else -inf
+    tail_min = jnp.min(d2[hi:]) if hi < k else inf
+    taken_max = jnp.max(jnp.where(taken, d2[lo:hi], -inf))
+    left_min = jnp.minimum(jnp.min(jnp.where(taken, inf, d2[lo:hi])), tail_min)
+    split = (head_max < left_min) & (taken_max < tail_min)
+    first = jnp.all(valid[:n] == (jnp.arange(n) < jnp.sum(valid)))
+    exact = ok & jnp.where(few, first, split)
+    last2 = jnp.max(jnp.where(valid[:lo], d2[:lo], 0.0), initial=0.0)
+    last2 = jnp.maximum(last2, jnp.max(jnp.where(taken & valid[lo:hi], d2[lo:hi], 0.0)))
+    return jnp.concatenate([jnp.arange(lo), lo + band_pos]), exact, last2
+
+
+def _observe_band(bxy, byaw, speed, objects, sdc_index, c: RoadCandidates,
+                  config: ObservationConfig, cand_config: CandidateConfig):
+    """Observation (before hiding) of one example from its stored candidate order
+    (:func:`_band_select`). Returns ``(observation, selection, exact, covers)``; ``covers`` is
+    :func:`_covers` for this selection."""
+    pts, n = c.points, config.num_roadgraph_points
     obj, obj_valid, obj_idx = object_features(bxy, byaw, objects, sdc_index, config.num_objects)
-    rx, ry = to_frame(points.xyz[:, 0], points.xyz[:, 1], bxy, byaw)
-    d2 = rx**2 + ry**2
-    pos, ok = _packed_nearest(d2, points.valid, cand_index, config.num_roadgraph_points, scale)
-    valid = points.valid[pos]
-    dx, dy = rotate_to_frame(points.dir[pos, 0], points.dir[pos, 1], byaw)
+    d2 = (pts.x - bxy[0]) ** 2 + (pts.y - bxy[1]) ** 2
+    pos, exact, last2 = _band_select(d2, pts.valid, c.index, n, cand_config.band,
+                                     2.0 * cand_config.max_radius)
+    lo = n - min(cand_config.band, n, pts.x.shape[0] - n)
+
+    def pick(a):  # a[pos], the head sliced rather than gathered
+        return jnp.concatenate([a[:lo], a[pos[lo:]]])
+
+    valid = pick(pts.valid)
+    rx, ry = to_frame(pick(pts.x), pick(pts.y), bxy, byaw)
+    dx, dy = rotate_to_frame(pick(pts.dir_x), pick(pts.dir_y), byaw)
     obs = Observation(
         objects=obj, objects_valid=obj_valid,
-        roadgraph=roadgraph_features(rx[pos], ry[pos], dx, dy, points.type[pos], valid),
+        roadgraph=roadgraph_features(rx, ry, dx, dy, pick(pts.type), valid),
         roadgraph_valid=valid, sdc_speed=jnp.reshape(speed / SPEED_SCALE, (1,)))
-    d_last = jnp.sqrt(jnp.max(jnp.where(valid, d2[pos], 0.0)))
-    moved = jnp.sqrt(jnp.sum((bxy - center) ** 2))
-    exact = ok & jnp.where(jnp.all(valid), radius - moved > d_last + 1e-3, jnp.isinf(radius))
-    return obs, Selection(object_index=obj_idx, roadgraph_index=cand_index[pos]), exact
+    covers = _covers(bxy, c.center, c.radius, jnp.sqrt(last2), jnp.all(valid))
+    return obs, Selection(object_index=obj_idx, roadgraph_index=pick(c.index)), exact, covers
+
+
+def _resort(c: RoadCandidates, bxy: jax.Array, scale: float) -> RoadCandidates:
+    """The same candidates of one example stored nearest-first around ``bxy`` (invalid last)."""
+    p = c.points
+    d = jnp.sqrt((p.x - bxy[0]) ** 2 + (p.y - bxy[1]) ** 2)
+    order, _, _ = _packed_order(d, p.valid, scale)
+    return c.replace(index=c.index[order], points=jax.tree.map(lambda a: a[order], p),
+                     resorts=c.resorts + 1)
 
 
 def observe_batch_with_candidates(
@@ -219,35 +288,48 @@ def observe_batch_with_candidates(
     """:func:`igdrivsim.observation.observe` for a batch ``[B]`` of states, from candidates.
 
     Returns ``(observation [B], updated candidates)`` (plus the :class:`Selection` with
-    ``return_selection``); equal to ``vmap(observe)`` up to the order of the roadgraph slots
-    (see the module docstring). Call it
-    under ``jit`` WITHOUT an outer ``vmap`` so the re-selection stays a real branch.
+    ``return_selection``): the same observed points as ``vmap(observe)``, with the roadgraph
+    slots in the stored candidate order (nearest first as of the last re-sort) instead of
+    exactly nearest first. Each step tries, in turn, until one is exact for the whole batch:
+    the stored order (:func:`_observe_band`); the candidates re-sorted around the ego; new
+    candidates with the exact top-k. Call it under ``jit`` WITHOUT an outer ``vmap`` so these
+    stay real branches (``lax.cond`` on the batch).
     """
     if cand_config.num_candidates < config.num_roadgraph_points:
         raise ConfigError(f"CandidateConfig.num_candidates ({cand_config.num_candidates}) must be "
                           f">= num_roadgraph_points ({config.num_roadgraph_points})")
     objects, bxy, byaw, speed = _believed(states, setting, episode_keys, step_keys)
-    run = jax.vmap(lambda *a: _observe_one(*a, config))
+    scale = 2.0 * cand_config.max_radius
+    band = jax.vmap(lambda c, *a: _observe_band(*a, c, config, cand_config))
 
-    def with_cands(c: RoadCandidates):
-        return run(bxy, byaw, speed, objects, states.sdc_index, c.index, c.points, c.center,
-                   c.radius)
+    def run(c: RoadCandidates):
+        return band(c, bxy, byaw, speed, objects, states.sdc_index)
 
-    packed = jax.vmap(lambda *a: _observe_packed(*a, config, 2.0 * cand_config.max_radius))
-    c = candidates
-    obs, sel, exact = packed(bxy, byaw, speed, objects, states.sdc_index, c.index, c.points,
-                             c.center, c.radius)
-
-    def reselect(_):
+    def reselect(_):  # new candidates around the ego: the stored order is exact unless ties
         idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, cand_config))(
             states.roadgraph, bxy)
-        c = RoadCandidates(index=idx, points=points, center=bxy, radius=radius,
-                           reselections=candidates.reselections + 1)
-        o, s, _ = with_cands(c)
+        c = candidates.replace(index=idx, points=points, center=bxy, radius=radius,
+                               reselections=candidates.reselections + 1)
+        o, s, exact, _ = run(c)
+
+        def top_k(_):
+            o, s, _ = jax.vmap(lambda *a: _observe_one(*a, config))(
+                bxy, byaw, speed, objects, states.sdc_index, c.index, c.points, c.center,
+                c.radius)
+            return o, s
+
+        o, s = jax.lax.cond(jnp.all(exact), lambda _: (o, s), top_k, None)
         return o, s, c
 
-    obs, sel, candidates = jax.lax.cond(jnp.all(exact), lambda _: (obs, sel, candidates),
-                                        reselect, None)
+    def resort(_):
+        c = jax.vmap(lambda c, b: _resort(c, b, scale))(candidates, bxy)
+        o, s, exact, covers = run(c)
+        return jax.lax.cond(jnp.all(exact & covers), lambda _: (o, s, c), reselect, None)
+
+    obs, sel, exact, covers = run(candidates)
+    obs, sel, candidates = jax.lax.cond(
+        jnp.all(exact & covers), lambda _: (obs, sel, candidates),
+        lambda _: jax.lax.cond(jnp.all(covers), resort, reselect, None), None)
     obs = jax.vmap(lambda o, e, s: apply_setting(setting, o, e, s))(obs, episode_keys, step_keys)
     if return_selection:
         return obs, candidates, sel

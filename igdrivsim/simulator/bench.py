@@ -86,9 +86,9 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: 
     ``impl``: ``"naive"`` (no crop), ``"crop"`` (crop at reset, plain per-step top-k over the
     cropped roadgraph) or ``"fast"`` (crop + cached candidates).
 
-    Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B])``
-    (selections: 0 unless ``"fast"``); with ``collect`` also the per-step observations
-    ``[B, T, ...]`` (for the equivalence test; memory heavy).
+    Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B],
+    candidate re-sorts [B])`` (both 0 unless ``"fast"``); with ``collect`` also the per-step
+    observations ``[B, T, ...]`` (for the equivalence test; memory heavy).
     """
     setting = get_setting(setting_name)
     obs_config = obs_config or ObservationConfig()
@@ -126,8 +126,9 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: 
     (_, _, cands), outs = jax.lax.scan(body, (state.sdc, state.timestep, cands), None,
                                        length=params.num_controlled_steps)
     outs = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), outs)
-    selections = cands.reselections if fast else jnp.zeros((batch,), jnp.int32)
-    return outs[:2] + (selections,) + outs[2:]
+    zero = jnp.zeros((batch,), jnp.int32)
+    counts = (cands.reselections, cands.resorts) if fast else (zero, zero)
+    return outs[:2] + counts + outs[2:]
 
 
 def _tile(scenario: Any, batch: int) -> Any:
@@ -191,7 +192,7 @@ def bench_sim_command(args) -> int:
                           f"{args.candidates}")
     cand = CandidateConfig(num_candidates=args.candidates)
     fns = {name: jax.jit(lambda sc, k, impl=name: episode(
-        sc, k, impl=impl, setting_name=args.setting, cand_config=cand)[:3]) for name in impls}
+        sc, k, impl=impl, setting_name=args.setting, cand_config=cand)[:4]) for name in impls}
     steps = DEFAULT_PARAMS.num_controlled_steps
     rows: list[dict] = []
     bar = tqdm(total=len(batches) * len(impls), desc="bench sim", unit="cell")
@@ -208,6 +209,7 @@ def bench_sim_command(args) -> int:
                    "seconds_per_call": round(sec, 4), "cpu_seconds_per_call": round(cpu, 4),
                    "first_call_s": round(compile_s, 2),
                    "candidate_selections": int(np.max(out[2])),
+                   "candidate_resorts": int(np.max(out[3])),
                    "overlap_steps": int(np.sum(metrics.overlap[0])),
                    "offroad_steps": int(np.sum(metrics.offroad[0])),
                    "device": jax.devices()[0].platform, "setting": args.setting}
