@@ -54,11 +54,12 @@ def path_distance_sq(points_xy, path_xy, path_valid):
     return jnp.min(jnp.where(path_valid[None, :], d2, jnp.inf), axis=-1)
 
 
-def select_nearest(d2, eligible, radius: float, capacity: int):
+def select_nearest(d2, eligible, radius: float, capacity: int, steps: int = _BISECTION_STEPS):
     """Indices ``int32[capacity]`` of eligible points with ``d2 <= radius**2``, nearest first kept.
 
     Returns ``(indices, valid)``; indices are in increasing (original) order, padding invalid.
-    The threshold is bisected so that at most ``capacity`` points pass it.
+    The threshold is bisected (``steps`` halvings of ``[0, radius**2]``) so that at most
+    ``capacity`` points pass it.
     """
     d2 = jnp.where(eligible, d2, jnp.inf)
     r2 = jnp.asarray(radius * radius, d2.dtype)
@@ -70,7 +71,7 @@ def select_nearest(d2, eligible, radius: float, capacity: int):
         ok = jnp.sum(d2 <= mid) <= capacity
         return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid)
 
-    lo, _ = jax.lax.fori_loop(0, _BISECTION_STEPS, body, (jnp.zeros_like(r2), r2))
+    lo, _ = jax.lax.fori_loop(0, steps, body, (jnp.zeros_like(r2), r2))
     thr = jnp.where(fits, r2, lo)
     keep = d2 <= thr
     (idx,) = jnp.nonzero(keep, size=capacity, fill_value=0)
