@@ -94,8 +94,9 @@ def test_bench_cli_rejects_bad_options(capsys):
     assert main(["bench", "sim", "--batches", "1,x"]) == 2
     assert main(["bench", "sim", "--impls", "naive,bogus"]) == 2
     assert main(["bench", "sim", "--candidates", "10"]) == 2
+    assert main(["bench", "sim", "--band", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 3 and all(e.startswith("igdrivsim bench sim: error:") for e in err)
+    assert len(err) == 4 and all(e.startswith("igdrivsim bench sim: error:") for e in err)
 
 
 @needs_womd
@@ -139,14 +140,15 @@ def test_packed_nearest_is_the_top_k_set_or_says_so():
         assert got == set(want[i][want_valid[i]].tolist()), i
 
 
-def test_band_select_is_the_top_k_set_or_says_so():
+@pytest.mark.parametrize("band", [0, 16])
+def test_band_select_is_the_top_k_set_or_says_so(band):
     """The stored-order selection equals the top-k set whenever it reports exact: on nearly
     sorted orders (the normal case, where it must succeed), shuffled orders, duplicates at the
     boundary, and fewer valid points than slots (valid first, or not)."""
     from igdrivsim.observation.candidates import _band_select
     from igdrivsim.observation.features import nearest
 
-    k, n, band, rows = 300, 100, 16, 80
+    k, n, rows = 300, 100, 80
     rng = np.random.default_rng(1)
     xy = rng.uniform(-50.0, 50.0, size=(rows, k, 2)).astype(np.float32)
     ego = rng.normal(size=(rows, 2)).astype(np.float32)  # the stored order is around 0
@@ -165,7 +167,7 @@ def test_band_select_is_the_top_k_set_or_says_so():
     pos, exact, want, want_valid = map(np.asarray, (pos, exact, want, want_valid))
     pos = np.concatenate([np.broadcast_to(np.arange(n - band), (rows, n - band)),
                           n - band + pos], axis=1)
-    assert exact[:20].all() and exact[40:50].all()
+    assert exact[40:50].all() and (exact[:20].all() or band == 0)
     assert not exact[20:30].any() and not exact[50:60].any()
     for i in np.flatnonzero(exact):
         got = set(pos[i][valid[i][pos[i]]].tolist())

@@ -61,7 +61,7 @@ from igdrivsim.observation.observe import sdc_pose
 @dataclass(frozen=True)
 class CandidateConfig:
     """``num_candidates``: cached points per example (>= the observation's roadgraph capacity;
-    more candidates -> fewer re-selections but a larger per-step top-k).
+    more candidates -> fewer re-selections but costlier re-sorts).
     ``max_radius``: candidates lie within this many metres of the ego (bisection range).
     ``band``: a step re-ranks only the candidates at positions ``[N - band, N + band)`` of the
     stored order (more -> fewer re-sorts but a larger per-step sort)."""
@@ -69,6 +69,12 @@ class CandidateConfig:
     num_candidates: int = 3000
     max_radius: float = 200.0
     band: int = 256
+
+    def __post_init__(self) -> None:
+        if self.num_candidates < 1 or self.band < 0 or not self.max_radius > 0:
+            raise ConfigError(
+                f"CandidateConfig needs num_candidates >= 1, band >= 0 and max_radius > 0, got "
+                f"{self.num_candidates}, {self.band}, {self.max_radius}")
 
 
 @struct.dataclass
@@ -87,9 +93,10 @@ class CandidatePoints:
 
 @struct.dataclass
 class RoadCandidates:
-    """Per example (leading batch dims ``...``): the cached candidate subset."""
+    """Per example (leading batch dims ``...``): the cached candidate subset, stored
+    nearest-first around the position of its last sort (invalid last)."""
 
-    index: jax.Array  # int32[..., K] into the roadgraph axis, nearest first; padding invalid
+    index: jax.Array  # int32[..., K] into the roadgraph axis, stored order; padding invalid
     points: CandidatePoints
     center: jax.Array  # f32[..., 2] believed ego position at selection
     radius: jax.Array  # f32[...] distance from center to the nearest left-out point (inf: none)
@@ -205,13 +212,14 @@ def _band_select(d2: jax.Array, valid: jax.Array, tie: jax.Array, n: int, band: 
     few = jnp.sum(valid) <= n
     first = jnp.all(valid[:n] == (jnp.arange(n) < jnp.sum(valid)))
     head_last2 = jnp.max(jnp.where(valid[:lo], d2[:lo], 0.0), initial=0.0)
-    if w == 0:
-        return jnp.zeros((0,), jnp.int32), ~few | first, head_last2
+    inf = jnp.float32(jnp.inf)
+    tail_min = jnp.min(d2[hi:]) if hi < k else inf
+    if w == 0:  # no band: the head is the selection
+        exact = jnp.where(few, first, jnp.max(d2[:n]) < tail_min)
+        return jnp.zeros((0,), jnp.int32), exact, head_last2
     band_pos, ok = _packed_nearest(d2[lo:hi], valid[lo:hi], tie[lo:hi], w, scale)
     taken = jnp.zeros(2 * w, bool).at[band_pos].set(True)
-    inf = jnp.float32(jnp.inf)
     head_max = jnp.max(d2[:lo]) if lo > 0 else -inf
-    tail_min = jnp.min(d2[hi:]) if hi < k else inf
     taken_max = jnp.max(jnp.where(taken, d2[lo:hi], -inf))
     left_min = jnp.minimum(jnp.min(jnp.where(taken, inf, d2[lo:hi])), tail_min)
     split = (head_max < left_min) & (taken_max < tail_min)

@@ -15,7 +15,8 @@ Feature layout (the contract with :mod:`igdrivsim.policy`):
 * ``sdc_speed f32[1]``: ego speed / 50.
 
 Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first (the
-batched fast path of :mod:`.candidates` orders roadgraph slots nearest-first up to ~1 mm).
+batched fast path of :mod:`.candidates` observes the same points with the roadgraph slots in its
+stored, roughly nearest-first, order).
 """
 
 from __future__ import annotations

@@ -8,16 +8,17 @@ Three implementations of the same episode are timed in the same run, on the same
 * **crop**: :func:`igdrivsim.simulator.reset` crops the roadgraph once per scenario around the
   logged SDC path (6,144 points) and keeps road edges in their own small array (1,024); the
   observation's top-k runs over the cropped roadgraph.
-* **fast** (``observe`` elsewhere uses the crop path): crop + the observation's selection over
-  3,000 cached candidate points (one int32 sort, exact boundary), re-selected only when an
-  exactness bound fails (:mod:`igdrivsim.observation.candidates`); the same metrics and observed
-  points as naive (roadgraph slots nearest-first up to ~1 mm).
+* **fast** (``observe`` elsewhere uses the crop path): crop + the observation from 3,000 cached
+  candidate points stored nearest-first; a step re-ranks only the 512 around the N-th and checks
+  that the result is exact, repairing the order when not
+  (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
+  (roadgraph slots in the stored, roughly nearest-first, order).
 
 Where the time goes (CPU, batch 64, per scenario-step, wall clock on the README's machine (B)):
-naive ~700 us (top-k over 20,000 points and offroad over 20,000 points); fast ~180 us, of which
-the per-step selection (an int32 sort of 3,000 packed keys) ~65; the rest is the features of the
-1,500 points, objects, step, expert, metrics, and re-selections and the crop amortised.
-Measured speedups: 2.8-4.1x over naive (3.5x at batch 256; see the README).
+naive ~650 us (top-k over 20,000 points and offroad over 20,000 points); fast ~105 us: ~50 us
+every step (the 512-key sort ~15, the 1,500 x 25 features, objects, step, expert, metrics) and
+~45 us of amortised re-sorts and re-selections (16 and 5 per episode on the real scenario).
+Measured speedups: 4.3-6.5x over naive (6.5x at batch 256; see the README).
 
 All three run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
@@ -163,6 +164,9 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"implementations to time (default {','.join(IMPLS)})")
     parser.add_argument("--candidates", type=int, default=CandidateConfig().num_candidates,
                         help="candidate points cached per scenario by the fast path")
+    parser.add_argument("--band", type=int, default=CandidateConfig().band,
+                        help="fast path: stored candidates re-ranked per step on each side of "
+                             "the N-th")
     parser.add_argument("--repeats", type=int, default=2, help="timed calls per cell (best)")
     parser.add_argument("--skip-naive-above", type=int, default=10**9,
                         help="do not time the naive path above this batch size")
@@ -190,7 +194,7 @@ def bench_sim_command(args) -> int:
     if args.candidates < 1500:
         raise ConfigError(f"--candidates must be >= 1500 (the observed points), got "
                           f"{args.candidates}")
-    cand = CandidateConfig(num_candidates=args.candidates)
+    cand = CandidateConfig(num_candidates=args.candidates, band=args.band)
     fns = {name: jax.jit(lambda sc, k, impl=name: episode(
         sc, k, impl=impl, setting_name=args.setting, cand_config=cand)[:4]) for name in impls}
     steps = DEFAULT_PARAMS.num_controlled_steps
