@@ -100,15 +100,19 @@ def test_bench_cli_rejects_bad_options(capsys):
 
 
 @needs_womd
-def test_bench_cli_writes_rows(tmp_path, capsys):
+@pytest.mark.parametrize("distinct", [False, True])
+def test_bench_cli_writes_rows(tmp_path, capsys, distinct):
     import json
 
     from igdrivsim.cli import main
 
     out = tmp_path / "bench.json"
     assert main(["bench", "sim", "--batches", "2", "--impls", "crop", "--repeats", "1",
-                 "--out", str(out)]) == 0
-    rows = json.loads(out.read_text())["rows"]
+                 "--out", str(out)] + (["--distinct", "--data", str(WOMD)] if distinct else [])
+                ) == 0
+    result = json.loads(out.read_text())
+    assert result["distinct"] is distinct
+    rows = result["rows"]
     assert [(r["batch"], r["impl"]) for r in rows] == [(2, "crop")]
     assert rows[0]["scenario_steps_per_s"] > 0 and rows[0]["offroad_steps"] == 0
     assert "crop" in capsys.readouterr().out
