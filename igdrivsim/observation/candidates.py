@@ -107,16 +107,21 @@ class RoadCandidates:
 _SELECT_BISECTION_STEPS = 16  # threshold to ~5 mm at 50 m: plenty for a candidate set
 
 
-def _packed_order(e: jax.Array, valid: jax.Array, scale: float):
+def _packed_order(e: jax.Array, valid: jax.Array, scale: float, nearly_sorted: bool = True):
     """Order ``e [K]`` by one int32 sort of ``(e quantised to scale / 2**(31 - log2 K),
     position)``, invalid entries last. Returns ``(order, q, top)``: the permutation, each
-    entry's quantised value, and the value reserved for invalid entries."""
+    entry's quantised value, and the value reserved for invalid entries.
+
+    The keys are unique, so the sort need not be stable; XLA:CPU's unstable sort is 2-3x faster
+    on nearly sorted input (the stored candidate order) and ~20% slower on shuffled input.
+    """
     k = e.shape[0]
     bits = max(1, (k - 1).bit_length())
     top = (1 << (31 - bits)) - 1
     q = jnp.clip(jnp.floor(e * (top / scale)), 0, 1 << 30).astype(jnp.int32)  # int: top may
     q = jnp.where(valid, jnp.minimum(q, top - 1), top)  # not be a float32 (small K)
-    order = jnp.sort((q << bits) | jnp.arange(k, dtype=jnp.int32)) & ((1 << bits) - 1)
+    keys = (q << bits) | jnp.arange(k, dtype=jnp.int32)
+    order = jax.lax.sort(keys, is_stable=not nearly_sorted) & ((1 << bits) - 1)
     return order, q, top
 
 
@@ -130,7 +135,8 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     ok = jnp.asarray(roadgraph.valid, bool)
     idx, valid = select_nearest(d2, ok, config.max_radius, config.num_candidates,
                                 steps=_SELECT_BISECTION_STEPS)  # increasing roadgraph index
-    order, _, _ = _packed_order(jnp.sqrt(d2[idx]), valid, 2.0 * config.max_radius)
+    order, _, _ = _packed_order(jnp.sqrt(d2[idx]), valid, 2.0 * config.max_radius,
+                                nearly_sorted=False)  # idx: roadgraph order
     idx, valid = idx[order], valid[order]
     # Every valid point at most as far as the farthest kept one is kept.
     kept_max = jnp.max(jnp.where(valid, d2[idx], -jnp.inf))
