@@ -25,7 +25,7 @@ def test_fast_equals_naive_on_a_real_scenario():
     from igdrivsim.data import load_scenario
     from igdrivsim.simulator.bench import _tile, episode
 
-    sc = _tile(load_scenario(EXAMPLE), 1)
+    sc = _tile(load_scenario(EXAMPLE), 2)  # different noise: repairs for one or both examples
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=128)
     cands = CandidateConfig(num_candidates=256, band=16)
     common = dict(setting_name="gaussian_noise", cand_config=cands, collect=True)
@@ -33,8 +33,8 @@ def test_fast_equals_naive_on_a_real_scenario():
     naive = jax.jit(lambda s, k: episode(s, k, impl="naive", obs_config=cfg, **common))(sc, key)
     fast = jax.jit(lambda s, k: episode(s, k, impl="fast", obs_config=cfg, **common))(sc, key)
     (m_n, _, _, _, o_n), (m_f, _, sel_f, sorts_f, o_f) = naive, fast
-    assert int(sel_f[0]) >= 3  # the exactness checks did trigger re-selections and re-sorts
-    assert int(sorts_f[0]) >= 3
+    assert int(sel_f.min()) >= 3  # the exactness checks did trigger re-selections and re-sorts
+    assert int(sorts_f.min()) >= 3 and sorts_f[0] != sorts_f[1]
     np.testing.assert_array_equal(m_n.overlap, m_f.overlap)
     np.testing.assert_array_equal(m_n.offroad, m_f.offroad)
     np.testing.assert_allclose(m_n.log_divergence, m_f.log_divergence, atol=1e-6)

@@ -316,8 +316,21 @@ def observe_batch_with_candidates(
     def choose(c):
         return jax.vmap(lambda c, b: _choose(c, b, n, cand_config))(c, bxy)
 
-    def resort(c):
-        return jax.vmap(lambda c, b: _resort(c, b, scale))(c, bxy)
+    def resort(c, need):  # only the examples that need it, when they are few
+        b = need.shape[0]
+        m = max(1, b // 8)
+
+        def some(_):
+            rows = jnp.nonzero(need, size=m, fill_value=b)[0]
+            at = jnp.minimum(rows, b - 1)
+            sub = jax.vmap(lambda c, b: _resort(c, b, scale))(
+                jax.tree.map(lambda a: a[at], c), bxy[at])
+            return jax.tree.map(lambda a, v: a.at[rows].set(v, mode="drop"), c, sub)
+
+        def every(_):
+            return jax.vmap(lambda c, b: _resort(c, b, scale))(c, bxy)
+
+        return jax.lax.cond(jnp.sum(need) <= m, some, every, None)
 
     def reselect(c):
         idx, points, radius = jax.vmap(lambda rg, b: _select(rg, b, cand_config))(
@@ -342,7 +355,8 @@ def observe_batch_with_candidates(
     pos, exact, covers = choose(candidates)
     candidates, pos = jax.lax.cond(
         jnp.all(exact & covers), lambda _: (candidates, pos),
-        lambda _: jax.lax.cond(jnp.all(covers), lambda _: after_resort(resort(candidates)),
+        lambda _: jax.lax.cond(jnp.all(covers),
+                               lambda _: after_resort(resort(candidates, ~exact)),
                                lambda _: after_reselect(reselect(candidates)), None), None)
     obs, sel = jax.vmap(lambda b, y, v, o, i, c, p: _band_observation(
         b, y, v, o, i, c, p, config))(bxy, byaw, speed, objects, states.sdc_index, candidates, pos)
