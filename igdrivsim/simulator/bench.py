@@ -10,15 +10,16 @@ Three implementations of the same episode are timed in the same run, on the same
   observation's top-k runs over the cropped roadgraph.
 * **fast** (``observe`` elsewhere uses the crop path): crop + the observation from 3,000 cached
   candidate points stored nearest-first; a step re-ranks only the 512 around the N-th and checks
-  that the result is exact, repairing the order when not
+  that the result is exact, repairing the stored order when not
   (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
   (roadgraph slots in the stored, roughly nearest-first, order).
 
 Where the time goes (CPU, batch 64, per scenario-step, wall clock on the README's machine (B)):
-naive ~650 us (top-k over 20,000 points and offroad over 20,000 points); fast ~105 us: ~50 us
-every step (the 512-key sort ~15, the 1,500 x 25 features, objects, step, expert, metrics) and
-~45 us of amortised re-sorts and re-selections (16 and 5 per episode on the real scenario).
-Measured speedups: 4.3-6.5x over naive (6.5x at batch 256; see the README).
+naive ~650 us (top-k over 20,000 points and offroad over 20,000 points); fast ~90 us: ~48 us
+every step (the 1,500 x 25 features, objects, step, expert, metrics, a 512-key sort) and the
+rest amortised re-sorts and re-selections (16 and 5 per episode on the real scenario).
+Measured speedups: 5.0-7.1x over naive on the real scenario tiled (6.8x at batch 256), 3.0-4.4x
+on batches of different synthetic scenarios (see the README).
 
 All three run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
