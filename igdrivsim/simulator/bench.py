@@ -159,11 +159,12 @@ def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float, float, 
 
 def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default=None,
-                        help="WOMD file (default: the real tf.Example sample in ../shared)")
+                        help="WOMD file, or folder with --distinct (default: the real tf.Example "
+                             "sample in ../shared)")
     parser.add_argument("--record", type=int, default=0)
     parser.add_argument("--distinct", action="store_true",
-                        help="fill each batch with different scenarios of --data (a file, folder "
-                             "or glob; cycled when it has fewer) instead of tiling --record")
+                        help="fill each batch with different scenarios of --data (cycled when it "
+                             "has fewer) instead of tiling --record")
     parser.add_argument("--batches", default="1,16,64,256",
                         help="comma-separated batch sizes (default 1,16,64,256)")
     parser.add_argument("--setting", default="full", help="observation setting")
