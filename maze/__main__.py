@@ -10,7 +10,8 @@ import argparse
 import sys
 
 from igdrivsim.errors import IGDrivSimError
-from maze import report, study
+from igdrivsim.io import atomic_write_csv
+from maze import study
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -25,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     except IGDrivSimError as err:
         print(f"maze: error: {err}", file=sys.stderr)
         return 2
-    report.write_text(args.out / "summary.csv", summary.to_csv(index=False))
+    atomic_write_csv(args.out / "summary.csv", summary)
     return 0
 
 

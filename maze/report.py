@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from igdrivsim.io import atomic_savefig, atomic_write_text
+from igdrivsim.io import atomic_savefig
 
 # curve name -> (legend label, colour close to the paper's figure)
 CURVES: dict[str, tuple[str, str]] = {
@@ -31,11 +31,6 @@ def ci95(values) -> float:
         return 0.0
     sem = values.std(ddof=1) / np.sqrt(values.size)
     return float(stats.t.ppf(0.975, values.size - 1) * sem)
-
-
-def write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (see :mod:`igdrivsim.io`)."""
-    atomic_write_text(path, text)
 
 
 def summarise(curves: pd.DataFrame) -> pd.DataFrame:

@@ -27,7 +27,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
-from igdrivsim.io import atomic_write_bytes
+from igdrivsim.io import atomic_write_bytes, atomic_write_csv, atomic_write_json, atomic_write_text
 from maze import report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.env import make_params
@@ -283,16 +283,16 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
             f" BC {cfg.bc.epochs} epochs on {cfg.bc.dataset_size:,} expert transitions per seed. "
             "Stage seconds (compile included): "
             + ", ".join(f"{k} {v:.0f}" for k, v in timings.items()))
-    report.write_text(out / "figures/fig2_maze.csv", curves.to_csv(index=False))
-    report.write_text(out / "tables/maze_summary.csv", summary.to_csv(index=False))
-    report.write_text(out / "tables/maze_summary.md", report.summary_markdown(summary, refs, note))
-    report.write_text(out / "tables/maze_summary.tex", report.summary_latex(summary, refs))
+    atomic_write_csv(out / "figures/fig2_maze.csv", curves)
+    atomic_write_csv(out / "tables/maze_summary.csv", summary)
+    atomic_write_text(out / "tables/maze_summary.md", report.summary_markdown(summary, refs, note))
+    atomic_write_text(out / "tables/maze_summary.tex", report.summary_latex(summary, refs))
     report.plot(curves, summary, refs, out / "figures/fig2_maze")
     save_frames(out / "figures/maze_frames.png")
     meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
             "timings_s": timings, "bc_loss_per_chunk": results["bc"]["losses"],
             "jax": jax.__version__, "device": str(jax.devices()[0])}
-    report.write_text(config_path, json.dumps(meta, indent=2) + "\n")
+    atomic_write_json(config_path, meta, indent=2)
     print(summary.to_string(index=False))
     print(f"maze study: wrote {', '.join(OUTPUTS)} under {out} ({wall:.0f} s)")
     return summary

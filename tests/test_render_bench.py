@@ -23,9 +23,9 @@ def test_fast_equals_naive_on_a_real_scenario():
     """Same metrics and the same observation at every step (objects slot for slot, roadgraph
     points as a set); small capacities so that the candidates are re-selected several times."""
     from igdrivsim.data import load_scenario
-    from igdrivsim.simulator.bench import _tile, episode
+    from igdrivsim.simulator.bench import _batch, episode
 
-    sc = _tile(load_scenario(EXAMPLE), 2)  # different noise: repairs for one or both examples
+    sc = _batch([load_scenario(EXAMPLE)], 2)  # different noise: repairs for one or both examples
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=128)
     cands = CandidateConfig(num_candidates=256, band=16)
     common = dict(setting_name="gaussian_noise", cand_config=cands, collect=True)
@@ -52,15 +52,15 @@ def test_fast_falls_back_to_the_exact_top_k_on_duplicate_points():
     """Every road point repeated 40 times: piles of equal distances at the boundary defeat the
     integer sort, so every repair runs down to the exact top-k; the points seen still match."""
     from igdrivsim.data import load_scenario
-    from igdrivsim.simulator.bench import _tile, episode
+    from igdrivsim.simulator.bench import _batch, episode
 
     sc = load_scenario(EXAMPLE)
     rg = sc.roadgraph
     keep = np.flatnonzero(rg.valid)[: rg.valid.shape[0] // 40]
     rep = lambda a: np.repeat(a[keep], 40, axis=0)  # noqa: E731
-    sc = _tile(sc.replace(roadgraph=rg.replace(xyz=rep(rg.xyz), dir=rep(rg.dir),
-                                               type=rep(rg.type), id=rep(rg.id),
-                                               valid=rep(rg.valid))), 1)
+    piles = rg.replace(xyz=rep(rg.xyz), dir=rep(rg.dir), type=rep(rg.type), id=rep(rg.id),
+                       valid=rep(rg.valid))
+    sc = _batch([sc.replace(roadgraph=piles)], 1)
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=100)  # boundary in a pile
     common = dict(setting_name="full", obs_config=cfg, collect=True,
                   cand_config=CandidateConfig(num_candidates=240, band=16))

@@ -235,12 +235,6 @@ def legend_handles() -> list:
     ]
 
 
-def save_figure(fig, path: str | os.PathLike, **kw) -> str:
-    """Save ``fig`` to ``path`` atomically (format from the suffix); returns ``path``."""
-    atomic_savefig(fig, path, **kw)
-    return os.fspath(path)
-
-
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
                        config: ObservationConfig = DEFAULT_CONFIG):
     """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure."""
@@ -273,8 +267,8 @@ def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: l
 
     fig = observation_figure(state, settings, key, view)
     try:
-        return [save_figure(fig, os.path.join(out_dir, f"fig1_observations.{ext}"), dpi=200)
-                for ext in ("pdf", "png")]
+        return [os.fspath(atomic_savefig(fig, os.path.join(out_dir, f"fig1_observations.{ext}"),
+                                         dpi=200)) for ext in ("pdf", "png")]
     finally:
         plt.close(fig)
 

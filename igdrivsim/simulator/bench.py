@@ -136,9 +136,9 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: 
     return outs[:2] + counts + outs[2:]
 
 
-def _tile(scenario: Any, batch: int) -> Any:
-    return jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (batch,) + np.shape(a)).copy(),
-                        scenario)
+def _batch(pool: list[Any], size: int) -> Any:
+    """A batch ``[size]`` of the scenarios of ``pool``, cycled (one scenario: tiled)."""
+    return jax.tree.map(lambda *a: np.stack(a), *[pool[i % len(pool)] for i in range(size)])
 
 
 def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float, float, Any]:
@@ -214,7 +214,7 @@ def bench_sim_command(args) -> int:
     rows: list[dict] = []
     bar = tqdm(total=len(batches) * len(impls), desc="bench sim", unit="cell")
     for b in batches:
-        sc = jax.tree.map(lambda *a: np.stack(a), *[pool[i % len(pool)] for i in range(b)])
+        sc = _batch(pool, b)
         for name, fn in fns.items():
             if name == "naive" and b > args.skip_naive_above:
                 bar.update()
