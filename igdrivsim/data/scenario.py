@@ -217,15 +217,28 @@ def _keep_nearest(valid: np.ndarray, dist: np.ndarray, capacity: int,
     return np.sort(chosen)
 
 
+def _present_distance(xy: np.ndarray, valid: np.ndarray, ref: np.ndarray, ref_t: int
+                      ) -> np.ndarray:
+    """Distance of each object ``xy [O, T, 2]`` to ``ref`` at its last valid step ``<= ref_t``
+    (``inf`` when it has none: it appears only in the future)."""
+    if not xy.shape[0]:
+        return np.zeros(0)
+    seen = valid[:, : ref_t + 1]
+    last = seen.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)
+    pos = xy[np.arange(xy.shape[0]), last]
+    return np.where(seen.any(axis=1), np.linalg.norm(pos - ref, axis=-1), np.inf)
+
+
 def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Scenario:
     """Pad (invalid) or reduce a scenario to exactly ``caps``; arbitrary leading batch dims.
 
     Nothing valid is cut while it fits: if a section already fits, slots keep their positions
     (so WOMD's SDC slot stays put) and padding is appended. If there are more slots than the
-    capacity, invalid slots go first; if the valid ones still do not fit, the SDC and the objects
-    nearest to it (closest approach over the steps where both are valid), the roadgraph points
-    nearest to the SDC's valid logged path (so the kept map covers where the ego drives) and the
-    traffic lights nearest to its current position are kept, in their original order.
+    capacity, invalid slots go first; if the valid ones still do not fit, the SDC and the
+    objects, roadgraph points and traffic lights nearest to the SDC's position at the current
+    step are kept, in their original order. Only the present and the past decide (an object's
+    distance is taken at its last valid step up to the current one; objects that appear only
+    later come last): what a policy may observe never depends on the logged future.
     """
     if scenario.batch_shape:
         n = scenario.batch_shape[0]
@@ -254,20 +267,14 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
         return _select(section, index, 0, capacity, template_section)
 
     num_objects = is_sdc.shape[0]
-    both = valid & sdc_valid[None]
-    gap = np.linalg.norm(xy - xy[sdc][None], axis=-1)
-    obj_dist = np.where(both, gap, np.inf).min(axis=1) if num_objects else np.zeros(0)
+    obj_dist = _present_distance(xy, valid, ref, ref_t)
     obj_valid = np.asarray(md.valid) | is_sdc
     trajectory = fit(tr, template.trajectory, num_objects, caps.max_objects, obj_valid, obj_dist,
                      is_sdc)
     metadata = fit(md, template.metadata, num_objects, caps.max_objects, obj_valid, obj_dist,
                    is_sdc)
     rg_xy = np.asarray(rg.xyz)[:, :2]
-    path = xy[sdc, sdc_valid][::2] if sdc_valid.any() else ref[None]
-    rg_dist = np.full(rg_xy.shape[0], np.inf)
-    for chunk in np.array_split(path, max(1, len(path) // 8)):  # bounded memory
-        rg_dist = np.minimum(rg_dist, np.linalg.norm(rg_xy[:, None] - chunk[None], axis=-1)
-                             .min(axis=1))
+    rg_dist = np.linalg.norm(rg_xy - ref, axis=-1)
     roadgraph = fit(rg, template.roadgraph, rg_xy.shape[0], caps.max_roadgraph_points,
                     np.asarray(rg.valid), rg_dist)
     tl_valid = np.asarray(tl.valid)

@@ -53,7 +53,7 @@ def load_validation(data: str, caps, max_scenarios: int = 0):
 
 
 def load_trained(run_dir: str):
-    """``(RunConfig, stacked parameters [S], seed list)`` of a training run folder."""
+    """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
     from igdrivsim.training.loop import load_run
 
     config, params = load_run(run_dir)
@@ -106,9 +106,16 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
 
     ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``.
     """
-    from igdrivsim.evaluation.rollout import evaluate_policy, scenario_ids_of, tidy_frames
+    import pandas as pd
+
+    from igdrivsim.evaluation.rollout import (
+        StepOutputs,
+        evaluate_policy,
+        scenario_ids_of,
+        tidy_frames,
+    )
     from igdrivsim.observation import ObservationConfig
-    from igdrivsim.training.update import sim_params
+    from igdrivsim.training.update import run_settings, sim_params
 
     if batch_size < 1:
         raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
@@ -116,19 +123,23 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
     if scenarios is None:
         scenarios = load_validation(data, data_capacities(config), max_scenarios)
     ids = scenario_ids_of(scenarios)
-    setting, method = config.observation.setting, config.training.method
+    settings, method = run_settings(config), config.training.method
     obs_config = ObservationConfig(config.observation.num_objects,
                                    config.observation.num_roadgraph_points)
-    with _bar(len(ids), f"evaluate {setting}/{method}", progress) as bar:
+    label = ",".join(settings)
+    with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
-                                  setting=setting, obs_config=obs_config,
+                                  setting=settings, obs_config=obs_config,
                                   params=sim_params(config), greedy=greedy,
                                   batch_size=batch_size, seed=seed, progress=bar.update)
-    per_step, per_scenario = tidy_frames(outputs, ids, setting, method, seeds)
+    frames = [tidy_frames(StepOutputs(*(getattr(outputs, f)[g] for f in StepOutputs.FIELDS)),
+                          ids, name, method, seeds) for g, name in enumerate(settings)]
+    per_step = pd.concat([f[0] for f in frames], ignore_index=True)
+    per_scenario = pd.concat([f[1] for f in frames], ignore_index=True)
     return _write(out, per_step, per_scenario, dict(
-        run=str(run_dir), data=str(data), setting=setting, method=method, seeds=seeds,
-        profile=config.profile, greedy=greedy, eval_seed=seed, num_scenarios=len(ids),
-        sim=dataclasses.asdict(sim_params(config))))
+        run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
+        seeds=seeds, profile=config.profile, greedy=greedy, eval_seed=seed,
+        num_scenarios=len(ids), sim=dataclasses.asdict(sim_params(config))))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,

@@ -229,21 +229,20 @@ class Pipeline:
             outs.append(out)
         return outs[0], outs[1]
 
-    def run_name(self, setting: str, method: str) -> str:
-        return f"{setting}__{method}"
-
-    def run_train(self, train_manifest: Path) -> list[str]:
+    def run_train(self, train_manifest: Path, val_manifest: Path) -> list[str]:
+        """One run per method: every setting and seed in one compiled program (settings as
+        data); the teacher-forced observations are computed once and cached in WORK/cache."""
         names = []
-        for setting in self.settings:
-            for method in self.methods:
-                name = self.run_name(setting, method)
-                run = self.work / "runs" / name
-                self.stage(f"train_{name}", [[
-                    "igdrivsim", "train", "--profile", self.profile.name, "--obs", setting,
-                    "--method", method, "--seeds", self.profile.seeds, "--data", train_manifest,
-                    "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
-                    depends=["filter_training"], outputs=[run / "DONE"])
-                names.append(name)
+        for method in self.methods:
+            run = self.work / "runs" / method
+            self.stage(f"train_{method}", [[
+                "igdrivsim", "train", "--profile", self.profile.name,
+                "--obs", ",".join(self.settings), "--method", method,
+                "--seeds", self.profile.seeds, "--data", train_manifest,
+                "--val-data", val_manifest, "--cache-dir", self.work / "cache",
+                "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
+                depends=["filter_training", "filter_validation"], outputs=[run / "DONE"])
+            names.append(method)
         return names
 
     def run_evaluate(self, names: list[str], val_manifest: Path) -> Path:
@@ -343,7 +342,7 @@ class Pipeline:
         self.check_work_folder()
         train, val = self.run_data()
         train_manifest, val_manifest = self.run_filter(train, val)
-        names = self.run_train(train_manifest)
+        names = self.run_train(train_manifest, val_manifest)
         evals = self.run_evaluate(names, val_manifest)
         self.run_maze()
         self.run_render(val)

@@ -20,7 +20,7 @@ invalid are masked out. Per scenario: ``max_log_divergence`` (max over steps), `
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -38,7 +38,13 @@ from igdrivsim.evaluation.schema import (
     PER_STEP_COLUMNS,
     REFERENCE_SETTING,
 )
-from igdrivsim.observation import ObservationConfig, get_setting, observe
+from igdrivsim.observation import (
+    ObservationConfig,
+    get_setting,
+    observe,
+    setting_params,
+    stack_params,
+)
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator import SimParams, reset, step
 from igdrivsim.simulator.dynamics import undiscretize
@@ -56,6 +62,8 @@ class StepOutputs:
     overlap: np.ndarray
     offroad: np.ndarray
     valid: np.ndarray
+
+    FIELDS = ("log_divergence", "overlap", "offroad", "valid")
 
 
 def default_metrics_fn() -> Callable:
@@ -141,14 +149,24 @@ def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_f
 
 @partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "greedy",
                                    "metrics_fn"))
-def _policy_batch(policy_params, scenarios, keys, *, policy_config, setting, obs_config, params,
-                  greedy, metrics_fn):
-    """``policy_params`` stacked over seeds ``[S]``; scenarios ``[B]``; keys ``[S, B]``."""
+def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
+                  obs_config, params, greedy, metrics_fn):
+    """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
+    ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
+    :class:`~igdrivsim.observation.ObservationParams` ``[G]`` (settings as data), or ``None``
+    with the static ``setting`` (``G = 1``). Outputs ``[G, S, B, steps]``."""
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
-    episode = partial(_policy_episode, policy_config=policy_config, setting=setting,
-                      obs_config=obs_config, params=params, greedy=greedy, metrics_fn=metrics_fn)
-    over_scenarios = jax.vmap(episode, in_axes=(None, 0, 0))
-    return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
+
+    def per_setting(policy_params, setting_value):
+        episode = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
+                          obs_config=obs_config, params=params, greedy=greedy,
+                          metrics_fn=metrics_fn)
+        over_scenarios = jax.vmap(episode, in_axes=(None, 0, 0))
+        return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
+
+    if settings is None:
+        return per_setting(jax.tree.map(lambda x: x[0], policy_params), setting)[None]
+    return jax.vmap(per_setting)(policy_params, settings)
 
 
 def _to_host(outs) -> StepOutputs:
@@ -202,34 +220,57 @@ def _episode_keys(base, num_seeds: int, index: np.ndarray):
         per_seed)
 
 
-def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig, setting: str,
+def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
+                    setting: str | Sequence[str],
                     obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
                     params: SimParams = DEFAULT_SIM_PARAMS, greedy: bool = False,
                     batch_size: int = 32,
                     seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
                     progress: Callable[[int], Any] | None = None) -> StepOutputs:
-    """Evaluate every seed of stacked ``policy_params [S]`` on scenarios ``[N]``.
+    """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
 
-    Returns metrics ``[S, N, steps]``. The key of scenario ``i`` and seed ``s`` is derived from
-    ``seed``, ``i`` and ``s`` only, so results do not depend on the batch size.
+    One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
+    names: ``policy_params [G, S]``, metrics ``[G, S, N, steps]``, every setting in one
+    compiled program (settings as data) when the settings allow it. The key of scenario ``i``
+    and seed ``s`` is derived from ``seed``, ``i`` and ``s`` only (the same for every
+    setting), so results do not depend on the batch size or on which settings run together.
     """
     metrics_fn = metrics_fn or default_metrics_fn()
-    setting_obj = get_setting(setting)
-    num_seeds = jax.tree.leaves(policy_params)[0].shape[0]
+    single = isinstance(setting, str)
+    names = [setting] if single else list(setting)
+    if single:
+        policy_params = jax.tree.map(lambda x: x[None], policy_params)
+    found = [setting_params(n) for n in names]
+    settings = None if any(p is None for p in found) else stack_params(found)
+    if settings is None and len(names) > 1:
+        groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
+                                  policy_config=policy_config, setting=n,
+                                  obs_config=obs_config, params=params, greedy=greedy,
+                                  batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
+                                  progress=progress) for g, n in enumerate(names)]
+        return StepOutputs(*(np.stack([getattr(o, f) for o in groups]) for f in
+                             ("log_divergence", "overlap", "offroad", "valid")))
+    static = get_setting(names[0]) if settings is None else None
+    num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     base = jax.random.key(seed)
     parts = []
     for start, stop, batch in _batches(scenarios, batch_size):
         size = jax.tree.leaves(batch)[0].shape[0]
         index = np.minimum(np.arange(start, start + size), stop - 1)
         keys = _episode_keys(base, num_seeds, index)
-        outs = _to_host(_policy_batch(policy_params, batch, keys, policy_config=policy_config,
-                                      setting=setting_obj, obs_config=obs_config, params=params,
-                                      greedy=greedy, metrics_fn=metrics_fn))
-        parts.append(StepOutputs(*(getattr(outs, f)[:, : stop - start] for f in
+        outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
+                                      policy_config=policy_config, setting=static,
+                                      obs_config=obs_config, params=params, greedy=greedy,
+                                      metrics_fn=metrics_fn))
+        parts.append(StepOutputs(*(getattr(outs, f)[:, :, : stop - start] for f in
                                    ("log_divergence", "overlap", "offroad", "valid"))))
         if progress:
             progress(stop - start)
-    return _concat(parts, axis=1)
+    out = _concat(parts, axis=2)
+    if single:
+        out = StepOutputs(*(getattr(out, f)[0] for f in
+                            ("log_divergence", "overlap", "offroad", "valid")))
+    return out
 
 
 # ----------------------------------------------------------------------------- tidy frames

@@ -37,11 +37,14 @@ from igdrivsim.observation.models import (
     FunctionModel,
     GaussianPositionNoise,
     ObservationModel,
+    ObservationParams,
     ObservationSetting,
     RandomMasking,
     apply_setting,
     get_setting,
     perceive_pose,
+    setting_params,
+    stack_params,
 )
 from igdrivsim.observation.observe import (
     observe,
@@ -56,7 +59,8 @@ __all__ = [
     "object_positions", "observe_arrays", "roadgraph_positions",
     "PRESET_TITLES", "PRESETS", "CircularFieldOfView", "ConicFieldOfView", "FullObservability",
     "FunctionModel", "GaussianPositionNoise", "ObservationModel", "ObservationSetting",
-    "RandomMasking", "apply_setting", "get_setting", "perceive_pose",
+    "RandomMasking", "apply_setting", "get_setting", "perceive_pose", "ObservationParams",
+    "setting_params", "stack_params",
     "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
     "CandidateConfig", "RoadCandidates", "init_candidates", "observe_batch_with_candidates",
 ]

@@ -58,7 +58,12 @@ from igdrivsim.observation.features import (
     rotate_to_frame,
     to_frame,
 )
-from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
+from igdrivsim.observation.models import (
+    ObservationParams,
+    Setting,
+    apply_setting,
+    perceive_pose,
+)
 from igdrivsim.observation.observe import sdc_pose
 
 
@@ -151,17 +156,20 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     return idx, points, jnp.sqrt(left)
 
 
-def _believed(states: Any, setting: ObservationSetting, episode_keys, step_keys):
+def _believed(states: Any, setting: Setting, episode_keys, step_keys):
     from igdrivsim.simulator import current_objects
 
     objects = current_objects(states)
     xy, yaw, speed = jax.vmap(sdc_pose)(objects, states.sdc_index)
-    bxy, byaw = jax.vmap(lambda p, a, e, s: perceive_pose(setting, p, a, e, s))(
-        xy, yaw, episode_keys, step_keys)
+    if isinstance(setting, ObservationParams):
+        bxy, byaw = jax.vmap(perceive_pose)(setting, xy, yaw, episode_keys, step_keys)
+    else:
+        bxy, byaw = jax.vmap(lambda p, a, e, s: perceive_pose(setting, p, a, e, s))(
+            xy, yaw, episode_keys, step_keys)
     return objects, bxy, byaw, speed
 
 
-def init_candidates(states: Any, setting: ObservationSetting, episode_keys: jax.Array,
+def init_candidates(states: Any, setting: Setting, episode_keys: jax.Array,
                     config: CandidateConfig = CandidateConfig(),
                     step_keys: jax.Array | None = None) -> RoadCandidates:
     """Select the candidates of a batch ``[B]`` of states (e.g. right after reset)."""
@@ -295,7 +303,7 @@ def _band_observation(bxy, byaw, speed, objects, sdc_index, c: RoadCandidates, b
 
 def observe_batch_with_candidates(
     states: Any,
-    setting: ObservationSetting,
+    setting: Setting,
     episode_keys: jax.Array,
     step_keys: jax.Array,
     candidates: RoadCandidates,
@@ -364,8 +372,11 @@ def observe_batch_with_candidates(
                                lambda _: after_reselect(reselect(candidates)), None), None)
     obs, sel = jax.vmap(lambda b, y, v, o, i, c, p: _band_observation(
         b, y, v, o, i, c, p, config))(bxy, byaw, speed, objects, states.sdc_index, candidates, pos)
-    obs = jax.vmap(lambda o, e, s: apply_setting(setting, o, e, s))(obs, episode_keys,
-                                                                       step_keys)
+    if isinstance(setting, ObservationParams):  # settings as data: one per example
+        obs = jax.vmap(apply_setting)(setting, obs, episode_keys, step_keys)
+    else:
+        obs = jax.vmap(lambda o, e, s: apply_setting(setting, o, e, s))(obs, episode_keys,
+                                                                           step_keys)
     if return_selection:
         return obs, candidates, sel
     return obs, candidates

@@ -39,6 +39,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import (
@@ -64,6 +65,12 @@ class ObservationModel:
         """The observation after this model's hiding; default: unchanged."""
         return obs
 
+    def fold_params(self, params: ObservationParams, index: int) -> ObservationParams | None:
+        """This model (the ``index``-th of its setting) folded into a setting-as-data
+        description, or ``None`` when it has no such form (then the setting is compiled as a
+        static program). Default: the identity."""
+        return params
+
 
 @dataclass(frozen=True)
 class FullObservability(ObservationModel):
@@ -82,6 +89,9 @@ class CircularFieldOfView(ObservationModel):
 
     def apply(self, obs, episode_key, step_key):
         return _hide_outside(obs, lambda xy: _within(xy, self.radius))
+
+    def fold_params(self, params, index):
+        return params.replace(fov_radius=min(params.fov_radius, self.radius))
 
 
 @dataclass(frozen=True)
@@ -106,6 +116,10 @@ class ConicFieldOfView(ObservationModel):
 
         return _hide_outside(obs, inside)
 
+    def fold_params(self, params, index):
+        return params.replace(fov_radius=min(params.fov_radius, self.radius),
+                              fov_half_angle=min(params.fov_half_angle, self.angle / 2))
+
 
 @dataclass(frozen=True)
 class GaussianPositionNoise(ObservationModel):
@@ -128,6 +142,11 @@ class GaussianPositionNoise(ObservationModel):
     def perceive_pose(self, sdc_xy, sdc_yaw, episode_key, step_key):
         return sdc_xy + self.offset(episode_key), sdc_yaw
 
+    def fold_params(self, params, index):
+        if params.noise_sigma > 0:  # two noise models: no single-offset form
+            return None
+        return params.replace(noise_sigma=self.sigma, noise_key=index)
+
 
 @dataclass(frozen=True)
 class RandomMasking(ObservationModel):
@@ -143,6 +162,11 @@ class RandomMasking(ObservationModel):
         hidden = jax.random.bernoulli(step_key, self.p, obs.objects_valid.shape)
         return hide_objects(obs, ~hidden)
 
+    def fold_params(self, params, index):
+        if params.mask_p > 0:
+            return None
+        return params.replace(mask_p=self.p, mask_key=index)
+
 
 @dataclass(frozen=True)
 class FunctionModel(ObservationModel):
@@ -155,6 +179,9 @@ class FunctionModel(ObservationModel):
 
     def apply(self, obs, episode_key, step_key):
         return self.fn(obs, episode_key, step_key)
+
+    def fold_params(self, params, index):
+        return None
 
 
 def _within(xy: jax.Array, radius: float) -> jax.Array:
@@ -184,22 +211,87 @@ class ObservationSetting:
         return {"name": self.name, "models": [one(m) for m in self.models]}
 
 
+@struct.dataclass
+class ObservationParams:
+    """A setting as data: the built-in models' parameters in one pytree of scalars.
+
+    Settings that differ only by these numbers share one compiled program (stack them and
+    ``vmap``; training and evaluation run every setting of a method together this way). The
+    draws equal the static setting's: the noise offset and the masking use the keys of the
+    models' positions ``noise_key`` / ``mask_key`` in the setting. Neutral values: ``noise_sigma
+    = 0``, ``fov_radius = inf``, ``fov_half_angle = inf``, ``mask_p = 0``.
+    """
+
+    noise_sigma: Any = 0.0
+    fov_radius: Any = math.inf
+    fov_half_angle: Any = math.inf
+    mask_p: Any = 0.0
+    noise_key: Any = 0
+    mask_key: Any = 0
+
+    def as_arrays(self) -> ObservationParams:
+        f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+        i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
+        return ObservationParams(f32(self.noise_sigma), f32(self.fov_radius),
+                                 f32(self.fov_half_angle), f32(self.mask_p),
+                                 i32(self.noise_key), i32(self.mask_key))
+
+
+def setting_params(setting: ObservationSetting | str) -> ObservationParams | None:
+    """``setting`` as :class:`ObservationParams`, or ``None`` when one of its models has no
+    such form (a :class:`FunctionModel`, two noise or two masking models)."""
+    params: ObservationParams | None = ObservationParams()
+    for i, m in enumerate(get_setting(setting).models):
+        params = m.fold_params(params, i)
+        if params is None:
+            return None
+    return params.as_arrays()
+
+
+def stack_params(settings: list[ObservationParams]) -> ObservationParams:
+    """Stack per-setting parameters on a leading axis (for ``vmap``)."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *settings)
+
+
+def _params_pose(p: ObservationParams, sdc_xy, sdc_yaw, episode_key, step_key):
+    noise = jax.random.normal(jax.random.fold_in(episode_key, p.noise_key), (2,), jnp.float32)
+    return sdc_xy + p.noise_sigma * noise, sdc_yaw
+
+
+def _params_apply(p: ObservationParams, obs: Observation, episode_key, step_key) -> Observation:
+    def inside(xy):
+        bearing = jnp.abs(jnp.arctan2(xy[..., 1], xy[..., 0]))
+        return (jnp.sum(xy**2, axis=-1) <= p.fov_radius**2) & (bearing <= p.fov_half_angle)
+
+    obs = _hide_outside(obs, inside)
+    key = jax.random.fold_in(step_key, p.mask_key)
+    hidden = jax.random.bernoulli(key, p.mask_p, obs.objects_valid.shape)
+    return hide_objects(obs, ~hidden)
+
+
+Setting = ObservationSetting | ObservationParams
+
+
 def _model_keys(key: jax.Array, i: int) -> jax.Array:
     return jax.random.fold_in(key, i)
 
 
-def perceive_pose(setting: ObservationSetting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
+def perceive_pose(setting: Setting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
                   episode_key: jax.Array, step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The ego's believed pose under ``setting`` (stage 1 of the pipeline)."""
+    if isinstance(setting, ObservationParams):
+        return _params_pose(setting, sdc_xy, sdc_yaw, episode_key, step_key)
     for i, m in enumerate(setting.models):
         sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, _model_keys(episode_key, i),
                                           _model_keys(step_key, i))
     return sdc_xy, sdc_yaw
 
 
-def apply_setting(setting: ObservationSetting, obs: Observation, episode_key: jax.Array,
+def apply_setting(setting: Setting, obs: Observation, episode_key: jax.Array,
                   step_key: jax.Array) -> Observation:
     """The hiding of every model of ``setting``, in order (stage 2 of the pipeline)."""
+    if isinstance(setting, ObservationParams):
+        return _params_apply(setting, obs, episode_key, step_key)
     for i, m in enumerate(setting.models):
         obs = m.apply(obs, _model_keys(episode_key, i), _model_keys(step_key, i))
     return obs

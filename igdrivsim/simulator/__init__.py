@@ -30,7 +30,7 @@ from igdrivsim.simulator.metrics import (
     scenario_metrics,
     step_metrics,
 )
-from igdrivsim.simulator.roadgraph import RoadEdges, crop_roadgraph
+from igdrivsim.simulator.roadgraph import RoadEdges, select_road_edges
 from igdrivsim.simulator.rollout import (
     ACTORS,
     constant_velocity_actor,
@@ -59,7 +59,7 @@ __all__ = [
     "mean_log_divergence", "offroad", "overlap", "reward", "rollout", "scenario_metrics",
     "step_metrics", "check_scenario", "log_metrics", "with_logged_sdc",
     "ACTION_HIGH", "ACTION_LOW", "NUM_BINS", "NUM_LEVELS", "ObjectState", "RoadEdges",
-    "SdcTrajectory", "SimParams", "SimState", "clip_action", "crop_roadgraph", "current_objects",
+    "SdcTrajectory", "SimParams", "SimState", "clip_action", "select_road_edges", "current_objects",
     "delta_global", "delta_local", "discretize", "inverse_delta_global", "inverse_delta_local",
     "reset", "sdc_pose", "simulated_trajectory", "step", "undiscretize", "validate_actions",
 ]

@@ -1,16 +1,14 @@
 """``igdrivsim bench sim``: scenario-steps/s of reset + 80 steps with observation and metrics.
 
-Three implementations of the same episode are timed in the same run, on the same batch:
+Two implementations of the same episode are timed in the same run, on the same batch:
 
-* **naive** (a port of Waymax's approach): no crop. Every step selects the 1,500 nearest points
-  with a top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the
-  distance from the SDC box corners to every roadgraph point (non-edges masked).
-* **crop**: :func:`igdrivsim.simulator.reset` crops the roadgraph once per scenario around the
-  logged SDC path (6,144 points) and keeps road edges in their own small array (1,024); the
-  observation's top-k runs over the cropped roadgraph.
-* **fast** (``observe`` elsewhere uses the crop path): crop + the observation from 3,000 cached
-  candidate points stored nearest-first; a step re-ranks only the 512 around the N-th and checks
-  that the result is exact, repairing the stored order when not
+* **naive** (a port of Waymax's approach): every step selects the 1,500 nearest points with a
+  top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the distance
+  from the SDC box corners to every roadgraph point (non-edges masked).
+* **fast** (what closed-loop training and evaluation rollouts use): road edges near the logged
+  path in their own small array (1,024), and the observation from 3,000 cached candidate points
+  stored nearest-first; a step re-ranks only the 512 around the N-th and checks that the result
+  is exact, repairing the stored order (or re-selecting from the whole roadgraph) when not
   (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
   (roadgraph slots in the stored, roughly nearest-first, order).
 
@@ -60,15 +58,12 @@ DEFAULT_PARAMS = SimParams()
 
 
 def naive_reset(scenario: Any, params: SimParams = DEFAULT_PARAMS) -> SimState:
-    """Reset WITHOUT the crop: the state keeps every roadgraph point, and every roadgraph slot
-    is a road-edge candidate (non-edges masked), as a direct Waymax port would."""
+    """Reset where every roadgraph slot is a road-edge candidate (non-edges masked), as a
+    direct Waymax port would."""
     sc = jax.tree.map(jnp.asarray, scenario)
-    rg = sc.roadgraph
-    one_point = rg.replace(xyz=rg.xyz[..., :1, :], dir=rg.dir[..., :1, :], type=rg.type[..., :1],
-                           id=rg.id[..., :1], valid=rg.valid[..., :1])
-    tiny = SimParams(dynamics=params.dynamics, roadgraph_capacity=1, edge_capacity=1,
+    tiny = SimParams(dynamics=params.dynamics, edge_capacity=1,
                      offroad_method=params.offroad_method)
-    state = reset(sc.replace(roadgraph=one_point), tiny)
+    state = reset(sc, tiny)
     edges = road_edges_from_roadgraph
     for _ in range(np.ndim(state.timestep)):
         edges = jax.vmap(edges)
@@ -80,7 +75,7 @@ def _checksum(obs) -> jax.Array:
             + obs.sdc_speed[..., 0])
 
 
-IMPLS = ("naive", "crop", "fast")
+IMPLS = ("naive", "fast")
 
 
 def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: str = "full",
@@ -88,8 +83,8 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: 
             cand_config: CandidateConfig | None = None, collect: bool = False):
     """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
 
-    ``impl``: ``"naive"`` (no crop), ``"crop"`` (crop at reset, plain per-step top-k over the
-    cropped roadgraph) or ``"fast"`` (crop + cached candidates).
+    ``impl``: ``"naive"`` (per-step top-k over the whole roadgraph, offroad against every
+    point) or ``"fast"`` (road-edge array + cached candidates).
 
     Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B],
     candidate re-sorts [B])`` (both 0 unless ``"fast"``); with ``collect`` also the per-step

@@ -105,8 +105,6 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
                         help="expert: the discretised expert; constant_velocity: a baseline")
     parser.add_argument("--offroad", choices=["point", "segment"], default="point",
                         help="offroad rule: Waymax's nearest point (default) or edge segments")
-    parser.add_argument("--crop-radius", type=float, default=SimParams.crop_radius,
-                        help="roadgraph crop radius around the logged SDC path (m)")
     parser.add_argument("--json", action="store_true", help="JSON lines only (no summary)")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="also write replay.jsonl, summary.json and config.json here")
@@ -129,7 +127,7 @@ def replay_command(args: argparse.Namespace) -> int:
 
     if args.limit is not None and args.limit < 1:
         raise ConfigError(f"--limit must be positive, got {args.limit}")
-    params = SimParams(offroad_method=args.offroad, crop_radius=args.crop_radius)
+    params = SimParams(offroad_method=args.offroad)
     run = replay_fn(args.actor, params)
     key = jax.random.key(args.seed)
     records, t0 = [], time.perf_counter()

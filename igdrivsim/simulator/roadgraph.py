@@ -1,12 +1,11 @@
-"""Roadgraph crop (once per scenario, at reset) and the separate road-edge array.
+"""The road-edge array of the offroad metric, selected once per scenario at reset.
 
-Why: a WOMD scenario carries 20,000 roadgraph points, most of them far from anything the SDC can
-reach in 8 s. Selecting nearest points and testing road edges against all of them at every step
-dominates the cost of a naive simulator. Instead :func:`crop_roadgraph` keeps, once per scenario,
-the points within ``radius`` of the *logged* SDC path (fixed output capacity; when more points
-qualify, the nearest to the path are kept; padding is invalid; the original point order, hence
-polyline order, is preserved). Road edges (types 15, 16) get their own small :class:`RoadEdges`
-array, with what the segment-based offroad distance needs precomputed.
+Why: testing the SDC's corners against all 20,000 roadgraph points of a WOMD scenario at every
+step dominates the cost of a naive simulator. :func:`select_road_edges` keeps, once per
+scenario, the road-edge points (types 15, 16) near the logged SDC path in a small
+:class:`RoadEdges` array, with what the segment-based offroad distance needs precomputed. This
+is the metric's scope only: the policy's observation reads the whole roadgraph (a selection
+along the logged future would tell an imitator where the expert goes).
 
 Selection uses a bisection on the distance threshold plus ``jnp.nonzero(size=...)`` (linear in
 the number of points) rather than a top-k/sort over all points.
@@ -128,28 +127,23 @@ def subsample_path(path_xy, path_valid, stride: int):
     return jnp.asarray(path_xy)[pick], jnp.broadcast_to(n > 0, pick.shape)
 
 
-def crop_roadgraph(rg: Roadgraph, path_xy, path_valid, *, radius: float, capacity: int,
-                   edge_radius: float, edge_capacity: int, path_stride: int = 1
-                   ) -> tuple[Roadgraph, RoadEdges]:
-    """Crop one (unbatched) roadgraph around a path; see the module docstring.
+def select_road_edges(rg: Roadgraph, path_xy, path_valid, *, edge_radius: float,
+                      edge_capacity: int, path_stride: int = 1) -> RoadEdges:
+    """The road-edge points (types 15, 16) of one (unbatched) roadgraph within ``edge_radius``
+    of a path, for the offroad metric (nearest to the path kept when over ``edge_capacity``).
 
     ``path_xy [T, 2]``/``path_valid [T]``: the logged SDC positions (distances are measured to
-    every ``path_stride``-th valid one, see :func:`subsample_path`). Returns the cropped
-    :class:`Roadgraph` ``[capacity]`` and the :class:`RoadEdges` ``[edge_capacity]``.
+    every ``path_stride``-th valid one, see :func:`subsample_path`). This is the metric's
+    scope, not the policy's: the observation reads the whole roadgraph.
     """
     rg = jax.tree.map(jnp.asarray, rg)
     xy = rg.xyz[:, :2]
     d2 = path_distance_sq(xy, *subsample_path(path_xy, path_valid, path_stride))
-    idx, valid = select_nearest(d2, rg.valid, radius, capacity)
-    cropped = jax.tree.map(lambda a: a[idx], rg)
-    cropped = cropped.replace(valid=valid & cropped.valid)
-
     is_edge = rg.valid & jnp.isin(rg.type, jnp.asarray(RG_ROAD_EDGE_TYPES))
     eidx, evalid = select_nearest(d2, is_edge, edge_radius, edge_capacity)
     next_xy, bis_start, bis_end = _segment_geometry(rg, eidx)
-    edges = RoadEdges(xy=xy[eidx], dir=rg.dir[eidx, :2], next_xy=next_xy, bis_start=bis_start,
-                      bis_end=bis_end, valid=evalid)
-    return cropped, edges
+    return RoadEdges(xy=xy[eidx], dir=rg.dir[eidx, :2], next_xy=next_xy, bis_start=bis_start,
+                     bis_end=bis_end, valid=evalid)
 
 
 def road_edges_from_roadgraph(rg: Roadgraph) -> RoadEdges:

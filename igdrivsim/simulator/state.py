@@ -1,20 +1,20 @@
 """Simulator state and the pure ``reset`` / ``step`` transitions (Waymax conventions).
 
 Only the SDC is controlled; every other object replays its log, and its validity follows the
-log. ``reset`` returns the state at timestep 10 (steps 0..10 replayed from the log) and crops the
-roadgraph once (see :mod:`igdrivsim.simulator.roadgraph`). ``step`` advances the SDC by one
-action. All functions broadcast over leading batch dimensions ``...`` and also ``jit``/``vmap``;
-pass :class:`SimParams` as a static argument.
+log. ``reset`` returns the state at timestep 10 (steps 0..10 replayed from the log) and selects
+the offroad metric's road edges once (see :mod:`igdrivsim.simulator.roadgraph`). ``step``
+advances the SDC by one action. All functions broadcast over leading batch dimensions ``...``
+and also ``jit``/``vmap``; pass :class:`SimParams` as a static argument.
 
 SimState fields (all JAX arrays, leading batch dims ``...``):
 
 - ``log``: :class:`~igdrivsim.data.scenario.Trajectory` ``[..., O, T]``, the logged states
   (T = 91). Other objects at step ``t`` are ``log.*[..., :, t]``.
 - ``metadata``: :class:`~igdrivsim.data.scenario.ObjectMetadata` ``[..., O]``.
-- ``roadgraph``: :class:`~igdrivsim.data.scenario.Roadgraph` ``[..., C]`` (C =
-  ``SimParams.roadgraph_capacity``), cropped around the logged SDC path; padding invalid.
+- ``roadgraph``: :class:`~igdrivsim.data.scenario.Roadgraph` ``[..., R]``, the scenario's whole
+  roadgraph (the observation selects its nearest points at every step).
 - ``road_edges``: :class:`~igdrivsim.simulator.roadgraph.RoadEdges` ``[..., E]``: the road-edge
-  points (types 15, 16) near the SDC path, for the offroad metric.
+  points (types 15, 16) near the logged SDC path, for the offroad metric only.
 - ``traffic_lights``: :class:`~igdrivsim.data.scenario.TrafficLights` ``[..., L, T]``.
 - ``scenario_id``: ``uint8[..., 32]``.
 - ``sdc``: :class:`SdcTrajectory` ``[..., T]``, the *simulated* SDC (equal to the log for
@@ -47,21 +47,18 @@ from igdrivsim.data.scenario import (
 )
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.simulator import dynamics
-from igdrivsim.simulator.roadgraph import RoadEdges, crop_roadgraph
+from igdrivsim.simulator.roadgraph import RoadEdges, select_road_edges
 
 
 @dataclass(frozen=True)
 class SimParams:
     """Simulator settings (hashable: pass as a static ``jit`` argument).
 
-    ``crop_radius``: roadgraph points farther than this (m) from every logged SDC position are
-    dropped at reset. It must cover the observation's reach (the 1,500 nearest points span about
-    40-60 m on WOMD) plus the policy's plausible divergence from the log (Table I: max ~14 m).
-    ``roadgraph_capacity``: fixed number of kept points (the nearest to the path win).
-    ``edge_radius`` / ``edge_capacity``: the same for the road-edge array of the offroad metric.
-    ``crop_path_stride``: the crop measures distances to every 5th logged SDC position (plus
-    the last), 5x cheaper than all 91; the radius is then exact to within half the distance
-    travelled in 0.5 s.
+    ``edge_radius`` / ``edge_capacity``: the road-edge points of the offroad metric are those
+    within ``edge_radius`` m of the logged SDC path (the nearest ``edge_capacity`` kept).
+    ``crop_path_stride``: that selection measures distances to every 5th logged SDC position
+    (plus the last), 5x cheaper than all 91; the radius is then exact to within half the
+    distance travelled in 0.5 s.
     ``offroad_method``: ``"point"`` (Waymax's nearest-point rule, the default for comparability)
     or ``"segment"`` (distance to edge segments, vertex bisectors for the sign; no false offroad
     at convex corners of closed edge loops).
@@ -69,8 +66,6 @@ class SimParams:
 
     dynamics: str = "delta_local"
     num_controlled_steps: int = NUM_STEPS - 1 - CURRENT_INDEX  # 80
-    crop_radius: float = 80.0
-    roadgraph_capacity: int = 6144
     edge_radius: float = 40.0
     edge_capacity: int = 1024
     offroad_method: str = "point"
@@ -86,8 +81,7 @@ class SimParams:
         if not 1 <= self.num_controlled_steps <= NUM_STEPS - 1 - CURRENT_INDEX:
             raise ConfigError("SimParams.num_controlled_steps must be in 1..80, "
                               f"got {self.num_controlled_steps}")
-        for name in ("crop_radius", "edge_radius", "roadgraph_capacity", "edge_capacity",
-                     "crop_path_stride"):
+        for name in ("edge_radius", "edge_capacity", "crop_path_stride"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SimParams.{name} must be positive, got {getattr(self, name)}")
 
@@ -182,7 +176,7 @@ def check_scenario(scenario: Scenario) -> None:
 
 
 def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
-    """The state at timestep 10 (warm-up replayed from the log) with the roadgraph cropped.
+    """The state at timestep 10 (warm-up replayed from the log) and the metric's road edges.
 
     Concrete (host) inputs are checked with :func:`check_scenario` first; under ``jit`` a
     scenario without an SDC uses slot 0 and an invalid SDC yields invalid metrics.
@@ -195,13 +189,12 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
     path_x, path_y = _row(traj.x, sdc_index), _row(traj.y, sdc_index)
     path_valid = _row(traj.valid, sdc_index)
 
-    def crop(rg, px, py, pv):
-        return crop_roadgraph(
-            rg, jnp.stack([px, py], -1), pv, radius=params.crop_radius,
-            capacity=params.roadgraph_capacity, edge_radius=params.edge_radius,
+    def edges(rg, px, py, pv):
+        return select_road_edges(
+            rg, jnp.stack([px, py], -1), pv, edge_radius=params.edge_radius,
             edge_capacity=params.edge_capacity, path_stride=params.crop_path_stride)
 
-    roadgraph, edges = _vmap_batch(crop, sdc_index.ndim)(sc.roadgraph, path_x, path_y, path_valid)
+    road_edges = _vmap_batch(edges, sdc_index.ndim)(sc.roadgraph, path_x, path_y, path_valid)
     t = jnp.arange(traj.x.shape[-1])
     past = t <= CURRENT_INDEX
     sdc = SdcTrajectory(
@@ -209,7 +202,7 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
         vel_y=_row(traj.vel_y, sdc_index), valid=path_valid & past,
     )
     return SimState(
-        log=traj, metadata=sc.metadata, roadgraph=roadgraph, road_edges=edges,
+        log=traj, metadata=sc.metadata, roadgraph=sc.roadgraph, road_edges=road_edges,
         traffic_lights=sc.traffic_lights, scenario_id=sc.scenario_id, sdc=sdc,
         sdc_index=sdc_index, timestep=jnp.full(sdc_index.shape, CURRENT_INDEX, jnp.int32),
     )

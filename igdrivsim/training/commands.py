@@ -1,7 +1,8 @@
-"""``igdrivsim train``: train BC / BC-RL policies (all seeds of one setting in one program).
+"""``igdrivsim train``: train BC / BC-RL policies (settings and seeds in one program).
 
 Example: ``igdrivsim train --profile laptop --obs circular_r4 --method bc_rl --seeds 3
---data DATA/train --out runs/circular_r4-bc_rl [--resume] [--set training.lr=3e-4]``.
+--data DATA/train --out runs/circular_r4-bc_rl [--resume] [--set training.lr=3e-4]``;
+``--obs full,circular_r4,...`` trains several settings together into one run folder.
 A complete run is recognised and left alone (exit 0), so pipelines can re-run the command.
 Several hosts: set ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``
 on each and run the same command; the batch is split over all hosts' devices.
@@ -27,6 +28,13 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True,
                         help="training data: a folder (with a filter manifest.jsonl, or TFRecords)")
     parser.add_argument("--out", required=True, help="run folder")
+    parser.add_argument("--val-data", default=None, metavar="DIR",
+                        help="validation data for the learning curves (curves.jsonl): "
+                             "closed-loop metrics every training.eval_every updates "
+                             "(default: none)")
+    parser.add_argument("--cache-dir", default=None, metavar="DIR",
+                        help="cache of the teacher-forced observations, shared by runs on "
+                             "the same data (default: DATA/../cache when DATA is a folder)")
     parser.add_argument("--resume", action="store_true", help="continue an unfinished run")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="SECTION.FIELD=VALUE", help="override a config field (repeatable)")
@@ -48,7 +56,8 @@ def resolve_config(args: argparse.Namespace):
     config = with_overrides(config, shortcuts + list(args.overrides))
     from igdrivsim.observation import get_setting
 
-    get_setting(config.observation.setting)  # fail early on an unknown setting
+    for name in config.observation.setting.split(","):
+        get_setting(name)  # fail early on an unknown setting
     return config.validate()
 
 
@@ -72,8 +81,11 @@ def train_command(args: argparse.Namespace) -> int:
     maybe_init_distributed()
     from igdrivsim.training.loop import train
 
+    cache = args.cache_dir
+    if cache is None and os.path.isdir(args.data):
+        cache = os.path.join(os.path.dirname(os.path.abspath(args.data)), "cache")
     result = train(config, args.data, args.out, resume=args.resume, stop_after=args.stop_after,
-                   progress=not args.no_progress)
+                   progress=not args.no_progress, val_data=args.val_data, cache_dir=cache)
     if result.complete and result.updates_done >= 0:
         print(f"trained {result.num_updates} updates in {result.seconds:.1f} s -> {args.out}")
     elif not result.complete:

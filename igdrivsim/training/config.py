@@ -27,16 +27,14 @@ class DataConfig:
     batch_size: int = 256  # scenarios per update (per seed, over all devices and hosts)
     max_scenarios: int = 0  # use at most this many scenarios (0: all)
     max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
-    max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (near the SDC path)
-    crop_radius: float = 80.0  # metres around the logged SDC path for the crop at reset
-    roadgraph_capacity: int = 6144  # roadgraph points the simulator keeps after that crop
+    max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (nearest first)
     prefetch: int = 2  # batches prepared ahead by the background thread
-    cache_dir: str = ""  # where decoded+cropped scenarios are cached as .npz ('' = no cache)
 
 
 @dataclass(frozen=True)
 class ObsConfig:
-    """The imitator's observation: a preset name (or 'a+b') and the observation capacities."""
+    """The imitator's observation: a preset name (``a+b`` composes models), or several
+    settings trained together as ``a,b,c``, and the observation capacities."""
 
     setting: str = "full"
     num_objects: int = 32
@@ -62,9 +60,11 @@ class TrainConfig:
     clip_eps: float = 0.2
     ent_coef: float = 0.01
     vf_coef: float = 0.5
-    ppo_epochs: int = 4  # gradient passes over each batch
+    ppo_epochs: int = 4  # gradient passes over each batch (BC and PPO alike)
     ppo_minibatches: int = 4  # minibatches (of scenarios) per pass
     log_every: int = 10
+    eval_every: int = 0  # closed-loop validation every N updates (0: never; needs val data)
+    val_scenarios: int = 32  # the fixed validation subset of the learning curves
     checkpoint_every: int = 100
     max_checkpoints: int = 2
 
@@ -95,6 +95,15 @@ class RunConfig:
             raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
             raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
+        from igdrivsim.observation import get_setting, setting_params
+
+        names = [s.strip() for s in self.observation.setting.split(",") if s.strip()]
+        if not names or len(set(names)) != len(names):
+            raise ConfigError("observation.setting must name distinct settings, got "
+                              f"{self.observation.setting!r}")
+        if len(names) > 1 and any(setting_params(get_setting(n)) is None for n in names):
+            raise ConfigError("settings trained together must be expressible as data "
+                              "(ObservationParams); train a custom setting on its own")
         return self
 
 
@@ -117,18 +126,19 @@ def smoke() -> RunConfig:
 
 
 def laptop() -> RunConfig:
-    """Scaled-down but honest: a few minutes per (setting, method) with 3 seeds on 2 CPU cores."""
+    """Scaled-down but honest: every setting and seed of a method in one program on 2 CPU
+    cores; each batch of teacher-forced episodes is reused for several gradient steps."""
     return RunConfig(
         profile="laptop",
         policy=PolicyConfig(object_hidden=(32, 32), point_hidden=(16,),
                             roadgraph_hidden=(32,), trunk_hidden=(128,), gru_hidden=128,
                             actor_hidden=(128,), value_hidden=(64,)),
         data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
-                        max_roadgraph_points=20_000, crop_radius=40.0, roadgraph_capacity=2048,
-                        prefetch=2),
-        observation=ObsConfig(num_objects=16, num_roadgraph_points=256),
-        training=TrainConfig(seeds=3, num_updates=100, lr=3e-3, ppo_epochs=1,
-                             ppo_minibatches=2, log_every=5, checkpoint_every=40),
+                        max_roadgraph_points=10_240, prefetch=2),
+        observation=ObsConfig(num_objects=16, num_roadgraph_points=128),
+        training=TrainConfig(seeds=3, num_updates=60, lr=1e-3, ppo_epochs=4,
+                             ppo_minibatches=4, log_every=5, eval_every=20, val_scenarios=32,
+                             checkpoint_every=20),
     )
 
 

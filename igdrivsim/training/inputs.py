@@ -1,9 +1,10 @@
-"""The training input pipeline: load once, reset once, cache in memory, shuffle, prefetch.
+"""The training input pipeline: load once, reset once, record once, shuffle, prefetch.
 
 Scenarios come from a filter manifest (``manifest.jsonl`` in the data folder, kept rows) or,
 without one, from every TFRecord file of the folder. Each is fitted to the profile's capacities
-while decoding, then ``reset`` (warm-up replay + roadgraph crop) ONCE, and the resulting
-:class:`SimState` s are stacked in host memory (NumPy). A batch is then a gather.
+while decoding, then ``reset`` ONCE; the teacher-forced records of BC
+(:mod:`igdrivsim.training.teacher`) are computed from those states, or read from the on-disk
+cache, and kept in host memory (NumPy) with the states (BC-RL only). A batch is then a gather.
 
 Order: seed ``s`` walks through the data in epochs, each a permutation drawn from
 ``numpy.random.default_rng([seed, epoch])``; the batch of update ``u`` is positions
@@ -21,14 +22,15 @@ import threading
 from collections.abc import Iterator, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.observation import ObservationConfig
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
+from igdrivsim.training.teacher import TeacherSteps
 
 MANIFEST = "manifest.jsonl"
 
@@ -81,8 +83,7 @@ def reset_chunk(scenarios: Sequence[Scenario], params: SimParams, size: int) -> 
 
 
 def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False) -> SimState:
-    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
-    Decoded scenarios (full roadgraph) are dropped once reset (cropped along the SDC path)."""
+    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``."""
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -137,37 +138,71 @@ def place(tree, sharding: NamedSharding):
 
 
 class Dataset:
-    """Reset states of all training scenarios in host memory, and the batch sampler."""
+    """Teacher-forced records (and, for BC-RL, reset states) of all training scenarios in host
+    memory, and the batch sampler."""
 
-    def __init__(self, states: SimState, batch_size: int, seeds: Sequence[int]):
+    def __init__(self, teacher: TeacherSteps, states: SimState | None, batch_size: int,
+                 seeds: Sequence[int]):
+        self.teacher = teacher
         self.states = states
-        self.num = int(np.shape(states.timestep)[0])
+        self.num = int(np.shape(teacher.sdc_yaw)[0])
         self.batch_size = batch_size
         self.seeds = [int(s) for s in seeds]
 
     @classmethod
     def from_config(cls, config: RunConfig, data, params: SimParams, progress: bool = False,
-                    chunk: int = 64) -> Dataset:
-        """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``."""
+                    chunk: int = 64, cache_dir: str | None = None, need_states: bool = False,
+                    max_scenarios: int | None = None) -> Dataset:
+        """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``;
+        the teacher-forced records come from ``cache_dir`` when they were computed before."""
+        from igdrivsim.training.teacher import (
+            cache_key,
+            compute_teacher,
+            data_identity,
+            load_or_compute,
+            superset_config,
+        )
+
         d, t = config.data, config.training
-        if isinstance(data, (str, os.PathLike)):
-            if not os.path.exists(data):
-                raise DataError("training data not found", file=os.fspath(data))
-            chunks = iter_scenarios(data, capacities(config), d.max_scenarios, chunk)
-        else:
-            scenarios = list(data)[: d.max_scenarios or None]
-            chunks = (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+        limit = d.max_scenarios if max_scenarios is None else max_scenarios
+
+        def chunks():
+            if isinstance(data, (str, os.PathLike)):
+                if not os.path.exists(data):
+                    raise DataError("training data not found", file=os.fspath(data))
+                return iter_scenarios(data, capacities(config), limit, chunk)
+            scenarios = list(data)[: limit or None]
+            return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+
+        states = None
+        rec = superset_config(ObservationConfig(config.observation.num_objects,
+                                                config.observation.num_roadgraph_points),
+                              d.max_objects)
+
+        def compute():
+            nonlocal states
+            states = reset_all(chunks(), params, chunk, progress)
+            return compute_teacher(states, params, rec, progress=progress)
+
+        key = None
+        if cache_dir and isinstance(data, (str, os.PathLike)):
+            key = cache_key(data_identity(data), caps=capacities(config), rec=rec, sim=params,
+                            limit=limit)
+        teacher = load_or_compute(cache_dir if key else None, key or "", compute)
+        if need_states and states is None:
+            states = reset_all(chunks(), params, chunk, progress)
         seeds = range(t.seed_offset, t.seed_offset + t.seeds)
-        return cls(reset_all(chunks, params, chunk, progress), d.batch_size, seeds)
+        return cls(teacher, states if need_states else None, d.batch_size, seeds)
 
-    def host_batch(self, update: int) -> SimState:
-        """``SimState [S, B]`` on the host for update ``update``."""
-        idx = np.stack([batch_indices(self.num, self.batch_size, s, update) for s in self.seeds])
-        return jax.tree.map(lambda x: x[idx], self.states)
+    def indices(self, update: int) -> np.ndarray:
+        """Scenario indices ``[S, B]`` of update ``update``."""
+        return np.stack([batch_indices(self.num, self.batch_size, s, update) for s in self.seeds])
 
-    def example(self) -> SimState:
-        """One unbatched state (for shapes)."""
-        return jax.tree.map(lambda x: jnp.asarray(x[0]), self.states)
+    def host_batch(self, update: int):
+        """``(teacher [S, B], states [S, B] or None)`` on the host for update ``update``."""
+        idx = self.indices(update)
+        take = lambda tree: jax.tree.map(lambda x: x[idx], tree)  # noqa: E731
+        return take(self.teacher), (None if self.states is None else take(self.states))
 
 
 def prefetch(dataset: Dataset, updates: range, sharding: NamedSharding, depth: int = 2

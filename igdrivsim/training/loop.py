@@ -1,19 +1,27 @@
 """The training driver: config.json, data, parameters, the update loop, metrics, checkpoints.
 
-``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run of
-``config.training.seeds`` seeds. Layout of ``out_dir``:
+``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run: every
+setting of ``config.observation.setting`` (a comma list; settings as data, one compiled
+program) x ``config.training.seeds`` seeds. Layout of ``out_dir``:
 
 - ``config.json``: the resolved :class:`RunConfig` (plus ``num_updates`` and the device count);
 - ``metrics.jsonl``: one line per logged update (``update`` = updates done, ``bc_loss``, ``lr``,
-  ``entropy``, ``grad_norm``, ``updates_per_s``, ``scenario_steps_per_s``; BC-RL adds
-  ``mean_return``, ``ppo_loss``, ``value_loss``, ``clip_frac``, ``ratio_dev``); each metric is
-  the mean over seeds, and ``<metric>_seeds`` lists the per-seed values;
+  ``entropy``, ``grad_norm``, ``updates_per_s``, ``scenario_steps_per_s``,
+  ``grad_steps_per_s``; BC-RL adds ``mean_return``, ``ppo_loss``, ``value_loss``,
+  ``clip_frac``, ``ratio_dev``); each metric is the mean over settings and seeds, and
+  ``<metric>_seeds`` lists the per-seed values (mean over settings);
+- ``curves.jsonl``: learning curves, one line per (update, setting, seed): the training
+  ``bc_loss`` at every logged update and, every ``training.eval_every`` updates when
+  validation data is given, ``val_bc_loss`` (teacher-forced, fixed validation subset) and the
+  closed-loop ``log_divergence`` (m), ``offroad`` and ``overlap`` (fractions of steps) of the
+  policy driving that subset (sampled actions);
 - ``checkpoints/<updates done>/`` (orbax), every ``checkpoint_every`` updates and at the end;
 - ``DONE``: written when the last checkpoint is saved.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -22,6 +30,7 @@ import time
 from dataclasses import dataclass
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.errors import ConfigError
@@ -31,9 +40,18 @@ from igdrivsim.policy.network import count_params, init_params_per_seed
 from igdrivsim.training import inputs
 from igdrivsim.training.checkpoint import Checkpoints
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
-from igdrivsim.training.update import UpdateSpec, cosine_lr, make_update, optimizer, update_spec
+from igdrivsim.training.update import (
+    UpdateSpec,
+    cosine_lr,
+    make_update,
+    make_validation_loss,
+    optimizer,
+    run_settings,
+    settings_as_data,
+    update_spec,
+)
 
-CONFIG, METRICS, DONE = "config.json", "metrics.jsonl", "DONE"
+CONFIG, METRICS, CURVES, DONE = "config.json", "metrics.jsonl", "curves.jsonl", "DONE"
 _UPDATE_CACHE: dict[UpdateSpec, object] = {}
 
 
@@ -59,11 +77,14 @@ def seed_keys(config: RunConfig) -> jax.Array:
 
 
 def init_state(config: RunConfig, spec: UpdateSpec):
-    """Parameters and optimiser state for every seed (stacked on axis 0)."""
+    """Parameters and optimiser state ``[G, S]`` for every setting and seed; a seed starts
+    from the same parameters in every setting (the settings' comparison is paired)."""
     keys = seed_keys(config)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(keys)
     params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
-    opt_state = jax.vmap(optimizer(spec).init)(params)
+    groups = len(run_settings(config))
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x[None], (groups, *x.shape)), params)
+    opt_state = jax.vmap(jax.vmap(optimizer(spec).init))(params)
     return params, opt_state
 
 
@@ -87,8 +108,8 @@ def _check_config(out_dir: str, record: dict) -> None:
                           "use another --out or the same options")
 
 
-def _truncate_metrics(path: str, upto: int) -> None:
-    """Keep the metric lines of updates ``<= upto`` (a resumed run re-logs the rest)."""
+def _truncate_jsonl(path: str, upto: int) -> None:
+    """Keep the lines of updates ``<= upto`` (a resumed run re-logs the rest)."""
     if not os.path.isfile(path):
         return
     with open(path) as f:
@@ -96,21 +117,62 @@ def _truncate_metrics(path: str, upto: int) -> None:
     atomic_write_text(path, "".join(lines))
 
 
-def _log_line(update: int, lr: float, metrics: dict, rate: float, steps_rate: float) -> dict:
-    line = {"update": update, "lr": lr, "updates_per_s": rate, "scenario_steps_per_s": steps_rate}
+def _log_line(update: int, lr: float, metrics: dict, rates: dict) -> dict:
+    line = {"update": update, "lr": lr, **rates}
     for name, values in metrics.items():
-        values = np.asarray(values, np.float64)
+        values = np.asarray(values, np.float64)  # [G, S]
         line[name] = float(values.mean())
-        line[f"{name}_seeds"] = [float(v) for v in values]
+        line[f"{name}_seeds"] = [float(v) for v in values.mean(axis=0)]
     return line
+
+
+def _curve_lines(update: int, settings: list[str], method: str, seeds: list[int],
+                 values: dict) -> list[dict]:
+    """One curves.jsonl line per (setting, seed) from ``{name: [G, S] array}``."""
+    return [{"update": update, "setting": name, "method": method, "seed": seed,
+             **{k: float(np.asarray(v)[g, i]) for k, v in values.items()}}
+            for g, name in enumerate(settings) for i, seed in enumerate(seeds)]
+
+
+class Validation:
+    """The fixed validation subset a run is judged on while it trains: teacher-forced BC loss
+    and closed-loop metrics of every (setting, seed)."""
+
+    def __init__(self, config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None):
+        from igdrivsim.evaluation.commands import load_validation
+
+        n = config.training.val_scenarios
+        self.config, self.spec = config, spec
+        self.teacher = inputs.Dataset.from_config(
+            config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n).teacher
+        self.scenarios = load_validation(data, inputs.capacities(config), n)
+        self.loss = make_validation_loss(spec)
+        self.settings = settings_as_data(config)
+
+    def __call__(self, params) -> dict:
+        from igdrivsim.evaluation.rollout import evaluate_policy
+
+        c = self.config
+        val_bc = self.loss(params, jax.tree.map(jnp.asarray, self.teacher), self.settings,
+                           jax.random.key(0))
+        out = evaluate_policy(params, self.scenarios, policy_config=c.policy,
+                              setting=run_settings(c), obs_config=self.spec.obs,
+                              params=self.spec.sim, batch_size=c.training.val_scenarios)
+        valid = out.valid
+        count = np.maximum(valid.sum(axis=(2, 3)), 1)
+        mean = lambda a: np.where(valid, a, 0.0).sum(axis=(2, 3)) / count  # noqa: E731
+        return {"val_bc_loss": np.asarray(val_bc), "log_divergence": mean(out.log_divergence),
+                "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
 
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
           stop_after: int | None = None, progress: bool = True, devices=None,
-          log=print) -> TrainResult:
+          log=print, val_data=None, cache_dir: str | None = None) -> TrainResult:
     """Train (or resume) one run; see the module docstring. ``data``: a folder / files, or a
-    list of :class:`~igdrivsim.data.scenario.Scenario`. ``stop_after``: stop (with a
-    checkpoint) once that many updates are done (a debugging aid for resume tests)."""
+    list of :class:`~igdrivsim.data.scenario.Scenario`. ``val_data``: validation data for the
+    learning curves (none: training BC loss only). ``cache_dir``: where the teacher-forced
+    records are cached (none: computed, not saved). ``stop_after``: stop (with a checkpoint)
+    once that many updates are done (a debugging aid for resume tests)."""
     config = config.validate()
     out_dir = os.fspath(out_dir)
     start_time = time.perf_counter()
@@ -124,37 +186,50 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         if not resume:
             raise ConfigError(f"{out_dir} holds an unfinished run; pass --resume to continue it")
     spec = update_spec(config)
+    settings_list = run_settings(config)
     mesh = inputs.make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
     main = jax.process_index() == 0
-    dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main)
+    dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main,
+                                         cache_dir=cache_dir, need_states=spec.use_rl)
     num_updates = total_updates(config, dataset.num)
     record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
-               "devices": mesh.size, "processes": jax.process_count()}
+               "settings": settings_list, "devices": mesh.size,
+               "processes": jax.process_count()}
     if main:
         atomic_write_json(os.path.join(out_dir, CONFIG), record, indent=2)
+    validation = None
+    t = config.training
+    if val_data is not None and t.eval_every > 0:
+        validation = Validation(config, spec, val_data, cache_dir)
 
     params, opt_state = init_state(config, spec)
-    per_seed = count_params(jax.tree.map(lambda x: x[0], params))
-    log(f"policy: {per_seed:,} parameters per seed x {config.training.seeds} seeds; "
-        f"{dataset.num} scenarios, {num_updates} updates of {config.data.batch_size} scenarios "
-        f"on {mesh.size} device(s)")
+    per_seed = count_params(jax.tree.map(lambda x: x[0, 0], params))
+    log(f"policy: {per_seed:,} parameters per run x {len(settings_list)} setting(s) x "
+        f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
+        f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
     rep = inputs.replicated(mesh)
     params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
-    ckpt = Checkpoints(out_dir, config.training.max_checkpoints)
+    settings = settings_as_data(config)
+    settings = None if settings is None else inputs.place(settings, rep)
+    ckpt = Checkpoints(out_dir, t.max_checkpoints)
     start = 0
     if resume and ckpt.latest_step() is not None:
         start = ckpt.latest_step()
         params, opt_state = ckpt.restore(start, params, opt_state)
         log(f"resuming from update {start}")
     metrics_path = os.path.join(out_dir, METRICS)
+    curves_path = os.path.join(out_dir, CURVES)
     if main:
-        _truncate_metrics(metrics_path, start if resume else -1)
+        _truncate_jsonl(metrics_path, start if resume else -1)
+        _truncate_jsonl(curves_path, start if resume else -1)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
     update = get_update(spec)
     keys = inputs.place(seed_keys(config), rep)
-    t = config.training
-    steps_per_update = t.seeds * config.data.batch_size * 80 * t.ppo_epochs
+    seeds = list(range(t.seed_offset, t.seed_offset + t.seeds))
+    runs = len(settings_list) * t.seeds
+    steps_per_update = runs * config.data.batch_size * 80 * t.ppo_epochs
+    grads_per_update = runs * t.ppo_epochs * t.ppo_minibatches
     bar = None
     if progress and main:
         from tqdm.auto import tqdm
@@ -163,10 +238,22 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
                               config.data.prefetch)
     last_log, last_time = start, time.perf_counter()
-    with open(metrics_path, "a") if main else open(os.devnull, "w") as metrics_file:
-        for u, batch in zip(range(start, end), batches, strict=True):
+
+    def write_curves(f, done, values):
+        for line in _curve_lines(done, settings_list, t.method, seeds, values):
+            f.write(json.dumps(line) + "\n")
+        f.flush()
+
+    with contextlib.ExitStack() as stack:
+        opener = (lambda p: open(p, "a")) if main else (lambda p: open(os.devnull, "w"))
+        metrics_file = stack.enter_context(opener(metrics_path))
+        curves_file = stack.enter_context(opener(curves_path))
+        if validation is not None and start == 0:
+            write_curves(curves_file, 0, validation(params))
+        for u, (teacher, states) in zip(range(start, end), batches, strict=True):
             lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
-            params, opt_state, metrics = update(params, opt_state, batch, keys, u, lr)
+            params, opt_state, metrics = update(params, opt_state, teacher, states, settings,
+                                                keys, u, lr)
             done = u + 1
             if bar is not None:
                 bar.update()
@@ -174,12 +261,18 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 metrics = jax.device_get(metrics)
                 now = time.perf_counter()
                 rate = (done - last_log) / max(now - last_time, 1e-9)
-                line = _log_line(done, lr, metrics, rate, rate * steps_per_update)
+                line = _log_line(done, lr, metrics, {
+                    "updates_per_s": rate, "scenario_steps_per_s": rate * steps_per_update,
+                    "grad_steps_per_s": rate * grads_per_update})
                 metrics_file.write(json.dumps(line) + "\n")
                 metrics_file.flush()
+                write_curves(curves_file, done, {"bc_loss": metrics["bc_loss"]})
                 if bar is not None:
                     bar.set_postfix(bc=f"{line['bc_loss']:.3f}", refresh=False)
-                last_log, last_time = done, now
+                last_log, last_time = done, time.perf_counter()
+            if validation is not None and (done % t.eval_every == 0 or done == num_updates):
+                write_curves(curves_file, done, validation(params))
+                last_time = time.perf_counter()  # rates measure training only
             if done % t.checkpoint_every == 0 or done == end:
                 ckpt.save(done, params, opt_state)
     if bar is not None:
@@ -192,7 +285,8 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
 
 def load_run(run_dir: str | os.PathLike, step: int | None = None):
-    """``(RunConfig, params stacked over seeds)`` from a run folder (latest checkpoint)."""
+    """``(RunConfig, params stacked over settings and seeds [G, S])`` from a run folder
+    (latest checkpoint); the settings are :func:`~igdrivsim.training.update.run_settings`."""
     run_dir = os.fspath(run_dir)
     path = os.path.join(run_dir, CONFIG)
     if not os.path.isfile(path):
