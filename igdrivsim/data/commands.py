@@ -45,7 +45,8 @@ def describe(scenario: Scenario) -> dict:
 
 def inspect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="FILE",
-                        help="TFRecord files, folders, globs or name@N (either WOMD format)")
+                        help="TFRecord files, folders, globs or name@N (either WOMD format), "
+                             "or ScenarioNet .pkl files / dataset folders")
     parser.add_argument("--limit", type=int, default=None, help="stop after N scenarios")
     parser.add_argument("--json", action="store_true",
                         help="JSON lines (the default and only output format)")
@@ -67,7 +68,7 @@ def inspect_command(args: argparse.Namespace) -> int:
         if args.limit is not None and shown >= args.limit:
             break
         line = {"file": rec.file, "record": rec.record, "format": rec.format,
-                **describe(rec.scenario)}
+                **(rec.source or {}), **describe(rec.scenario)}
         print(json.dumps(line), flush=True)
         shown += 1
     if stats.skipped:

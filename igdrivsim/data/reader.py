@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 from google.protobuf.message import DecodeError
 
-from igdrivsim.data import tfrecord
+from igdrivsim.data import scenarionet, tfrecord
 from igdrivsim.data.protos import example_class
 from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
@@ -46,6 +46,7 @@ class ScenarioRecord(NamedTuple):
     record: int
     format: str
     scenario: Scenario
+    source: dict | None = None  # windowed logs (ScenarioNet): {"source_id", "first_step"}
 
 
 @dataclass
@@ -84,10 +85,15 @@ def expand_paths(spec: PathSpec) -> list[str]:
         return [p for s in spec for p in expand_paths(s)]
     spec = os.fspath(spec)
     if os.path.isdir(spec):
+        listed = scenarionet.dataset_files(spec)  # a ScenarioNet dataset folder
+        if listed is not None:
+            return listed
         files = sorted(os.path.join(spec, n) for n in os.listdir(spec)
-                       if not n.startswith(".") and os.path.isfile(os.path.join(spec, n)))
+                       if not n.startswith(".") and os.path.isfile(os.path.join(spec, n))
+                       and n not in (scenarionet.SUMMARY_FILE, scenarionet.MAPPING_FILE))
         records = [f for f in files if "tfrecord" in os.path.basename(f)]
-        files = records or files
+        pickles = [f for f in files if scenarionet.is_scenarionet_file(f)]
+        files = records or pickles or files
     elif os.path.isfile(spec):
         return [spec]
     elif (m := _SHARDED.match(spec)) is not None:
@@ -134,6 +140,9 @@ def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool 
               stop: int | None = None) -> Iterator[ScenarioRecord]:
     """Decode records ``start <= i < stop`` of one TFRecord file (``caps=None``: native sizes)."""
     stats = stats if stats is not None else ReadStats()
+    if scenarionet.is_scenarionet_file(path):
+        yield from _iter_scenarionet(path, caps, skip_bad, stats, start, stop)
+        return
     records = tfrecord.iter_frames(path, start=start)
     for index, data, error in records:
         if stop is not None and index >= stop:
@@ -152,6 +161,31 @@ def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool 
             continue
         stats.read += 1
         yield ScenarioRecord(path, index, fmt, scenario)
+
+
+def _iter_scenarionet(path: str, caps, skip_bad: bool, stats: ReadStats, start: int,
+                      stop: int | None) -> Iterator[ScenarioRecord]:
+    """Records of a ScenarioNet file: its 91-step windows (a bad file is one bad record)."""
+    try:
+        windows = list(scenarionet.iter_windows(path, start, stop))
+    except DataError as err:
+        err = _locate(err, path, None)
+        if not skip_bad:
+            raise err from None
+        stats.skip(err)
+        return
+    for index, w in windows:
+        scenario = fit_to_capacities(w.scenario, caps) if caps is not None else w.scenario
+        stats.read += 1
+        yield ScenarioRecord(path, index, scenarionet.FORMAT_SCENARIONET, scenario,
+                             {"source_id": w.source_id, "first_step": w.first_step})
+
+
+def count_records(path: str) -> int:
+    """Number of records (scenarios) of one file: TFRecord frames or ScenarioNet windows."""
+    if scenarionet.is_scenarionet_file(path):
+        return len(scenarionet.read_file(path))
+    return tfrecord.count_records(path)
 
 
 def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
@@ -195,7 +229,7 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
     tasks = []
     for path in files:
         try:
-            n = tfrecord.count_records(path)
+            n = count_records(path)
         except DataError as err:
             if not skip_bad:
                 raise

@@ -148,7 +148,7 @@ def replay_command(args: argparse.Namespace) -> int:
                 key, len(records))))
             sid = decode_scenario_id(rec.scenario.scenario_id)
             record = {**scenario_record(sid, replay, log), "file": rec.file,
-                      "record": rec.record}
+                      "record": rec.record, **(rec.source or {})}
             line = json.dumps(record)
             print(line, flush=True)
             if out is not None:

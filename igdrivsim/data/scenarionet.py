@@ -1,0 +1,502 @@
+"""ScenarioNet scenario descriptions (pickled dicts) -> :class:`Scenario` windows.
+
+ScenarioNet converts WOMD, nuScenes, nuPlan, Argoverse 2 and Lyft into one pickled dict per
+scenario (``id``, ``version``, ``length``, ``metadata``, ``tracks``, ``dynamic_map_states``,
+``map_features``); a dataset folder adds ``dataset_summary.pkl`` and ``dataset_mapping.pkl``.
+Files are loaded with :class:`SafeUnpickler`, which rebuilds NumPy arrays and builtin containers
+only: nothing in a file can run code. Logs are resampled to 10 Hz if needed and cut into
+consecutive 91-step windows (10 past, 1 current, 80 future), each one scenario (one "record").
+Where a map has no road edges (nuScenes) they are derived from the boundary of the union of the
+lane polygons and closed road-line outlines (ScenarioNet stores nuScenes' drivable area as closed
+``boundary_*`` lines), with the road interior on the left of ``dir``. Field mapping:
+docs/scenarionet.md.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+from collections.abc import Iterator
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from igdrivsim.data.scenario import (
+    CURRENT_INDEX,
+    DT,
+    NUM_STEPS,
+    RG_CROSSWALK,
+    RG_ROAD_EDGE_BOUNDARY,
+    RG_ROAD_EDGE_MEDIAN,
+    RG_ROAD_EDGE_TYPES,
+    RG_SPEED_BUMP,
+    RG_STOP_SIGN,
+    SCENARIO_ID_BYTES,
+    TYPE_CYCLIST,
+    TYPE_OTHER,
+    TYPE_PEDESTRIAN,
+    TYPE_VEHICLE,
+    ObjectMetadata,
+    Roadgraph,
+    Scenario,
+    TrafficLights,
+    Trajectory,
+    encode_scenario_id,
+)
+from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, densify_polylines, polyline_directions
+from igdrivsim.errors import DataError
+
+FORMAT_SCENARIONET = "scenarionet"
+SUMMARY_FILE, MAPPING_FILE = "dataset_summary.pkl", "dataset_mapping.pkl"
+PICKLE_SUFFIXES = (".pkl", ".pickle")
+WINDOW_STRIDE = NUM_STEPS  # consecutive, non-overlapping windows
+
+_ALLOWED = {
+    ("builtins", n) for n in ("dict", "list", "tuple", "set", "frozenset", "str", "bytes",
+                              "bytearray", "int", "float", "complex", "bool")
+} | {("collections", "OrderedDict"), ("collections", "defaultdict"),
+     ("numpy", "ndarray"), ("numpy", "dtype")} | {
+    (f"numpy.{core}.multiarray", n) for core in ("core", "_core") for n in ("_reconstruct",
+                                                                             "scalar")
+}
+
+OBJECT_TYPES = {"VEHICLE": TYPE_VEHICLE, "PEDESTRIAN": TYPE_PEDESTRIAN,
+                "CYCLIST": TYPE_CYCLIST}  # anything else (cones, barriers, ...): TYPE_OTHER
+LANE_TYPES = {"LANE_FREEWAY": 1, "LANE_SURFACE_STREET": 2, "LANE_BIKE_LANE": 3,
+              "LANE_UNKNOWN": 2}
+ROAD_LINE_TYPES = {f"ROAD_LINE_{n}": 5 + i for i, n in enumerate((
+    "UNKNOWN", "BROKEN_SINGLE_WHITE", "SOLID_SINGLE_WHITE", "SOLID_DOUBLE_WHITE",
+    "BROKEN_SINGLE_YELLOW", "BROKEN_DOUBLE_YELLOW", "SOLID_SINGLE_YELLOW", "SOLID_DOUBLE_YELLOW",
+    "PASSING_DOUBLE_YELLOW"))}
+ROAD_EDGE_TYPES = {"ROAD_EDGE_BOUNDARY": RG_ROAD_EDGE_BOUNDARY,
+                   "ROAD_EDGE_MEDIAN": RG_ROAD_EDGE_MEDIAN,
+                   "ROAD_EDGE_UNKNOWN": RG_ROAD_EDGE_BOUNDARY,
+                   "ROAD_EDGE_SIDEWALK": RG_ROAD_EDGE_BOUNDARY}
+POLYGON_TYPES = {"CROSSWALK": RG_CROSSWALK, "SPEED_BUMP": RG_SPEED_BUMP}
+# WOMD TrafficSignalLaneState codes; MetaDrive's TRAFFIC_LIGHT_* names are used for nuPlan.
+LIGHT_STATES = {
+    **{f"LANE_STATE_{n}": i for i, n in enumerate((
+        "UNKNOWN", "ARROW_STOP", "ARROW_CAUTION", "ARROW_GO", "STOP", "CAUTION", "GO",
+        "FLASHING_STOP", "FLASHING_CAUTION"))},
+    "TRAFFIC_LIGHT_UNKNOWN": 0, "TRAFFIC_LIGHT_RED": 4, "TRAFFIC_LIGHT_YELLOW": 5,
+    "TRAFFIC_LIGHT_GREEN": 6,
+}
+
+
+class SafeUnpickler(pickle.Unpickler):
+    """Unpickler that rebuilds only NumPy arrays/dtypes/scalars and builtin containers."""
+
+    def __init__(self, file, name: str):
+        super().__init__(file)
+        self.name = name
+
+    def find_class(self, module: str, name: str):
+        if (module, name) in _ALLOWED:
+            return super().find_class(module, name)
+        raise DataError(f"refused to load class {module}.{name} (a ScenarioNet file holds only "
+                        "NumPy arrays and builtin containers)", file=self.name)
+
+
+def safe_load(path: str | os.PathLike) -> Any:
+    """Load a pickle file with :class:`SafeUnpickler`; one-line :class:`DataError` if bad."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            return SafeUnpickler(f, path).load()
+    except DataError:
+        raise
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
+            IndexError, KeyError, MemoryError) as err:
+        raise DataError(f"not a readable pickle: {type(err).__name__}: {err}", file=path) from None
+
+
+def is_scenarionet_file(path: str) -> bool:
+    """A pickle that is a scenario description (by suffix; the summary/mapping files are not)."""
+    base = os.path.basename(path)
+    return base.endswith(PICKLE_SUFFIXES) and base not in (SUMMARY_FILE, MAPPING_FILE)
+
+
+def dataset_files(folder: str) -> list[str] | None:
+    """Scenario files of a ScenarioNet dataset folder (``dataset_summary.pkl`` names them,
+    ``dataset_mapping.pkl`` gives their sub-folders), or None if ``folder`` is not one."""
+    summary_path = os.path.join(folder, SUMMARY_FILE)
+    if not os.path.isfile(summary_path):
+        return None
+    summary = safe_load(summary_path)
+    mapping_path = os.path.join(folder, MAPPING_FILE)
+    mapping = safe_load(mapping_path) if os.path.isfile(mapping_path) else {}
+    if not isinstance(summary, dict) or not isinstance(mapping, dict):
+        raise DataError("expected a dict of scenario files", file=summary_path)
+    files = []
+    for name in sorted(summary):
+        path = os.path.normpath(os.path.join(folder, str(mapping.get(name, "")), str(name)))
+        if not os.path.isfile(path):
+            raise DataError(f"dataset lists {name!r}, not found at {path}", file=summary_path)
+        files.append(path)
+    return files
+
+
+class Window(NamedTuple):
+    """One 91-step window of a ScenarioNet log."""
+
+    scenario: Scenario
+    source_id: str
+    first_step: int
+
+
+def _key_ids(keys: list) -> dict:
+    """int32 ids for string keys: the keys themselves if all are small integers, else 0..n-1."""
+    try:
+        ints = [int(k) for k in keys]
+        if all(0 <= i < 2**31 for i in ints) and len(set(ints)) == len(ints):
+            return dict(zip(keys, ints, strict=True))
+    except (TypeError, ValueError):
+        pass
+    return {k: i for i, k in enumerate(keys)}
+
+
+def _array(value, shape_tail: tuple[int, ...], key: str) -> np.ndarray:
+    try:
+        a = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise DataError("not a numeric array", key=key) from None
+    if shape_tail and a.ndim == 1 and len(shape_tail) == 1 and shape_tail[0] == 1:
+        a = a[:, None]
+    if a.ndim != 1 + len(shape_tail) or any(
+            s != -1 and a.shape[1 + i] < s for i, s in enumerate(shape_tail)):
+        raise DataError(f"shape {a.shape}, expected [T, {shape_tail}]", key=key)
+    if not np.isfinite(a).all():
+        a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    return a
+
+
+def _timestep(desc: dict, length: int) -> float:
+    meta = desc.get("metadata", {})
+    ts = meta.get("ts")
+    if ts is not None and len(ts) >= 2:
+        return float(np.median(np.diff(np.asarray(ts, np.float64))))
+    if meta.get("sample_rate"):
+        return float(meta["sample_rate"])
+    return DT
+
+
+def _resample(a: np.ndarray, src_t: np.ndarray, dst_t: np.ndarray, angle: bool = False):
+    """Linear interpolation along axis 1 of ``a [O, T, ...]`` (angles unwrapped first)."""
+    if angle:
+        a = np.unwrap(a, axis=1)
+    idx = np.clip(np.searchsorted(src_t, dst_t, side="right") - 1, 0, len(src_t) - 2)
+    w = ((dst_t - src_t[idx]) / (src_t[idx + 1] - src_t[idx])).reshape(
+        (1, -1) + (1,) * (a.ndim - 2))
+    out = a[:, idx] * (1 - w) + a[:, idx + 1] * w
+    return np.arctan2(np.sin(out), np.cos(out)) if angle else out
+
+
+def _decode_tracks(desc: dict) -> dict[str, np.ndarray]:
+    """All tracks at their native length: arrays ``[O, T]`` (``xyz``/``vel`` ``[O, T, k]``)."""
+    tracks = desc.get("tracks")
+    if not isinstance(tracks, dict) or not tracks:
+        raise DataError("no tracks", key="tracks")
+    length = int(desc.get("length") or 0)
+    keys = list(tracks)
+    rows: dict[str, list] = {k: [] for k in ("xyz", "yaw", "vel", "length", "width", "height",
+                                             "valid")}
+    types = []
+    for k in keys:
+        track = tracks[k]
+        state = track.get("state", {}) if isinstance(track, dict) else {}
+        where = f"tracks/{k}/state"
+        try:
+            pos = _array(state["position"], (2,), f"{where}/position")
+            t = length or pos.shape[0]
+            xyz = np.zeros((t, 3))
+            xyz[:, : min(3, pos.shape[1])] = pos[:t, :3]
+            rows["xyz"].append(xyz)
+            rows["yaw"].append(_array(state["heading"], (), f"{where}/heading").reshape(-1)[:t])
+            rows["vel"].append(_array(state["velocity"], (2,), f"{where}/velocity")[:t, :2])
+            for size in ("length", "width", "height"):
+                rows[size].append(_array(state[size], (1,), f"{where}/{size}")[:t, 0]
+                                  if size in state else np.zeros(t))
+            rows["valid"].append(np.asarray(state["valid"]).reshape(-1)[:t].astype(bool))
+        except KeyError as err:
+            raise DataError(f"missing {err.args[0]!r}", key=where) from None
+        types.append(OBJECT_TYPES.get(str(track.get("type", "")).upper(), TYPE_OTHER))
+    lengths = {len(v) for rs in rows.values() for v in rs}
+    if len(lengths) != 1:
+        raise DataError(f"tracks of different lengths {sorted(lengths)}", key="tracks")
+    out = {k: np.stack(v) for k, v in rows.items()}
+    out["type"] = np.asarray(types, np.int32)
+    # a vehicle box wider than long has length and width swapped (nuScenes' ego in ScenarioNet)
+    n = np.maximum(out["valid"].sum(1), 1)
+    swap = (out["type"] == TYPE_VEHICLE) & (
+        (out["width"] * out["valid"]).sum(1) / n > (out["length"] * out["valid"]).sum(1) / n)
+    out["length"][swap], out["width"][swap] = out["width"][swap], out["length"][swap].copy()
+    out["id"] = np.asarray([_key_ids(keys)[k] for k in keys], np.int64).astype(np.int32)
+    meta = desc.get("metadata", {})
+    sdc = str(meta.get("sdc_id", ""))
+    str_keys = [str(k) for k in keys]
+    if sdc not in str_keys:
+        raise DataError(f"sdc_id {sdc!r} is not a track", key="metadata/sdc_id")
+    out["is_sdc"] = np.asarray([k == sdc for k in str_keys])
+    out["interest"] = np.isin(str_keys, [str(k) for k in meta.get("objects_of_interest") or []])
+    out["predict"] = np.isin(str_keys, [str(k) for k in (meta.get("tracks_to_predict") or {})])
+    return out
+
+
+def _points(value, key: str, drop_z: bool) -> np.ndarray:
+    try:
+        a = np.asarray(value, np.float64).reshape(-1, np.shape(value)[-1])
+    except (TypeError, ValueError, IndexError):
+        raise DataError("not a numeric point array", key=key) from None
+    if a.shape[-1] < 2 or not np.isfinite(a).all():
+        raise DataError(f"bad points of shape {a.shape}", key=key)
+    xyz = np.zeros((len(a), 3))
+    xyz[:, :2] = a[:, :2]
+    if a.shape[1] >= 3 and not drop_z:
+        xyz[:, 2] = a[:, 2]
+    return xyz
+
+
+def _inside(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-polygon of ``points [N, 2]`` in the closed ring ``[V, 2]``."""
+    from matplotlib.path import Path
+
+    return Path(ring).contains_points(points)
+
+
+def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPACING,
+                   probe: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Boundary of the union of polygons as sampled, oriented polylines.
+
+    Each ring is oriented counter-clockwise (interior on the left of ``dir``) and sampled every
+    ``spacing`` metres; a sample is on the union's boundary when the point ``probe`` metres to
+    its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
+    dir [N, 2], polyline [N])``.
+    """
+    rings, bbox = [], []
+    for p in polygons:
+        p = np.asarray(p, np.float64)[:, :2]
+        if len(p) > 1 and np.allclose(p[0], p[-1]):
+            p = p[:-1]
+        if len(p) < 3:
+            continue
+        area = np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])
+        if abs(area) < 1e-6:
+            continue
+        rings.append(p if area > 0 else p[::-1])
+        bbox.append(np.r_[p.min(0), p.max(0)])
+    if not rings:
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
+    xy, d, ring_of = [], [], []
+    for r, p in enumerate(rings):
+        closed = np.vstack([p, p[:1]])
+        seg = np.diff(closed, axis=0)
+        length = np.linalg.norm(seg, axis=1)
+        ok = length > 1e-9
+        pts, segs, lens = closed[:-1][ok], seg[ok], length[ok]
+        n = np.maximum(1, np.ceil(lens / spacing - 1e-3)).astype(np.int64)
+        src = np.repeat(np.arange(len(pts)), n)
+        frac = (np.arange(len(src)) - np.repeat(np.cumsum(n) - n, n)) / n[src]
+        xy.append(pts[src] + frac[:, None] * segs[src])
+        d.append(segs[src] / lens[src, None])
+        ring_of.append(np.full(len(src), r))
+    xy, d, ring_of = np.concatenate(xy), np.concatenate(d), np.concatenate(ring_of)
+    outside = xy + probe * np.stack([d[:, 1], -d[:, 0]], -1)  # right of dir
+    covered = np.zeros(len(xy), bool)
+    bbox = np.asarray(bbox)
+    for ring, (x0, y0, x1, y1) in zip(rings, bbox, strict=True):
+        near = ~covered & (outside[:, 0] >= x0) & (outside[:, 0] <= x1) & (
+            outside[:, 1] >= y0) & (outside[:, 1] <= y1)
+        if near.any():
+            idx = np.flatnonzero(near)
+            covered[idx[_inside(outside[idx], ring)]] = True
+    keep = ~covered
+    # a new polyline starts at each kept sample whose predecessor (same ring) was dropped
+    prev_kept = np.r_[False, keep[:-1]] & np.r_[False, ring_of[1:] == ring_of[:-1]]
+    poly = np.cumsum(keep & ~prev_kept) - 1
+    return xy[keep], d[keep], poly[keep]
+
+
+def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
+    """Roadgraph at native size and the map-feature-key -> id mapping."""
+    features = desc.get("map_features") or {}
+    drop_z = str(desc.get("metadata", {}).get("dataset", "")).lower() == "nuscenes"
+    ids = _key_ids(list(features))
+    xyz, types, pids, lane_polygons = [], [], [], []
+    for k, f in features.items():
+        if not isinstance(f, dict):
+            continue
+        kind = str(f.get("type", "")).upper()
+        where = f"map_features/{k}"
+        if kind in LANE_TYPES and f.get("polygon") is not None:
+            lane_polygons.append(_points(f["polygon"], f"{where}/polygon", True))
+        if kind in LANE_TYPES or kind in ROAD_LINE_TYPES or kind in ROAD_EDGE_TYPES:
+            rg_type = {**LANE_TYPES, **ROAD_LINE_TYPES, **ROAD_EDGE_TYPES}[kind]
+            if f.get("polyline") is None or not len(f["polyline"]):
+                continue
+            pts = _points(f["polyline"], f"{where}/polyline", drop_z)
+            if kind in ROAD_LINE_TYPES and len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
+                lane_polygons.append(pts)  # a closed outline: nuScenes' drivable area
+        elif kind in POLYGON_TYPES:
+            if f.get("polygon") is None or not len(f["polygon"]):
+                continue
+            pts = _points(f["polygon"], f"{where}/polygon", drop_z)
+            pts = np.vstack([pts, pts[:1]])
+            rg_type = POLYGON_TYPES[kind]
+        elif kind == "STOP_SIGN" and f.get("position") is not None:
+            pts, rg_type = _points(f["position"], f"{where}/position", drop_z), RG_STOP_SIGN
+        else:  # driveways, drivable-area outlines without a type we know: skipped
+            continue
+        xyz.append(pts)
+        types.append(rg_type)
+        pids.append(ids[k])
+    has_edges = any(t in RG_ROAD_EDGE_TYPES for t in types)
+    xyz_all = (np.concatenate(xyz) if xyz else np.zeros((0, 3)))
+    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
+    points, poly = densify_polylines(xyz_all, poly, max_spacing)
+    rg_xyz, rg_dir = points, polyline_directions(points, poly)
+    rg_type = np.asarray(types, np.int32)[poly]
+    rg_id = np.asarray(pids, np.int64)[poly]
+    if not has_edges and lane_polygons:
+        bxy, bdir, bpoly = union_boundary(lane_polygons, max_spacing)
+        base = int(max(ids.values(), default=-1)) + 1
+        rg_xyz = np.concatenate([rg_xyz, np.c_[bxy, np.zeros(len(bxy))]])
+        rg_dir = np.concatenate([rg_dir, np.c_[bdir, np.zeros(len(bdir))]])
+        rg_type = np.concatenate([rg_type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY, np.int32)])
+        rg_id = np.concatenate([rg_id, base + bpoly])
+    roadgraph = Roadgraph(xyz=rg_xyz.astype(np.float32), dir=rg_dir.astype(np.float32),
+                          type=rg_type.astype(np.int32), id=rg_id.astype(np.int32),
+                          valid=np.ones(len(rg_xyz), bool))
+    return roadgraph, ids
+
+
+def _decode_lights(desc: dict, map_ids: dict, length: int) -> dict[str, np.ndarray]:
+    states = desc.get("dynamic_map_states") or {}
+    rows = []
+    for light in states.values():
+        if not isinstance(light, dict):
+            continue
+        seq = (light.get("state") or {}).get("object_state") or []
+        code = np.zeros(length, np.int32)
+        valid = np.zeros(length, bool)
+        for t, s in enumerate(seq[:length]):
+            if s is not None:
+                code[t], valid[t] = LIGHT_STATES.get(str(s).upper(), 0), True
+        lane = light.get("lane")
+        lane_id = map_ids.get(lane, map_ids.get(str(lane), -1))
+        stop = np.zeros(3)
+        if light.get("stop_point") is not None:
+            p = np.asarray(light["stop_point"], np.float64).reshape(-1)
+            stop[: min(3, len(p))] = p[:3]
+        rows.append((code, valid, lane_id, stop))
+    n = len(rows)
+    out = {"state": np.zeros((n, length), np.int32), "valid": np.zeros((n, length), bool),
+           "lane_id": np.full((n, length), -1, np.int32), "xyz": np.zeros((n, length, 3))}
+    for i, (code, valid, lane_id, stop) in enumerate(rows):
+        out["state"][i], out["valid"][i] = code, valid
+        out["lane_id"][i] = np.where(valid, lane_id, -1)
+        out["xyz"][i] = stop
+    return out
+
+
+def window_id(source_id: str, first_step: int, windows: int) -> str:
+    """Scenario id of a window: the source id, suffixed ``_<first_step>`` when the log has
+    several windows; hashed down to fit ``SCENARIO_ID_BYTES`` ASCII bytes."""
+    sid = source_id if windows == 1 else f"{source_id}_{first_step}"
+    sid = sid.encode("ascii", "replace").decode("ascii")
+    if len(sid) > SCENARIO_ID_BYTES:
+        digest = hashlib.sha1(sid.encode()).hexdigest()[:8]
+        sid = f"{sid[: SCENARIO_ID_BYTES - 9]}-{digest}"
+    return sid
+
+
+def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING,
+                       stride: int = WINDOW_STRIDE) -> list[Window]:
+    """A ScenarioNet scenario dict as its 91-step windows (native sizes, no capacities)."""
+    if not isinstance(desc, dict) or "tracks" not in desc or "metadata" not in desc:
+        raise DataError("not a ScenarioNet scenario description (a dict with 'tracks' and "
+                        "'metadata')")
+    meta = desc["metadata"]
+    source_id = str(meta.get("scenario_id") or meta.get("id") or desc.get("id") or "")
+    tr = _decode_tracks(desc)
+    length = tr["xyz"].shape[1]
+    dt = _timestep(desc, length)
+    if not 0.001 < dt < 10:
+        raise DataError(f"bad timestep {dt} s", key="metadata/ts")
+    if abs(dt - DT) > 0.01:  # resample to 10 Hz
+        src = np.arange(length) * dt
+        dst = np.arange(int(np.floor(src[-1] / DT + 1e-6)) + 1) * DT
+        valid = tr["valid"].astype(np.float64)
+        for k in ("xyz", "vel", "length", "width", "height"):
+            tr[k] = _resample(tr[k], src, dst)
+        tr["yaw"] = _resample(tr["yaw"], src, dst, angle=True)
+        tr["valid"] = _resample(valid, src, dst) > 1 - 1e-6  # both neighbours valid
+        light_src = np.clip(np.round(dst / dt).astype(np.int64), 0, length - 1)
+        length = len(dst)
+    else:
+        light_src = np.arange(length)
+    roadgraph, map_ids = _decode_map(desc, max_spacing)
+    lights = _decode_lights(desc, map_ids, int(light_src[-1]) + 1)
+    lights = {k: v[:, light_src] for k, v in lights.items()}
+    if length <= CURRENT_INDEX:
+        raise DataError(f"log has {length} steps at 10 Hz, needs > {CURRENT_INDEX}",
+                        key="length")
+    starts = list(range(0, max(length - NUM_STEPS, 0) + 1, stride))
+    return [Window(_window(tr, lights, roadgraph, s, window_id(source_id, s, len(starts))),
+                   source_id, s) for s in starts]
+
+
+def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) -> Scenario:
+    t = slice(start, start + NUM_STEPS)
+
+    def cut(a: np.ndarray, fill=0) -> np.ndarray:
+        a = a[:, t]
+        missing = NUM_STEPS - a.shape[1]
+        if missing > 0:  # a short log: the end is padding
+            pad = np.full((a.shape[0], missing) + a.shape[2:], fill, a.dtype)
+            a = np.concatenate([a, pad], axis=1)
+        return a
+
+    valid = cut(tr["valid"], False)
+    if not valid[tr["is_sdc"], CURRENT_INDEX].any():
+        raise DataError(f"the SDC is not valid at the current step of window {start}",
+                        key="tracks")
+    keep = valid.any(axis=1) | tr["is_sdc"]
+    f32 = lambda a: cut(a)[keep].astype(np.float32)  # noqa: E731
+    xyz, vel = f32(tr["xyz"]), f32(tr["vel"])
+    trajectory = Trajectory(
+        x=xyz[..., 0], y=xyz[..., 1], z=xyz[..., 2], yaw=f32(tr["yaw"]),
+        vel_x=vel[..., 0], vel_y=vel[..., 1], length=f32(tr["length"]),
+        width=f32(tr["width"]), height=f32(tr["height"]), valid=valid[keep])
+    metadata = ObjectMetadata(
+        id=tr["id"][keep], object_type=tr["type"][keep], is_sdc=tr["is_sdc"][keep],
+        tracks_to_predict=tr["predict"][keep], objects_of_interest=tr["interest"][keep],
+        valid=valid[keep].any(axis=1))
+    lv = cut(lights["valid"], False)
+    lkeep = lv.any(axis=1)
+    lxyz = cut(lights["xyz"])[lkeep].astype(np.float32)
+    traffic_lights = TrafficLights(
+        state=cut(lights["state"])[lkeep], valid=lv[lkeep],
+        lane_id=cut(lights["lane_id"], -1)[lkeep], x=lxyz[..., 0], y=lxyz[..., 1],
+        z=lxyz[..., 2])
+    return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
+                    traffic_lights=traffic_lights, scenario_id=encode_scenario_id(sid))
+
+
+def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING
+              ) -> list[Window]:
+    """The windows of one ScenarioNet ``.pkl`` file (native sizes)."""
+    path = os.fspath(path)
+    desc = safe_load(path)
+    try:
+        return decode_description(desc, max_spacing)
+    except DataError as err:
+        raise DataError(err.problem, file=path, key=err.key) from None
+
+
+def iter_windows(path: str, start: int = 0, stop: int | None = None) -> Iterator[
+        tuple[int, Window]]:
+    """``(record index, window)`` for windows ``start <= i < stop`` of one file."""
+    for i, w in enumerate(read_file(path)):
+        if i >= start and (stop is None or i < stop):
+            yield i, w
