@@ -1,0 +1,251 @@
+"""The driving task as a Gymnasium environment (id ``IGDrivSim/Driving-v0``) and as pure,
+batched JAX functions.
+
+One scenario per episode: ``reset`` picks a scenario (``options={"index": i}`` or at random from
+the seeded ``np_random``) and returns the imitator's observation under the chosen observation
+setting at the current step (10); each ``step`` moves the SDC with the action (every other
+object replays its log) for ``SimParams.num_controlled_steps`` (80) steps, after which the
+episode is truncated (the log ends). Reward: ``-1[overlap] - 1[offroad]``. ``info`` holds the
+step's metrics (``overlap``, ``offroad``, ``log_divergence``, ``valid``), the ``timestep`` and
+``scenario_id``, and at the last step the episode's ``overlap_rate``, ``offroad_rate`` and
+``max_log_divergence`` (as in Table I).
+
+Observation: a ``Dict`` of the fields of :class:`igdrivsim.observation.Observation` as NumPy
+arrays (``float32``; the ``*_valid`` masks as ``int8`` ``MultiBinary``). Action: the
+discretised delta action ``MultiDiscrete([257, 257, 257])`` (the expert's bins), or with
+``continuous=True`` the delta ``(dx, dy, dyaw)`` as a ``Box`` within the action bounds.
+
+For speed, :func:`driving_functions` gives jitted ``reset``/``step`` for one scenario and
+``batch_reset``/``batch_step`` vmapped over a batch (``EnvState`` pytrees, no host round trip),
+plus the discretised expert's action; the Gymnasium class is a thin host wrapper around them.
+Only the public simulator and observation API is used.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from gymnasium import spaces
+
+from igdrivsim.data import Scenario, read_scenarios
+from igdrivsim.data.reader import unbatch
+from igdrivsim.data.scenario import CURRENT_INDEX, DEFAULT_CAPS, Capacities, decode_scenario_id
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.observation import Observation, ObservationConfig, get_setting, observe
+from igdrivsim.observation.features import OBJECT_FEATURES, ROADGRAPH_FEATURES
+from igdrivsim.simulator import (
+    ACTION_HIGH,
+    ACTION_LOW,
+    NUM_LEVELS,
+    SimParams,
+    SimState,
+    StepMetrics,
+    check_scenario,
+    expert_discrete_action,
+    reset,
+    reward,
+    step,
+    step_metrics,
+    undiscretize,
+    validate_actions,
+)
+
+ENV_ID = "IGDrivSim/Driving-v0"
+DEFAULT_PARAMS, DEFAULT_CONFIG = SimParams(), ObservationConfig()
+
+
+@struct.dataclass
+class EnvState:
+    """The simulator state and the episode's observation key (fixed for the episode)."""
+
+    sim: SimState
+    episode_key: jax.Array  # uint32[..., 2] (jax.random.PRNGKey)
+
+
+class DrivingFunctions(NamedTuple):
+    """Jitted pure functions of one configuration (see :func:`driving_functions`).
+
+    ``reset(scenario, key) -> (state, obs)``; ``step(state, action) -> (state, obs, reward,
+    done, metrics)``; ``expert(state) -> int32[3]`` (the discretised expert's bins). The
+    ``batch_*`` versions take and return a leading batch axis on every argument.
+    """
+
+    reset: Any
+    step: Any
+    expert: Any
+    batch_reset: Any
+    batch_step: Any
+    batch_expert: Any
+
+
+def _observe(state: EnvState, setting, config: ObservationConfig) -> Observation:
+    step_key = jax.random.fold_in(state.episode_key, state.sim.timestep)
+    return observe(state.sim, setting, state.episode_key, step_key, config)
+
+
+@functools.cache
+def driving_functions(setting: str = "full", params: SimParams = DEFAULT_PARAMS,
+                      config: ObservationConfig = DEFAULT_CONFIG,
+                      continuous: bool = False) -> DrivingFunctions:
+    """The environment's pure functions for an observation ``setting`` (a preset name, composed
+    with ``+``); cached, so environments of one configuration share the compilation."""
+    obs_setting = get_setting(setting)
+    last = CURRENT_INDEX + params.num_controlled_steps
+
+    def reset_one(scenario: Scenario, key: jax.Array) -> tuple[EnvState, Observation]:
+        state = EnvState(sim=reset(scenario, params), episode_key=key)
+        return state, _observe(state, obs_setting, config)
+
+    def step_one(state: EnvState, action: jax.Array):
+        act = (jnp.asarray(action, jnp.float32) if continuous
+               else undiscretize(jnp.asarray(action, jnp.int32)))
+        sim = step(state.sim, act, params)
+        metrics = step_metrics(sim, params)
+        state = state.replace(sim=sim)
+        return (state, _observe(state, obs_setting, config), reward(metrics),
+                sim.timestep >= last, metrics)
+
+    def expert_one(state: EnvState) -> jax.Array:
+        return expert_discrete_action(state.sim, params)
+
+    return DrivingFunctions(
+        reset=jax.jit(reset_one), step=jax.jit(step_one), expert=jax.jit(expert_one),
+        batch_reset=jax.jit(jax.vmap(reset_one)), batch_step=jax.jit(jax.vmap(step_one)),
+        batch_expert=jax.jit(jax.vmap(expert_one)))
+
+
+def _observation_space(config: ObservationConfig) -> spaces.Dict:
+    box = lambda *shape: spaces.Box(-np.inf, np.inf, shape, np.float32)  # noqa: E731
+    n_obj, n_rg = config.num_objects, config.num_roadgraph_points
+    return spaces.Dict({
+        "objects": box(n_obj, OBJECT_FEATURES),
+        "objects_valid": spaces.MultiBinary(n_obj),
+        "roadgraph": box(n_rg, ROADGRAPH_FEATURES),
+        "roadgraph_valid": spaces.MultiBinary(n_rg),
+        "sdc_speed": box(1),
+    })
+
+
+def _to_numpy(obs: Observation) -> dict[str, np.ndarray]:
+    obs = jax.device_get(obs)
+    return {
+        "objects": np.asarray(obs.objects, np.float32),
+        "objects_valid": np.asarray(obs.objects_valid, np.int8),
+        "roadgraph": np.asarray(obs.roadgraph, np.float32),
+        "roadgraph_valid": np.asarray(obs.roadgraph_valid, np.int8),
+        "sdc_speed": np.asarray(obs.sdc_speed, np.float32).reshape(1),
+    }
+
+
+def _load(data, caps: Capacities, max_scenarios: int | None) -> list[Scenario]:
+    if isinstance(data, Scenario):
+        data = [data]
+    if isinstance(data, Sequence) and data and all(isinstance(s, Scenario) for s in data):
+        scenarios = list(unbatch(data))
+    else:
+        scenarios = []
+        for s in read_scenarios(data, caps):
+            scenarios.append(s)
+            if max_scenarios is not None and len(scenarios) >= max_scenarios:
+                break
+    scenarios = scenarios[:max_scenarios]
+    if not scenarios:
+        raise DataError("no scenarios to drive in", file=str(data))
+    for s in scenarios:
+        check_scenario(s)
+    return scenarios
+
+
+class DrivingEnv(gym.Env):
+    """Gymnasium wrapper of :func:`driving_functions`: one scenario per episode."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, data, setting: str = "full", continuous: bool = False,
+                 params: SimParams = DEFAULT_PARAMS, config: ObservationConfig = DEFAULT_CONFIG,
+                 caps: Capacities = DEFAULT_CAPS, max_scenarios: int | None = None):
+        """``data``: files/folders/globs any reader accepts (WOMD or ScenarioNet), or
+        :class:`Scenario` objects; all of it is loaded (``max_scenarios`` caps how many)."""
+        if not isinstance(setting, str):
+            raise ConfigError(f"setting must be a preset name, got {setting!r}")
+        self.setting = get_setting(setting).name
+        self.continuous = continuous
+        self.params, self.config = params, config
+        self.scenarios = _load(data, caps, max_scenarios)
+        self.fns = driving_functions(self.setting, params, config, continuous)
+        self.observation_space = _observation_space(config)
+        if continuous:
+            self.action_space = spaces.Box(np.asarray(ACTION_LOW, np.float32),
+                                           np.asarray(ACTION_HIGH, np.float32), dtype=np.float32)
+        else:
+            self.action_space = spaces.MultiDiscrete([NUM_LEVELS] * 3)
+        self.state: EnvState | None = None
+        self.index = -1
+        self._totals: dict[str, float] = {}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        index = (options or {}).get("index")
+        if index is None:
+            index = int(self.np_random.integers(len(self.scenarios)))
+        if not 0 <= int(index) < len(self.scenarios):
+            raise ConfigError(f"options['index'] must be in 0..{len(self.scenarios) - 1}, "
+                              f"got {index}")
+        self.index = int(index)
+        key = jax.random.PRNGKey(int(self.np_random.integers(2**31)))
+        self.state, obs = self.fns.reset(self.scenarios[self.index], key)
+        self._totals = {"overlap_rate": 0.0, "offroad_rate": 0.0, "max_log_divergence": 0.0}
+        return _to_numpy(obs), {"scenario_id": self._scenario_id(), "index": self.index,
+                                "timestep": CURRENT_INDEX}
+
+    def step(self, action):
+        if self.state is None:
+            raise ConfigError("call reset() before step()")
+        action = np.asarray(action)
+        if self.continuous:
+            validate_actions(action.astype(np.float32))
+        elif action.shape != (3,) or not np.all((action >= 0) & (action < NUM_LEVELS)):
+            raise ConfigError(f"action must be 3 integers in 0..{NUM_LEVELS - 1}, got {action}")
+        self.state, obs, rew, done, metrics = self.fns.step(self.state, action)
+        info = self._info(jax.device_get(metrics))
+        info["timestep"] = int(self.state.sim.timestep)
+        truncated = bool(done)
+        if truncated:
+            info.update(self._totals)
+        return _to_numpy(obs), float(rew), False, truncated, info
+
+    def expert_action(self) -> np.ndarray:
+        """The discretised expert's action for the current state (``int64[3]``)."""
+        if self.state is None:
+            raise ConfigError("call reset() before expert_action()")
+        return np.asarray(self.fns.expert(self.state), np.int64)
+
+    def _scenario_id(self) -> str:
+        return decode_scenario_id(self.scenarios[self.index].scenario_id)
+
+    def _info(self, m: StepMetrics) -> dict:
+        valid = bool(m.valid)
+        info = {"overlap": bool(m.overlap), "offroad": bool(m.offroad),
+                "log_divergence": float(m.log_divergence) if valid else 0.0, "valid": valid,
+                "scenario_id": self._scenario_id()}
+        t = self._totals
+        t["overlap_rate"] = max(t["overlap_rate"], float(info["overlap"]))
+        t["offroad_rate"] = max(t["offroad_rate"], float(info["offroad"]))
+        t["max_log_divergence"] = max(t["max_log_divergence"], info["log_divergence"])
+        return info
+
+
+def register() -> None:
+    """Register ``IGDrivSim/Driving-v0`` with Gymnasium (idempotent)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="igdrivsim.envs.driving:DrivingEnv")
+
+
+register()
