@@ -417,6 +417,11 @@ def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING,
         raise DataError("not a ScenarioNet scenario description (a dict with 'tracks' and "
                         "'metadata')")
     meta = desc["metadata"]
+    coordinate = str(meta.get("coordinate", "right-handed")).lower()
+    if coordinate not in ("right-handed", "waymo"):
+        raise DataError(f"coordinate system {coordinate!r} is not supported (only ScenarioNet's "
+                        "right-handed dataset exports: 'right-handed', 'waymo')",
+                        key="metadata/coordinate")
     source_id = str(meta.get("scenario_id") or meta.get("id") or desc.get("id") or "")
     tr = _decode_tracks(desc)
     length = tr["xyz"].shape[1]
