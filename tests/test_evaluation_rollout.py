@@ -49,9 +49,9 @@ def scene():
     from igdrivsim.data import Capacities, load_scenario, stack_scenarios
     from igdrivsim.simulator import SimParams
 
-    caps = Capacities(max_objects=16, max_roadgraph_points=1024)
+    caps = Capacities(max_objects=16, max_roadgraph_points=20_000)  # the whole map
     sc = load_scenario(SAMPLE, caps=caps)
-    return stack_scenarios([sc, sc, sc]), SimParams(roadgraph_capacity=512, edge_capacity=256)
+    return stack_scenarios([sc, sc, sc]), SimParams(edge_capacity=256)
 
 
 def test_reference_actors_on_real_scene(scene):
@@ -62,7 +62,7 @@ def test_reference_actors_on_real_scene(scene):
     assert len(expert) == 3 and (per_scenario.setting == "none").all()
     # The discretised expert tracks the log to a few centimetres and never crashes.
     assert expert.log_divergence.max() < 0.1 and expert.overlap.sum() == 0
-    assert expert.offroad.sum() == 0  # the load-time crop keeps the road along the whole path
+    assert expert.offroad.sum() == 0
     assert cv.max_log_divergence.min() > 1.0  # this SDC turns/brakes: a straight line drifts
     assert per_step.groupby("method").step.max().eq(80).all()
 

@@ -107,15 +107,15 @@ def test_bench_cli_writes_rows(tmp_path, capsys, distinct):
     from igdrivsim.cli import main
 
     out = tmp_path / "bench.json"
-    assert main(["bench", "sim", "--batches", "2", "--impls", "crop", "--repeats", "1",
+    assert main(["bench", "sim", "--batches", "2", "--impls", "fast", "--repeats", "1",
                  "--out", str(out)] + (["--distinct", "--data", str(WOMD)] if distinct else [])
                 ) == 0
     result = json.loads(out.read_text())
     assert result["distinct"] is distinct
     rows = result["rows"]
-    assert [(r["batch"], r["impl"]) for r in rows] == [(2, "crop")]
+    assert [(r["batch"], r["impl"]) for r in rows] == [(2, "fast")]
     assert rows[0]["scenario_steps_per_s"] > 0 and rows[0]["offroad_steps"] == 0
-    assert "crop" in capsys.readouterr().out
+    assert "fast" in capsys.readouterr().out
 
 
 def test_packed_nearest_is_the_top_k_set_or_says_so():

@@ -24,10 +24,10 @@ from igdrivsim.simulator import (
     step,
     undiscretize,
 )
-from igdrivsim.simulator.roadgraph import crop_roadgraph, subsample_path
+from igdrivsim.simulator.roadgraph import select_road_edges, subsample_path
 from igdrivsim.simulator.toy import straight_road
 
-PARAMS = SimParams(roadgraph_capacity=256, edge_capacity=256)  # as in test_simulator_metrics
+PARAMS = SimParams(edge_capacity=256)  # as in test_simulator_metrics
 _reset = jax.jit(reset, static_argnums=1)
 _step = jax.jit(step, static_argnums=2)
 
@@ -108,23 +108,20 @@ def test_bad_scenarios_raise_a_clear_error_before_tracing():
         reset(sc, PARAMS)
     with pytest.raises(ConfigError, match="offroad_method"):
         SimParams(offroad_method="nearest")
-    with pytest.raises(ConfigError, match="crop_radius"):
-        SimParams(crop_radius=0.0)
+    with pytest.raises(ConfigError, match="edge_radius"):
+        SimParams(edge_radius=0.0)
 
 
-def test_crop_keeps_points_near_the_path_nearest_first_and_edges_only():
+def test_reset_keeps_the_whole_roadgraph_and_selects_edges_near_the_path():
     sc = straight_road()  # SDC path along y = 0 from x = -10 to x = 80; points x in -30..169
     rg = sc.roadgraph
+    state = reset(sc, PARAMS)
+    np.testing.assert_array_equal(np.asarray(state.roadgraph.valid), np.asarray(rg.valid))
     path = np.stack([sc.trajectory.x[0], sc.trajectory.y[0]], -1)
     valid = np.ones(NUM_STEPS, bool)
-    crop = jax.jit(crop_roadgraph, static_argnames=(
-        "radius", "capacity", "edge_radius", "edge_capacity", "path_stride"))
-    cropped, edges = crop(rg, path, valid, radius=30.0, capacity=400, edge_radius=10.0,
-                          edge_capacity=300, path_stride=1)
-    xy = np.asarray(cropped.xyz)[np.asarray(cropped.valid), :2]
-    # along x the path spans -10..80: points within 30 m are x in -30..110 on the 3 lines
-    assert len(xy) == 3 * 140 - 20  # capacity 400 < 420 candidates: the farthest are dropped
-    assert np.abs(xy[:, 0] - np.clip(xy[:, 0], -10, 80)).max() <= 29.0
+    select = jax.jit(select_road_edges, static_argnames=(
+        "edge_radius", "edge_capacity", "path_stride"))
+    edges = select(rg, path, valid, edge_radius=10.0, edge_capacity=300, path_stride=1)
     ev = np.asarray(edges.valid)
     assert ev.sum() == 2 * 107  # |dx| <= sqrt(10**2 - 5**2): x in -18..88 on both edges
     assert set(np.unique(np.asarray(rg.type)[np.isin(rg.type, RG_ROAD_EDGE_TYPES)])) <= {15, 16}

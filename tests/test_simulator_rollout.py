@@ -20,7 +20,7 @@ from igdrivsim.simulator.rollout import (
 )
 from igdrivsim.simulator.toy import set_object, straight_road
 
-PARAMS = SimParams(roadgraph_capacity=256, edge_capacity=256)
+PARAMS = SimParams(edge_capacity=256)
 _reset = jax.jit(reset, static_argnums=1)
 
 

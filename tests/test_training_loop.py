@@ -62,10 +62,10 @@ def test_run_writes_config_metrics_checkpoints(full_run):
     assert lines[0]["bc_loss"] == pytest.approx(3 * np.log(257), rel=0.05)
     assert all(x["ratio_dev"] > 0 for x in lines)
     assert sorted(os.listdir(out / "checkpoints")) == ["2", "4"]
-    # Seeds are different networks trained on different batches.
+    # Seeds are different networks trained on different batches ([settings, seeds, ...]).
     leaves = jax.tree.leaves(result.params)
-    assert all(x.shape[0] == CONFIG.training.seeds for x in leaves)
-    assert any(not np.allclose(x[0], x[1]) for x in leaves)
+    assert all(x.shape[:2] == (1, CONFIG.training.seeds) for x in leaves)
+    assert any(not np.allclose(x[0, 0], x[0, 1]) for x in leaves)
 
 
 def test_load_run_and_complete_run_is_left_alone(full_run, data_dir, capsys):

@@ -5,7 +5,7 @@ log, then the discretised expert driving steps 10..89. That episode is determini
 the ego sees along it *before* the partial-observability model is the same for every setting,
 seed and method. :func:`compute_teacher` records it once per scenario, in the TRUE ego frame,
 with more than the observation's capacities: every other object slot (``K``) and the ``M =
-2 N`` nearest roadgraph points. :func:`teacher_observation` then applies a setting (as data,
+4 N`` nearest roadgraph points. :func:`teacher_observation` then applies a setting (as data,
 :class:`~igdrivsim.observation.ObservationParams`) on the fly:
 
 1. the believed pose (Gaussian position noise) shifts every point by the same offset, and the
@@ -15,8 +15,9 @@ with more than the observation's capacities: every other object slot (``K``) and
    observation (episode key per scenario, step key ``fold_in(episode key, t)``).
 
 Without noise this equals :func:`igdrivsim.observation.observe` exactly; with noise it does
-while the ``N``-th nearest point around the believed position is among the ``2 N`` nearest
-around the true one (an offset of a few metres against a selection radius of tens).
+while the ``N`` nearest points around the believed position are among the ``4 N`` nearest
+around the true one, i.e. while the offset is below the radius of the ``N`` nearest (tens of
+metres for the observation sizes in use, against an offset of a few metres).
 
 The cache file is keyed by a hash of the data's identity (the manifest's bytes, or the files'
 names, sizes and modification times) and of everything that shapes the recording
@@ -50,7 +51,7 @@ from igdrivsim.observation.models import apply_setting
 from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose, step
 from igdrivsim.simulator.expert import expert_action
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 3
 EPISODE_STEPS = NUM_STEPS - 1  # 10 warm-up + 80 controlled observations per episode
 
 
@@ -76,8 +77,10 @@ class TeacherSteps:
 
 
 def superset_config(obs: ObservationConfig, max_objects: int) -> ObservationConfig:
-    """What is recorded: every other object slot and twice the observed roadgraph points."""
-    return ObservationConfig(max(obs.num_objects, max_objects - 1), 2 * obs.num_roadgraph_points)
+    """What is recorded: every other object slot and four times the observed roadgraph points
+    (the ``N`` nearest around a believed position ``e`` metres off are among the ``4 N``
+    nearest around the true one while ``e`` is below the radius of the ``N`` nearest)."""
+    return ObservationConfig(max(obs.num_objects, max_objects - 1), 4 * obs.num_roadgraph_points)
 
 
 def _record(state: SimState, rec: ObservationConfig):
@@ -86,7 +89,7 @@ def _record(state: SimState, rec: ObservationConfig):
     obs = observe(state, get_setting("full"), key, key, rec)
     rg = obs.roadgraph
     kind = jnp.argmax(rg[..., 4:-1], axis=-1).astype(jnp.int8)
-    _, yaw, _, _ = sdc_pose(state)
+    _, _, yaw, _ = sdc_pose(state)
     return (obs.objects, obs.objects_valid, rg[..., :4], kind, obs.roadgraph_valid,
             obs.sdc_speed, yaw)
 
