@@ -16,13 +16,16 @@ from maze.env import MazeParams
 
 
 class GRUPolicy(nn.Module):
-    """``(h, obs[T, B, D], first[T, B]) -> (h_T, logits[T, B, A], value[T, B])``."""
+    """``(h, obs[T, B, D], first[T, B]) -> (h_T, logits[T, B, A], value[T, B])``.
+
+    With ``aux_head`` a fourth output, ``aux_logits[T, B, A]``, shares the GRU trunk."""
 
     hidden: int = 128
     num_actions: int = 4
     side: int = 15  # maze array side; coordinates are divided by ``side - 1``
     patch_size: int = 9  # leading wall-patch entries
     encoding: str = "onehot"  # "raw" (scaled obs only) or "onehot" (see ``features``)
+    aux_head: bool = False  # also return an imitation-only actor head (ADVISOR, maze.mixed)
 
     def features(self, obs: jax.Array) -> jax.Array:
         """Input features computed from the observation (no extra information).
@@ -65,12 +68,22 @@ class GRUPolicy(nn.Module):
         logits = nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
                           name="actor")(hs)
         value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0), name="critic")(hs)
+        if self.aux_head:
+            aux = nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
+                           name="aux")(hs)
+            return h, logits, value[..., 0], aux
         return h, logits, value[..., 0]
 
 
-def make_policy(hidden: int, params: MazeParams, encoding: str = "onehot") -> GRUPolicy:
+def make_policy(hidden: int, params: MazeParams, encoding: str = "onehot",
+                aux_head: bool = False) -> GRUPolicy:
     return GRUPolicy(hidden=hidden, side=params.size + 2, patch_size=params.receptive_field**2,
-                     encoding=encoding)
+                     encoding=encoding, aux_head=aux_head)
+
+
+def without_aux(net_params):
+    """Parameters of the plain policy (drops the ``aux`` head; works on stacked params)."""
+    return {"params": {k: v for k, v in net_params["params"].items() if k != "aux"}}
 
 
 def init_stacked(model: GRUPolicy, key: jax.Array, num_seeds: int, obs_dim: int):

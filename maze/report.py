@@ -16,10 +16,16 @@ CURVES: dict[str, tuple[str, str]] = {
     "bc_full_from_full": ("BC: full expert $\\to$ full imitator", "#1f77b4"),
     "bc_partial_from_full": ("BC: full expert $\\to$ partial imitator", "#17becf"),
     "bc_partial_from_partial": ("BC: partial expert $\\to$ partial imitator", "#e377c2"),
+    "dagger_partial_from_full": ("DAgger: full expert $\\to$ partial imitator", "#2ca02c"),
+    "bc_rl_partial_from_full": ("BC+PPO: full expert $\\to$ partial imitator", "#ff7f0e"),
+    "advisor_partial_from_full": ("ADVISOR: full expert $\\to$ partial imitator", "#9467bd"),
 }
 PLAIN = {"rl_full": "RL full obs. (PPO)", "rl_partial": "RL partial obs. (PPO)",
          "bc_full_from_full": "BC full -> full", "bc_partial_from_full": "BC full -> partial",
-         "bc_partial_from_partial": "BC partial -> partial"}
+         "bc_partial_from_partial": "BC partial -> partial",
+         "dagger_partial_from_full": "DAgger full -> partial",
+         "bc_rl_partial_from_full": "BC+PPO full -> partial",
+         "advisor_partial_from_full": "ADVISOR full -> partial"}
 
 
 def ci95(values) -> float:
@@ -36,7 +42,7 @@ def ci95(values) -> float:
 def summarise(curves: pd.DataFrame) -> pd.DataFrame:
     """One row per curve: final return (and length) mean and 95% CI over seeds."""
     rows = []
-    for name in CURVES:
+    for name in CURVES:  # the paper's five, then the baselines of Fig. 2b
         final = curves[(curves.curve == name) & (curves.final)]
         if final.empty:
             continue
@@ -65,7 +71,10 @@ def summary_latex(summary: pd.DataFrame, refs: dict) -> str:
     tex = {"rl_full": "RL, full obs.\\ (PPO)", "rl_partial": "RL, partial obs.\\ (PPO)",
            "bc_full_from_full": "BC full $\\to$ full",
            "bc_partial_from_full": "BC full $\\to$ partial",
-           "bc_partial_from_partial": "BC partial $\\to$ partial"}
+           "bc_partial_from_partial": "BC partial $\\to$ partial",
+           "dagger_partial_from_full": "DAgger full $\\to$ partial",
+           "bc_rl_partial_from_full": "BC+PPO full $\\to$ partial",
+           "advisor_partial_from_full": "ADVISOR full $\\to$ partial"}
     lines = ["\\begin{tabular}{lcc}", "\\toprule",
              "Curve & Final return & Episode length \\\\", "\\midrule"]
     for r in summary.itertuples():
@@ -79,8 +88,15 @@ def summary_latex(summary: pd.DataFrame, refs: dict) -> str:
     return "\n".join(lines)
 
 
-def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) -> None:
-    """Mean return vs training progress, t-based 95% CI bands, dashed RL bounds, dotted refs."""
+PAPER_CURVES = ("rl_full", "rl_partial", "bc_full_from_full", "bc_partial_from_full",
+                "bc_partial_from_partial")
+
+
+def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path,
+         converged: dict[str, bool] | None = None) -> None:
+    """Fig. 2 (the paper's five curves): mean return vs training progress, t-based 95% CI bands,
+    dashed final RL returns marked "converged" or "not converged" (``converged``: curve -> the
+    plateau test of :func:`maze.extended.plateau`), dotted exact references."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -90,7 +106,8 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) ->
     sns.set_theme(style="whitegrid", context="paper")
     fig, ax = plt.subplots(figsize=(8.6, 4.0))
     data = curves.assign(label=curves.curve.map(lambda c: CURVES[c][0]))
-    names = [c for c in CURVES if c in set(curves.curve)]
+    names = [c for c in PAPER_CURVES if c in set(curves.curve)]
+    data = data[data.curve.isin(names)]
     palette = {CURVES[c][0]: CURVES[c][1] for c in names}
 
     def band(values):
@@ -101,8 +118,10 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path) ->
     sns.lineplot(data=data, x="progress", y="return", hue="label", hue_order=[
         CURVES[c][0] for c in names], palette=palette, errorbar=band, ax=ax, linewidth=1.6)
     final = summary.set_index("curve").final_return_mean
-    for name, text in (("rl_full", "converged RL, full obs."),
-                       ("rl_partial", "converged RL, partial obs.")):
+    converged = converged or {}
+    for name, kind in (("rl_full", "full"), ("rl_partial", "partial")):
+        status = "converged" if converged.get(name, True) else "not converged"
+        text = f"RL, {kind} obs., final ({status})"
         if name in final:
             ax.axhline(final[name], color=CURVES[name][1], ls="--", lw=1.1, label=text)
     ax.axhline(refs["oracle_full"][0], color="0.35", ls=":", lw=1.1,

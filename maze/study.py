@@ -3,10 +3,14 @@
 Stages (each cached under ``--work`` so an interrupted run resumes at the stage level):
 ``rl_full`` and ``rl_partial`` (recurrent PPO, the experts and the dashed RL bounds), then ``bc``
 (three BC curves, ``vmap``ped over curves x seeds: full->full, full->partial, partial->partial,
-labels = the expert's sampled actions on the states it visits). Every curve point is the mean
-return of fresh evaluation episodes; the final point uses ``final_eval_rounds`` times more.
+labels = the expert's sampled actions on the states it visits), then, unless ``--no-baselines``,
+the remedies of :mod:`maze.extended` for the full expert -> partial imitator case: ``dagger``
+and ``mixed`` (BC+PPO and ADVISOR in one program). Every curve point is the mean return of fresh
+evaluation episodes; the final point uses ``final_eval_rounds`` times more. The RL curves are
+tested for a plateau (:func:`maze.extended.plateau`) and drawn "converged" or "not converged".
 Outputs under ``--out`` (default ``paper/``): ``figures/fig2_maze.{pdf,png,csv}``,
-``tables/maze_summary.{md,tex,csv}`` and ``maze_config.json``. Deterministic for a given config.
+``figures/fig2b_maze_baselines.{pdf,png}``, ``tables/maze_summary.{md,tex,csv}`` and
+``maze_config.json``. Deterministic for a given config.
 """
 
 from __future__ import annotations
@@ -28,10 +32,13 @@ from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.io import atomic_write_bytes, atomic_write_csv, atomic_write_json, atomic_write_text
-from maze import report
+from maze import extended, report
 from maze.bc import BCConfig, collect_demos, make_bc
+from maze.dagger import DAggerConfig, make_dagger
 from maze.env import make_params
-from maze.network import init_stacked, make_policy
+from maze.extended import records as _records
+from maze.mixed import MixedConfig, make_mixed
+from maze.network import init_stacked, make_policy, without_aux
 from maze.oracles import reference_returns
 from maze.ppo import PPOConfig, make_ppo
 from maze.render import save_frames
@@ -63,6 +70,11 @@ class StudyConfig:
     bc_chunk_epochs: int = 3
     eval_episodes: int = 256
     final_eval_rounds: int = 4
+    baselines: bool = True  # Fig. 2b: DAgger, BC+PPO, ADVISOR (full expert -> partial student)
+    dagger: DAggerConfig = DAggerConfig()
+    mixed: MixedConfig = MixedConfig()
+    mixed_updates: int = 60
+    plateau_tol: float = 0.1  # RL "converged": return rose < this over the last quarter
 
     def validate(self) -> None:
         make_params(self.size, self.receptive_field, self.max_steps)
@@ -70,7 +82,7 @@ class StudyConfig:
             raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
         if self.hidden < 1:
             raise ConfigError(f"--hidden must be >= 1, got {self.hidden}")
-        for name in ("rl_full_updates", "rl_partial_updates"):
+        for name in ("rl_full_updates", "rl_partial_updates", "mixed_updates"):
             if getattr(self, name) % self.chunk_updates:
                 raise ConfigError(f"{name} must be a multiple of chunk_updates")
         if self.bc.epochs % self.bc_chunk_epochs:
@@ -87,7 +99,9 @@ PROFILES = {
         ppo=PPOConfig(num_envs=8, num_steps=32, num_minibatches=2, update_epochs=2),
         rl_full_updates=4, rl_partial_updates=4, chunk_updates=2,
         bc=BCConfig(num_envs=8, num_steps=64, epochs=2, num_minibatches=2),
-        bc_chunk_epochs=1, eval_episodes=16, final_eval_rounds=1),
+        bc_chunk_epochs=1, eval_episodes=16, final_eval_rounds=1,
+        dagger=DAggerConfig(iterations=2, num_envs=8, num_steps=32, steps_per_iteration=4,
+                            batch_streams=4), mixed_updates=2),
 }
 
 
@@ -96,10 +110,7 @@ def config_dict(cfg: StudyConfig) -> dict:
 
 
 def _key(cfg: StudyConfig, *path: int) -> jax.Array:
-    key = jax.random.PRNGKey(cfg.seed)
-    for p in path:
-        key = jax.random.fold_in(key, p)
-    return key
+    return extended.stage_key(cfg.seed, *path)
 
 
 class Study:
@@ -121,8 +132,36 @@ class Study:
             lambda p, k, partial: evaluate(self.model, p, k, cfg.eval_episodes, self.params,
                                            partial)))
 
+        self._baselines = None
+
+    def _build_baselines(self):
+        """Compiled DAgger and BC+PPO/ADVISOR functions (built on first use)."""
+        if self._baselines is None:
+            cfg = self.cfg
+            self.mixed_model = make_policy(cfg.hidden, self.params, aux_head=True)
+            m_init, m_chunk = make_mixed(self.mixed_model, self.model, self.params, cfg.ppo,
+                                         cfg.mixed, cfg.chunk_updates)
+            d_init, d_iter = make_dagger(self.model, self.model, self.params, cfg.dagger)
+            self._baselines = (jax.jit(jax.vmap(m_init)), jax.jit(jax.vmap(m_chunk)),
+                               jax.jit(jax.vmap(d_init)), jax.jit(jax.vmap(d_iter)))
+        return self._baselines
+
+    mixed_init = property(lambda self: self._build_baselines()[0])
+    mixed_chunk = property(lambda self: self._build_baselines()[1])
+    dagger_init = property(lambda self: self._build_baselines()[2])
+    dagger_iter = property(lambda self: self._build_baselines()[3])
+
+    @staticmethod
+    def strip_aux(net_params):
+        return without_aux(net_params)
+
     def init_params(self, curve: int, rows: int):
         return init_stacked(self.model, _key(self.cfg, curve, 0), rows, self.params.obs_dim)
+
+    def init_mixed_params(self, curve: int, rows: int):
+        self._build_baselines()
+        return init_stacked(self.mixed_model, _key(self.cfg, curve, 0), rows,
+                            self.params.obs_dim)
 
     def eval_rows(self, net_params, partial: bool, key: jax.Array, rounds: int = 1):
         """Mean return and length per row (seed) over ``rounds * eval_episodes`` episodes."""
@@ -133,18 +172,6 @@ class Study:
         ret = np.mean([np.asarray(o[0]) for o in out], axis=0)
         length = np.mean([np.asarray(o[1]) for o in out], axis=0)
         return ret, length
-
-
-def _records(curve: str, unit: str, points: list, seeds: int) -> list[dict]:
-    """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``."""
-    rows = []
-    last = len(points) - 1
-    for i, (step, ret, length) in enumerate(points):
-        for s in range(seeds):
-            rows.append({"curve": curve, "seed": s, "progress": i / last, "step": step,
-                         "unit": unit, "return": float(ret[s]), "length": float(length[s]),
-                         "final": i == last})
-    return rows
 
 
 def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | None = None) -> dict:
@@ -228,6 +255,11 @@ def _cached(path: Path, fn):
 OUTPUTS = ("figures/fig2_maze.pdf", "figures/fig2_maze.png", "figures/fig2_maze.csv",
            "tables/maze_summary.md", "tables/maze_summary.tex", "tables/maze_summary.csv",
            "figures/maze_frames.png", "maze_config.json")
+BASELINE_OUTPUTS = ("figures/fig2b_maze_baselines.pdf", "figures/fig2b_maze_baselines.png")
+
+
+def outputs(cfg: StudyConfig) -> tuple[str, ...]:
+    return OUTPUTS + (BASELINE_OUTPUTS if cfg.baselines else ())
 
 
 def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
@@ -239,62 +271,92 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     cfg.validate()
     resolved = config_dict(cfg)
     config_path = out / "maze_config.json"
-    if not force and all((out / p).exists() for p in OUTPUTS):
+    if not force and all((out / p).exists() for p in outputs(cfg)):
         if json.loads(config_path.read_text()).get("config") == resolved:
             print(f"maze study: outputs in {out} are up to date with this config; skipping "
                   "(--force to rerun)")
             return pd.read_csv(out / "tables/maze_summary.csv")
+
     def digest(d: dict) -> str:
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
-    # Each RL stage depends on neither the BC settings nor the other RL stage's length, so
-    # changing those reuses the trained experts.
+    # Each stage is keyed by what it depends on, so changing one stage's settings reuses the
+    # others (e.g. the trained experts).
+    later = ("bc", "baselines", "dagger", "mixed", "plateau_tol")
     shared = {k: v for k, v in resolved.items()
-              if not k.startswith("bc") and not k.endswith("_updates")}
+              if not k.startswith(later) and not k.endswith("_updates")}
     stage_dirs = {name: work / digest({**shared, "updates": resolved[f"{name}_updates"]})
                   for name in ("rl_full", "rl_partial")}
-    bc_dir = work / digest(resolved)
+    expert = {**shared, "rl_full_updates": cfg.rl_full_updates}
+    stage_dirs["bc"] = work / digest({**expert, "rl_partial_updates": cfg.rl_partial_updates,
+                                      "bc": resolved["bc"],
+                                      "bc_chunk_epochs": cfg.bc_chunk_epochs})
+    stage_dirs["dagger"] = work / digest({**expert, "dagger": resolved["dagger"]})
+    stage_dirs["mixed"] = work / digest({**expert, "mixed": resolved["mixed"],
+                                         "mixed_updates": cfg.mixed_updates})
     study = study or Study(cfg)
-    n_bar = (cfg.rl_full_updates + cfg.rl_partial_updates) // cfg.chunk_updates + (
-        cfg.bc.epochs // cfg.bc_chunk_epochs)
+    ticks = {"rl_full": cfg.rl_full_updates // cfg.chunk_updates,
+             "rl_partial": cfg.rl_partial_updates // cfg.chunk_updates,
+             "bc": cfg.bc.epochs // cfg.bc_chunk_epochs}
+    if cfg.baselines:
+        ticks.update(dagger=cfg.dagger.iterations, mixed=cfg.mixed_updates // cfg.chunk_updates)
     t_start = time.perf_counter()
     results = {}
-    with tqdm(total=n_bar, desc="maze study", unit="chunk", dynamic_ncols=True) as bar:
+    with tqdm(total=sum(ticks.values()), desc="maze study", unit="chunk",
+              dynamic_ncols=True) as bar:
         for name, partial in (("rl_full", False), ("rl_partial", True)):
             results[name], hit = _cached(stage_dirs[name] / f"{name}.pkl",
                                          lambda n=name, p=partial: run_rl(study, n, p, bar))
-            if hit:
-                bar.update(getattr(cfg, f"{name}_updates") // cfg.chunk_updates)
+            bar.update(ticks[name] if hit else 0)
         experts = {n: results[n]["params"] for n in ("rl_full", "rl_partial")}
-        results["bc"], hit = _cached(bc_dir / "bc.pkl", lambda: run_bc(study, experts, bar))
-        if hit:
-            bar.update(cfg.bc.epochs // cfg.bc_chunk_epochs)
+        stages = {"bc": run_bc}
+        if cfg.baselines:
+            stages.update(dagger=extended.run_dagger, mixed=extended.run_mixed)
+        for name, fn in stages.items():
+            results[name], hit = _cached(stage_dirs[name] / f"{name}.pkl",
+                                         lambda fn=fn: fn(study, experts, bar))
+            bar.update(ticks[name] if hit else 0)
     wall = time.perf_counter() - t_start
-    curves = pd.DataFrame(results["rl_full"]["records"] + results["rl_partial"]["records"]
-                          + results["bc"]["records"])
+    curves = pd.DataFrame([r for name in results for r in results[name]["records"]])
     summary = report.summarise(curves)
     refs = reference_returns(study.params)
-    timings = {"rl_full_s": results["rl_full"]["seconds"],
-               "rl_partial_s": results["rl_partial"]["seconds"],
-               "bc_all_three_s": results["bc"]["seconds"], "this_invocation_wall_s": wall}
+    plateaus = {n: extended.plateau(curves, n, cfg.plateau_tol) for n in ("rl_full", "rl_partial")}
+    converged = {n: p["converged"] for n, p in plateaus.items()}
+    timings = {f"{n}_s": r["seconds"] for n, r in results.items()}
+    timings["this_invocation_wall_s"] = wall
+    status = "; ".join(
+        f"{n}: {'converged' if p['converged'] else 'NOT converged'} (rose "
+        f"{p['rise_last_quarter']:.2f} over the last quarter; criterion < {p['tol']})"
+        for n, p in plateaus.items())
     note = (f"{cfg.seeds} seeds, GRU-{cfg.hidden}; PPO lr {cfg.ppo.lr}, "
             f"{cfg.rl_full_updates * cfg.ppo.steps_per_update:,} (full) / "
             f"{cfg.rl_partial_updates * cfg.ppo.steps_per_update:,} (partial) env steps per seed;"
             f" BC {cfg.bc.epochs} epochs on {cfg.bc.dataset_size:,} expert transitions per seed. "
-            "Stage seconds (compile included): "
+            + (f"DAgger {cfg.dagger.iterations} x {cfg.dagger.steps_per_collection:,} "
+               f"transitions; BC+PPO (w_BC {cfg.mixed.w_bc}, w_RL {cfg.mixed.w_rl}) and ADVISOR "
+               f"(alpha {cfg.mixed.alpha}) {cfg.mixed_updates * cfg.ppo.steps_per_update:,} env "
+               "steps per seed. " if cfg.baselines else "")
+            + f"Plateau test: {status}. Stage seconds (compile included): "
             + ", ".join(f"{k} {v:.0f}" for k, v in timings.items()))
     atomic_write_csv(out / "figures/fig2_maze.csv", curves)
     atomic_write_csv(out / "tables/maze_summary.csv", summary)
     atomic_write_text(out / "tables/maze_summary.md", report.summary_markdown(summary, refs, note))
     atomic_write_text(out / "tables/maze_summary.tex", report.summary_latex(summary, refs))
-    report.plot(curves, summary, refs, out / "figures/fig2_maze")
+    report.plot(curves, summary, refs, out / "figures/fig2_maze", converged)
+    if cfg.baselines:
+        extended.plot_baselines(curves, summary, refs, plateaus["rl_partial"],
+                                out / "figures/fig2b_maze_baselines")
     save_frames(out / "figures/maze_frames.png")
     meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
-            "timings_s": timings, "bc_loss_per_chunk": results["bc"]["losses"],
+            "timings_s": timings, "plateau": plateaus,
+            "bc_loss_per_chunk": results["bc"]["losses"],
+            "baseline_metrics": {n: results[n]["metrics"] for n in ("dagger", "mixed")
+                                 if n in results},
             "jax": jax.__version__, "device": str(jax.devices()[0])}
     atomic_write_json(config_path, meta, indent=2)
     print(summary.to_string(index=False))
-    print(f"maze study: wrote {', '.join(OUTPUTS)} under {out} ({wall:.0f} s)")
+    print(f"maze study: {status}")
+    print(f"maze study: wrote {', '.join(outputs(cfg))} under {out} ({wall:.0f} s)")
     return summary
 
 
@@ -307,11 +369,13 @@ def study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/maze"),
                         help="stage cache (resume) directory")
     parser.add_argument("--force", action="store_true", help="rerun even if outputs are current")
+    parser.add_argument("--no-baselines", dest="baselines", action="store_false", default=None,
+                        help="only the paper's five curves (skip DAgger, BC+PPO, ADVISOR)")
 
 
 def resolve(args: argparse.Namespace) -> StudyConfig:
     cfg = PROFILES[args.profile]
-    overrides = {k: getattr(args, k) for k in ("seeds", "seed", "hidden")
+    overrides = {k: getattr(args, k) for k in ("seeds", "seed", "hidden", "baselines")
                  if getattr(args, k) is not None}
     return dataclasses.replace(cfg, **overrides)
 

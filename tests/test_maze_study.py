@@ -23,7 +23,7 @@ TINY = dataclasses.replace(
     ppo=PPOConfig(num_envs=16, num_steps=32, num_minibatches=2, update_epochs=4, lr=5e-3),
     rl_full_updates=64, rl_partial_updates=8, chunk_updates=8,
     bc=BCConfig(num_envs=8, num_steps=64, epochs=4, num_minibatches=2, lr=1e-2),
-    bc_chunk_epochs=1, eval_episodes=32)
+    bc_chunk_epochs=1, eval_episodes=32, baselines=False)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,156 @@
+"""Imitation-gap baselines of the maze study (Fig. 2b): DAgger, BC+PPO and ADVISOR, each
+teaching the partial-observation student with the full-observation RL expert, 10 seeds.
+
+``run_dagger`` and ``run_mixed`` return the same record dicts as the paper's stages
+(:mod:`maze.study`); x-axis of Fig. 2b: environment steps per seed (the student's own samples;
+DAgger's first slot is the teacher's). ``plateau`` is the convergence criterion drawn on the
+partial RL bound.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from igdrivsim.io import atomic_savefig
+
+MIXED_CURVES = {"bc_rl_partial_from_full": False, "advisor_partial_from_full": True}
+EXTENDED = ("dagger_partial_from_full", *MIXED_CURVES)
+
+
+def stage_key(seed: int, *path: int) -> jax.Array:
+    key = jax.random.PRNGKey(seed)
+    for p in path:
+        key = jax.random.fold_in(key, p)
+    return key
+
+
+def records(curve: str, unit: str, points: list, seeds: int) -> list[dict]:
+    """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``."""
+    rows = []
+    last = len(points) - 1
+    for i, (step, ret, length) in enumerate(points):
+        for s in range(seeds):
+            rows.append({"curve": curve, "seed": s, "progress": i / last, "step": step,
+                         "unit": unit, "return": float(ret[s]), "length": float(length[s]),
+                         "final": i == last})
+    return rows
+
+
+def plateau(curves: pd.DataFrame, curve: str, tol: float) -> dict:
+    """Convergence test: the seed-mean return rose by less than ``tol`` over the last quarter of
+    training (final point vs. the last point at or before 3/4 of the run)."""
+    mean = curves[curves.curve == curve].groupby("progress")["return"].mean()
+    if mean.empty:
+        return {"converged": False, "rise_last_quarter": float("nan"), "tol": tol}
+    at = mean.index[mean.index <= 0.75 + 1e-9].max()
+    rise = float(mean.iloc[-1] - mean.loc[at])
+    return {"converged": bool(rise < tol), "rise_last_quarter": rise, "tol": tol}
+
+
+def run_dagger(study, experts: dict, bar: tqdm) -> dict:
+    """DAgger from the full-observation expert, ``vmap`` over seeds, one eval per iteration."""
+    cfg, s = study.cfg, study.cfg.seeds
+    t0 = time.perf_counter()
+    teacher = experts["rl_full"]
+    net = study.init_params(7, s)
+    state = study.dagger_init(jnp.stack([stage_key(cfg.seed, 7, 1, j) for j in range(s)]), net)
+    eval_key = stage_key(cfg.seed, 7, 2)
+    points = [(0, *study.eval_rows(state.params, True, eval_key))]
+    metrics = []
+    for i in range(cfg.dagger.iterations):
+        state, m = study.dagger_iter(state, teacher)
+        metrics.append({k: np.asarray(v).mean(axis=0).tolist() for k, v in m.items()})
+        last = i == cfg.dagger.iterations - 1
+        ret, length = study.eval_rows(state.params, True, jax.random.fold_in(eval_key, i + 1),
+                                      cfg.final_eval_rounds if last else 1)
+        points.append(((i + 1) * cfg.dagger.steps_per_collection, ret, length))
+        bar.update(1)
+        bar.set_postfix_str(f"dagger return {ret.mean():.2f}")
+    return {"records": records("dagger_partial_from_full", "env_steps_per_seed", points, s),
+            "metrics": metrics, "seconds": time.perf_counter() - t0}
+
+
+def run_mixed(study, experts: dict, bar: tqdm) -> dict:
+    """BC+PPO and ADVISOR in one program (``vmap`` over methods x seeds)."""
+    cfg, s = study.cfg, study.cfg.seeds
+    names = list(MIXED_CURVES)
+    n = len(names)
+    t0 = time.perf_counter()
+    teacher = jax.tree.map(lambda x: jnp.concatenate([x] * n), experts["rl_full"])
+    net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
+                       *[study.init_mixed_params(8 + i, s) for i in range(n)])
+    keys = jnp.stack([stage_key(cfg.seed, 8 + i, 1, j) for i in range(n) for j in range(s)])
+    flags = jnp.repeat(jnp.array([MIXED_CURVES[c] for c in names]), s)
+    state = study.mixed_init(keys, net, flags, jnp.full(n * s, cfg.mixed_updates, jnp.int32))
+
+    def evaluate_all(chunk: int, rounds: int = 1):
+        plain = study.strip_aux(state.params)
+        return [study.eval_rows(jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], plain), True,
+                                jax.random.fold_in(stage_key(cfg.seed, 8 + i, 2), chunk), rounds)
+                for i in range(n)]
+
+    points = [[(0, *r)] for r in evaluate_all(0)]
+    n_chunks = cfg.mixed_updates // cfg.chunk_updates
+    metrics = []
+    for c in range(n_chunks):
+        state, m = study.mixed_chunk(state, teacher)
+        metrics.append({k: np.asarray(v).reshape(n, s, -1).mean(axis=(1, 2)).tolist()
+                        for k, v in m.items()})
+        last = c == n_chunks - 1
+        for i, r in enumerate(evaluate_all(c + 1, cfg.final_eval_rounds if last else 1)):
+            points[i].append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, *r))
+        bar.update(1)
+        bar.set_postfix_str("bc+ppo/advisor return "
+                            + "/".join(f"{p[-1][1].mean():.2f}" for p in points))
+    rows = []
+    for i, c in enumerate(names):
+        rows += records(c, "env_steps_per_seed", points[i], s)
+    return {"records": rows, "metrics": metrics, "seconds": time.perf_counter() - t0}
+
+
+def plot_baselines(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, converged: dict,
+                   stem: Path) -> None:
+    """Fig. 2b: return vs environment steps per seed for the partial student (mean, 95% CI)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from maze.report import CURVES, ci95
+
+    fig, ax = plt.subplots(figsize=(8.6, 4.0))
+    for name in ("rl_partial", *EXTENDED):
+        data = curves[curves.curve == name]
+        if data.empty:
+            continue
+        g = data.groupby("step")["return"]
+        m = g.mean()
+        h = g.agg(ci95)
+        ax.plot(m.index, m.values, color=CURVES[name][1], lw=1.6, label=CURVES[name][0])
+        ax.fill_between(m.index, m - h, m + h, color=CURVES[name][1], alpha=0.2, lw=0)
+    final = summary.set_index("curve").final_return_mean
+    status = "converged" if converged.get("converged") else "not converged"
+    for name, text, ls in (("rl_full", "RL full obs. (final)", "--"),
+                           ("rl_partial", f"RL partial obs. (final, {status})", "--"),
+                           ("bc_partial_from_full", "BC full $\\to$ partial (final)", "-.")):
+        if name in final:
+            ax.axhline(final[name], color=CURVES[name][1], ls=ls, lw=1.1, label=text)
+    ax.axhline(refs["planner_partial"][0], color="0.6", ls=":", lw=1.1,
+               label="exploring planner (partial obs.)")
+    ax.set_xlabel("environment steps per seed")
+    ax.set_ylabel("mean episodic return")
+    ax.set_ylim(0, 10.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    ax.set_title("Full-obs. expert $\\to$ partial-obs. student: remedies (mean, 95% CI over "
+                 "seeds)", fontsize=8)
+    fig.tight_layout()
+    for ext in ("pdf", "png"):
+        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
+    plt.close(fig)

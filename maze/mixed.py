@@ -1,0 +1,141 @@
+"""BC+PPO (the paper's remedy) and adaptive weighting (ADVISOR, Weihs et al. 2021) in the maze.
+
+Both train a partial-observation student with recurrent PPO on the maze's own reward while the
+full-observation teacher labels every state the student visits (:mod:`maze.teacher`). The per-
+state loss mixes imitation (soft cross-entropy to the teacher's action distribution) and the
+clipped PPO policy term:
+
+* ``adaptive = False`` (BC+PPO): ``w_bc * CE + w_rl * PPO`` (value and entropy terms scaled by
+  ``w_rl`` too: the paper's ``w_BC BC + w_RL PPO`` with ``w_BC = 1``, ``w_RL = 0.05``).
+* ``adaptive = True`` (ADVISOR, our implementation of the idea): an auxiliary actor head on the
+  same GRU trunk is trained by imitation only; where it cannot match the teacher (the teacher
+  uses information the student lacks) the imitation weight drops,
+  ``w(s) = exp(-alpha * KL(teacher || aux)(s))``, and the loss is
+  ``w(s) CE(s) + (1 - w(s)) PPO(s)`` plus the auxiliary head's CE (weights not differentiated).
+
+The mode is an array in the state, so one compiled function trains both methods (``vmap`` over
+methods x seeds). Single seed, pure; the study calls ``train_chunk`` repeatedly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from maze.env import MazeParams, observe
+from maze.network import GRUPolicy
+from maze.ppo import PPOConfig, gae, make_optimizer
+from maze.rollout import Stream, start_stream
+from maze.teacher import kl, run_labelled, soft_cross_entropy
+
+
+@dataclasses.dataclass(frozen=True)
+class MixedConfig:
+    """Loss weights (paper's BC+PPO: ``w_bc = 1``, ``w_rl = 0.05``) and ADVISOR's ``alpha``."""
+
+    w_bc: float = 1.0
+    w_rl: float = 0.05
+    alpha: float = 4.0
+
+
+@struct.dataclass
+class MixedState:
+    params: dict
+    opt_state: optax.OptState
+    stream: Stream
+    teacher_h: jax.Array  # f32[E, H], the teacher's memory along the student's streams
+    key: jax.Array
+    adaptive: jax.Array  # bool, ADVISOR (True) or fixed-weight BC+PPO (False)
+    update: jax.Array  # int32
+    total_updates: jax.Array  # int32, length of the linear learning-rate decay
+
+
+def make_mixed(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: PPOConfig,
+               mix: MixedConfig, chunk_updates: int):
+    """``(init, train_chunk)``; ``model`` must have ``aux_head=True``.
+
+    ``train_chunk(state, teacher_params) -> (state, metrics)`` runs ``chunk_updates`` updates;
+    metrics per update: ``loss`` (imitation CE of the main head), ``weight`` (mean imitation
+    weight), ``return``.
+    """
+    assert model.aux_head, "the mixed learner needs the auxiliary head"
+    tx = make_optimizer(cfg.max_grad_norm)
+
+    def init(key: jax.Array, net_params, adaptive, total_updates) -> MixedState:
+        key_env, key = jax.random.split(key)
+        return MixedState(net_params, tx.init(net_params),
+                          start_stream(key_env, cfg.num_envs, model.hidden, params),
+                          jnp.zeros((cfg.num_envs, teacher.hidden)), key,
+                          jnp.asarray(adaptive, bool), jnp.zeros((), jnp.int32),
+                          jnp.asarray(total_updates, jnp.int32))
+
+    def loss_fn(net_params, h0, batch, adv, targets, adaptive):
+        _, logits, value, aux = model.apply(net_params, h0, batch.obs, batch.first)
+        log_p = jax.nn.log_softmax(logits)
+        new_log_prob = jnp.take_along_axis(log_p, batch.action[..., None], -1)[..., 0]
+        ratio = jnp.exp(new_log_prob - batch.log_prob)
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv)
+        v_clipped = batch.value + jnp.clip(value - batch.value, -cfg.clip_eps, cfg.clip_eps)
+        value_loss = 0.5 * jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2).mean()
+        entropy = -(jnp.exp(log_p) * log_p).sum(-1).mean()
+        ce = soft_cross_entropy(batch.teacher_logp, logits)
+        aux_ce = soft_cross_entropy(batch.teacher_logp, aux)
+        w_adv = jnp.exp(-mix.alpha * jax.lax.stop_gradient(kl(batch.teacher_logp, aux)))
+        w_il = jnp.where(adaptive, w_adv, mix.w_bc)
+        w_pg = jnp.where(adaptive, 1.0 - w_adv, mix.w_rl)
+        rl_scale = jnp.where(adaptive, 1.0, mix.w_rl)
+        loss = ((w_il * ce + w_pg * pg).mean()
+                + rl_scale * (cfg.vf_coef * value_loss - cfg.ent_coef * entropy)
+                + jnp.where(adaptive, aux_ce.mean(), 0.0))
+        return loss, (ce.mean(), w_il.mean())
+
+    grad_fn = jax.grad(loss_fn, has_aux=True)
+
+    def update(carry, _):
+        state, teacher_params = carry
+        key, key_roll, key_perm = jax.random.split(state.key, 3)
+        h0 = state.stream.h
+        stream, teacher_h, traj = run_labelled(model, state.params, teacher, teacher_params,
+                                               state.stream, state.teacher_h, key_roll,
+                                               cfg.num_steps, params)
+        last_obs = jax.vmap(observe, (0, None, None))(stream.state, params, True)
+        frac = 1.0 - state.update / state.total_updates if cfg.anneal_lr else 1.0
+        lr = cfg.lr * jnp.maximum(frac, 0.0)
+        last_value = model.apply(state.params, stream.h, last_obs[None], stream.first[None])[2]
+        adv, targets = gae(traj.value, traj.reward, traj.done, last_value[0], cfg.gamma,
+                           cfg.gae_lambda)
+
+        def epoch(carry, key):
+            perm = jax.random.permutation(key, cfg.num_envs).reshape(cfg.num_minibatches, -1)
+
+            def minibatch(carry, idx):
+                net_params, opt_state = carry
+                take = lambda x: x[:, idx]  # noqa: E731  (env axis is 1)
+                grads, stats = grad_fn(net_params, h0[idx], jax.tree.map(take, traj), take(adv),
+                                       take(targets), state.adaptive)
+                updates, opt_state = tx.update(grads, opt_state, net_params)
+                updates = jax.tree.map(lambda u: -lr * u, updates)
+                return (optax.apply_updates(net_params, updates), opt_state), stats
+
+            return jax.lax.scan(minibatch, carry, perm)
+
+        (net_params, opt_state), (ce, weight) = jax.lax.scan(
+            epoch, (state.params, state.opt_state), jax.random.split(key_perm, cfg.update_epochs))
+        episodes = traj.done.sum()
+        metrics = {"loss": ce[0].mean(), "weight": weight.mean(),
+                   "return": traj.reward.sum() / jnp.maximum(episodes, 1)}
+        state = state.replace(params=net_params, opt_state=opt_state, stream=stream,
+                              teacher_h=teacher_h, key=key, update=state.update + 1)
+        return (state, teacher_params), metrics
+
+    def train_chunk(state: MixedState, teacher_params):
+        (state, _), metrics = jax.lax.scan(update, (state, teacher_params), None,
+                                           length=chunk_updates)
+        return state, metrics
+
+    return init, train_chunk
