@@ -175,3 +175,15 @@ def test_inspect_json_carries_source_id_and_first_step(capsys):
     assert [(d["source_id"], d["first_step"], d["scenario_id"]) for d in lines] == [
         ("eb4b91b10ca94ff2", 0, "eb4b91b10ca94ff2_0"),
         ("eb4b91b10ca94ff2", 91, "eb4b91b10ca94ff2_91")]
+
+
+@needs_samples
+def test_replay_json_carries_source_id_and_first_step(capsys):
+    from igdrivsim.cli import main
+
+    path = str(SAMPLES / "sd_nuscenes_v1.0-mini_scene-0757.pkl")
+    assert main(["replay", path, "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [(d["source_id"], d["first_step"], d["record"]) for d in lines] == [
+        ("scene-0757", 0, 0), ("scene-0757", 91, 1)]
+    assert all(d["replay_max_log_divergence"] < 0.1 for d in lines)
