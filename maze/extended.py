@@ -77,23 +77,24 @@ def run_dagger(study, experts: dict, bar: tqdm) -> dict:
             "metrics": metrics, "seconds": time.perf_counter() - t0}
 
 
-def run_mixed(study, experts: dict, bar: tqdm) -> dict:
-    """BC+PPO and ADVISOR in one program (``vmap`` over methods x seeds)."""
+def run_mixed(study, experts: dict, bar: tqdm,
+              names: tuple[str, ...] = tuple(MIXED_CURVES)) -> dict:
+    """BC+PPO and/or ADVISOR (``names``) in one program (``vmap`` over methods x seeds)."""
     cfg, s = study.cfg, study.cfg.seeds
-    names = list(MIXED_CURVES)
+    ids = [8 + list(MIXED_CURVES).index(c) for c in names]  # stable PRNG paths per curve
     n = len(names)
     t0 = time.perf_counter()
     teacher = jax.tree.map(lambda x: jnp.concatenate([x] * n), experts["rl_full"])
     net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
-                       *[study.init_mixed_params(8 + i, s) for i in range(n)])
-    keys = jnp.stack([stage_key(cfg.seed, 8 + i, 1, j) for i in range(n) for j in range(s)])
+                       *[study.init_mixed_params(i, s) for i in ids])
+    keys = jnp.stack([stage_key(cfg.seed, i, 1, j) for i in ids for j in range(s)])
     flags = jnp.repeat(jnp.array([MIXED_CURVES[c] for c in names]), s)
     state = study.mixed_init(keys, net, flags, jnp.full(n * s, cfg.mixed_updates, jnp.int32))
 
     def evaluate_all(chunk: int, rounds: int = 1):
         plain = study.strip_aux(state.params)
         return [study.eval_rows(jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], plain), True,
-                                jax.random.fold_in(stage_key(cfg.seed, 8 + i, 2), chunk), rounds)
+                                jax.random.fold_in(stage_key(cfg.seed, ids[i], 2), chunk), rounds)
                 for i in range(n)]
 
     points = [[(0, *r)] for r in evaluate_all(0)]
@@ -107,8 +108,8 @@ def run_mixed(study, experts: dict, bar: tqdm) -> dict:
         for i, r in enumerate(evaluate_all(c + 1, cfg.final_eval_rounds if last else 1)):
             points[i].append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, *r))
         bar.update(1)
-        bar.set_postfix_str("bc+ppo/advisor return "
-                            + "/".join(f"{p[-1][1].mean():.2f}" for p in points))
+        bar.set_postfix_str(" ".join(f"{c.split('_')[0]} {p[-1][1].mean():.2f}"
+                                     for c, p in zip(names, points, strict=True)))
     rows = []
     for i, c in enumerate(names):
         rows += records(c, "env_steps_per_seed", points[i], s)

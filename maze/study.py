@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.io import atomic_write_bytes, atomic_write_csv, atomic_write_json, atomic_write_text
-from maze import extended, report
+from maze import extended, lanes, report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.dagger import DAggerConfig, make_dagger
 from maze.env import make_params
@@ -63,10 +63,10 @@ class StudyConfig:
     max_steps: int = 200
     hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
     ppo: PPOConfig = PPOConfig()
-    rl_full_updates: int = 80
+    rl_full_updates: int = 50
     rl_partial_updates: int = 120
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=24)
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=15)
     bc_chunk_epochs: int = 3
     eval_episodes: int = 256
     final_eval_rounds: int = 4
@@ -75,6 +75,7 @@ class StudyConfig:
     mixed: MixedConfig = MixedConfig()
     mixed_updates: int = 60
     plateau_tol: float = 0.1  # RL "converged": return rose < this over the last quarter
+    lanes: int = 2  # stages run in 2 threads (1: one after another); results are the same
 
     def validate(self) -> None:
         make_params(self.size, self.receptive_field, self.max_steps)
@@ -200,20 +201,21 @@ def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | Non
             "params": jax.device_get(state.params), "seconds": seconds}
 
 
-def run_bc(study: Study, experts: dict, bar: tqdm) -> dict:
+def run_bc(study: Study, experts: dict, bar: tqdm, names: tuple[str, ...] = tuple(BC_CURVES)
+           ) -> dict:
+    """The BC curves ``names`` (``vmap`` over curves x seeds)."""
     cfg = study.cfg
-    names = list(BC_CURVES)
+    ids = [3 + list(BC_CURVES).index(c) for c in names]  # stable PRNG paths per curve
     n, s = len(names), cfg.seeds
     t0 = time.perf_counter()
     expert = jax.tree.map(lambda *xs: jnp.concatenate(xs),
                           *[experts[BC_CURVES[c][0]] for c in names])
     e_flags = jnp.repeat(jnp.array([BC_CURVES[c][1] for c in names]), s)
     i_flags = jnp.repeat(jnp.array([BC_CURVES[c][2] for c in names]), s)
-    keys = jnp.stack([_key(cfg, 3 + i, 1, j) for i in range(n) for j in range(s)])
+    keys = jnp.stack([_key(cfg, i, 1, j) for i in ids for j in range(s)])
     demos = study.collect(expert, keys, e_flags, i_flags)
-    net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
-                       *[study.init_params(3 + i, s) for i in range(n)])
-    state = study.bc_init(jnp.stack([_key(cfg, 3 + i, 3, j) for i in range(n) for j in range(s)]),
+    net = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[study.init_params(i, s) for i in ids])
+    state = study.bc_init(jnp.stack([_key(cfg, i, 3, j) for i in ids for j in range(s)]),
                           net, demos)
 
     def evaluate_all(chunk: int, rounds: int = 1):
@@ -221,7 +223,7 @@ def run_bc(study: Study, experts: dict, bar: tqdm) -> dict:
         for i, c in enumerate(names):
             rows = jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], state.params)
             out.append(study.eval_rows(rows, BC_CURVES[c][2],
-                                       jax.random.fold_in(_key(cfg, 3 + i, 2), chunk), rounds))
+                                       jax.random.fold_in(_key(cfg, ids[i], 2), chunk), rounds))
         return out
 
     points = [[(0, *r)] for r in evaluate_all(0)]
@@ -282,48 +284,67 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
 
     # Each stage is keyed by what it depends on, so changing one stage's settings reuses the
     # others (e.g. the trained experts).
-    later = ("bc", "baselines", "dagger", "mixed", "plateau_tol")
+    later = ("bc", "baselines", "dagger", "mixed", "plateau_tol", "lanes")
     shared = {k: v for k, v in resolved.items()
               if not k.startswith(later) and not k.endswith("_updates")}
     stage_dirs = {name: work / digest({**shared, "updates": resolved[f"{name}_updates"]})
                   for name in ("rl_full", "rl_partial")}
-    expert = {**shared, "rl_full_updates": cfg.rl_full_updates}
-    stage_dirs["bc"] = work / digest({**expert, "rl_partial_updates": cfg.rl_partial_updates,
-                                      "bc": resolved["bc"],
-                                      "bc_chunk_epochs": cfg.bc_chunk_epochs})
-    stage_dirs["dagger"] = work / digest({**expert, "dagger": resolved["dagger"]})
-    stage_dirs["mixed"] = work / digest({**expert, "mixed": resolved["mixed"],
-                                         "mixed_updates": cfg.mixed_updates})
+    bc = {"bc": resolved["bc"], "bc_chunk_epochs": cfg.bc_chunk_epochs}
+    full = {**shared, "rl_full_updates": cfg.rl_full_updates}
+    stage_dirs["bc_full"] = work / digest({**full, **bc})
+    stage_dirs["bc_partial"] = work / digest(
+        {**shared, "rl_partial_updates": cfg.rl_partial_updates, **bc})
+    stage_dirs["dagger"] = work / digest({**full, "dagger": resolved["dagger"]})
+    for name in extended.MIXED_CURVES:
+        stage_dirs[name] = work / digest({**full, "mixed": resolved["mixed"], "curve": name,
+                                          "mixed_updates": cfg.mixed_updates})
     study = study or Study(cfg)
+    mixed_ticks = cfg.mixed_updates // cfg.chunk_updates
     ticks = {"rl_full": cfg.rl_full_updates // cfg.chunk_updates,
              "rl_partial": cfg.rl_partial_updates // cfg.chunk_updates,
-             "bc": cfg.bc.epochs // cfg.bc_chunk_epochs}
+             "bc_full": cfg.bc.epochs // cfg.bc_chunk_epochs,
+             "bc_partial": cfg.bc.epochs // cfg.bc_chunk_epochs}
     if cfg.baselines:
-        ticks.update(dagger=cfg.dagger.iterations, mixed=cfg.mixed_updates // cfg.chunk_updates)
-    t_start = time.perf_counter()
-    results = {}
+        ticks.update(dagger=cfg.dagger.iterations, **dict.fromkeys(extended.MIXED_CURVES,
+                                                                   mixed_ticks))
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     with tqdm(total=sum(ticks.values()), desc="maze study", unit="chunk",
               dynamic_ncols=True) as bar:
-        for name, partial in (("rl_full", False), ("rl_partial", True)):
-            results[name], hit = _cached(stage_dirs[name] / f"{name}.pkl",
-                                         lambda n=name, p=partial: run_rl(study, n, p, bar))
-            bar.update(ticks[name] if hit else 0)
-        experts = {n: results[n]["params"] for n in ("rl_full", "rl_partial")}
-        stages = {"bc": run_bc}
+
+        def stage(name: str, inputs: tuple[str, ...], fn) -> lanes.Stage:
+            def cached(results: dict):
+                experts = {n: results[n]["params"] for n in inputs}
+                out, hit = _cached(stage_dirs[name] / f"{name}.pkl", lambda: fn(experts))
+                bar.update(ticks[name] if hit else 0)
+                return out
+            return name, inputs, cached
+
+        full_bc = tuple(c for c in BC_CURVES if BC_CURVES[c][0] == "rl_full")
+        lane_a = [stage("rl_full", (), lambda _: run_rl(study, "rl_full", False, bar)),
+                  stage("bc_full", ("rl_full",), lambda e: run_bc(study, e, bar, full_bc))]
+        lane_b = [stage("rl_partial", (), lambda _: run_rl(study, "rl_partial", True, bar)),
+                  stage("bc_partial", ("rl_partial",), lambda e: run_bc(
+                      study, e, bar, tuple(c for c in BC_CURVES if c not in full_bc)))]
         if cfg.baselines:
-            stages.update(dagger=extended.run_dagger, mixed=extended.run_mixed)
-        for name, fn in stages.items():
-            results[name], hit = _cached(stage_dirs[name] / f"{name}.pkl",
-                                         lambda fn=fn: fn(study, experts, bar))
-            bar.update(ticks[name] if hit else 0)
-    wall = time.perf_counter() - t_start
-    curves = pd.DataFrame([r for name in results for r in results[name]["records"]])
+            bc_rl, advisor = extended.MIXED_CURVES
+            lane_a += [stage(advisor, ("rl_full",),
+                             lambda e: extended.run_mixed(study, e, bar, (advisor,))),
+                       stage("dagger", ("rl_full",),
+                             lambda e: extended.run_dagger(study, e, bar))]
+            lane_b += [stage(bc_rl, ("rl_full",),
+                             lambda e: extended.run_mixed(study, e, bar, (bc_rl,)))]
+        plan = [lane_a, lane_b] if cfg.lanes > 1 else [[*lane_a[:1], *lane_b[:1], *lane_a[1:],
+                                                        *lane_b[1:]]]
+        results = lanes.run_lanes(plan)
+    wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
+    order = ["rl_full", "rl_partial", "bc_full", "bc_partial", "dagger", *extended.MIXED_CURVES]
+    curves = pd.DataFrame([r for n in order if n in results for r in results[n]["records"]])
     summary = report.summarise(curves)
     refs = reference_returns(study.params)
     plateaus = {n: extended.plateau(curves, n, cfg.plateau_tol) for n in ("rl_full", "rl_partial")}
     converged = {n: p["converged"] for n, p in plateaus.items()}
     timings = {f"{n}_s": r["seconds"] for n, r in results.items()}
-    timings["this_invocation_wall_s"] = wall
+    timings.update(this_invocation_wall_s=wall, this_invocation_cpu_s=cpu)
     status = "; ".join(
         f"{n}: {'converged' if p['converged'] else 'NOT converged'} (rose "
         f"{p['rise_last_quarter']:.2f} over the last quarter; criterion < {p['tol']})"
@@ -349,14 +370,15 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     save_frames(out / "figures/maze_frames.png")
     meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
             "timings_s": timings, "plateau": plateaus,
-            "bc_loss_per_chunk": results["bc"]["losses"],
-            "baseline_metrics": {n: results[n]["metrics"] for n in ("dagger", "mixed")
-                                 if n in results},
+            "bc_loss_per_chunk": np.concatenate([results["bc_full"]["losses"],
+                                                 results["bc_partial"]["losses"]], 1).tolist(),
+            "baseline_metrics": {n: results[n]["metrics"] for n in order[4:] if n in results},
             "jax": jax.__version__, "device": str(jax.devices()[0])}
     atomic_write_json(config_path, meta, indent=2)
     print(summary.to_string(index=False))
     print(f"maze study: {status}")
-    print(f"maze study: wrote {', '.join(outputs(cfg))} under {out} ({wall:.0f} s)")
+    print(f"maze study: wrote {', '.join(outputs(cfg))} under {out} ({wall:.0f} s wall, "
+          f"{cpu:.0f} s CPU)")
     return summary
 
 

@@ -266,10 +266,11 @@ class Pipeline:
 
     def run_maze(self) -> None:
         out = self.work / "maze"
-        self.stage("maze", [["python", "-m", "maze.study", "--profile",
+        self.stage("maze", [["python", "-m", "maze", "--profile",
                              self.profile.maze_profile, "--out", out, "--work", out / "work"]],
                    outputs=[out / "figures" / "fig2_maze.png"])
-        for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv")),
+        for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv",
+                                        "fig2b_maze_baselines.pdf", "fig2b_maze_baselines.png")),
                            ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv"))):
             for fname in names:
                 src = out / sub / fname
