@@ -137,9 +137,9 @@ def expert_sequences(spec: UpdateSpec, rec: TeacherSteps, setting, episode_keys,
 
 def _loss(spec: UpdateSpec, setting, params, mb: dict):
     """``w_bc * BC + w_rl * PPO`` on one minibatch (scenario axis first)."""
-    rec, keys = mb["teacher"], mb["episode_keys"]
-    obs = expert_sequences(spec, rec, setting, keys)
-    b = keys.shape[0]
+    rec = mb["teacher"]
+    obs = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), mb["expert_obs"])  # time-major
+    b = rec.sdc_yaw.shape[0]
     if spec.use_rl:  # one pass of the network over both episodes (expert- and policy-driven)
         policy_obs = jax.tree.map(lambda w, p: jnp.concatenate([w[:WARMUP_STEPS],
                                                                 jnp.swapaxes(p, 0, 1)]),
@@ -183,10 +183,14 @@ def update_one(spec: UpdateSpec, params, opt_state, rec: TeacherSteps, states: S
     b = rec.sdc_yaw.shape[0]
     k_ep, k_act, k_perm = jax.random.split(key, 3)
     episode_keys = jax.random.split(k_ep, b)
-    data = {"teacher": rec, "episode_keys": episode_keys}
+    # the setting's observations of the recorded episodes, built once for every epoch
+    expert_obs = expert_sequences(spec, rec, setting, episode_keys)
+    data = {"teacher": rec.replace(roadgraph=None, roadgraph_type=None, roadgraph_valid=None,
+                                   objects=None, objects_valid=None),
+            "expert_obs": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), expert_obs)}
     metrics = {}
     if spec.use_rl:
-        warm = expert_sequences(spec, rec, setting, episode_keys, WARMUP_STEPS)
+        warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], expert_obs)
         carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
                                       warm, True)
         roll = env.policy_rollout(spec.policy, params, carry, states, setting, spec.obs,
@@ -253,10 +257,12 @@ def make_validation_loss(spec: UpdateSpec):
     def loss(params, teacher, settings, key):
         v = teacher.sdc_yaw.shape[0]
         keys = jax.random.split(key, v)
-        data = {"teacher": teacher, "episode_keys": keys}
         bc_spec = replace(spec, use_rl=False, w_rl=0.0)
 
         def one(setting, p):
+            obs = expert_sequences(spec, teacher, setting, keys)
+            data = {"teacher": teacher,
+                    "expert_obs": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs)}
             return _loss(bc_spec, setting, p, data)[1]["bc_loss"]
 
         if spec.setting is not None:
