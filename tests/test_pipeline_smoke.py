@@ -1,8 +1,7 @@
 """The smoke profile of ``scripts/reproduce.sh`` end to end, in process (shared compiles).
 
-One pipeline run (module fixture): synthetic data -> filter -> train (one observation setting x
-{BC, BC-RL}; all six settings compile one training program each, too slow for the suite) ->
-evaluate (+ references) -> maze smoke -> render -> report. Then: every expected output exists
+One pipeline run (module fixture): synthetic data -> filter -> train (two observation settings
+trained together x {BC, BC-RL}) -> evaluate (+ references) -> maze smoke -> render -> report. Then: every expected output exists
 and parses, a rerun skips every stage, and re-running evaluation gives identical tables.
 """
 
@@ -20,11 +19,12 @@ from igdrivsim.evaluation import pipeline as pl
 from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
 
 SETTING = "circular_r4"
+SETTINGS = ("full", SETTING)
 
 
 def make(tmp: Path) -> pl.Pipeline:
     return pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "work" / "paper",
-                       in_process=True, quiet=True, settings=(SETTING,))
+                       in_process=True, quiet=True, settings=SETTINGS)
 
 
 @pytest.fixture(scope="module")
@@ -47,23 +47,26 @@ def test_every_output_exists_and_parses(done):
     assert r"\begin{table*}" in tex and tex.count(r"\midrule") == 6
     md = (paper / "tables" / "table1.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| log divergence | BC-RL"))
-    assert row.count("--") == 5  # five settings not trained in this test, one with numbers
+    assert row.count("--") == 4  # four settings not trained in this test, two with numbers
     assert "Expert (discretised replay)" in md and "Constant velocity" in md
     assert "| Circ r=4 |" in (paper / "tables" / "vs_paper.md").read_text()
     prov = (paper / "generated" / "provenance.tex").read_text()
     assert r"\newcommand{\ProvProfile}{smoke}" in prov and "synthetic" in prov
     assert (paper / "generated" / "verdicts.tex").read_text().count(r"\item") == 6
     for method in ("bc", "bc_rl"):
-        run = f"{SETTING}__{method}"
+        run = method  # one run per method: both settings in one program
         assert (work / "runs" / run / "DONE").is_file()
+        curves = pd.read_json(work / "runs" / run / "curves.jsonl", lines=True)
+        assert set(curves.setting) == set(SETTINGS) and curves.log_divergence.notna().any()
         steps = pd.read_csv(work / "evals" / run / "per_step.csv")
         scen = pd.read_csv(work / "evals" / run / "per_scenario.csv")
         assert list(steps.columns) == list(PER_STEP_COLUMNS)
         assert list(scen.columns) == list(PER_SCENARIO_COLUMNS)
         assert set(scen.method) == {method} and scen.seed.nunique() == pl.PROFILES["smoke"].seeds
+        assert set(scen.setting) == set(SETTINGS)
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()
         info = json.loads((work / "evals" / run / "eval_config.json").read_text())
-        assert info["setting"] == SETTING and info["greedy"] is False
+        assert info["settings"] == list(SETTINGS) and info["greedy"] is False
     refs = pd.read_csv(work / "evals" / "references" / "per_scenario.csv")
     assert set(refs.method) == {"expert", "constant_velocity"}
     assert refs[refs.method == "expert"].log_divergence.max() < 0.2
@@ -79,11 +82,11 @@ def test_rerun_skips_and_reevaluation_gives_same_tables(done, capsys):
     again.run()
     assert again.ran == set()  # everything complete: nothing ran
     # Force one evaluation to run again: same numbers, hence the same tables.
-    (work / "stages" / f"evaluate_{SETTING}__bc.json").unlink()
+    (work / "stages" / "evaluate_bc.json").unlink()
     third = make(work.parent)
     third.run()
     tex = shutil.which("latexmk") or (shutil.which("pdflatex") and shutil.which("bibtex"))
-    assert third.ran == {f"evaluate_{SETTING}__bc", "report"} | ({"pdf"} if tex else set())
+    assert third.ran == {"evaluate_bc", "report"} | ({"pdf"} if tex else set())
     assert (paper / "tables" / "table1.md").read_bytes() == before
 
 

@@ -92,5 +92,12 @@ def test_settings_train_together_as_they_would_alone(tmp_path):
     diff = jax.tree.map(lambda a, b: float(np.abs(np.asarray(a)[1] - np.asarray(b)[0]).max()),
                         both.params, alone.params)
     assert max(jax.tree.leaves(diff)) < 1e-5
+    # recording each batch inside the update (paper scale) trains the same parameters
+    fly = train(with_overrides(base, ["observation.setting=circular_r4",
+                                      "data.record_teacher=false"]), data, tmp_path / "fly",
+                **quiet)
+    diff = jax.tree.map(lambda a, b: float(np.abs(np.asarray(a) - np.asarray(b)).max()),
+                        fly.params, alone.params)
+    assert max(jax.tree.leaves(diff)) < 1e-5
     spec = update_spec(with_overrides(base, ["observation.setting=full,circular_r4"]))
     assert spec.setting is None  # settings as data

@@ -1,11 +1,14 @@
-"""``igdrivsim bench train``: training updates/s and scenario-steps/s of a profile's network.
+"""``igdrivsim bench train``: training samples/s and gradient steps/s of a profile.
 
-Times the real jitted update (warm-up observations, expert rollout, forward + backward through
-the recurrent network over the 90-step episode, Adam; plus the policy rollout and PPO for
-``--method bc_rl``) on constructed straight-road scenarios, after compiling it ahead of time
-(``compile_s``) and one untimed call. A
-*scenario-step* is one scenario at one of the 80 controlled steps, trained forward+backward:
-``seeds * batch * 80 * ppo_epochs`` per update. Prints one JSON line per profile
+Times the real jitted update (the settings' observations built from the teacher-forced records,
+forward + backward through the recurrent network over the 90-step episode, Adam; plus the
+closed-loop policy rollout and PPO for ``--method bc_rl``) for every setting of ``--obs`` and
+every seed in one program, on constructed straight-road scenarios, after compiling it ahead of
+time (``compile_s``) and one untimed call. A *sample* (scenario-step) is one scenario at one of
+the 80 controlled steps trained forward+backward: ``settings * seeds * batch * 80 *
+ppo_epochs`` per update; a gradient step is one Adam step of one (setting, seed):
+``settings * seeds * ppo_epochs * ppo_minibatches`` per update. Recording the teacher-forced
+observations (once per dataset) is not timed. Prints one JSON line per profile
 (``cpu_seconds_per_update``: process CPU time, all threads; useful on a shared machine).
 """
 
@@ -18,11 +21,17 @@ import time
 import jax
 import numpy as np
 
+from igdrivsim.evaluation.schema import SETTINGS as PAPER_SETTINGS
+
 
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profiles", default="laptop,paper",
                         help="comma-separated profiles (default: laptop,paper)")
-    parser.add_argument("--method", choices=("bc", "bc_rl"), default="bc")
+    parser.add_argument("--method", choices=("bc", "bc_rl"), default="bc",
+                        help="learning method (default: bc)")
+    parser.add_argument("--obs", default=",".join(PAPER_SETTINGS), metavar="SETTINGS",
+                        help="settings trained together, comma-separated (default: the "
+                             "paper's six)")
     parser.add_argument("--batch", type=int, default=0,
                         help="scenarios per update (0: the profile's; paper on CPU: 1, "
                              "~25 s per update)")
@@ -33,16 +42,17 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int = 0,
-                  updates: int = 3, overrides: tuple[str, ...] = ()) -> dict:
+                  updates: int = 3, overrides: tuple[str, ...] = (),
+                  obs: str = ",".join(PAPER_SETTINGS)) -> dict:
     """Measure one profile; returns the JSON record."""
     from igdrivsim.simulator import toy
     from igdrivsim.training import inputs
     from igdrivsim.training.config import get_profile, with_overrides
     from igdrivsim.training.loop import get_update, init_state, seed_keys
-    from igdrivsim.training.update import update_spec
+    from igdrivsim.training.update import run_settings, settings_as_data, update_spec
 
     cpu = jax.default_backend() == "cpu"
-    sets = [f"training.method={method}"]
+    sets = [f"training.method={method}", f"observation.setting={obs}"]
     if batch or (profile == "paper" and cpu):
         sets.append(f"data.batch_size={batch or 1}")
     if seeds or (profile == "paper" and cpu):
@@ -55,36 +65,42 @@ def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int =
     inputs.check_batch(config.data.batch_size, mesh)
     caps = inputs.capacities(config)
     scenarios = [toy.straight_road(caps, speed=4.0 + i % 8) for i in range(config.data.batch_size)]
-    dataset = inputs.Dataset.from_config(config, scenarios, spec.sim)
+    dataset = inputs.Dataset.from_config(config, scenarios, spec.sim, need_states=spec.use_rl)
     rep = inputs.replicated(mesh)
     params, opt_state = init_state(config, spec)
-    n_params = int(sum(x[0].size for x in jax.tree.leaves(params)))
+    n_params = int(sum(x[0, 0].size for x in jax.tree.leaves(params)))
     params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
     keys = inputs.place(seed_keys(config), rep)
-    batch = inputs.place(dataset.host_batch(0), inputs.batch_sharding(mesh))
+    settings = settings_as_data(config)
+    teacher, states = inputs.place(dataset.host_batch(0), inputs.batch_sharding(mesh))
+    args = (teacher, states, settings, keys)
     t0 = time.perf_counter()
-    update = get_update(spec).lower(params, opt_state, batch, keys, 0, 1e-3).compile()
+    update = get_update(spec).lower(params, opt_state, *args, 0, 1e-3).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    params, opt_state, m = update(params, opt_state, batch, keys, 0, 1e-3)
+    params, opt_state, m = update(params, opt_state, *args, 0, 1e-3)
     jax.block_until_ready(params)
     first_s = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), time.process_time()
     for u in range(1, updates + 1):
-        params, opt_state, m = update(params, opt_state, batch, keys, u, 1e-3)
+        params, opt_state, m = update(params, opt_state, *args, u, 1e-3)
     jax.block_until_ready(params)
     per_update = (time.perf_counter() - t0) / updates
     cpu_per_update = (time.process_time() - c0) / updates
     t = config.training
-    steps = t.seeds * config.data.batch_size * 80 * t.ppo_epochs
+    runs = len(run_settings(config)) * t.seeds
+    steps = runs * config.data.batch_size * 80 * t.ppo_epochs
+    grads = runs * t.ppo_epochs * t.ppo_minibatches
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
+            "settings": len(run_settings(config)),
             "batch": config.data.batch_size, "compile_s": round(compile_s, 2),
             "first_update_s": round(first_s, 2),
             "seconds_per_update": round(per_update, 4),
             "cpu_seconds_per_update": round(cpu_per_update, 4),
             "updates_per_s": round(1.0 / per_update, 3),
             "scenario_steps_per_s": round(steps / per_update, 1),
+            "grad_steps_per_s": round(grads / per_update, 2),
             "bc_loss": float(np.mean(jax.device_get(m["bc_loss"])))}
 
 
@@ -98,5 +114,5 @@ def bench_train_command(args: argparse.Namespace) -> int:
             raise ConfigError(f"unknown profile {name!r}; choose from {', '.join(PROFILES)}")
     for name in names:
         print(json.dumps(bench_profile(name, args.method, args.batch, args.seeds, args.updates,
-                                       tuple(args.overrides))), flush=True)
+                                       tuple(args.overrides), args.obs)), flush=True)
     return 0

@@ -29,6 +29,10 @@ class DataConfig:
     max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
     max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (nearest first)
     prefetch: int = 2  # batches prepared ahead by the background thread
+    # keep the teacher-forced records of every training scenario in memory (and cached on
+    # disk); False: record each batch inside the update from its reset states (paper scale,
+    # where ~10 MB of records per scenario would not fit)
+    record_teacher: bool = True
 
 
 @dataclass(frozen=True)
@@ -121,7 +125,7 @@ def smoke() -> RunConfig:
                         max_roadgraph_points=256, prefetch=2),
         observation=ObsConfig(num_objects=4, num_roadgraph_points=32),
         training=TrainConfig(seeds=2, num_updates=4, ppo_epochs=2, ppo_minibatches=2,
-                             log_every=1, checkpoint_every=2),
+                             log_every=1, eval_every=4, val_scenarios=4, checkpoint_every=2),
     )
 
 
@@ -144,7 +148,8 @@ def laptop() -> RunConfig:
 
 def paper() -> RunConfig:
     """The paper: 4.3M-parameter network, 256 scenarios per update, 200 epochs, 3 seeds."""
-    return RunConfig(profile="paper", policy=PolicyConfig(remat=True))
+    return RunConfig(profile="paper", policy=PolicyConfig(remat=True),
+                     data=DataConfig(record_teacher=False))
 
 
 PROFILES = {"smoke": smoke, "laptop": laptop, "paper": paper}

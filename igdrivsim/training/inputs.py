@@ -141,20 +141,22 @@ class Dataset:
     """Teacher-forced records (and, for BC-RL, reset states) of all training scenarios in host
     memory, and the batch sampler."""
 
-    def __init__(self, teacher: TeacherSteps, states: SimState | None, batch_size: int,
+    def __init__(self, teacher: TeacherSteps | None, states: SimState | None, batch_size: int,
                  seeds: Sequence[int]):
         self.teacher = teacher
         self.states = states
-        self.num = int(np.shape(teacher.sdc_yaw)[0])
+        self.num = int(np.shape(teacher.sdc_yaw if teacher is not None else states.timestep)[0])
         self.batch_size = batch_size
         self.seeds = [int(s) for s in seeds]
 
     @classmethod
     def from_config(cls, config: RunConfig, data, params: SimParams, progress: bool = False,
                     chunk: int = 64, cache_dir: str | None = None, need_states: bool = False,
-                    max_scenarios: int | None = None) -> Dataset:
+                    max_scenarios: int | None = None, record: bool | None = None) -> Dataset:
         """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``;
-        the teacher-forced records come from ``cache_dir`` when they were computed before."""
+        the teacher-forced records come from ``cache_dir`` when they were computed before.
+        ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
+        update records each batch itself."""
         from igdrivsim.training.teacher import (
             cache_key,
             compute_teacher,
@@ -184,6 +186,10 @@ class Dataset:
             states = reset_all(chunks(), params, chunk, progress)
             return compute_teacher(states, params, rec, progress=progress)
 
+        if not (d.record_teacher if record is None else record):
+            states = reset_all(chunks(), params, chunk, progress)
+            seeds = range(t.seed_offset, t.seed_offset + t.seeds)
+            return cls(None, states, d.batch_size, seeds)
         key = None
         if cache_dir and isinstance(data, (str, os.PathLike)):
             key = cache_key(data_identity(data), caps=capacities(config), rec=rec, sim=params,
@@ -199,10 +205,10 @@ class Dataset:
         return np.stack([batch_indices(self.num, self.batch_size, s, update) for s in self.seeds])
 
     def host_batch(self, update: int):
-        """``(teacher [S, B], states [S, B] or None)`` on the host for update ``update``."""
+        """``(teacher [S, B] or None, states [S, B] or None)`` on the host for ``update``."""
         idx = self.indices(update)
-        take = lambda tree: jax.tree.map(lambda x: x[idx], tree)  # noqa: E731
-        return take(self.teacher), (None if self.states is None else take(self.states))
+        take = lambda tree: None if tree is None else jax.tree.map(lambda x: x[idx], tree)  # noqa: E731
+        return take(self.teacher), take(self.states)
 
 
 def prefetch(dataset: Dataset, updates: range, sharding: NamedSharding, depth: int = 2

@@ -144,7 +144,7 @@ class Validation:
         n = config.training.val_scenarios
         self.config, self.spec = config, spec
         self.teacher = inputs.Dataset.from_config(
-            config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n).teacher
+            config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
         self.scenarios = load_validation(data, inputs.capacities(config), n)
         self.loss = make_validation_loss(spec)
         self.settings = settings_as_data(config)

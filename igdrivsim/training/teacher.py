@@ -94,7 +94,7 @@ def _record(state: SimState, rec: ObservationConfig):
             obs.sdc_speed, yaw)
 
 
-def _episode(state: SimState, sim: SimParams, rec: ObservationConfig):
+def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> TeacherSteps:
     """Warm-up (log) and expert-driven observations and labels of ONE scenario at reset."""
     warm = jax.vmap(lambda t: _record(state.replace(timestep=t), rec))(
         jnp.arange(CURRENT_INDEX))
@@ -121,7 +121,7 @@ def state_valid(state: SimState, t) -> jax.Array:
 
 @functools.lru_cache(maxsize=4)
 def _jit_episodes(sim: SimParams, rec: ObservationConfig):
-    return jax.jit(jax.vmap(lambda s: _episode(s, sim, rec)))
+    return jax.jit(jax.vmap(lambda s: record_episode(s, sim, rec)))
 
 
 def compute_teacher(states: SimState, sim: SimParams, rec: ObservationConfig,

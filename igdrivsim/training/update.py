@@ -55,7 +55,13 @@ from igdrivsim.training.losses import (
     normalize,
     value_loss,
 )
-from igdrivsim.training.teacher import EPISODE_STEPS, TeacherSteps, episode_observations
+from igdrivsim.training.teacher import (
+    EPISODE_STEPS,
+    TeacherSteps,
+    episode_observations,
+    record_episode,
+    superset_config,
+)
 
 
 @dataclass(frozen=True)
@@ -78,6 +84,7 @@ class UpdateSpec:
     epochs: int
     minibatches: int
     grad_clip: float
+    record: ObservationConfig  # what a teacher-forced record holds (superset of ``obs``)
 
 
 def sim_params(config: RunConfig) -> SimParams:
@@ -109,7 +116,9 @@ def update_spec(config: RunConfig) -> UpdateSpec:
         use_rl=config.use_rl, w_bc=t.w_bc, w_rl=t.w_rl if config.use_rl else 0.0,
         gamma=t.gamma, gae_lambda=t.gae_lambda, clip_eps=t.clip_eps, ent_coef=t.ent_coef,
         vf_coef=t.vf_coef, epochs=t.ppo_epochs, minibatches=t.ppo_minibatches,
-        grad_clip=t.grad_clip)
+        grad_clip=t.grad_clip,
+        record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
+                               config.data.max_objects))
 
 
 def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
@@ -230,12 +239,16 @@ def update_one(spec: UpdateSpec, params, opt_state, rec: TeacherSteps, states: S
 
 def make_update(spec: UpdateSpec, donate: bool = True):
     """The jitted update over all settings and seeds: ``(params[G, S], opt_state[G, S],
-    teacher[S, B], states[S, B] | None, settings[G] | None, seed_keys[S], update_index, lr)
-    -> (params, opt_state, metrics[G, S])``. Every setting sees the same scenarios and draws
+    teacher[S, B] | None, states[S, B] | None, settings[G] | None, seed_keys[S], update_index,
+    lr) -> (params, opt_state, metrics[G, S])``; without ``teacher`` the batch is recorded
+    from ``states`` inside the update. Every setting sees the same scenarios and draws
     of a seed (the comparison between settings is paired)."""
 
     def update(params, opt_state, teacher, states, settings, seed_keys, update_index, lr):
         keys = jax.vmap(lambda k: jax.random.fold_in(k, update_index))(seed_keys)
+        if teacher is None:  # records not kept in memory: record this batch now
+            teacher = jax.vmap(jax.vmap(lambda s: record_episode(s, spec.sim, spec.record)))(
+                states)
 
         def one_setting(setting, params, opt_state):
             per_seed = partial(update_one, spec)
