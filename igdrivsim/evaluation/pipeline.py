@@ -57,7 +57,7 @@ class PipelineProfile:
 PROFILES: dict[str, PipelineProfile] = {
     "smoke": PipelineProfile("smoke", train_scenarios=16, val_scenarios=8, seeds=2,
                              eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
-    "laptop": PipelineProfile("laptop", train_scenarios=512, val_scenarios=256, seeds=3,
+    "laptop": PipelineProfile("laptop", train_scenarios=3072, val_scenarios=512, seeds=3,
                               eval_max_scenarios=0, maze_profile="default"),
     "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
                              eval_max_scenarios=0, maze_profile="default"),
