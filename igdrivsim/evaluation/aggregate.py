@@ -1,4 +1,4 @@
-"""Aggregate tidy evaluation CSVs across seeds: means, 95% confidence intervals, BC-RL vs BC tests.
+"""Aggregate tidy evaluation CSVs across seeds: means, 95% confidence intervals, effects vs BC.
 
 Statistics used, and why:
 
@@ -6,25 +6,33 @@ Statistics used, and why:
   number per metric: its mean over the validation scenarios. The table reports the mean of the
   seed means and a t-distribution interval over them (``n - 1`` degrees of freedom), which is
   what "mean over three seeds with 95% CI" means in the paper.
-- **Significance: paired sign-flip permutation test over scenarios** (two-sided, alpha 0.05).
-  BC and BC-RL are evaluated on the *same* validation scenarios, and scenario difficulty is by
-  far the largest source of variance, so pairing by scenario is the powerful comparison. Each
-  scenario's value is first averaged over the seeds (one independent pair per scenario), then
-  the mean paired difference is compared with its distribution under random sign flips, which
-  is exact under the null "the two methods are exchangeable on each scenario" and needs no
-  normality: the metrics are binary (overlap/offroad rates) or heavy-tailed (max divergence).
-  It conditions on the trained seeds, i.e. it asks whether *these* policies differ; as a check
-  on training-seed variance, Welch's t-test over the seed means (about 4 degrees of freedom
-  with 3 seeds, so low power) is reported alongside in ``summary.csv``.
+- **Effect of a method vs the baseline (BC): two-level bootstrap.** The difference of means
+  varies with the trained seeds *and* with the validation scenarios, so both are resampled:
+  seeds with replacement within each method (independent training runs, not paired), then
+  scenarios with replacement, the *same* resampled scenario ids for both methods and every seed
+  (all are evaluated on the same scenarios, whose difficulty is the largest source of
+  variance). The statistic is the difference of the resampled grand means; the 95% interval is
+  the percentile interval of ``N_RESAMPLES`` replicates and the two-sided p-value
+  ``2 min(P*(d <= 0), P*(d >= 0))`` (add-one smoothed, so never 0). With few seeds the seed
+  level is coarse (3 seeds give 10 distinct resamples) and the bootstrap variance of a mean of
+  ``S`` seeds is ``(S-1)/S`` of the unbiased one, so the interval is somewhat optimistic about
+  seed variance; it is still far more honest than conditioning on the trained seeds.
+- **Multiplicity: Holm over every cell of the table** (all settings x metrics x compared
+  methods). A cell is significant, and bold in Table I, when its Holm-adjusted p is below
+  ``ALPHA``, i.e. when the percentile interval at the Holm-adjusted level excludes 0.
+- **Minimum detectable effect** per cell: ``(z_{1-a/2} + z_{0.8}) * SE`` with ``SE`` the
+  bootstrap standard deviation of the difference, at ``a = ALPHA`` (``mde``) and at the
+  strictest Holm level ``ALPHA / n_cells`` (``mde_holm``, the bound for the first Holm step).
 
-The permutation test uses a fixed random seed so that running the pipeline twice produces the
-same tables.
+Every bootstrap uses a fixed random seed per setting, so rerunning the report gives identical
+tables. Welch's t-test over the seed means is kept in ``tests.csv`` as a check.
 """
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable
+import zlib
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -34,18 +42,21 @@ from scipy import stats
 from igdrivsim.errors import DataError
 from igdrivsim.evaluation.schema import (
     BC,
-    BC_RL,
     METRICS,
     PER_SCENARIO_COLUMNS,
     PER_STEP_COLUMNS,
+    REFERENCES,
 )
 
 ALPHA = 0.05
 CONFIDENCE = 0.95
-TEST_NAME = "paired sign-flip permutation test over scenarios (seed-averaged), two-sided"
-TEST_SHORT = "paired permutation test"
+POWER = 0.8
+TEST_NAME = ("two-level bootstrap over seeds and paired scenarios, two-sided, "
+             "Holm-corrected over all cells")
+TEST_SHORT = "hierarchical bootstrap + Holm"
 N_RESAMPLES = 10_000
 TEST_SEED = 0
+_CHUNK = 2_000  # resamples per block: bounds memory at CHUNK x n_scenarios counts
 
 
 def read_csv_checked(path: str | Path, columns: Iterable[str]) -> pd.DataFrame:
@@ -111,27 +122,6 @@ def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[floa
     return mean, mean - float(half), mean + float(half)
 
 
-def paired_permutation_test(x: np.ndarray, y: np.ndarray, n_resamples: int = N_RESAMPLES,
-                            seed: int = TEST_SEED) -> float:
-    """Two-sided p-value of the paired sign-flip permutation test of ``mean(x - y) == 0``.
-
-    Exact (all sign patterns) when there are few pairs, Monte Carlo with a fixed seed otherwise.
-    """
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    if x.shape != y.shape or x.ndim != 1:
-        raise ValueError("paired test needs two 1-D arrays of equal length")
-    if x.size == 0:
-        return float("nan")
-    if np.allclose(x, y):
-        return 1.0
-    result = stats.permutation_test(
-        (x, y), lambda a, b, axis: np.mean(a - b, axis=axis), permutation_type="samples",
-        vectorized=True, n_resamples=n_resamples, alternative="two-sided",
-        rng=np.random.default_rng(seed),
-    )
-    return float(result.pvalue)
-
-
 def welch_test(x: np.ndarray, y: np.ndarray) -> float:
     """Two-sided p-value of Welch's t-test (NaN with fewer than two values a side)."""
     x, y = np.asarray(x, float), np.asarray(y, float)
@@ -158,34 +148,158 @@ def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.
     return pd.DataFrame(rows)
 
 
-def compare_methods(per_scenario: pd.DataFrame, a: str = BC_RL, b: str = BC,
-                    alpha: float = ALPHA, n_resamples: int = N_RESAMPLES) -> pd.DataFrame:
-    """Test ``a`` against ``b`` per setting and metric (see the module docstring).
+def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
+    """``(n_resamples, n)`` bootstrap weights: counts of each index in a resample, over ``n``."""
+    idx = rng.integers(0, n, size=(n_resamples, n)) + n * np.arange(n_resamples)[:, None]
+    return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n) / n
 
-    Returns ``metric, setting, mean_a, mean_b, diff, p_value, p_welch, significant, better``
-    where ``better`` is the method with the lower value when the difference is significant
-    (every Table I metric is lower-is-better), else ``""``.
+
+def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_RESAMPLES,
+                           seed: int | Sequence[int] = TEST_SEED) -> np.ndarray:
+    """Bootstrap replicates of ``mean(xa) - mean(xb)`` resampling seeds, then paired scenarios.
+
+    ``xa``: ``(seeds_a, scenarios, k)`` and ``xb``: ``(seeds_b, scenarios, k)``, the same
+    scenarios in the same order (``k`` metrics share the resamples). Seeds are resampled within
+    each method; one scenario resample is shared by both methods and all seeds. Returns
+    ``(n_resamples, k)``. Vectorised: a resample's grand mean is ``w_seed @ X @ w_scenario``.
     """
+    xa, xb = np.asarray(xa, float), np.asarray(xb, float)
+    if xa.ndim == 2:
+        xa, xb = xa[..., None], xb[..., None]
+    if xa.shape[1:] != xb.shape[1:]:
+        raise ValueError("xa and xb need the same scenarios and metrics")
+    (sa, n, k), sb = xa.shape, xb.shape[0]
+    rng = np.random.default_rng(seed)
+    flat_a = xa.transpose(1, 0, 2).reshape(n, sa * k)  # scenario x (seed, metric)
+    flat_b = xb.transpose(1, 0, 2).reshape(n, sb * k)
+    out = np.empty((n_resamples, k))
+    for start in range(0, n_resamples, _CHUNK):
+        m = min(_CHUNK, n_resamples - start)
+        w_scen = _resample_weights(rng, m, n)
+        w_a, w_b = _resample_weights(rng, m, sa), _resample_weights(rng, m, sb)
+        ya = (w_scen @ flat_a).reshape(m, sa, k)  # each seed's mean over resampled scenarios
+        yb = (w_scen @ flat_b).reshape(m, sb, k)
+        out[start:start + m] = (np.einsum("ms,msk->mk", w_a, ya)
+                                - np.einsum("ms,msk->mk", w_b, yb))
+    return out
+
+
+def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
+    """Two-sided bootstrap p-value of "difference = 0" per column:
+    ``2 min(P(d <= 0), P(d >= 0))`` with add-one smoothing, capped at 1."""
+    replicates = np.asarray(replicates, float)
+    b = replicates.shape[0]
+    low = ((replicates <= 0).sum(axis=0) + 1) / (b + 1)
+    high = ((replicates >= 0).sum(axis=0) + 1) / (b + 1)
+    return np.minimum(1.0, 2 * np.minimum(low, high))
+
+
+def holm_adjust(p_values: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Holm step-down adjusted p-values (NaN entries stay NaN and are not counted)."""
+    p = np.asarray(p_values, float)
+    out = np.full_like(p, np.nan)
+    ok = np.flatnonzero(np.isfinite(p))
+    if ok.size == 0:
+        return out
+    order = ok[np.argsort(p[ok], kind="stable")]
+    m = order.size
+    adjusted = np.maximum.accumulate((m - np.arange(m)) * p[order])
+    out[order] = np.minimum(1.0, adjusted)
+    return out
+
+
+def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA,
+                              power: float = POWER) -> float | np.ndarray:
+    """Smallest true difference a two-sided level-``alpha`` test detects with ``power``,
+    for an estimate with standard error ``se`` (normal approximation)."""
+    return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)) * np.asarray(se, float)
+
+
+def _setting_seed(setting: str) -> list[int]:
+    """A fixed, per-setting RNG seed (independent of which other settings were evaluated)."""
+    return [TEST_SEED, zlib.crc32(setting.encode())]
+
+
+def _matrices(sub: pd.DataFrame, method: str, scenarios: pd.Index) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` array of one method's scaled metric values."""
+    cols = [m.column for m in METRICS]
+    scale = np.array([m.scale for m in METRICS])
+    part = sub[sub.method == method].set_index(["seed", "scenario_id"])[cols]
+    seeds = sorted(part.index.get_level_values(0).unique())
+    full = pd.MultiIndex.from_product([seeds, scenarios], names=["seed", "scenario_id"])
+    return part.reindex(full).to_numpy(float).reshape(len(seeds), len(scenarios), -1) * scale
+
+
+def _complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
+    """Scenarios with every metric for every seed of every method in ``methods``."""
+    cols = [m.column for m in METRICS]
+    keep = None
+    for method in methods:
+        part = sub[sub.method == method]
+        n_seeds = part.seed.nunique()
+        ok = part.dropna(subset=cols).groupby("scenario_id").seed.nunique()
+        ids = set(ok.index[ok == n_seeds])
+        keep = ids if keep is None else keep & ids
+    return pd.Index(sorted(keep or ()), name="scenario_id")
+
+
+def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
+                    methods: Sequence[str] | None = None, alpha: float = ALPHA,
+                    n_resamples: int = N_RESAMPLES, power: float = POWER) -> pd.DataFrame:
+    """Each method against ``baseline`` per setting and metric (see the module docstring).
+
+    ``methods``: the compared methods (default: every learned method but the baseline, i.e.
+    all except the reference actors). Returns one row per (method, setting, metric) with
+    ``mean_a`` (method), ``mean_b`` (baseline), ``diff`` (their difference on the scenarios all
+    seeds share), the bootstrap ``ci_low``/``ci_high`` (95%), ``se``, ``p_value``, the Holm
+    ``p_holm`` over all rows, ``significant`` (``p_holm < alpha``), ``better`` (the method with
+    the lower value when significant, every Table I metric being lower-is-better, else ""),
+    ``mde`` / ``mde_holm`` (minimum detectable effect at ``alpha`` / at ``alpha / n_rows``),
+    ``p_welch`` (Welch over seed means) and the counts.
+    """
+    if methods is None:
+        present = per_scenario.method.unique()
+        methods = sorted(m for m in present if m != baseline and m not in REFERENCES)
     means = seed_means(per_scenario)
     rows = []
-    settings = sorted(set(per_scenario.loc[per_scenario.method == a, "setting"])
-                      & set(per_scenario.loc[per_scenario.method == b, "setting"]))
-    for setting in settings:
-        sub = per_scenario[per_scenario.setting == setting]
-        for metric in METRICS:
-            by_scenario = sub.groupby(["method", "scenario_id"])[metric.column].mean()
-            xa, xb = by_scenario.loc[a], by_scenario.loc[b]
-            common = xa.index.intersection(xb.index)
-            x = xa.loc[common].to_numpy() * metric.scale
-            y = xb.loc[common].to_numpy() * metric.scale
-            p = paired_permutation_test(x, y, n_resamples=n_resamples)
-            cell = means[(means.setting == setting) & (means.metric == metric.key)]
-            sa, sb = cell[cell.method == a], cell[cell.method == b]
-            mean_a, mean_b = float(sa.value.mean()), float(sb.value.mean())
-            significant = bool(p < alpha)
-            better = "" if not significant else (a if mean_a < mean_b else b)
-            rows.append(dict(metric=metric.key, setting=setting, mean_a=mean_a, mean_b=mean_b,
-                             diff=mean_a - mean_b, p_value=p,
-                             p_welch=welch_test(sa.value.to_numpy(), sb.value.to_numpy()),
-                             n_pairs=int(common.size), significant=significant, better=better))
-    return pd.DataFrame(rows)
+    lo_q, hi_q = 100 * (1 - CONFIDENCE) / 2, 100 * (1 + CONFIDENCE) / 2
+    for method in methods:
+        settings = sorted(set(per_scenario.loc[per_scenario.method == method, "setting"])
+                          & set(per_scenario.loc[per_scenario.method == baseline, "setting"]))
+        for setting in settings:
+            sub = per_scenario[per_scenario.setting == setting]
+            scenarios = _complete_scenarios(sub, (method, baseline))
+            xa, xb = _matrices(sub, method, scenarios), _matrices(sub, baseline, scenarios)
+            if scenarios.size:
+                reps = hierarchical_bootstrap(xa, xb, n_resamples, _setting_seed(setting))
+                diffs = xa.mean(axis=(0, 1)) - xb.mean(axis=(0, 1))
+                lows, highs = np.percentile(reps, [lo_q, hi_q], axis=0)
+                ses, ps = reps.std(axis=0, ddof=1), bootstrap_p_value(reps)
+            else:
+                diffs = lows = highs = ses = ps = np.full(len(METRICS), np.nan)
+            for i, metric in enumerate(METRICS):
+                cell = means[(means.setting == setting) & (means.metric == metric.key)]
+                sa, sb = cell[cell.method == method], cell[cell.method == baseline]
+                rows.append(dict(
+                    method=method, baseline=baseline, metric=metric.key, setting=setting,
+                    mean_a=float(sa.value.mean()), mean_b=float(sb.value.mean()),
+                    diff=float(diffs[i]), ci_low=float(lows[i]), ci_high=float(highs[i]),
+                    se=float(ses[i]), p_value=float(ps[i]),
+                    p_welch=welch_test(sa.value.to_numpy(), sb.value.to_numpy()),
+                    n_seeds_a=int(xa.shape[0]), n_seeds_b=int(xb.shape[0]),
+                    n_pairs=int(scenarios.size)))
+    columns = ["method", "baseline", "metric", "setting", "mean_a", "mean_b", "diff", "ci_low",
+               "ci_high", "se", "p_value", "p_holm", "significant", "better", "mde", "mde_holm",
+               "p_welch", "n_seeds_a", "n_seeds_b", "n_pairs"]
+    out = pd.DataFrame(rows)
+    if out.empty:
+        return pd.DataFrame(columns=columns)
+    out["p_holm"] = holm_adjust(out.p_value.to_numpy())
+    out["significant"] = out.p_holm < alpha
+    out["better"] = [(m if d < 0 else b) if sig else ""
+                     for m, b, d, sig in zip(out.method, out.baseline, out["diff"],
+                                             out.significant, strict=True)]
+    n_cells = int(np.isfinite(out.p_value).sum()) or 1
+    out["mde"] = minimum_detectable_effect(out.se.to_numpy(), alpha, power)
+    out["mde_holm"] = minimum_detectable_effect(out.se.to_numpy(), alpha / n_cells, power)
+    return out[columns]

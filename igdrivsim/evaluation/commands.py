@@ -218,6 +218,10 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
                         help="profile named in the tables (default: read from the evaluations)")
     parser.add_argument("--data-label", default=None,
                         help="data named in the tables (default: read from the evaluations)")
+    parser.add_argument("--runs", nargs="+", default=None, metavar="DIR",
+                        help="training runs (or folders of runs) whose curves.jsonl make the "
+                             "learning-curve figure (default: the runs/ folder next to each "
+                             "--evals folder)")
 
 
 def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
@@ -240,7 +244,7 @@ def report_command(args: argparse.Namespace) -> int:
 
     profile, data = _provenance_from(args.evals)
     prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
-    written = build_report(args.evals, args.out, prov)
+    written = build_report(args.evals, args.out, prov, run_dirs=args.runs)
     for path in written:
         print(f"wrote {path}")
     return 0

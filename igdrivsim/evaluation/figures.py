@@ -1,12 +1,20 @@
-"""Fig. 3: per-step metrics of BC versus BC-RL for each observation setting.
+"""Fig. 3 (per-step metrics of BC versus BC-RL) and Fig. 4 (learning curves).
 
-Three panels (log divergence, overlap %, offroad %), one group of bars per setting, BC in blue
-and BC-RL in orange as in the paper; bars are the mean over seeds and error bars the 95%
+Fig. 3: three panels (log divergence, overlap %, offroad %), one group of bars per setting, BC
+in blue and BC-RL in orange as in the paper; bars are the mean over seeds and error bars the 95%
 t-interval over the seed means (the same numbers as Table I).
+
+Fig. 4: what each training run logged in its ``curves.jsonl`` (teacher-forced validation BC
+loss, closed-loop validation metrics every K updates) against the update, one column per
+setting, so a reader sees whether training converged; constant velocity and the expert replay
+are drawn as horizontal references when their evaluation is available.
 """
 
 from __future__ import annotations
 
+import json
+import math
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -17,10 +25,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
 
+from igdrivsim.errors import DataError  # noqa: E402
 from igdrivsim.evaluation.aggregate import CONFIDENCE, t_interval  # noqa: E402
 from igdrivsim.evaluation.schema import (  # noqa: E402
     BC,
     BC_RL,
+    CONSTANT_VELOCITY,
+    EXPERT,
     METHOD_LABELS,
     METRIC_BY_KEY,
     SETTING_SHORT,
@@ -81,3 +92,146 @@ def save_figure(fig, out_dir: str | Path, stem: str) -> list[Path]:
              atomic_savefig(fig, out_dir / f"{stem}.png", dpi=200)]
     plt.close(fig)
     return paths
+
+
+# Fig. 4 rows: (curves.jsonl key, y label, scale, per_scenario.csv column of the references).
+CURVE_ROWS: tuple[tuple[str, str, float, str | None], ...] = (
+    ("val_bc_loss", "validation BC loss", 1.0, None),
+    ("log_divergence", "log divergence (m)", 1.0, "log_divergence"),
+    ("offroad", "offroad (% steps)", 100.0, "offroad_steps"),
+    ("overlap", "overlap (% steps)", 100.0, "overlap_steps"),
+)
+CURVES_FILE = "curves.jsonl"
+_REFERENCE_STYLE = {CONSTANT_VELOCITY: dict(color="0.45", linestyle="-.", linewidth=1.0),
+                    EXPERT: dict(color="0.1", linestyle=":", linewidth=1.2)}
+
+
+def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:
+    """Every ``curves.jsonl`` in or below the given folders (a run folder or a folder of runs)."""
+    found: set[Path] = set()
+    for root in map(Path, run_dirs):
+        if root.is_file() and root.name == CURVES_FILE:
+            found.add(root)
+        elif root.is_dir():
+            found.update(root.rglob(CURVES_FILE))
+    return sorted(found)
+
+
+def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
+    """All ``curves.jsonl`` records as one frame (one row per logged line; missing keys NaN).
+
+    A repeated ``(setting, method, seed, update)`` (a resumed run) keeps its last record; a
+    malformed line raises :class:`DataError` naming the file.
+    """
+    records = []
+    for path in find_curves(run_dirs):
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                for key in ("update", "setting", "method", "seed"):
+                    record[key]  # noqa: B018 - presence check
+            except (json.JSONDecodeError, KeyError, TypeError) as err:
+                raise DataError(f"bad curves record on line {number} ({err!r})",
+                                file=str(path)) from err
+            records.append(record)
+    columns = ["setting", "method", "seed", "update", "bc_loss"] + [r[0] for r in CURVE_ROWS]
+    frame = pd.DataFrame(records)
+    for column in columns:
+        if column not in frame.columns:
+            frame[column] = pd.Series(dtype=float)
+    key = ["setting", "method", "seed", "update"]
+    return frame.drop_duplicates(key, keep="last").sort_values(key, ignore_index=True)
+
+
+def _reference_levels(references: str | Path | pd.DataFrame | None) -> dict[str, dict[str, float]]:
+    """Mean per reference method of each Fig. 4 row's per_scenario column, in row units."""
+    if references is None:
+        return {}
+    if not isinstance(references, pd.DataFrame):
+        if not Path(references).is_file():
+            return {}
+        references = pd.read_csv(references, dtype={"method": str})
+    levels: dict[str, dict[str, float]] = {}
+    for method in (CONSTANT_VELOCITY, EXPERT):
+        part = references[references.method == method] if "method" in references else []
+        if len(part) == 0:
+            continue
+        levels[method] = {key: float(part[column].mean()) * scale
+                          for key, _, scale, column in CURVE_ROWS
+                          if column is not None and column in part.columns}
+    return levels
+
+
+def _band(part: pd.DataFrame, key: str, scale: float) -> pd.DataFrame:
+    """Mean, min and max over seeds of one metric per update (updates where it was logged)."""
+    values = part[["update", "seed", key]].dropna()
+    values = values.assign(value=values[key].astype(float) * scale)
+    return values.groupby("update").value.agg(["mean", "min", "max"]).reset_index()
+
+
+def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
+                           references_csv: str | Path | pd.DataFrame | None = None,
+                           stem: str = "fig4_learning_curves") -> list[Path]:
+    """Write ``stem.{pdf,png}`` under ``out_dir`` from the runs' ``curves.jsonl``.
+
+    Rows: validation BC loss (training BC loss dashed), log divergence, offroad % and overlap %;
+    columns: settings; one line per method, the mean over seeds with the min-max band shaded;
+    constant velocity and the expert as horizontal lines when ``references_csv`` (a
+    per_scenario.csv path or frame) has them. Returns the written paths ([] without curves).
+    """
+    curves = load_curves(run_dirs)
+    if curves.empty:
+        return []
+    present = list(dict.fromkeys(curves.setting.astype(str)))
+    settings = [s for s in SETTINGS if s in present] + sorted(set(present) - set(SETTINGS))
+    methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
+        set(curves.method) - {BC, BC_RL})
+    extra = sns.color_palette("tab10")
+    colours = {m: PALETTE.get(METHOD_LABELS.get(m, m), extra[i % 10])
+               for i, m in enumerate(methods)}
+    levels = _reference_levels(references_csv)
+    sns.set_theme(style="whitegrid", context="paper")
+    fig, axes = plt.subplots(len(CURVE_ROWS), len(settings), squeeze=False, sharex="col",
+                             figsize=(1.2 + 2.3 * len(settings), 1.2 + 1.8 * len(CURVE_ROWS)))
+    for col, setting in enumerate(settings):
+        axes[0, col].set_title(SETTING_SHORT.get(setting, setting))
+        axes[-1, col].set_xlabel("update")
+        for row, (key, label, scale, _) in enumerate(CURVE_ROWS):
+            ax = axes[row, col]
+            drawn = False
+            for method in methods:
+                part = curves[(curves.setting == setting) & (curves.method == method)]
+                name = METHOD_LABELS.get(method, method)
+                band = _band(part, key, scale)
+                if not band.empty:
+                    ax.plot(band["update"], band["mean"], color=colours[method], label=name,
+                            linewidth=1.4)
+                    ax.fill_between(band["update"], band["min"], band["max"],
+                                    color=colours[method], alpha=0.2, linewidth=0)
+                    drawn = True
+                if key == "val_bc_loss":
+                    train = _band(part, "bc_loss", 1.0)
+                    if not train.empty:
+                        ax.plot(train["update"], train["mean"], color=colours[method],
+                                linestyle="--", linewidth=0.9, alpha=0.7,
+                                label=f"{name} (training loss)")
+                        drawn = True
+            for method, values in levels.items():
+                if key in values and math.isfinite(values[key]):
+                    ax.axhline(values[key], label=METHOD_LABELS[method],
+                               **_REFERENCE_STYLE[method])
+            if not drawn:
+                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
+                        transform=ax.transAxes, color="0.5")
+            if col == 0:
+                ax.set_ylabel(label)
+    handles: dict[str, object] = {}
+    for ax in axes.ravel():
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
+               ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
+    return save_figure(fig, out_dir, stem)

@@ -1,12 +1,15 @@
 """Turn evaluation CSVs into the report's generated files (tables, Fig. 3, provenance).
 
 Outputs under ``OUT`` (the ``paper/`` folder by default):
-``tables/table1.tex``, ``tables/table1.md``, ``tables/vs_paper.md``, ``tables/summary.csv``
-(mean, CI, counts), ``tables/tests.csv`` (BC-RL vs BC), ``tables/seed_means.csv``,
-``figures/fig3_metrics.{pdf,png}``, ``generated/provenance.tex`` (profile, data, seeds, date,
-commit: macros the report uses) and ``generated/verdicts.tex`` (is BC-RL safer, per setting).
-Every file but the provenance (which records the date) is a pure function of the CSVs, so reruns
-give identical tables.
+``tables/table1.tex``, ``tables/table1.md`` (with the BC-RL - BC intervals and the minimum
+detectable effects), ``tables/power.{md,tex}`` (minimum detectable effect next to the paper's
+effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``tables/tests.csv``
+(each method vs BC: bootstrap interval, p, Holm p, MDE), ``tables/seed_means.csv``,
+``figures/fig3_metrics.{pdf,png}``, ``figures/fig4_learning_curves.{pdf,png}`` (when runs with
+``curves.jsonl`` are found), ``generated/provenance.tex`` (profile, data, seeds, date, commit:
+macros the report uses) and ``generated/verdicts.tex`` (is BC-RL safer, per setting).
+Every file but the provenance (which records the date) is a pure function of the inputs, so
+reruns give identical tables.
 """
 
 from __future__ import annotations
@@ -17,9 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
-from igdrivsim.evaluation.figures import fig3_metrics, save_figure
-from igdrivsim.evaluation.schema import SETTING_LABELS
+from igdrivsim.evaluation.figures import fig3_metrics, learning_curves_figure, save_figure
+from igdrivsim.evaluation.schema import REFERENCES, SETTING_LABELS
 from igdrivsim.evaluation.tables import (
+    power_latex,
+    power_markdown,
     safety_verdicts,
     table1_latex,
     table1_markdown,
@@ -80,11 +85,23 @@ def verdicts_tex(tests) -> str:
     return "\n".join(lines) + "\n"
 
 
+def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
+    """The ``runs/`` folder next to each evaluation folder (``WORK/evals`` -> ``WORK/runs``)."""
+    found = []
+    for root in map(Path, eval_dirs):
+        runs = root.resolve().parent / "runs"
+        if runs.is_dir() and runs not in found:
+            found.append(runs)
+    return found
+
+
 def build_report(eval_dirs: list[str | Path], out: str | Path,
-                 provenance: Provenance = Provenance()) -> list[Path]:
+                 provenance: Provenance = Provenance(),
+                 run_dirs: list[str | Path] | None = None) -> list[Path]:
     """Aggregate every evaluation under ``eval_dirs`` and write the report files under ``out``.
 
-    Returns the written paths.
+    ``run_dirs``: where to look for the runs' ``curves.jsonl`` (Fig. 4); by default the
+    ``runs/`` sibling of each evaluation folder. Returns the written paths.
     """
     out = Path(out)
     _, per_scenario = load_evaluations(eval_dirs)
@@ -106,10 +123,15 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
         atomic_write_csv(tables / "seed_means.csv", seeds.round(6)),
         atomic_write_text(tables / "table1.tex", table1_latex(summary, tests, caption)),
         atomic_write_text(tables / "table1.md", table1_markdown(summary, tests, header)),
+        atomic_write_text(tables / "power.md", power_markdown(tests, header)),
+        atomic_write_text(tables / "power.tex", power_latex(tests)),
         atomic_write_text(tables / "vs_paper.md", vs_paper_markdown(summary, tests, header)),
         atomic_write_text(generated / "verdicts.tex", verdicts_tex(tests)),
         atomic_write_text(generated / "provenance.tex", provenance_tex(
             provenance, n_seeds, n_scenarios, date, git_commit())),
     ]
     written += save_figure(fig3_metrics(seeds), figures, "fig3_metrics")
+    runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
+    references = per_scenario[per_scenario.method.isin(REFERENCES)]
+    written += learning_curves_figure(runs, figures, references if len(references) else None)
     return written

@@ -14,7 +14,7 @@ import math
 
 import pandas as pd
 
-from igdrivsim.evaluation.aggregate import ALPHA, TEST_NAME
+from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME
 from igdrivsim.evaluation.schema import (
     BC,
     BC_RL,
@@ -37,11 +37,22 @@ def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd
     return None if rows.empty else rows.iloc[0]
 
 
-def _better(tests: pd.DataFrame, metric: str, setting: str) -> str:
+def _cells(tests: pd.DataFrame | None, method: str = BC_RL) -> pd.DataFrame:
+    """The rows of ``tests`` comparing ``method`` with the baseline (all rows if unlabelled)."""
     if tests is None or tests.empty:
-        return ""
-    rows = tests[(tests.metric == metric) & (tests.setting == setting)]
-    return "" if rows.empty else str(rows.iloc[0].better or "")
+        return pd.DataFrame(columns=["metric", "setting"])
+    return tests[tests.method == method] if "method" in tests.columns else tests
+
+
+def _test_row(tests: pd.DataFrame | None, metric: str, setting: str) -> pd.Series | None:
+    cells = _cells(tests)
+    rows = cells[(cells.metric == metric) & (cells.setting == setting)]
+    return None if rows.empty else rows.iloc[0]
+
+
+def _better(tests: pd.DataFrame, metric: str, setting: str) -> str:
+    row = _test_row(tests, metric, setting)
+    return "" if row is None else str(row.better or "")
 
 
 def _fmt(value: float) -> str:
@@ -111,8 +122,9 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
     (overlap %, overlap rate, offroad %, offroad rate) and their significance."""
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
     verdicts = {}
+    cells = _cells(tests)
     for setting in SETTINGS:
-        rows = tests[(tests.setting == setting) & tests.metric.isin(safety)] if len(tests) else []
+        rows = cells[(cells.setting == setting) & cells.metric.isin(safety)] if len(cells) else []
         if len(rows) == 0:
             verdicts[setting] = "not evaluated"
             continue
@@ -133,7 +145,8 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
 
 
 def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Markdown version of Table I with 95% CI half-widths and the safety verdict per setting."""
+    """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
+    bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
     out = ["# Table I: BC-RL vs BC", ""]
     if header:
         out += [header, ""]
@@ -157,6 +170,8 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
             text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             out.append(f"| {name} | *{METHOD_LABELS[method]}* | " + " | ".join(
                 [f"*{text}*"] * len(SETTINGS)) + " |")
+    if len(_cells(tests)):
+        out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
     out += ["", "## Is BC-RL safer than BC?", ""]
     for setting, verdict in safety_verdicts(tests).items():
         out.append(f"- **{SETTING_SHORT[setting]}**: {verdict}")
@@ -178,8 +193,8 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
     for metric in METRICS:
         unit = f" ({metric.unit})"
         out += [f"## {' '.join(metric.label).replace(chr(92), '').replace(' (%)', '')}{unit}", "",
-                "| setting | ours BC-RL | ours BC | ours diff | significant | paper BC-RL | "
-                "paper BC | paper diff | same direction |",
+                "| setting | ours BC-RL | ours BC | ours diff | significant (95% CI) | "
+                "paper BC-RL | paper BC | paper diff | same direction |",
                 "|---|---|---|---|---|---|---|---|---|"]
         for setting in SETTINGS:
             ra = _lookup(summary, metric.key, setting, BC_RL)
@@ -189,10 +204,10 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
             b = float(rb["mean"]) if rb is not None else float("nan")
             diff, pdiff = a - b, pa - pb
             sig = ""
-            if len(tests):
-                t = tests[(tests.metric == metric.key) & (tests.setting == setting)]
-                if not t.empty:
-                    sig = f"{'yes' if t.iloc[0].significant else 'no'} (p={t.iloc[0].p_value:.3g})"
+            t = _test_row(tests, metric.key, setting)
+            if t is not None and math.isfinite(float(t.p_value)):
+                sig = (f"{'yes' if t.significant else 'no'} ([{_fmt(float(t.ci_low))}, "
+                       f"{_fmt(float(t.ci_high))}], Holm p={float(t.p_holm):.3g})")
             same = MISSING
             if math.isfinite(diff):
                 total += 1
@@ -206,3 +221,121 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
     out.append(f"Direction of BC-RL minus BC agrees with the paper in {agree} of {total} "
                "evaluated cells.")
     return "\n".join(out) + "\n"
+
+
+def _metric_name(metric) -> str:
+    return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
+
+
+def _interval_text(row: pd.Series | None) -> str:
+    if row is None or not math.isfinite(float(row["diff"])):
+        return MISSING
+    text = f"{float(row['diff']):+.2f} [{float(row.ci_low):+.2f}, {float(row.ci_high):+.2f}]"
+    return f"**{text}**" if bool(row.significant) else text
+
+
+def effects_markdown(tests: pd.DataFrame) -> str:
+    """BC-RL minus BC per metric and setting with the 95% two-level bootstrap interval;
+    bold where significant after the Holm correction."""
+    out = ["## BC-RL − BC (95% bootstrap interval over seeds and scenarios)", "",
+           f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
+           f"{len(_cells(tests))} cells ({TEST_NAME}).", "",
+           "| metric (unit) | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS) + " |",
+           "|---|" + "---|" * len(SETTINGS)]
+    for metric in METRICS:
+        cells = [_interval_text(_test_row(tests, metric.key, s)) for s in SETTINGS]
+        out.append(f"| {_metric_name(metric)} ({metric.unit}) | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, bool]]]]:
+    """Per metric: (name, unit, [(cell text, detectable)]) rows for the paper effect, MDE and
+    Holm MDE; a paper effect is "detectable" when its size is at least the MDE."""
+    rows = []
+    for metric in METRICS:
+        paper, mde, holm = [], [], []
+        for setting in SETTINGS:
+            pa, pb = PAPER_TABLE1[metric.key][setting]
+            effect = pa - pb
+            row = _test_row(tests, metric.key, setting)
+            m = float(row.mde) if row is not None else float("nan")
+            mh = float(row.mde_holm) if row is not None else float("nan")
+            paper.append((f"{effect:+.2f}", math.isfinite(m) and abs(effect) >= m))
+            mde.append((_fmt(m), False))
+            holm.append((_fmt(mh), False))
+        rows.append((_metric_name(metric), metric.unit, [paper, mde, holm]))
+    return rows
+
+
+def _power_counts(tests: pd.DataFrame) -> tuple[int, int, int]:
+    """(paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
+    n = k = kh = 0
+    for metric in METRICS:
+        for setting in SETTINGS:
+            row = _test_row(tests, metric.key, setting)
+            if row is None or not math.isfinite(float(row.mde)):
+                continue
+            pa, pb = PAPER_TABLE1[metric.key][setting]
+            n += 1
+            k += abs(pa - pb) >= float(row.mde)
+            kh += abs(pa - pb) >= float(row.mde_holm)
+    return k, kh, n
+
+
+def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
+    """Minimum detectable effect (80% power) per cell next to the paper's BC-RL − BC."""
+    k, kh, n = _power_counts(tests)
+    n_cells = len(_cells(tests))
+    out = ["## Could the paper's effects be detected here?", ""]
+    if header:
+        out += [header, ""]
+    out += [f"Minimum detectable effect (MDE): the smallest true BC-RL − BC difference a "
+            f"two-sided test detects with {POWER:.0%} power, (z(1−α/2) + z({POWER})) × SE, SE "
+            f"the bootstrap standard error of the difference at this run's seeds and scenarios; "
+            f"at α={ALPHA} without correction, and at the strictest Holm level α/{n_cells} "
+            f"(the first Holm step). Paper effect: BC-RL − BC in the paper's Table I, **bold** "
+            f"where its size reaches the uncorrected MDE. Paper effects at least the MDE: {k} of "
+            f"{n} cells (uncorrected), {kh} of {n} (Holm).", "",
+            "| metric (unit) | row | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS) + " |",
+            "|---|---|" + "---|" * len(SETTINGS)]
+    labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
+    for name, unit, groups in _power_rows(tests):
+        for label, cells in zip(labels, groups, strict=True):
+            texts = [f"**{t}**" if bold else t for t, bold in cells]
+            out.append(f"| {name} ({unit}) | {label} | " + " | ".join(texts) + " |")
+    return "\n".join(out) + "\n"
+
+
+def power_latex(tests: pd.DataFrame) -> str:
+    """The MDE table as a ``table*`` float (label ``tab:power``) for the report."""
+    k, kh, n = _power_counts(tests)
+    n_cells = len(_cells(tests))
+    lines = [
+        r"\begin{table*}[t]",
+        r"\centering",
+        rf"\caption{{\textbf{{Minimum detectable effect of BC-RL versus BC}} (80\% power, "
+        rf"two-sided, normal approximation with the two-level bootstrap standard error at "
+        rf"this run's seeds and scenarios), uncorrected ($\alpha={ALPHA}$) and at the strictest "
+        rf"Holm level ($\alpha={ALPHA}/{n_cells}$), next to the paper's BC-RL $-$ BC from its "
+        rf"Table~I (bold: at least the uncorrected MDE). The paper's effect reaches the MDE in "
+        rf"{k} of {n} cells ({kh} with Holm).}}",
+        r"\label{tab:power}",
+        r"\resizebox{\textwidth}{!}{%",
+        r"\begin{tabular}{ll" + "c" * len(SETTINGS) + "}",
+        r"\toprule",
+        r"\textbf{Metric} & & " + " & ".join(
+            rf"\textbf{{{SETTING_LABELS[s][0]}}}" for s in SETTINGS) + r" \\",
+        " & & " + " & ".join(
+            rf"\textbf{{{SETTING_LABELS[s][1]}}}" if SETTING_LABELS[s][1] else ""
+            for s in SETTINGS) + r" \\",
+    ]
+    labels = ("paper effect", "MDE", "MDE (Holm)")
+    for name, unit, groups in _power_rows(tests):
+        lines.append(r"\midrule")
+        for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
+            texts = [(rf"\textbf{{{t}}}" if bold else t).replace("+", "$+$").replace(
+                "-", "$-$") if t != MISSING else t for t, bold in cells]
+            first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
+            lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
+    return "\n".join(lines)
