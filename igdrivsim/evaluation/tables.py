@@ -227,10 +227,16 @@ def _metric_name(metric) -> str:
     return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
 
 
+def _signed(value: float) -> str:
+    """``+1.23`` / ``-1.23``; a value that rounds to zero prints as ``+0.00`` (never ``-0.00``)."""
+    return f"{value:+.2f}" if round(value, 2) != 0 else "+0.00"
+
+
 def _interval_text(row: pd.Series | None) -> str:
     if row is None or not math.isfinite(float(row["diff"])):
         return MISSING
-    text = f"{float(row['diff']):+.2f} [{float(row.ci_low):+.2f}, {float(row.ci_high):+.2f}]"
+    text = (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
+            f"{_signed(float(row.ci_high))}]")
     return f"**{text}**" if bool(row.significant) else text
 
 
@@ -260,7 +266,7 @@ def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, boo
             row = _test_row(tests, metric.key, setting)
             m = float(row.mde) if row is not None else float("nan")
             mh = float(row.mde_holm) if row is not None else float("nan")
-            paper.append((f"{effect:+.2f}", math.isfinite(m) and abs(effect) >= m))
+            paper.append((_signed(effect), math.isfinite(m) and abs(effect) >= m))
             mde.append((_fmt(m), False))
             holm.append((_fmt(mh), False))
         rows.append((_metric_name(metric), metric.unit, [paper, mde, holm]))
