@@ -187,6 +187,8 @@ class Pipeline:
                     return int(main(argv[1:]) or 0)
                 if argv[:2] == ["python", "-m"]:
                     module = importlib.import_module(argv[2])
+                    if not hasattr(module, "main"):  # a package: python -m runs __main__
+                        module = importlib.import_module(f"{argv[2]}.__main__")
                     return int(module.main(argv[3:]) or 0)
             except SystemExit as err:  # argparse errors
                 return int(err.code or 0) if isinstance(err.code, int) else 1
