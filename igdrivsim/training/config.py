@@ -140,7 +140,7 @@ def laptop() -> RunConfig:
         data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
                         max_roadgraph_points=10_240, prefetch=2),
         observation=ObsConfig(num_objects=16, num_roadgraph_points=128),
-        training=TrainConfig(seeds=3, num_updates=60, lr=1e-3, ppo_epochs=4,
+        training=TrainConfig(seeds=3, num_updates=80, lr=1e-3, ppo_epochs=4,
                              ppo_minibatches=4, log_every=5, eval_every=20, val_scenarios=32,
                              checkpoint_every=20),
     )
