@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS
+from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS, RG_NUM_TYPES
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -50,6 +50,7 @@ from igdrivsim.observation.features import POSITION_SCALE, nearest, rotate_to_fr
 from igdrivsim.observation.models import apply_setting
 from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose, step
 from igdrivsim.simulator.expert import expert_action
+from igdrivsim.simulator.state import log_sdc_at
 
 FORMAT_VERSION = 3
 EPISODE_STEPS = NUM_STEPS - 1  # 10 warm-up + 80 controlled observations per episode
@@ -94,8 +95,14 @@ def _record(state: SimState, rec: ObservationConfig):
             obs.sdc_speed, yaw)
 
 
+def _logged_valid(state: SimState, t) -> jax.Array:
+    """Whether the logged SDC is valid at step ``t``."""
+    return log_sdc_at(state, t)[3]
+
+
 def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> TeacherSteps:
-    """Warm-up (log) and expert-driven observations and labels of ONE scenario at reset."""
+    """Warm-up (log) and expert-driven observations and labels of ONE scenario at reset
+    (the record of :class:`TeacherSteps`)."""
     warm = jax.vmap(lambda t: _record(state.replace(timestep=t), rec))(
         jnp.arange(CURRENT_INDEX))
 
@@ -103,20 +110,13 @@ def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> T
         out = _record(s, rec)
         idx = dynamics.discretize(expert_action(s, sim))
         t = s.timestep
-        valid = state_valid(s, t) & state_valid(s, jnp.minimum(t + 1, NUM_STEPS - 1))
+        valid = _logged_valid(s, t) & _logged_valid(s, jnp.minimum(t + 1, NUM_STEPS - 1))
         return step(s, dynamics.undiscretize(idx), sim), (out, idx.astype(jnp.int16), valid)
 
     _, (drive, actions, valid) = jax.lax.scan(body, state, None,
                                               length=sim.num_controlled_steps)
     fields = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), warm, drive)
     return TeacherSteps(*fields, actions=actions, action_valid=valid)
-
-
-def state_valid(state: SimState, t) -> jax.Array:
-    """Whether the logged SDC is valid at step ``t``."""
-    from igdrivsim.simulator.state import log_sdc_at
-
-    return log_sdc_at(state, t)[3]
 
 
 @functools.lru_cache(maxsize=4)
@@ -214,8 +214,6 @@ def teacher_observation(rec: TeacherSteps, t, setting, episode_key: jax.Array,
     ri, rv = pick(rec.roadgraph[:, :2], rec.roadgraph_valid, config.num_roadgraph_points)
     rg4 = rec.roadgraph[ri].at[:, :2].add(-shift)
     kind = rec.roadgraph_type[ri].astype(jnp.int32)
-    from igdrivsim.data.scenario import RG_NUM_TYPES
-
     onehot = jax.nn.one_hot(kind, RG_NUM_TYPES, dtype=jnp.float32)
     rg = jnp.concatenate([rg4, onehot, jnp.ones_like(rg4[:, :1])], -1)
     rg = jnp.where(rv[:, None], rg, 0.0)
@@ -228,6 +226,6 @@ def episode_observations(rec: TeacherSteps, setting, episode_key: jax.Array,
                          config: ObservationConfig) -> Observation:
     """All 90 observations of one recorded episode, ``[T, ...]``."""
     steps = jnp.arange(rec.sdc_yaw.shape[0])
-    per_step = jax.tree.map(lambda x: x, rec.replace(actions=None, action_valid=None))
+    per_step = rec.replace(actions=None, action_valid=None)  # the labels have 80 steps, not 90
     return jax.vmap(lambda r, t: teacher_observation(r, t, setting, episode_key, config))(
         per_step, steps)
