@@ -83,7 +83,8 @@ class StudyConfig:
             raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
         if self.hidden < 1:
             raise ConfigError(f"--hidden must be >= 1, got {self.hidden}")
-        for name in ("rl_full_updates", "rl_partial_updates", "mixed_updates"):
+        for name in ("rl_full_updates", "rl_partial_updates") + (
+                ("mixed_updates",) if self.baselines else ()):
             if getattr(self, name) % self.chunk_updates:
                 raise ConfigError(f"{name} must be a multiple of chunk_updates")
         if self.bc.epochs % self.bc_chunk_epochs:
