@@ -13,6 +13,20 @@ import sys
 
 from igdrivsim.errors import IGDrivSimError
 
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Append "(default: X)" to an option's help unless it already names its default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_ = action.help or ""
+        if ("default" in help_ or action.default is argparse.SUPPRESS or not action.option_strings
+                or action.nargs == 0):
+            return help_
+        return f"{help_} (default: %(default)s)".strip()
+
+
+FORMATTER = DefaultsFormatter  # every option's help shows its default
+
 # name -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "inspect": ("igdrivsim.data.commands", "print one JSON line per scenario in WOMD files"),
@@ -33,7 +47,7 @@ BENCHES: dict[str, tuple[str, str]] = {
 
 
 def _add(sub, name: str, module: str, help_: str, prefix: str = "") -> None:
-    parser = sub.add_parser(name, help=help_, description=help_)
+    parser = sub.add_parser(name, help=help_, description=help_, formatter_class=FORMATTER)
     parser.set_defaults(_module=module, _name=prefix + name)
     # Defer importing heavy modules: only the chosen command's module configures its parser.
     parser.set_defaults(_configure=lambda p=parser: getattr(
@@ -45,8 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (module, help_) in COMMANDS.items():
         _add(sub, name, module, help_)
-    bench = sub.add_parser("bench", help="speed benchmarks").add_subparsers(dest="bench",
-                                                                            required=True)
+    bench = sub.add_parser("bench", help="speed benchmarks",
+                           description="speed benchmarks: igdrivsim bench {data,sim,train}"
+                           ).add_subparsers(dest="bench", required=True)
     for name, (module, help_) in BENCHES.items():
         _add(bench, name, module, help_, prefix="bench_")
     return parser
@@ -57,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     # Two passes: find the command, let its module add arguments, then parse for real.
     first = [a for a in argv if a not in ("-h", "--help")]
-    if not first:
+    if not first or first == ["bench"]:
         parser.parse_args(argv)  # prints usage (or help) and exits
     known, _ = parser.parse_known_args(first)
     known._configure()

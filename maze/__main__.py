@@ -9,13 +9,15 @@ from __future__ import annotations
 import argparse
 import sys
 
+from igdrivsim.cli import DefaultsFormatter
 from igdrivsim.errors import IGDrivSimError
 from igdrivsim.io import atomic_write_csv
 from maze import study
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m maze", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m maze", description=__doc__.split("\n")[0],
+                                     formatter_class=DefaultsFormatter)
     study.study_arguments(parser)
     parser.add_argument("--quick", action="store_true", help="tiny smoke run (seconds)")
     args = parser.parse_args(argv)

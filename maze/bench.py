@@ -15,6 +15,7 @@ import time
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.cli import DefaultsFormatter
 from maze import env as maze_env
 from maze.network import init_stacked, make_policy
 from maze.ppo import PPOConfig, make_ppo
@@ -75,13 +76,13 @@ def bench_ppo(seeds: int, hidden: int, updates: int, partial: bool) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.bench", description=__doc__.split(
-        "\n")[0])
+        "\n")[0], formatter_class=DefaultsFormatter)
     parser.add_argument("--envs", type=int, default=4096, help="batched environments")
     parser.add_argument("--steps", type=int, default=500, help="steps per environment")
     parser.add_argument("--seeds", type=int, default=5, help="PPO seeds trained at once")
     parser.add_argument("--hidden", type=int, nargs="+", default=[64], help="GRU widths")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates timed")
-    parser.add_argument("--skip-ppo", action="store_true")
+    parser.add_argument("--skip-ppo", action="store_true", help="time only the environment")
     args = parser.parse_args(argv)
     print(json.dumps(bench_env(args.envs, args.steps)), flush=True)
     if not args.skip_ppo:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from igdrivsim.cli import DefaultsFormatter
 from igdrivsim.io import atomic_savefig
 from maze.env import MOVES
 from maze.gym_env import MazeGymEnv
@@ -76,9 +77,11 @@ def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Pat
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.render", description=__doc__.split(
-        "\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("paper"))
-    parser.add_argument("--seed", type=int, default=None)
+        "\n")[0], formatter_class=DefaultsFormatter)
+    parser.add_argument("--out", type=Path, default=Path("paper"),
+                        help="output folder (the figure goes to OUT/figures/)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="maze layout seed (default: the study's)")
     args = parser.parse_args(argv)
     print(save_frames(args.out / "figures" / "maze_frames.png", args.seed))
     return 0

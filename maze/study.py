@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from igdrivsim.cli import DefaultsFormatter
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.io import atomic_write_bytes, atomic_write_csv, atomic_write_json, atomic_write_text
 from maze import extended, lanes, report
@@ -386,7 +387,8 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
 
 
 def study_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="default",
+                        help="named study configuration")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per curve (default 10)")
     parser.add_argument("--seed", type=int, default=None, help="base PRNG seed")
     parser.add_argument("--hidden", type=int, default=None, help="GRU width (default 64)")
@@ -412,7 +414,7 @@ def study_command(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.study", description=__doc__.split(
-        "\n")[0])
+        "\n")[0], formatter_class=DefaultsFormatter)
     study_arguments(parser)
     args = parser.parse_args(argv)
     try:

@@ -156,7 +156,8 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default=None,
                         help="WOMD file, or folder with --distinct (default: the real tf.Example "
                              "sample in ../shared)")
-    parser.add_argument("--record", type=int, default=0)
+    parser.add_argument("--record", type=int, default=0,
+                        help="index of the record of --data tiled over each batch")
     parser.add_argument("--distinct", action="store_true",
                         help="fill each batch with different scenarios of --data (cycled when it "
                              "has fewer) instead of tiling --record")

@@ -38,7 +38,8 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=0, help="seeds (0: the profile's)")
     parser.add_argument("--updates", type=int, default=3, help="timed updates (after compile)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="SECTION.FIELD=VALUE")
+                        metavar="SECTION.FIELD=VALUE",
+                        help="override a config field, as in `igdrivsim train` (repeatable)")
 
 
 def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int = 0,

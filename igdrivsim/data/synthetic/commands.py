@@ -46,7 +46,8 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--train", type=int, default=1000, help="training scenarios")
     parser.add_argument("--val", type=int, default=200, help="validation scenarios")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="base seed; scenario i of a split depends only on (seed, split, i)")
     parser.add_argument("--shards", type=int, default=None,
                         help="shards per split (default: about 250 scenarios per shard)")
     parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 8),
@@ -60,6 +61,7 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
                              "reads back identically; other WOMD readers expect fixed sizes)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace shards written with a different configuration")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -108,7 +110,8 @@ def generate_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     pool = ProcessPoolExecutor(args.workers) if args.workers > 1 else None
     try:
-        with tqdm(total=total, desc="generating", unit="scn") as bar:
+        with tqdm(total=total, desc="generating", unit="scn",
+                  disable=getattr(args, "no_progress", False)) as bar:
             for split, path, indices in todo:
                 os.makedirs(os.path.dirname(path), exist_ok=True)
                 chunks = [(args.seed, split, i, min(i + CHUNK, indices.stop), config,
