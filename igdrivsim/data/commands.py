@@ -17,7 +17,7 @@ from igdrivsim.data.scenario import (
     Scenario,
     decode_scenario_id,
 )
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, DataError
 
 
 def describe(scenario: Scenario) -> dict:
@@ -49,10 +49,11 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
                              "or ScenarioNet .pkl files / dataset folders")
     parser.add_argument("--limit", type=int, default=None, help="stop after N scenarios")
     parser.add_argument("--json", action="store_true",
-                        help="JSON lines (the default and only output format)")
+                        help=argparse.SUPPRESS)  # deprecated: JSON lines are the only output
     parser.add_argument("--skip-bad", action="store_true",
                         help="warn about and count bad records instead of stopping")
-    parser.add_argument("--workers", type=int, default=0, help="decode in N processes")
+    parser.add_argument("--workers", type=int, default=0,
+                        help="decode in N processes (0: in this process)")
 
 
 def inspect_command(args: argparse.Namespace) -> int:
@@ -73,6 +74,8 @@ def inspect_command(args: argparse.Namespace) -> int:
         shown += 1
     if stats.skipped:
         print(f"igdrivsim inspect: skipped {len(stats.skipped)} bad record(s)", file=sys.stderr)
+    if shown == 0 and args.limit != 0:
+        raise DataError(f"no records in {' '.join(args.files)}")
     return 0
 
 

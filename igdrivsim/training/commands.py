@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from igdrivsim.errors import ConfigError
 from igdrivsim.training.config import METHODS, PROFILES, get_profile, with_overrides
 
 
@@ -22,11 +23,16 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", choices=list(PROFILES), default="laptop",
                         help="named configuration (default: laptop)")
     parser.add_argument("--obs", default=None, metavar="SETTING",
-                        help=f"observation setting: {', '.join(PRESETS)} (compose with '+')")
-    parser.add_argument("--method", choices=METHODS, default=None, help="bc or bc_rl")
-    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (vmapped)")
+                        help=f"observation setting: {', '.join(PRESETS)} (compose with '+'; "
+                             "comma-separate several) (default: the profile's, full)")
+    parser.add_argument("--method", choices=METHODS, default=None,
+                        help="bc or bc_rl (default: the profile's, bc)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="number of seeds, vmapped (default: the profile's, 3 for laptop)")
     parser.add_argument("--data", required=True,
-                        help="training data: a folder (with a filter manifest.jsonl, or TFRecords)")
+                        help="training data: a folder (with a filter manifest.jsonl, or "
+                             "TFRecords); a folder holding training/ and validation/ (as written by"
+                             " `igdrivsim generate`) means its training/")
     parser.add_argument("--out", required=True, help="run folder")
     parser.add_argument("--val-data", default=None, metavar="DIR",
                         help="validation data for the learning curves (curves.jsonl): "
@@ -37,7 +43,9 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
                              "the same data (default: DATA/../cache when DATA is a folder)")
     parser.add_argument("--resume", action="store_true", help="continue an unfinished run")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="SECTION.FIELD=VALUE", help="override a config field (repeatable)")
+                        metavar="SECTION.FIELD=VALUE",
+                        help="override any config field, e.g. training.lr=3e-4 (repeatable; "
+                             "applied after --obs/--method/--seeds, which it may not contradict)")
     parser.add_argument("--stop-after", type=int, default=None, metavar="K",
                         help="debug: stop (with a checkpoint) after K updates")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -53,6 +61,15 @@ def resolve_config(args: argparse.Namespace):
         shortcuts.append(f"training.method={args.method}")
     if args.seeds is not None:
         shortcuts.append(f"training.seeds={args.seeds}")
+    for shortcut in shortcuts:
+        key, value = shortcut.split("=", 1)
+        for override in args.overrides:
+            okey, _, ovalue = override.partition("=")
+            if okey.strip() == key and ovalue.strip() != value:
+                option = {"observation.setting": "--obs", "training.method": "--method",
+                          "training.seeds": "--seeds"}[key]
+                raise ConfigError(f"--set {override} contradicts {option} {value}; "
+                                  f"give one of them")
     config = with_overrides(config, shortcuts + list(args.overrides))
     from igdrivsim.observation import get_setting
 
@@ -72,12 +89,26 @@ def maybe_init_distributed() -> None:
             process_id=int(os.environ.get("JAX_PROCESS_ID", "0")))
 
 
-def train_command(args: argparse.Namespace) -> int:
+def resolve_data(data: str) -> str:
+    """``DATA/training`` when DATA is a generated folder (``training/`` and ``validation/``)."""
+    import sys
+
     from igdrivsim.errors import DataError
 
+    if not os.path.exists(data):
+        raise DataError("training data not found", file=data)
+    split = os.path.join(data, "training")
+    if (os.path.isdir(split) and os.path.isdir(os.path.join(data, "validation"))
+            and not os.path.exists(os.path.join(data, "manifest.jsonl"))):
+        print(f"igdrivsim train: using the training split {split} (validation/ is for "
+              f"--val-data and evaluate)", file=sys.stderr)
+        return split
+    return data
+
+
+def train_command(args: argparse.Namespace) -> int:
     config = resolve_config(args)
-    if not os.path.exists(args.data):
-        raise DataError("training data not found", file=args.data)
+    args.data = resolve_data(args.data)
     maybe_init_distributed()
     from igdrivsim.training.loop import train
 
