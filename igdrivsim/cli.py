@@ -22,10 +22,20 @@ class DefaultsFormatter(argparse.HelpFormatter):
         if ("default" in help_ or action.default is argparse.SUPPRESS or not action.option_strings
                 or action.nargs == 0):
             return help_
+        if action.default is None:
+            return f"{help_} (default: none)".strip()
+        if action.default == []:
+            return help_  # a repeatable option, empty unless given
         return f"{help_} (default: %(default)s)".strip()
 
 
 FORMATTER = DefaultsFormatter  # every option's help shows its default
+
+
+def deprecated_alias(parser: argparse.ArgumentParser, name: str, dest: str, **kwargs) -> None:
+    """Accept an old option spelling (hidden from ``--help``) that sets ``dest`` like the new."""
+    parser.add_argument(name, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                        **kwargs)
 
 # name -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -2,7 +2,7 @@
 # Regenerate every figure and table of the report from a fresh clone.
 #
 #   bash scripts/reproduce.sh [--profile smoke|laptop|paper] [--data DIR | --data TRAIN VAL]
-#                             [--out DIR] [--settings a,b] [--quiet]
+#                             [--out DIR] [--obs a,b] [--no-progress]
 #
 # Stages: data (synthetic, unless --data) -> filter -> train (6 settings x {BC, BC-RL} x seeds)
 # -> evaluate -> maze study -> render Fig. 1 -> report (Table I, Fig. 3) -> PDF (if latexmk).

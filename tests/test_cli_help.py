@@ -59,3 +59,32 @@ def test_maze_help(module, monkeypatch, capsys):
     seen = _run_help(importlib.import_module(module).main, [], monkeypatch, capsys)
     assert seen
     _check_help_texts(seen[0], module)
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    parser = cli.build_parser()
+    parser.parse_known_args(argv)[0]._configure()
+    return parser.parse_args(argv)
+
+
+@pytest.mark.parametrize("new, old, dest, value", [
+    (["evaluate", "R", "--data", "D", "--out", "O", "--limit", "5"], "--max-scenarios",
+     "max_scenarios", 5),
+    (["render", "--obs", "full"], "--setting", "setting", "full"),
+    (["bench", "sim", "--obs", "full"], "--setting", "setting", "full"),
+    (["bench", "sim", "--batch-sizes", "1,2"], "--batches", "batches", "1,2"),
+    (["bench", "train", "--batch-size", "4"], "--batch", "batch", 4),
+    (["bench", "data", "--limit", "7"], "--records", "records", 7),
+])
+def test_renamed_options_keep_old_spelling(new, old, dest, value):
+    assert getattr(_parse(new), dest) == value
+    old_argv = [old if a == new[-2] else a for a in new]
+    assert getattr(_parse(old_argv), dest) == value
+
+
+def test_train_interface_is_stable():
+    args = _parse(["train", "--profile", "laptop", "--obs", "circular_r4", "--method", "bc_rl",
+                   "--seeds", "3", "--data", "D", "--out", "O"])
+    assert (args.obs, args.method, args.seeds, args.data) == ("circular_r4", "bc_rl", 3, "D")
+    args = _parse(["evaluate", "RUN", "--data", "D", "--out", "O", "--references"])
+    assert args.runs == ["RUN"] and args.references

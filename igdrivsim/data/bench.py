@@ -1,7 +1,7 @@
 """``igdrivsim bench data``: scenarios/s read + decoded (+ fitted to capacities) and filtered.
 
 Default input: the real WOMD samples in ``../shared/data/womd`` tiled into temporary shards
-(the tf.Example sample ``--records`` times over ``--shards`` shards; the Scenario-protobuf
+(the tf.Example sample ``--limit`` times over ``--shards`` shards; the Scenario-protobuf
 sample a tenth as often). Each measurement runs once in one process and once with ``--workers``
 spawned processes; rates are given with and without the worker start-up time, plus the CPU time
 per scenario (this process and its workers), which a busy machine does not distort.
@@ -16,6 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from igdrivsim.cli import deprecated_alias
 from igdrivsim.data.reader import available_cpus
 from igdrivsim.errors import ConfigError, DataError
 
@@ -27,11 +28,12 @@ def bench_data_arguments(parser: argparse.ArgumentParser) -> None:
                         help="WOMD files/folders/globs/name@N (default: tiled real samples)")
     parser.add_argument("--samples", default=str(DEFAULT_SAMPLES),
                         help="folder with the real samples to tile (default: %(default)s)")
-    parser.add_argument("--records", type=int, default=400,
+    parser.add_argument("--limit", dest="records", type=int, default=400, metavar="N",
                         help="tf.Example records to tile (default: %(default)s)")
+    deprecated_alias(parser, "--records", "records", type=int)
     parser.add_argument("--shards", type=int, default=4, help="shards to tile them into")
     parser.add_argument("--workers", type=int, default=available_cpus(),
-                        help="worker processes for the parallel runs (default: all CPUs)")
+                        help="N worker processes for the parallel runs (default: all CPUs)")
     parser.add_argument("--out", default=None, help="also write the results to this JSON file")
 
 
@@ -95,7 +97,7 @@ def bench_data_command(args: argparse.Namespace) -> int:
     from igdrivsim.data.manifest import write_json
 
     if args.records < 1 or args.shards < 1 or args.workers < 1:
-        raise ConfigError("--records, --shards and --workers must be >= 1")
+        raise ConfigError("--limit, --shards and --workers must be >= 1")
     results = {"cpu_count": available_cpus(), "workers": args.workers, "runs": []}
     with tempfile.TemporaryDirectory(prefix="igdrivsim-bench-data-") as folder:
         if args.paths:

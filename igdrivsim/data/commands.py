@@ -52,8 +52,9 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
                         help=argparse.SUPPRESS)  # deprecated: JSON lines are the only output
     parser.add_argument("--skip-bad", action="store_true",
                         help="warn about and count bad records instead of stopping")
-    parser.add_argument("--workers", type=int, default=0,
-                        help="decode in N processes (0: in this process)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="N worker processes (1: in this process, which starts printing at "
+                             "once; other commands default to all CPUs)")
 
 
 def inspect_command(args: argparse.Namespace) -> int:
@@ -91,7 +92,8 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-speed", type=float, default=None,
                         help="minimum SDC mean speed over its valid steps, m/s (default 0.7)")
     parser.add_argument("--workers", type=int, default=available_cpus(),
-                        help="worker processes, one shard each at a time (default: all CPUs)")
+                        help="N worker processes, one shard each at a time (1: in this process; "
+                             "default: all CPUs)")
     parser.add_argument("--part", default=None, metavar="i/n",
                         help="process only shards i, i+n, ... (0 <= i < n) for cluster arrays; "
                              "join the parts with --merge")

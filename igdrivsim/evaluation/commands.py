@@ -19,6 +19,7 @@ import os
 import sys
 from pathlib import Path
 
+from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_csv, atomic_write_json
 
@@ -92,8 +93,9 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--like", default=None, metavar="RUN_DIR",
                         help="for --references without RUN_DIR: use this run's data "
                              "capacities and simulator settings")
-    parser.add_argument("--max-scenarios", type=int, default=0,
-                        help="evaluate at most this many validation scenarios (0: all)")
+    parser.add_argument("--limit", dest="max_scenarios", type=int, default=0, metavar="N",
+                        help="evaluate at most N validation scenarios (0: all)")
+    deprecated_alias(parser, "--max-scenarios", "max_scenarios", type=int)
     parser.add_argument("--batch-size", type=int, default=32, help="scenarios per batch")
     parser.add_argument("--seed", type=int, default=0, help="evaluation key (actions, noise)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from igdrivsim.cli import DefaultsFormatter, deprecated_alias
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_write_json, atomic_write_text
@@ -249,7 +250,7 @@ class Pipeline:
 
     def run_evaluate(self, names: list[str], val_manifest: Path) -> Path:
         evals = self.work / "evals"
-        limit = ["--max-scenarios", self.profile.eval_max_scenarios]
+        limit = ["--limit", self.profile.eval_max_scenarios]
         common = ["--data", val_manifest, "--batch-size", self.profile.eval_batch, *limit]
         for name in names:
             out = evals / name
@@ -338,8 +339,38 @@ class Pipeline:
                                       f"({old[key]!r}); use another --out or the same options")
         atomic_write_json(path, record, indent=2)
 
+    @contextlib.contextmanager
+    def work_lock(self):
+        """Hold ``WORK/pipeline.lock`` (``flock``) so that a second run on the same work folder
+        is refused; the kernel drops the lock when the holder exits, even when killed."""
+        import fcntl
+
+        self.work.mkdir(parents=True, exist_ok=True)
+        path = self.work / "pipeline.lock"
+        fh = open(path, "a+")  # noqa: SIM115 - held open for the whole run
+        try:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                fh.seek(0)
+                holder = fh.read().strip() or "another process"
+                raise ConfigError(f"another reproduction is running on {self.work} (pid "
+                                  f"{holder}); wait for it to finish or use another --out"
+                                  ) from None
+            fh.seek(0)
+            fh.truncate()
+            fh.write(str(os.getpid()))
+            fh.flush()
+            yield
+        finally:
+            fh.close()
+
     def run(self) -> None:
-        """Every stage in order."""
+        """Every stage in order, holding the work folder's lock."""
+        with self.work_lock():
+            self._run_stages()
+
+    def _run_stages(self) -> None:
         self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
                   f"{self.paper}")
         self.check_work_folder()
@@ -377,7 +408,8 @@ class _Tee:
 
 # ------------------------------------------------------------------------------------ CLI
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", description=(
+    parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", formatter_class=DefaultsFormatter,
+                                     description=(
         "Regenerate every table and figure: data -> filter -> train -> evaluate -> maze -> "
         "render -> report -> PDF. Resumable: rerun the same command after an interruption."))
     parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
@@ -390,15 +422,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default=None,
                         help="put everything under OUT (work files, and the report in "
                              "OUT/paper); default: outputs/<profile>/ and paper/")
-    parser.add_argument("--settings", default=None,
-                        help="comma-separated subset of the six observation settings")
+    parser.add_argument("--obs", dest="settings", default=None, metavar="SETTINGS",
+                        help="comma-separated subset of the six observation settings "
+                             "(default: all six)")
+    deprecated_alias(parser, "--settings", "settings")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="SECTION.FIELD=VALUE",
-                        help="override a training field for every run (repeatable), e.g. "
+                        help="override a config field for every training run (repeatable; "
+                             "not observation.setting or training.method), e.g. "
                              "--set training.num_updates=400; use a fresh --out for it")
     parser.add_argument("--in-process", action="store_true",
                         help="run the commands in this Python process (faster for smoke)")
-    parser.add_argument("--quiet", action="store_true", help="do not echo stage output")
+    parser.add_argument("--no-progress", dest="quiet", action="store_true",
+                        help="do not echo stage output and progress bars on the terminal (the "
+                             "logs in WORK/logs/ are complete either way)")
+    deprecated_alias(parser, "--quiet", "quiet", action="store_true")
     return parser
 
 

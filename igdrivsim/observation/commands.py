@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError, DataError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -15,17 +16,21 @@ DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data" / "womd" / "motion_data_one_
 
 def render_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data_file", nargs="?", default=None, metavar="FILE",
-                        help="WOMD file (tf.Example or Scenario proto); same as --data")
+                        help=argparse.SUPPRESS)  # deprecated spelling of --data
     parser.add_argument("--data", default=None,
-                        help=f"WOMD file (default: {DEFAULT_DATA} when present)")
+                        help=f"WOMD file, tf.Example or Scenario proto (default: {DEFAULT_DATA} "
+                             "when present)")
     parser.add_argument("--record", type=int, default=0, help="record index in the file")
     parser.add_argument("--out", default=str(REPO_ROOT / "paper" / "figures"),
                         help="output directory (default: paper/figures)")
     parser.add_argument("--step", type=int, default=10,
                         help="simulator timestep of the Fig. 1 panels (10..90, expert replay)")
-    parser.add_argument("--gif", action="store_true", help="also write rollout_<setting>.gif")
-    parser.add_argument("--setting", default="circular_r6",
+    parser.add_argument("--gif", nargs="?", const="", default=None, metavar="PATH",
+                        help="also write an animation of the expert replay to PATH (default "
+                             "when given without PATH: OUT/rollout_<setting>.gif)")
+    parser.add_argument("--obs", dest="setting", default="circular_r6", metavar="SETTING",
                         help="observation setting of the animation (a preset, '+' composes)")
+    deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--view", type=float, default=30.0, help="panel size scale (metres)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (noise, masking)")
     parser.add_argument("--every", type=int, default=1, help="animate every N-th step")
@@ -61,12 +66,12 @@ def render_command(args) -> int:
     scenario = load_scenario(path, args.record)
     state = jax.jit(sim.reset)(scenario)
     key = jax.random.PRNGKey(args.seed)
-    need = 80 if args.gif else args.step - 10
+    need = 80 if args.gif is not None else args.step - 10
     states = render.expert_states(state, need)
     written = render.write_observation_figure(states[args.step - 10], args.out, list(PRESETS),
                                               key, args.view)
-    if args.gif:
-        gif = os.path.join(args.out, f"rollout_{setting.name.replace('+', '_')}.gif")
+    if args.gif is not None:
+        gif = args.gif or os.path.join(args.out, f"rollout_{setting.name.replace('+', '_')}.gif")
         written.append(render.write_rollout_animation(states, setting, gif, key, args.view,
                                                       every=args.every))
     print(json.dumps({"data": path, "record": args.record, "step": args.step,

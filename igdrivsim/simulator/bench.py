@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
+from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_write_json
 from igdrivsim.observation import ObservationConfig, get_setting, observe
@@ -161,9 +162,12 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--distinct", action="store_true",
                         help="fill each batch with different scenarios of --data (cycled when it "
                              "has fewer) instead of tiling --record")
-    parser.add_argument("--batches", default="1,16,64,256",
-                        help="comma-separated batch sizes (default 1,16,64,256)")
-    parser.add_argument("--setting", default="full", help="observation setting")
+    parser.add_argument("--batch-sizes", dest="batches", default="1,16,64,256",
+                        help="comma-separated batch sizes (scenarios per call)")
+    deprecated_alias(parser, "--batches", "batches")
+    parser.add_argument("--obs", dest="setting", default="full", metavar="SETTING",
+                        help="observation setting")
+    deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--impls", default=",".join(IMPLS),
                         help=f"implementations to time (default {','.join(IMPLS)})")
     parser.add_argument("--candidates", type=int, default=CandidateConfig().num_candidates,
@@ -184,10 +188,10 @@ def bench_sim_command(args) -> int:
     try:
         batches = [int(b) for b in args.batches.split(",") if b.strip()]
     except ValueError as err:
-        raise ConfigError(f"--batches must be comma-separated integers, got {args.batches!r}"
+        raise ConfigError(f"--batch-sizes must be comma-separated integers, got {args.batches!r}"
                           ) from err
     if not batches or min(batches) < 1 or args.repeats < 1:
-        raise ConfigError("--batches must be positive integers and --repeats >= 1")
+        raise ConfigError("--batch-sizes must be positive integers and --repeats >= 1")
     get_setting(args.setting)
     path = _data_path(args)
     if args.distinct:

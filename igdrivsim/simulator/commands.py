@@ -108,8 +108,9 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="JSON lines only (no summary)")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="also write replay.jsonl, summary.json and config.json here")
-    parser.add_argument("--gif", default=None, metavar="PATH",
-                        help="write an animation of the first scenario's replay (GIF)")
+    parser.add_argument("--gif", nargs="?", const="", default=None, metavar="PATH",
+                        help="also write an animation of the first scenario's replay to PATH "
+                             "(default when given without PATH: OUT/replay.gif, or replay.gif)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
 
 
@@ -153,8 +154,8 @@ def replay_command(args: argparse.Namespace) -> int:
             print(line, flush=True)
             if out is not None:
                 out.write(line + "\n")
-            if args.gif and not records:
-                _write_gif(args.gif, final)
+            if args.gif is not None and not records:
+                _write_gif(args.gif or os.path.join(args.out or ".", "replay.gif"), final)
             records.append(record)
             bar.update(1)
     elapsed = time.perf_counter() - t0

@@ -21,6 +21,7 @@ import time
 import jax
 import numpy as np
 
+from igdrivsim.cli import deprecated_alias
 from igdrivsim.evaluation.schema import SETTINGS as PAPER_SETTINGS
 
 
@@ -32,9 +33,10 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--obs", default=",".join(PAPER_SETTINGS), metavar="SETTINGS",
                         help="settings trained together, comma-separated (default: the "
                              "paper's six)")
-    parser.add_argument("--batch", type=int, default=0,
+    parser.add_argument("--batch-size", dest="batch", type=int, default=0,
                         help="scenarios per update (0: the profile's; paper on CPU: 1, "
                              "~25 s per update)")
+    deprecated_alias(parser, "--batch", "batch", type=int)
     parser.add_argument("--seeds", type=int, default=0, help="seeds (0: the profile's)")
     parser.add_argument("--updates", type=int, default=3, help="timed updates (after compile)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],

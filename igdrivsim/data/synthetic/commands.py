@@ -14,6 +14,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from igdrivsim.data.reader import available_cpus
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
 from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_write_json
@@ -50,8 +51,8 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="base seed; scenario i of a split depends only on (seed, split, i)")
     parser.add_argument("--shards", type=int, default=None,
                         help="shards per split (default: about 250 scenarios per shard)")
-    parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 8),
-                        help="generator processes (1: in this process)")
+    parser.add_argument("--workers", type=int, default=available_cpus(),
+                        help="N worker processes (1: in this process; default: all CPUs)")
     parser.add_argument("--p-intersection", type=float, default=GeneratorConfig.p_intersection,
                         help="fraction of intersection maps (others are curved roads)")
     parser.add_argument("--plot", type=int, default=0, metavar="N",
