@@ -112,6 +112,7 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write an animation of the first scenario's replay to PATH "
                              "(default when given without PATH: OUT/replay.gif, or replay.gif)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _write_gif(path: str, final: SimState) -> None:
@@ -137,7 +138,8 @@ def replay_command(args: argparse.Namespace) -> int:
         out = (stack.enter_context(atomic_path(os.path.join(args.out, "replay.jsonl"), "w"))
                if args.out else None)
         bar = stack.enter_context(tqdm(total=args.limit, desc="replay", unit="scn",
-                                       file=sys.stderr, disable=args.json))
+                                       file=sys.stderr,
+                                       disable=args.json or args.no_progress))
         for rec in iter_scenarios(args.files):
             if args.limit is not None and len(records) >= args.limit:
                 break
