@@ -95,7 +95,7 @@ def resolve_data(data: str) -> str:
 
     from igdrivsim.errors import DataError
 
-    if not os.path.exists(data):
+    if not os.path.exists(data) and not any(ch in data for ch in "*?@"):  # globs, name@N
         raise DataError("training data not found", file=data)
     split = os.path.join(data, "training")
     if (os.path.isdir(split) and os.path.isdir(os.path.join(data, "validation"))
