@@ -107,7 +107,15 @@ def resolve_data(data: str) -> str:
 
 
 def train_command(args: argparse.Namespace) -> int:
+    import sys
+
     config = resolve_config(args)
+    defaulted = [f"{opt} {value}" for opt, given, value in (
+        ("--obs", args.obs, config.observation.setting),
+        ("--method", args.method, config.training.method)) if given is None]
+    if defaulted:
+        print(f"igdrivsim train: using the {args.profile} profile's {', '.join(defaulted)}",
+              file=sys.stderr)
     args.data = resolve_data(args.data)
     maybe_init_distributed()
     from igdrivsim.training.loop import train
