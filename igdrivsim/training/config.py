@@ -33,6 +33,13 @@ class DataConfig:
     # disk); False: record each batch inside the update from its reset states (paper scale,
     # where ~10 MB of records per scenario would not fit)
     record_teacher: bool = True
+    # stream scenarios from disk (paper scale, needs record_teacher=False): per-process shards,
+    # a Grain iterator decoding and resetting ``buffer`` batches ahead in ``workers`` threads;
+    # host memory is a few batches, whatever the dataset size (igdrivsim.training.stream)
+    stream: bool = False
+    workers: int = 2  # decode + reset threads of the stream
+    buffer: int = 2  # batches the stream prepares ahead (bounds host memory)
+    shards: int = 0  # disjoint shards of the data (0: one per process); a multiple of those
 
 
 @dataclass(frozen=True)
@@ -95,6 +102,11 @@ class RunConfig:
         if d.batch_size < 1 or d.batch_size % t.ppo_minibatches:
             raise ConfigError(f"data.batch_size ({d.batch_size}) must be a positive multiple of "
                               f"training.ppo_minibatches ({t.ppo_minibatches})")
+        if d.stream and d.record_teacher:
+            raise ConfigError("data.stream needs data.record_teacher=false (the update records "
+                              "each streamed batch)")
+        if d.workers < 1 or d.buffer < 1 or d.shards < 0:
+            raise ConfigError("data.workers and data.buffer must be >= 1, data.shards >= 0")
         if t.ppo_epochs < 1:
             raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
@@ -150,7 +162,7 @@ def paper() -> RunConfig:
     """The paper: 4.15M-parameter network (the paper reports about 4.3M), 256 scenarios per
     update, 200 epochs, 3 seeds."""
     return RunConfig(profile="paper", policy=PolicyConfig(remat=True),
-                     data=DataConfig(record_teacher=False))
+                     data=DataConfig(record_teacher=False, stream=True))
 
 
 PROFILES = {"smoke": smoke, "laptop": laptop, "paper": paper}

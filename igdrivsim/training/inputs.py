@@ -210,21 +210,32 @@ class Dataset:
         take = lambda tree: None if tree is None else jax.tree.map(lambda x: x[idx], tree)  # noqa: E731
         return take(self.teacher), take(self.states)
 
-
-def prefetch(dataset: Dataset, updates: range, sharding: NamedSharding, depth: int = 2
-             ) -> Iterator[SimState]:
-    """Yield the placed batches of ``updates`` in order; a daemon thread works ``depth`` ahead."""
-    if depth <= 0:
+    def host_batches(self, updates: range, state=None) -> Iterator[tuple]:
+        """``(host batch, None)`` for each of ``updates`` (the order needs no saved state)."""
         for u in updates:
-            yield place(dataset.host_batch(u), sharding)
+            yield self.host_batch(u), None
+
+    @staticmethod
+    def place(batch, sharding: NamedSharding):
+        return place(batch, sharding)
+
+
+def prefetch(dataset, updates: range, sharding: NamedSharding, depth: int = 2,
+             state: dict | None = None) -> Iterator[tuple]:
+    """Yield ``(placed batch, input state after it)`` for ``updates`` in order; a daemon thread
+    works ``depth`` ahead. ``dataset``: a :class:`Dataset` or a streaming
+    :class:`~igdrivsim.training.stream.StreamDataset` (``state`` resumes its iterator)."""
+    if depth <= 0:
+        for batch, st in dataset.host_batches(updates, state):
+            yield dataset.place(batch, sharding), st
         return
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
     def work():
         try:
-            for u in updates:
-                item = place(dataset.host_batch(u), sharding)
+            for batch, st in dataset.host_batches(updates, state):
+                item = (dataset.place(batch, sharding), st)
                 while not stop.is_set():
                     try:
                         q.put(item, timeout=0.1)

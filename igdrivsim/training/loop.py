@@ -190,9 +190,18 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     mesh = inputs.make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
     main = jax.process_index() == 0
-    dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main,
-                                         cache_dir=cache_dir, need_states=spec.use_rl)
+    if config.data.stream:  # paper scale: per-process shards decoded on demand
+        from igdrivsim.training.stream import StreamDataset
+
+        dataset = StreamDataset.from_config(config, data, spec.sim)
+    else:
+        dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main,
+                                             cache_dir=cache_dir, need_states=spec.use_rl)
     num_updates = total_updates(config, dataset.num)
+    if main:  # the paper profile without an accelerator: say how long it would take
+        from igdrivsim.training.cost import warn_if_cpu
+
+        warn_if_cpu(config, dataset.num, jax.default_backend(), mesh.size)
     record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
                "settings": settings_list, "devices": mesh.size,
                "processes": jax.process_count()}
@@ -213,10 +222,14 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     settings = settings_as_data(config)
     settings = None if settings is None else inputs.place(settings, rep)
     ckpt = Checkpoints(out_dir, t.max_checkpoints)
-    start = 0
+    start, data_state = 0, None
     if resume and ckpt.latest_step() is not None:
         start = ckpt.latest_step()
         params, opt_state = ckpt.restore(start, params, opt_state)
+        if config.data.stream:
+            from igdrivsim.training.stream import load_state
+
+            data_state = load_state(out_dir, start)
         log(f"resuming from update {start}")
     metrics_path = os.path.join(out_dir, METRICS)
     curves_path = os.path.join(out_dir, CURVES)
@@ -236,7 +249,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
         bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train", dynamic_ncols=True)
     batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
-                              config.data.prefetch)
+                              config.data.prefetch, data_state)
     last_log, last_time = start, time.perf_counter()
 
     def write_curves(f, done, values):
@@ -250,7 +263,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         curves_file = stack.enter_context(opener(curves_path))
         if validation is not None and start == 0:
             write_curves(curves_file, 0, validation(params))
-        for u, (teacher, states) in zip(range(start, end), batches, strict=True):
+        for u, ((teacher, states), data_state) in zip(range(start, end), batches, strict=True):
             lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
             params, opt_state, metrics = update(params, opt_state, teacher, states, settings,
                                                 keys, u, lr)
@@ -274,6 +287,10 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 write_curves(curves_file, done, validation(params))
                 last_time = time.perf_counter()  # rates measure training only
             if done % t.checkpoint_every == 0 or done == end:
+                if data_state is not None:  # the input iterator's state, saved first
+                    from igdrivsim.training.stream import save_state
+
+                    save_state(out_dir, done, data_state, ckpt.manager.all_steps())
                 ckpt.save(done, params, opt_state)
     if bar is not None:
         bar.close()

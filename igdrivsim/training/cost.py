@@ -1,0 +1,50 @@
+"""A cost model of a training run: episodes trained per second on one device -> hours.
+
+An *episode* is one (setting, seed, scenario) of an update: 90 steps forward and ``ppo_epochs``
+passes backward. ``igdrivsim bench train --profiles paper --method bc`` measures the paper
+network's seconds per update on 1 seed x 1 scenario x ``settings``; dividing by ``settings``
+gives seconds per episode on one device. A run then costs ``updates x settings x seeds x
+batch x seconds per episode / devices`` (data parallel over devices, ignoring communication).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from igdrivsim.training.config import RunConfig
+
+# Paper network, BC, one CPU core pair (2 cores, shared; README "Running at paper scale").
+CPU_SECONDS_PER_EPISODE = {"bc": 24.3, "bc_rl": 45.6}
+PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
+
+
+def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
+    t = config.training
+    if t.num_updates > 0:
+        return t.num_updates
+    return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
+
+
+def run_hours(config: RunConfig, seconds_per_episode: float, num_scenarios: int,
+              devices: int = 1) -> float:
+    """Hours of a run of ``config`` on ``devices`` devices at ``seconds_per_episode``."""
+    settings = len([s for s in config.observation.setting.split(",") if s.strip()])
+    episodes = settings * config.training.seeds * config.data.batch_size
+    return num_updates(config, num_scenarios) * episodes * seconds_per_episode / devices / 3600
+
+
+def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: int,
+                stream=None) -> str | None:
+    """Warn once (stderr) when the paper profile runs without an accelerator; returns the
+    message (None when there is nothing to warn about)."""
+    if config.profile != "paper" or backend != "cpu":
+        return None
+    per = CPU_SECONDS_PER_EPISODE.get(config.training.method, CPU_SECONDS_PER_EPISODE["bc"])
+    hours = run_hours(config, per, num_scenarios, devices)
+    msg = (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
+           f"{num_updates(config, num_scenarios):,} updates at ~{per} s per episode "
+           f"(bench train, CPU) is ~{hours:,.0f} hours ({hours / 8766:,.1f} years); use GPUs "
+           f"(README: Running at paper scale) or --profile laptop")
+    print(msg, file=stream or sys.stderr, flush=True)
+    return msg

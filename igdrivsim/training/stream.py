@@ -1,0 +1,229 @@
+"""Streaming training input for paper scale (``data.stream``): bounded host memory, per-host
+shards, resumable order. Built on Grain.
+
+Scenarios are addressed by a compact index (file id, record) of the filter manifest's kept
+rows (or of every record of the folder's TFRecord files). The index is split into
+``n = data.shards`` (default: the number of processes) disjoint shards ``j::n``; process ``p``
+of ``P`` owns shards ``p n/P .. (p+1) n/P - 1``. For each training seed and shard, Grain's
+``MapDataset.range(len).shuffle(seed).repeat()`` gives a global permutation per epoch (seeded
+by ``(seed, shard)``, reseeded each epoch) without materialising anything. Batch ``u`` of a
+process is, per seed, positions ``u b .. (u+1) b - 1`` of each owned shard's stream (``b =
+B / n``), concatenated: a pure function of (seed, epoch, shard). Grain's threaded prefetch
+decodes and ``reset``\\ s ``data.buffer`` batches ahead in ``data.workers`` threads, so host
+memory is a few batches, independent of the dataset size. The iterator's state
+(``get_state``) is saved beside each checkpoint and restored on ``--resume``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator, Sequence
+
+import grain
+import jax
+import numpy as np
+from jax.sharding import NamedSharding
+
+from igdrivsim.data.scenario import Capacities, Scenario
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.simulator import SimParams, SimState
+from igdrivsim.training.config import RunConfig
+
+MANIFEST = "manifest.jsonl"
+
+
+class ScenarioIndex:
+    """Random access to the scenarios of a folder: ``(file id, record)`` per scenario (8 bytes
+    each), decoded on demand. Grain data source protocol: ``len`` and ``[i]``."""
+
+    def __init__(self, files: Sequence[str], refs: np.ndarray, caps: Capacities):
+        self.files, self.refs, self.caps = list(files), np.asarray(refs, np.int32), caps
+
+    @classmethod
+    def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0
+                  ) -> ScenarioIndex:
+        """The kept rows of ``DATA/manifest.jsonl``, else every record of the TFRecord files."""
+        path = os.fspath(data)
+        manifest = os.path.join(path, MANIFEST) if os.path.isdir(path) else ""
+        files: dict[str, int] = {}
+        refs: list[tuple[int, int]] = []
+        if os.path.isfile(manifest):
+            base = os.path.dirname(os.path.abspath(manifest))
+            with open(manifest) as f:
+                for line in f:
+                    if not line.strip():
+                        continue
+                    e = json.loads(line)
+                    if not e.get("kept", True):
+                        continue
+                    name = os.path.normpath(os.path.join(base, e["file"]))
+                    refs.append((files.setdefault(name, len(files)), int(e["record"])))
+                    if limit and len(refs) >= limit:
+                        break
+        else:
+            from igdrivsim.data.reader import count_records, expand_paths
+
+            for name in expand_paths(path):
+                fid = files.setdefault(name, len(files))
+                for r in range(count_records(name)):
+                    refs.append((fid, r))
+                    if limit and len(refs) >= limit:
+                        break
+                if limit and len(refs) >= limit:
+                    break
+        if not refs:
+            raise DataError("no training scenarios found", file=path)
+        return cls(list(files), np.asarray(refs, np.int32), caps)
+
+    def __len__(self) -> int:
+        return len(self.refs)
+
+    def __getitem__(self, i: int) -> Scenario:
+        from igdrivsim.data.manifest import _load_records
+
+        fid, record = self.refs[int(i)]
+        return _load_records(self.files[fid], [int(record)], self.caps)[0][1]
+
+
+def owned_shards(num_shards: int, process: int, processes: int) -> range:
+    """The shards process ``process`` of ``processes`` reads (a contiguous block)."""
+    if num_shards % processes:
+        raise ConfigError(f"data.shards ({num_shards}) must be a multiple of the number of "
+                          f"processes ({processes})")
+    per = num_shards // processes
+    return range(process * per, (process + 1) * per)
+
+
+def shard_order(shard_len: int, seed: int, shard: int) -> grain.MapDataset:
+    """Scenario positions within a shard, in training order (an infinite stream of epochs,
+    each a permutation seeded by ``(seed, shard, epoch)``)."""
+    mixed = int(np.random.SeedSequence([int(seed), int(shard)]).generate_state(1)[0])
+    return grain.MapDataset.range(shard_len).shuffle(seed=mixed).repeat()
+
+
+class StreamDataset:
+    """Per-process batches ``(None, states [S, b_local])`` read, decoded and reset on demand;
+    the same interface as :class:`~igdrivsim.training.inputs.Dataset` for the loop."""
+
+    teacher = None
+
+    def __init__(self, source, batch_size: int, seeds: Sequence[int], params: SimParams,
+                 num_shards: int = 0, process: int | None = None,
+                 processes: int | None = None, workers: int = 2, buffer: int = 2):
+        process = jax.process_index() if process is None else process
+        processes = jax.process_count() if processes is None else processes
+        self.num_shards = num_shards or processes
+        if batch_size % self.num_shards:
+            raise ConfigError(f"data.batch_size ({batch_size}) must be a multiple of "
+                              f"data.shards ({self.num_shards})")
+        self.source, self.params = source, params
+        self.num = len(source)  # global number of scenarios
+        if self.num < self.num_shards:
+            raise DataError(f"{self.num} scenarios cannot fill {self.num_shards} shards")
+        self.batch_size = batch_size
+        self.per_shard = batch_size // self.num_shards
+        self.seeds = [int(s) for s in seeds]
+        self.shards = owned_shards(self.num_shards, process, processes)
+        self.local_batch = self.per_shard * len(self.shards)
+        # positions (global indices) of each owned shard, and its order per seed
+        self.members = {j: np.arange(j, self.num, self.num_shards) for j in self.shards}
+        self.orders = {(s, j): shard_order(len(self.members[j]), s, j)
+                       for s in self.seeds for j in self.shards}
+        self.workers, self.buffer = max(1, workers), max(1, buffer)
+
+    @classmethod
+    def from_config(cls, config: RunConfig, data, params: SimParams) -> StreamDataset:
+        from igdrivsim.training.inputs import capacities
+
+        d, t = config.data, config.training
+        if isinstance(data, (str, os.PathLike)):
+            if not os.path.exists(data):
+                raise DataError("training data not found", file=os.fspath(data))
+            source = ScenarioIndex.from_path(data, capacities(config), d.max_scenarios)
+        else:
+            source = list(data)[: d.max_scenarios or None]
+        seeds = range(t.seed_offset, t.seed_offset + t.seeds)
+        return cls(source, d.batch_size, seeds, params, d.shards, workers=d.workers,
+                   buffer=d.buffer)
+
+    def indices(self, update: int) -> np.ndarray:
+        """Global scenario indices ``[S, b_local]`` this process reads for ``update``."""
+        rows = []
+        for s in self.seeds:
+            row = []
+            for j in self.shards:
+                order = self.orders[(s, j)]
+                pos = range(update * self.per_shard, (update + 1) * self.per_shard)
+                row.extend(self.members[j][order[p]] for p in pos)
+            rows.append(row)
+        return np.asarray(rows, np.int64)
+
+    def host_batch(self, update: int) -> tuple[None, SimState]:
+        """Decode and reset the scenarios of ``update`` on the host: ``(None, states [S, b])``."""
+        from igdrivsim.training.inputs import reset_chunk
+
+        idx = self.indices(update)
+        flat = [self.source[int(i)] for i in idx.reshape(-1)]
+        states = reset_chunk(flat, self.params, len(flat))
+        return None, jax.tree.map(lambda x: x.reshape(idx.shape + x.shape[1:]), states)
+
+    def iterator(self, start: int, state: dict | None = None):
+        """A Grain iterator over the host batches of updates ``start, start+1, ...`` (threaded,
+        ``buffer`` ahead); ``state`` (from ``get_state``, saved with checkpoint ``start``)
+        resumes it exactly."""
+        ds = grain.MapDataset.range(2**62).map(self.host_batch)
+        it = iter(ds.to_iter_dataset(grain.ReadOptions(num_threads=self.workers,
+                                                       prefetch_buffer_size=self.buffer)))
+        state = {"next_index": start} if state is None else state
+        if state.get("next_index") != start:
+            raise ConfigError(f"saved input iterator state {state} does not match update {start}")
+        it.set_state(state)
+        return it
+
+    def host_batches(self, updates: range, state: dict | None = None) -> Iterator:
+        """``(host batch, iterator state after it)`` for each of ``updates``."""
+        it = self.iterator(updates.start, state)
+        for _ in updates:
+            batch = next(it)
+            yield batch, it.get_state()
+
+    def place(self, batch, sharding: NamedSharding):
+        """This process's part ``[S, b_local]`` -> global arrays ``[S, B]``."""
+
+        def one(x):
+            x = np.asarray(x)
+            shape = (x.shape[0], self.batch_size, *x.shape[2:])
+            return jax.make_array_from_process_local_data(sharding, x, shape)
+
+        return jax.tree.map(one, batch)
+
+
+def state_path(run_dir: str, step: int, process: int) -> str:
+    return os.path.join(run_dir, "checkpoints", "data", f"{step}.p{process}.json")
+
+
+def save_state(run_dir: str, step: int, state: dict, keep: Sequence[int]) -> None:
+    """Save this process's iterator state for checkpoint ``step`` (atomic); prune the states
+    of checkpoints no longer kept."""
+    from igdrivsim.io import atomic_write_json
+
+    process = jax.process_index()
+    path = state_path(run_dir, step, process)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    atomic_write_json(path, {"step": step, "iterator": state})
+    folder = os.path.dirname(path)
+    for name in os.listdir(folder):
+        head, _, tail = name.partition(".p")
+        if tail == f"{process}.json" and head.isdigit() and int(head) not in set(keep) | {step}:
+            os.remove(os.path.join(folder, name))
+
+
+def load_state(run_dir: str, step: int) -> dict:
+    """The iterator state saved with checkpoint ``step`` by this process."""
+    path = state_path(run_dir, step, jax.process_index())
+    if not os.path.isfile(path):
+        raise ConfigError(f"{path}: no input iterator state for checkpoint {step}; "
+                          "cannot resume the streamed run exactly")
+    with open(path) as f:
+        return json.load(f)["iterator"]

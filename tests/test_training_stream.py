@@ -1,0 +1,135 @@
+"""Streaming input (``data.stream``, the paper profile): shards, order, resume, two processes.
+
+The two-process test starts two ``jax.distributed`` processes on this CPU (local coordinator,
+Gloo collectives) through the same environment variables as ``igdrivsim train``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from igdrivsim.data import write_tfexample
+from igdrivsim.simulator import toy
+from igdrivsim.training import inputs
+from igdrivsim.training.config import get_profile, with_overrides
+from igdrivsim.training.loop import train
+from igdrivsim.training.stream import ScenarioIndex, StreamDataset
+from igdrivsim.training.update import update_spec
+
+STREAM = ["training.method=bc", "data.record_teacher=false", "data.stream=true",
+          "data.shards=2", "training.num_updates=3"]
+CONFIG = with_overrides(get_profile("smoke"), STREAM)
+QUIET = dict(progress=False, log=lambda *_: None)
+
+
+def _max_diff(a, b) -> float:
+    diffs = jax.tree.map(lambda x, y: float(np.abs(np.asarray(x) - np.asarray(y)).max()), a, b)
+    return max(jax.tree.leaves(diffs))
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    caps = inputs.capacities(CONFIG)
+    path = tmp_path_factory.mktemp("stream") / "train.tfrecord"
+    write_tfexample(path, [toy.straight_road(caps, speed=3.0 + i, scenario_id=f"s{i}")
+                           for i in range(8)])
+    return str(path.parent)
+
+
+@pytest.fixture(scope="module")
+def one_process(data_dir, tmp_path_factory):
+    """The reference: one process reading both shards (the same global batches)."""
+    return train(CONFIG, data_dir, tmp_path_factory.mktemp("runs") / "one", **QUIET)
+
+
+def test_shards_are_disjoint_and_each_epoch_a_permutation(data_dir):
+    source = ScenarioIndex.from_path(data_dir, inputs.capacities(CONFIG))
+    assert len(source) == 8 and source.refs.nbytes == 8 * 8  # 8 bytes per scenario
+    sim = update_spec(CONFIG).sim
+    parts = [StreamDataset(source, 4, [0, 1], sim, 2, process=p, processes=2) for p in (0, 1)]
+    for u in range(4):
+        a, b = (ds.indices(u) for ds in parts)
+        assert a.shape == b.shape == (2, 2)
+        assert not set(a.ravel()) & set(b.ravel())
+        assert set(a.ravel()) <= {0, 2, 4, 6} and set(b.ravel()) <= {1, 3, 5, 7}
+    # an epoch of a shard (4 scenarios, 2 per update) is a permutation; epochs differ
+    epochs = [np.concatenate([parts[0].indices(u)[0] for u in (e, e + 1)]) for e in (0, 2, 4)]
+    assert all(sorted(e) == [0, 2, 4, 6] for e in epochs)
+    assert len({tuple(e) for e in epochs}) > 1
+    again = StreamDataset(source, 4, [0, 1], sim, 2, process=0, processes=2)
+    assert np.array_equal(again.indices(7), parts[0].indices(7))  # a function of (seed, u)
+    # the host batch is a few reset states, not the dataset
+    _, states = parts[0].host_batch(0)
+    assert states.timestep.shape == (2, 2)
+
+
+def test_resume_reaches_the_same_parameters(one_process, data_dir, tmp_path):
+    out = tmp_path / "resumed"
+    first = train(CONFIG, data_dir, out, stop_after=2, **QUIET)
+    assert not first.complete
+    saved = json.loads((out / "checkpoints" / "data" / "2.p0.json").read_text())
+    assert saved["iterator"] == {"next_index": 2}  # Grain's iterator state
+    second = train(CONFIG, data_dir, out, resume=True, **QUIET)
+    assert second.complete
+    assert _max_diff(second.params, one_process.params) == 0.0
+
+
+WORKER = """
+import json, sys
+import numpy as np
+from igdrivsim.training.commands import maybe_init_distributed
+maybe_init_distributed()
+import jax
+from igdrivsim.training.config import get_profile, with_overrides
+from igdrivsim.training.loop import train
+from igdrivsim.training.stream import StreamDataset
+from igdrivsim.training.update import update_spec
+data, out, dump = sys.argv[1:4]
+config = with_overrides(get_profile("smoke"), sys.argv[4:])
+ds = StreamDataset.from_config(config, data, update_spec(config).sim)
+ids = [ds.indices(u).tolist() for u in range(config.training.num_updates)]
+result = train(config, data, out, progress=False, log=lambda *_: None)
+leaves = [np.asarray(x.addressable_data(0)) for x in jax.tree.leaves(result.params)]
+np.savez(dump + ".npz", *leaves)
+json.dump({"process": jax.process_index(), "processes": jax.process_count(),
+           "devices": jax.device_count(), "indices": ids}, open(dump + ".json", "w"))
+"""
+
+
+@pytest.mark.slow
+def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    procs = []
+    for p in (0, 1):
+        env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
+                   JAX_NUM_PROCESSES="2", JAX_PROCESS_ID=str(p))
+        env.pop("XLA_FLAGS", None)
+        cmd = [sys.executable, "-c", WORKER, data_dir, str(tmp_path / "two"),
+               str(tmp_path / f"p{p}"), *STREAM]
+        procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True))
+    for proc in procs:
+        out, _ = proc.communicate(timeout=240)
+        assert proc.returncode == 0, out[-2000:]
+    info = [json.loads((tmp_path / f"p{p}.json").read_text()) for p in (0, 1)]
+    assert [i["process"] for i in info] == [0, 1]
+    assert all(i["processes"] == 2 and i["devices"] == 2 for i in info)
+    for u in range(3):  # disjoint scenarios, every update
+        a, b = (set(np.ravel(i["indices"][u])) for i in info)
+        assert a and b and not a & b
+    params = [list(np.load(tmp_path / f"p{p}.npz").values()) for p in (0, 1)]
+    assert all(np.array_equal(x, y) for x, y in zip(*params, strict=True))  # identical
+    reference = [np.asarray(x) for x in jax.tree.leaves(one_process.params)]
+    assert max(float(np.abs(x - y).max()) for x, y in zip(params[0], reference,
+                                                          strict=True)) < 1e-4
+    assert json.loads((tmp_path / "two" / "config.json").read_text())["processes"] == 2
