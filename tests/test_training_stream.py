@@ -133,3 +133,17 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
     assert max(float(np.abs(x - y).max()) for x, y in zip(params[0], reference,
                                                           strict=True)) < 1e-4
     assert json.loads((tmp_path / "two" / "config.json").read_text())["processes"] == 2
+
+
+def test_paper_profile_on_cpu_warns_with_the_cost_estimate():
+    import io
+
+    from igdrivsim.training.cost import PAPER_SCENARIOS, num_updates, warn_if_cpu
+
+    paper = with_overrides(get_profile("paper"), ["observation.setting=full"])
+    assert num_updates(paper, PAPER_SCENARIOS) == 119_382  # 200 epochs of 256 scenarios
+    out = io.StringIO()
+    msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1, out)
+    assert msg and "years" in msg and out.getvalue().count("\n") == 1
+    assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
+    assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None

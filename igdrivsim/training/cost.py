@@ -14,8 +14,10 @@ import sys
 
 from igdrivsim.training.config import RunConfig
 
-# Paper network, BC, one CPU core pair (2 cores, shared; README "Running at paper scale").
-CPU_SECONDS_PER_EPISODE = {"bc": 24.3, "bc_rl": 45.6}
+# Paper network on a 2-core CPU (shared, load ~3.5): `igdrivsim bench train --profiles paper
+# --method bc --obs full --updates 2` = 31.1 s per update of one episode; BC-RL scaled by the
+# BC-RL / BC ratio of README's "Measured speeds" (45.6 / 24.3). README "Running at paper scale".
+CPU_SECONDS_PER_EPISODE = {"bc": 31.1, "bc_rl": 58.4}
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 
 
@@ -43,8 +45,9 @@ def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: in
     per = CPU_SECONDS_PER_EPISODE.get(config.training.method, CPU_SECONDS_PER_EPISODE["bc"])
     hours = run_hours(config, per, num_scenarios, devices)
     msg = (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
-           f"{num_updates(config, num_scenarios):,} updates at ~{per} s per episode "
-           f"(bench train, CPU) is ~{hours:,.0f} hours ({hours / 8766:,.1f} years); use GPUs "
+           f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
+           f"scenarios x {config.training.seeds} seed(s) at ~{per} s per episode (paper network, "
+           f"bench train) is ~{hours:,.1f} hours ({hours / 8766:,.1f} years); use GPUs "
            f"(README: Running at paper scale) or --profile laptop")
     print(msg, file=stream or sys.stderr, flush=True)
     return msg
