@@ -147,3 +147,37 @@ def test_paper_profile_on_cpu_warns_with_the_cost_estimate():
     assert msg and "years" in msg and out.getvalue().count("\n") == 1
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
+
+
+@pytest.mark.slow
+def test_kill_9_and_resume_reach_the_uninterrupted_parameters(data_dir, tmp_path):
+    import signal
+    import time
+
+    sets = [*STREAM[:-1], "training.num_updates=30", "training.checkpoint_every=2",
+            "training.log_every=1"]
+    config = with_overrides(get_profile("smoke"), sets)
+    cmd = [sys.executable, "-m", "igdrivsim.cli", "train", "--profile", "smoke", "--data",
+           data_dir, "--out", str(tmp_path / "killed"), "--no-progress",
+           *[a for s in sets for a in ("--set", s)]]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    ckpts = tmp_path / "killed" / "checkpoints"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if (ckpts / "4").is_dir():
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, proc.stderr.read()[-2000:]
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (tmp_path / "killed" / "DONE").exists()
+    resumed = subprocess.run(cmd + ["--resume"], env=env, capture_output=True, text=True,
+                             timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "resuming from update" in resumed.stdout + resumed.stderr
+    from igdrivsim.training.loop import load_run
+
+    _, params = load_run(tmp_path / "killed")
+    whole = train(config, data_dir, tmp_path / "whole", **QUIET)
+    assert _max_diff(params, whole.params) < 1e-6
