@@ -11,6 +11,9 @@ Order: seed ``s`` walks through the data in epochs, each a permutation drawn fro
 ``u*B .. (u+1)*B - 1`` of that stream. It is a pure function of ``(seed, u)``, so a resumed run
 sees exactly the batches an uninterrupted one would. A background thread prepares and places
 the next ``prefetch`` batches on the devices while the current update runs.
+
+Paper scale (``data.stream``) keeps nothing of the dataset in memory: see
+:mod:`igdrivsim.training.stream`, whose batches go through the same :func:`prefetch`.
 """
 
 from __future__ import annotations

@@ -16,6 +16,8 @@ program) x ``config.training.seeds`` seeds. Layout of ``out_dir``:
   closed-loop ``log_divergence`` (m), ``offroad`` and ``overlap`` (fractions of steps) of the
   policy driving that subset (sampled actions);
 - ``checkpoints/<updates done>/`` (orbax), every ``checkpoint_every`` updates and at the end;
+  with a streamed input (``data.stream``), ``checkpoints/data/<updates done>.p<process>.json``
+  holds each process's input iterator state, restored by ``--resume``;
 - ``DONE``: written when the last checkpoint is saved.
 """
 
