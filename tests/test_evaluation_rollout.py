@@ -12,7 +12,7 @@ import pytest
 
 from igdrivsim.cli import main as cli_main
 from igdrivsim.evaluation import rollout
-from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS, SCENARIO_COLUMNS
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd" / (
     "motion_data_one_example.tfrecord")
@@ -27,7 +27,9 @@ def test_tidy_frames_masks_and_aggregates():
     out = rollout.StepOutputs(ld, ov, off, valid)
     per_step, per_scenario = rollout.tidy_frames(out, ["a", "b"], "full", "bc", [7])
     assert list(per_step.columns) == list(PER_STEP_COLUMNS)
-    assert list(per_scenario.columns) == list(PER_SCENARIO_COLUMNS)
+    assert list(per_scenario.columns) == list(SCENARIO_COLUMNS)  # Table I's, then the registry's
+    assert list(per_scenario.columns)[: len(PER_SCENARIO_COLUMNS)] == list(PER_SCENARIO_COLUMNS)
+    assert per_scenario.progress.isna().all()  # no episode metrics requested: NaN columns
     assert len(per_step) == steps and per_step.step.tolist() == [1, 2, 3, 4]
     # Step 3: scenario a is invalid, so only b counts.
     row3 = per_step[per_step.step == 3].iloc[0]

@@ -1,8 +1,9 @@
 """The smoke profile of ``scripts/reproduce.sh`` end to end, in process (shared compiles).
 
 One pipeline run (module fixture): synthetic data -> filter -> train (two observation settings
-trained together x {BC, BC-RL}) -> evaluate (+ references) -> maze smoke -> render -> report. Then: every expected output exists
-and parses, a rerun skips every stage, and re-running evaluation gives identical tables.
+trained together x {BC, BC-RL}) -> evaluate (+ references) -> maze smoke -> render -> report.
+Then: every expected output exists and parses, a rerun skips every stage, and re-running
+evaluation gives identical tables.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import pytest
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import pipeline as pl
-from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
+from igdrivsim.evaluation.schema import PER_STEP_COLUMNS, SCENARIO_COLUMNS
 
 SETTING = "circular_r4"
 SETTINGS = ("full", SETTING)
@@ -61,7 +62,7 @@ def test_every_output_exists_and_parses(done):
         steps = pd.read_csv(work / "evals" / run / "per_step.csv")
         scen = pd.read_csv(work / "evals" / run / "per_scenario.csv")
         assert list(steps.columns) == list(PER_STEP_COLUMNS)
-        assert list(scen.columns) == list(PER_SCENARIO_COLUMNS)
+        assert list(scen.columns) == list(SCENARIO_COLUMNS)
         assert set(scen.method) == {method} and scen.seed.nunique() == pl.PROFILES["smoke"].seeds
         assert set(scen.setting) == set(SETTINGS)
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()

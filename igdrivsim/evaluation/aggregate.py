@@ -97,18 +97,24 @@ def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.Data
     return per_step, per_scenario
 
 
-def seed_means(per_scenario: pd.DataFrame) -> pd.DataFrame:
+def seed_means(per_scenario: pd.DataFrame, metrics: Sequence = METRICS) -> pd.DataFrame:
     """Long table ``setting, method, seed, metric, value``: each seed's mean over scenarios,
-    scaled as in Table I (percent for the rates)."""
+    scaled as in Table I (percent for the rates). ``metrics``: Table I's by default, or the
+    registry's (:mod:`igdrivsim.evaluation.registry`); a column the CSVs lack is skipped."""
     rows = []
     grouped = per_scenario.groupby(["setting", "method", "seed"], sort=True)
-    for metric in METRICS:
+    for metric in metrics:
+        if metric.column not in per_scenario.columns:
+            continue  # evaluated before the metric existed
         values = grouped[metric.column].mean() * metric.scale
         part = values.rename("value").reset_index()
         part["metric"] = metric.key
         rows.append(part)
+    columns = ["setting", "method", "seed", "metric", "value"]
+    if not rows:
+        return pd.DataFrame(columns=columns)
     out = pd.concat(rows, ignore_index=True)
-    return out[["setting", "method", "seed", "metric", "value"]]
+    return out[columns]
 
 
 def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
@@ -134,9 +140,11 @@ def welch_test(x: np.ndarray, y: np.ndarray) -> float:
         return float(stats.ttest_ind(x, y, equal_var=False).pvalue)
 
 
-def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.DataFrame:
-    """One row per ``(metric, setting, method)``: mean over seeds, CI bounds, counts."""
-    means = seed_means(per_scenario)
+def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE,
+              metrics: Sequence = METRICS) -> pd.DataFrame:
+    """One row per ``(metric, setting, method)``: mean over seeds, CI bounds, counts
+    (``metrics``: as in :func:`seed_means`)."""
+    means = seed_means(per_scenario, metrics)
     counts = per_scenario.groupby(["setting", "method"]).agg(
         n_seeds=("seed", "nunique"), n_scenarios=("scenario_id", "nunique"))
     rows = []
@@ -145,7 +153,8 @@ def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE) -> pd.
         n = counts.loc[(setting, method)]
         rows.append(dict(metric=metric, setting=setting, method=method, mean=mean, ci_low=low,
                          ci_high=high, n_seeds=int(n.n_seeds), n_scenarios=int(n.n_scenarios)))
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=["metric", "setting", "method", "mean", "ci_low",
+                                       "ci_high", "n_seeds", "n_scenarios"])
 
 
 def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:

@@ -111,7 +111,6 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
     import pandas as pd
 
     from igdrivsim.evaluation.rollout import (
-        StepOutputs,
         evaluate_policy,
         scenario_ids_of,
         tidy_frames,
@@ -133,9 +132,10 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
                                   setting=settings, obs_config=obs_config,
                                   params=sim_params(config), greedy=greedy,
-                                  batch_size=batch_size, seed=seed, progress=bar.update)
-    frames = [tidy_frames(StepOutputs(*(getattr(outputs, f)[g] for f in StepOutputs.FIELDS)),
-                          ids, name, method, seeds) for g, name in enumerate(settings)]
+                                  batch_size=batch_size, seed=seed, progress=bar.update,
+                                  episode_metrics=True)
+    frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
+              for g, name in enumerate(settings)]
     per_step = pd.concat([f[0] for f in frames], ignore_index=True)
     per_scenario = pd.concat([f[1] for f in frames], ignore_index=True)
     return _write(out, per_step, per_scenario, dict(

@@ -235,3 +235,52 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
     return save_figure(fig, out_dir, stem)
+
+
+def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
+    """Fig. 5: one panel per registry metric with ``figure=True`` (``metrics``), bars per
+    setting for BC and BC-RL (mean over seeds, 95% t-interval), the expert and constant
+    velocity as horizontal lines when evaluated. ``seed_level``: :func:`seed_means` over the
+    registry's metrics."""
+    panels = [m for m in metrics if m.figure]
+    order = list(SETTINGS)
+    data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.setting.isin(SETTINGS)]
+    data = data.assign(Method=data.method.map(METHOD_LABELS), Setting=data.setting)
+    refs = seed_level[seed_level.method.isin((EXPERT, CONSTANT_VELOCITY))]
+    sns.set_theme(style="whitegrid", context="paper")
+    ncols = 2 if len(panels) > 1 else 1
+    nrows = max(1, math.ceil(len(panels) / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.0 * ncols, 2.2 * nrows + 0.4),
+                             squeeze=False, sharex=True)
+    hue_order = [METHOD_LABELS[m] for m in (BC, BC_RL)]
+    for ax, metric in zip(axes.ravel(), panels, strict=False):
+        panel = data[data.metric == metric.key]
+        if panel.empty or panel.value.isna().all():
+            ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
+        else:
+            sns.barplot(data=panel, x="Setting", y="value", hue="Method", order=order,
+                        hue_order=hue_order, palette=PALETTE, errorbar=_t_errorbar,
+                        capsize=0.15, err_kws={"linewidth": 1.0}, ax=ax)
+        for method in (EXPERT, CONSTANT_VELOCITY):
+            level = refs[(refs.method == method) & (refs.metric == metric.key)].value.mean()
+            if pd.notna(level):
+                ax.axhline(level, label=METHOD_LABELS[method], **_REFERENCE_STYLE[method])
+        arrow = "↑" if metric.higher_is_better else "↓"
+        ax.set_title(f"{metric.label} {arrow}", fontsize=9)
+        ax.set_ylabel(metric.unit)
+        ax.set_xlabel("")
+        ax.set_xticks(range(len(order)), [SETTING_SHORT[s] for s in order], rotation=30,
+                      ha="right")
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
+    handles: dict[str, object] = {}
+    for ax in axes.ravel():
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    if handles:
+        fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
+                   ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, 0.06 if handles else 0, 1, 1))
+    return fig

@@ -6,8 +6,11 @@ detectable effects), ``tables/power.{md,tex}`` (minimum detectable effect next t
 effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``tables/tests.csv``
 (each method vs BC: bootstrap interval, p, Holm p, MDE), ``tables/seed_means.csv``,
 ``figures/fig3_metrics.{pdf,png}``, ``figures/fig4_learning_curves.{pdf,png}`` (when runs with
-``curves.jsonl`` are found), ``generated/provenance.tex`` (profile, data, seeds, date, commit:
-macros the report uses) and ``generated/verdicts.tex`` (is BC-RL safer, per setting).
+``curves.jsonl`` are found), the metric registry's supplementary table and figure
+(``tables/supplementary_metrics.{md,tex}``, ``tables/supplementary_summary.csv``,
+``figures/fig5_supplementary.{pdf,png}``; see :mod:`igdrivsim.evaluation.registry`),
+``generated/provenance.tex`` (profile, data, seeds, date, commit: macros the report uses)
+and ``generated/verdicts.tex`` (is BC-RL safer, per setting).
 Every file but the provenance (which records the date) is a pure function of the inputs, so
 reruns give identical tables.
 """
@@ -19,13 +22,21 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
-from igdrivsim.evaluation.figures import fig3_metrics, learning_curves_figure, save_figure
+from igdrivsim.evaluation.figures import (
+    fig3_metrics,
+    learning_curves_figure,
+    save_figure,
+    supplementary_figure,
+)
 from igdrivsim.evaluation.schema import REFERENCES, SETTING_LABELS
 from igdrivsim.evaluation.tables import (
     power_latex,
     power_markdown,
     safety_verdicts,
+    supplementary_latex,
+    supplementary_markdown,
     table1_latex,
     table1_markdown,
     vs_paper_markdown,
@@ -131,6 +142,17 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
             provenance, n_seeds, n_scenarios, date, git_commit())),
     ]
     written += save_figure(fig3_metrics(seeds), figures, "fig3_metrics")
+    extra = registry.metrics()
+    extra_summary = summarize(per_scenario, metrics=extra)
+    written += [
+        atomic_write_csv(tables / "supplementary_summary.csv", extra_summary.round(6)),
+        atomic_write_text(tables / "supplementary_metrics.md",
+                          supplementary_markdown(extra_summary, extra, header)),
+        atomic_write_text(tables / "supplementary_metrics.tex",
+                          supplementary_latex(extra_summary, extra, caption)),
+    ]
+    written += save_figure(supplementary_figure(seed_means(per_scenario, extra), extra),
+                           figures, "fig5_supplementary")
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]
     written += learning_curves_figure(runs, figures, references if len(references) else None)

@@ -15,7 +15,10 @@ Metric semantics (per step, after each of the 80 actions): ``overlap`` / ``offro
 ``log_divergence`` is the distance to the logged SDC position. Steps where the logged SDC is
 invalid are masked out. Per scenario: ``max_log_divergence`` (max over steps), ``overlap`` /
 ``offroad`` (any step), and the per-step means ``log_divergence``, ``overlap_steps``,
-``offroad_steps``.
+``offroad_steps``. With ``episode_metrics=True`` the final state of each episode also gives
+the registry's trajectory-level metrics (:mod:`igdrivsim.evaluation.registry`: progress,
+comfort, kinematic infeasibility, time to collision), ``StepOutputs.scenario``; their columns,
+and the registry's derived ones, follow Table I's in the per-scenario frame.
 """
 
 from __future__ import annotations
@@ -31,12 +34,14 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.data.scenario import CURRENT_INDEX, decode_scenario_id
+from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.schema import (
     CONSTANT_VELOCITY,
     EXPERT,
     PER_SCENARIO_COLUMNS,
     PER_STEP_COLUMNS,
     REFERENCE_SETTING,
+    scenario_columns,
 )
 from igdrivsim.observation import (
     ObservationConfig,
@@ -56,14 +61,22 @@ DEFAULT_OBS_CONFIG = ObservationConfig()
 
 @dataclass(frozen=True)
 class StepOutputs:
-    """Per-step metrics of a batch of episodes, each ``[..., steps]`` (host NumPy)."""
+    """Per-step metrics of a batch of episodes, each ``[..., steps]`` (host NumPy), and, when
+    requested, the registry's per-episode metrics ``scenario`` (``{key: [...]}``)."""
 
     log_divergence: np.ndarray
     overlap: np.ndarray
     offroad: np.ndarray
     valid: np.ndarray
+    scenario: dict[str, np.ndarray] | None = None
 
     FIELDS = ("log_divergence", "overlap", "offroad", "valid")
+
+    def map(self, fn: Callable[[np.ndarray], np.ndarray]) -> StepOutputs:
+        """Apply ``fn`` to every array (leading axes are shared by steps and scenario)."""
+        scenario = None if self.scenario is None else {k: fn(v) for k, v in
+                                                       self.scenario.items()}
+        return StepOutputs(*(fn(getattr(self, f)) for f in self.FIELDS), scenario)
 
 
 def default_metrics_fn() -> Callable:
@@ -95,19 +108,26 @@ REFERENCE_ACTORS: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
 
 
 # --------------------------------------------------------------------------------- rollouts
-def _reference_episode(state, actor, params: SimParams, metrics_fn):
+def _episode_values(final, params: SimParams, episode: bool) -> dict:
+    """The registry's per-episode metrics of the final state (``{}`` when not requested)."""
+    return registry.episode_values(final, params) if episode else {}
+
+
+def _reference_episode(state, actor, params: SimParams, metrics_fn, episode: bool = False):
     def body(s, _):
         action, _, _ = actor(s, None, None)
         s = step(s, action, params)
         return s, _metrics(s, params, metrics_fn)
 
-    _, outs = jax.lax.scan(body, state, None, length=params.num_controlled_steps)
-    return outs  # tuple of [steps]
+    final, outs = jax.lax.scan(body, state, None, length=params.num_controlled_steps)
+    return outs, _episode_values(final, params, episode)  # tuple of [steps], {key: []}
 
 
 def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
-                    obs_config: ObservationConfig, params: SimParams, greedy: bool, metrics_fn):
-    """One scenario, one seed: per-step metrics ``[steps]`` each.
+                    obs_config: ObservationConfig, params: SimParams, greedy: bool, metrics_fn,
+                    episode: bool = False):
+    """One scenario, one seed: per-step metrics ``[steps]`` each and the registry's episode
+    metrics (``{}`` unless ``episode``).
 
     As in training: the GRU is reset at t = 0 and warmed on the logged observations of
     t = 0..9, then the policy drives from t = 10. The episode key is fixed over the episode
@@ -136,21 +156,23 @@ def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, s
         s = step(s, undiscretize(level), params)
         return (s, h), _metrics(s, params, metrics_fn)
 
-    _, outs = jax.lax.scan(body, (state, h0), None, length=params.num_controlled_steps)
-    return outs
+    (final, _), outs = jax.lax.scan(body, (state, h0), None,
+                                    length=params.num_controlled_steps)
+    return outs, _episode_values(final, params, episode)
 
 
-@partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn"))
-def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn):
+@partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn", "episode"))
+def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn,
+                     episode: bool = False):
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
     return jax.vmap(lambda s: _reference_episode(s, _reference_actor(actor_name, params), params,
-                                                 metrics_fn))(state)
+                                                 metrics_fn, episode))(state)
 
 
 @partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "greedy",
-                                   "metrics_fn"))
+                                   "metrics_fn", "episode"))
 def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
-                  obs_config, params, greedy, metrics_fn):
+                  obs_config, params, greedy, metrics_fn, episode: bool = False):
     """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
     ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
     :class:`~igdrivsim.observation.ObservationParams` ``[G]`` (settings as data), or ``None``
@@ -158,25 +180,30 @@ def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, se
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
 
     def per_setting(policy_params, setting_value):
-        episode = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
-                          obs_config=obs_config, params=params, greedy=greedy,
-                          metrics_fn=metrics_fn)
-        over_scenarios = jax.vmap(episode, in_axes=(None, 0, 0))
+        one = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
+                      obs_config=obs_config, params=params, greedy=greedy,
+                      metrics_fn=metrics_fn, episode=episode)
+        over_scenarios = jax.vmap(one, in_axes=(None, 0, 0))
         return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
 
     if settings is None:
-        return per_setting(jax.tree.map(lambda x: x[0], policy_params), setting)[None]
+        out = per_setting(jax.tree.map(lambda x: x[0], policy_params), setting)
+        return jax.tree.map(lambda x: x[None], out)
     return jax.vmap(per_setting)(policy_params, settings)
 
 
 def _to_host(outs) -> StepOutputs:
-    ld, ov, off, valid = (np.asarray(x) for x in outs)
-    return StepOutputs(ld, ov, off, valid.astype(bool))
+    per_step, episode = outs
+    ld, ov, off, valid = (np.asarray(x) for x in per_step)
+    scenario = {k: np.asarray(v) for k, v in episode.items()} if episode else None
+    return StepOutputs(ld, ov, off, valid.astype(bool), scenario)
 
 
 def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
+    scenario = None if parts[0].scenario is None else {
+        k: np.concatenate([p.scenario[k] for p in parts], axis=axis) for k in parts[0].scenario}
     return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis=axis)
-                         for f in ("log_divergence", "overlap", "offroad", "valid")))
+                         for f in StepOutputs.FIELDS), scenario)
 
 
 def _pad_batch(batch, size: int):
@@ -197,17 +224,18 @@ def _batches(scenarios, batch_size: int):
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
                        batch_size: int = 32, metrics_fn: Callable | None = None,
-                       progress: Callable[[int], Any] | None = None) -> StepOutputs:
-    """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]``."""
+                       progress: Callable[[int], Any] | None = None,
+                       episode_metrics: bool = True) -> StepOutputs:
+    """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
+    registry's episode metrics ``[N]`` unless ``episode_metrics=False``)."""
     if actor_name not in REFERENCE_ACTORS:
         raise KeyError(actor_name)
     metrics_fn = metrics_fn or default_metrics_fn()
     parts = []
     for start, stop, batch in _batches(scenarios, batch_size):
         outs = _to_host(_reference_batch(batch, params=params, actor_name=actor_name,
-                                         metrics_fn=metrics_fn))
-        parts.append(StepOutputs(*(getattr(outs, f)[: stop - start] for f in
-                                   ("log_divergence", "overlap", "offroad", "valid"))))
+                                         metrics_fn=metrics_fn, episode=episode_metrics))
+        parts.append(outs.map(lambda a, n=stop - start: a[:n]))
         if progress:
             progress(stop - start)
     return _concat(parts, axis=0)
@@ -226,7 +254,8 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                     params: SimParams = DEFAULT_SIM_PARAMS, greedy: bool = False,
                     batch_size: int = 32,
                     seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
-                    progress: Callable[[int], Any] | None = None) -> StepOutputs:
+                    progress: Callable[[int], Any] | None = None,
+                    episode_metrics: bool = False) -> StepOutputs:
     """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
 
     One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
@@ -234,6 +263,8 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     compiled program (settings as data) when the settings allow it. The key of scenario ``i``
     and seed ``s`` is derived from ``seed``, ``i`` and ``s`` only (the same for every
     setting), so results do not depend on the batch size or on which settings run together.
+    ``episode_metrics=True`` adds the registry's per-episode metrics (``scenario``, ``[S, N]``
+    or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
     """
     metrics_fn = metrics_fn or default_metrics_fn()
     single = isinstance(setting, str)
@@ -247,9 +278,12 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                                   policy_config=policy_config, setting=n,
                                   obs_config=obs_config, params=params, greedy=greedy,
                                   batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
-                                  progress=progress) for g, n in enumerate(names)]
+                                  progress=progress, episode_metrics=episode_metrics)
+                  for g, n in enumerate(names)]
+        scenario = None if groups[0].scenario is None else {
+            k: np.stack([o.scenario[k] for o in groups]) for k in groups[0].scenario}
         return StepOutputs(*(np.stack([getattr(o, f) for o in groups]) for f in
-                             ("log_divergence", "overlap", "offroad", "valid")))
+                             StepOutputs.FIELDS), scenario)
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     base = jax.random.key(seed)
@@ -261,15 +295,13 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
         outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
                                       policy_config=policy_config, setting=static,
                                       obs_config=obs_config, params=params, greedy=greedy,
-                                      metrics_fn=metrics_fn))
-        parts.append(StepOutputs(*(getattr(outs, f)[:, :, : stop - start] for f in
-                                   ("log_divergence", "overlap", "offroad", "valid"))))
+                                      metrics_fn=metrics_fn, episode=episode_metrics))
+        parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
         if progress:
             progress(stop - start)
     out = _concat(parts, axis=2)
     if single:
-        out = StepOutputs(*(getattr(out, f)[0] for f in
-                            ("log_divergence", "overlap", "offroad", "valid")))
+        out = out.map(lambda a: a[0])
     return out
 
 
@@ -287,12 +319,14 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
 
     ``outputs`` holds ``[S, N, steps]`` (or ``[N, steps]`` for one seed); ``seeds`` names the
     seed axis. Per-step rows average over scenarios (valid steps only); step ``k`` is the state
-    after the ``k``-th action (1..80).
+    after the ``k``-th action (1..80). The per-scenario frame has Table I's columns, then the
+    registry's (NaN where ``outputs.scenario`` lacks them).
     """
-    arrays = {f: np.asarray(getattr(outputs, f)) for f in
-              ("log_divergence", "overlap", "offroad", "valid")}
+    arrays = {f: np.asarray(getattr(outputs, f)) for f in StepOutputs.FIELDS}
+    episode = {k: np.asarray(v, float) for k, v in (outputs.scenario or {}).items()}
     if arrays["valid"].ndim == 2:
         arrays = {k: v[None] for k, v in arrays.items()}
+        episode = {k: v[None] for k, v in episode.items()}
     valid = arrays["valid"]
     num_seeds, num_scenarios, num_steps = valid.shape
     if len(seeds) != num_seeds or len(scenario_ids) != num_scenarios:
@@ -313,11 +347,15 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
         for i, sid in enumerate(scenario_ids):
             if not v[i].any():
                 continue  # the logged SDC is never valid: nothing to score
-            scen_rows.append((setting, method, seed, sid, float(max_ld[i]), float(any_ov[i]),
-                              float(any_off[i]), float(mean_ld[i]), float(frac_ov[i]),
-                              float(frac_off[i])))
+            row = dict(zip(PER_SCENARIO_COLUMNS, (
+                setting, method, seed, sid, float(max_ld[i]), float(any_ov[i]),
+                float(any_off[i]), float(mean_ld[i]), float(frac_ov[i]), float(frac_off[i])),
+                strict=True))
+            row.update({k: float(episode[k][si, i]) if k in episode else float("nan")
+                        for k in registry.episode_keys()})
+            scen_rows.append(registry.derive_row(row))
     return (pd.DataFrame(step_rows, columns=list(PER_STEP_COLUMNS)),
-            pd.DataFrame(scen_rows, columns=list(PER_SCENARIO_COLUMNS)))
+            pd.DataFrame(scen_rows, columns=list(scenario_columns())))
 
 
 def scenario_ids_of(scenarios) -> list[str]:

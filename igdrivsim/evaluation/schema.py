@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from igdrivsim.evaluation import registry as _registry
+
 # The six observation settings of the paper, in Table I column order (observation PRESETS names).
 SETTINGS: tuple[str, ...] = (
     "full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4", "random_masking",
@@ -46,6 +48,15 @@ PER_SCENARIO_COLUMNS = (
     "max_log_divergence", "overlap", "offroad",  # per-scenario: max, any overlap, any offroad
     "log_divergence", "overlap_steps", "offroad_steps",  # per-step values averaged over steps
 )
+
+
+def scenario_columns() -> tuple[str, ...]:
+    """The columns per_scenario.csv is written with: Table I's, then the metric registry's
+    (igdrivsim/evaluation/registry.py; an older CSV may lack them)."""
+    return PER_SCENARIO_COLUMNS + _registry.columns()
+
+
+SCENARIO_COLUMNS = scenario_columns()  # at import, before any later register() call
 
 
 @dataclass(frozen=True)

@@ -345,3 +345,89 @@ def power_latex(tests: pd.DataFrame) -> str:
             lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ supplementary metrics
+def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
+    """Per registry metric: (metric, [(method, italic, [cell per setting])]) for the methods
+    present; a reference row repeats its one value in every setting column."""
+    rows = []
+    references = _has_references(summary)
+    for metric in metrics:
+        groups = []
+        for method in (BC_RL, BC):
+            groups.append((method, False, [_lookup(summary, metric.key, s, method)
+                                           for s in SETTINGS]))
+        for method in references:
+            row = _lookup(summary, metric.key, REFERENCE_SETTING, method)
+            groups.append((method, True, [row] * len(SETTINGS)))
+        rows.append((metric, groups))
+    return rows
+
+
+def _direction(metric) -> str:
+    return "higher is better" if metric.higher_is_better else "lower is better"
+
+
+def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> str:
+    """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
+    half-width, with each metric's unit, direction and source (no significance tests)."""
+    out = ["# Supplementary metrics (beyond Table I)", ""]
+    if header:
+        out += [header, ""]
+    out += ["Per-scenario metrics of closed-loop driving benchmarks (definitions and sources: "
+            "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
+            "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
+            "existed).", "",
+            "| metric (unit) | method | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS)
+            + " |", "|---|---|" + "---|" * len(SETTINGS)]
+    for metric, groups in _supplementary_rows(summary, metrics):
+        name = f"{metric.label} ({metric.unit}; {_direction(metric)})"
+        for method, italic, cells in groups:
+            label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
+            texts = [_ci_text(c) for c in cells]
+            texts = [f"*{t}*" for t in texts] if italic else texts
+            out.append(f"| {name} | {label} | " + " | ".join(texts) + " |")
+    out += ["", "| metric | source |", "|---|---|"]
+    out += [f"| {m.label} | {m.source} |" for m in metrics]
+    return "\n".join(out) + "\n"
+
+
+def _tex(text: str) -> str:
+    return (text.replace("\\", r"\textbackslash{}").replace("%", r"\%").replace("_", r"\_")
+            .replace("&", r"\&").replace("#", r"\#").replace("²", "$^2$").replace("³", "$^3$")
+            .replace("≥", r"$\geq$").replace(">=", r"$\geq$").replace("|", r"$|$"))
+
+
+def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "") -> str:
+    """The supplementary table as a ``table*`` float (label ``tab:supplementary``)."""
+    lines = [
+        r"\begin{table*}[t]",
+        r"\centering",
+        r"\caption{\textbf{Supplementary closed-loop metrics} (nuPlan-, NAVSIM- and "
+        r"Waymax-style, definitions in docs/metrics.md): mean over seeds on the validation "
+        rf"scenarios; rates in \%. {caption_extra}}}",
+        r"\label{tab:supplementary}",
+        r"\resizebox{\textwidth}{!}{%",
+        r"\begin{tabular}{ll" + "c" * len(SETTINGS) + "}",
+        r"\toprule",
+        r"\textbf{Metric} & & " + " & ".join(
+            rf"\textbf{{{SETTING_LABELS[s][0]}}}" for s in SETTINGS) + r" \\",
+        " & & " + " & ".join(
+            rf"\textbf{{{SETTING_LABELS[s][1]}}}" if SETTING_LABELS[s][1] else ""
+            for s in SETTINGS) + r" \\",
+    ]
+    for metric, groups in _supplementary_rows(summary, metrics):
+        lines.append(r"\midrule")
+        arrow = r"$\uparrow$" if metric.higher_is_better else r"$\downarrow$"
+        for i, (method, italic, cells) in enumerate(groups):
+            first = f"{_tex(metric.label)} ({_tex(metric.unit)}) {arrow}" if i == 0 else ""
+            texts = [_fmt(None if c is None else float(c["mean"])) for c in cells]
+            name = METHOD_LABELS[method]
+            if italic:
+                lines.append(rf"{first} & \textit{{{name.lower()}}} & \multicolumn"
+                             rf"{{{len(SETTINGS)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
+            else:
+                lines.append(f"{first} & {name} & " + " & ".join(texts) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
+    return "\n".join(lines)
