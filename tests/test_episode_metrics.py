@@ -197,7 +197,9 @@ def test_a_registered_metric_reaches_csv_table_and_figure(monkeypatch, tmp_path)
     md = tables.supplementary_markdown(summary, registry.metrics())
     tex = tables.supplementary_latex(summary, registry.metrics())
     for m in registry.metrics():
-        assert m.label in md and m.source in md
+        assert m.label.replace("|", r"\|") in md and m.source in md
+    assert all(line.count("|") - line.count(r"\|") == 9 for line in md.splitlines()
+               if line.startswith("| max") and "| BC" in line)  # escaped: 8 cells
     assert "final speed" in tex and r"\label{tab:supplementary}" in tex
     fig = figures.supplementary_figure(aggregate.seed_means(frame, registry.metrics()),
                                        registry.metrics())

@@ -275,6 +275,10 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
             ax.get_legend().remove()
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
+    for col in range(ncols):  # setting names under the lowest drawn panel of each column
+        drawn = [r for r in range(nrows) if r * ncols + col < len(panels)]
+        if drawn:
+            axes[drawn[-1], col].tick_params(axis="x", labelbottom=True)
     handles: dict[str, object] = {}
     for ax in axes.ravel():
         for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):

@@ -369,6 +369,11 @@ def _direction(metric) -> str:
     return "higher is better" if metric.higher_is_better else "lower is better"
 
 
+def _md(text: str) -> str:
+    """Escape the Markdown table separator."""
+    return text.replace("|", r"\|")
+
+
 def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> str:
     """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
     half-width, with each metric's unit, direction and source (no significance tests)."""
@@ -382,14 +387,14 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
             "| metric (unit) | method | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS)
             + " |", "|---|---|" + "---|" * len(SETTINGS)]
     for metric, groups in _supplementary_rows(summary, metrics):
-        name = f"{metric.label} ({metric.unit}; {_direction(metric)})"
+        name = _md(f"{metric.label} ({metric.unit}; {_direction(metric)})")
         for method, italic, cells in groups:
             label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
             texts = [_ci_text(c) for c in cells]
             texts = [f"*{t}*" for t in texts] if italic else texts
             out.append(f"| {name} | {label} | " + " | ".join(texts) + " |")
     out += ["", "| metric | source |", "|---|---|"]
-    out += [f"| {m.label} | {m.source} |" for m in metrics]
+    out += [f"| {_md(m.label)} | {_md(m.source)} |" for m in metrics]
     return "\n".join(out) + "\n"
 
 
