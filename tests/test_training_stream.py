@@ -118,8 +118,14 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
                str(tmp_path / f"p{p}"), *STREAM]
         procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, text=True))
-    for proc in procs:
-        out, _ = proc.communicate(timeout=240)
+    try:
+        outs = [proc.communicate(timeout=420)[0] for proc in procs]
+    finally:
+        for proc in procs:  # never leave a process behind
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    for proc, out in zip(procs, outs, strict=True):
         assert proc.returncode == 0, out[-2000:]
     info = [json.loads((tmp_path / f"p{p}.json").read_text()) for p in (0, 1)]
     assert [i["process"] for i in info] == [0, 1]

@@ -167,6 +167,16 @@ class Validation:
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
 
+def barrier(name: str, timeout_s: int = 3600) -> None:
+    """Wait until every process gets here (several processes only). Gloo's CPU collectives give
+    up after 30 s, so processes meet here before work whose duration differs between them
+    (compiling, loading) is followed by a collective."""
+    if jax.process_count() > 1:
+        from jax._src import distributed
+
+        distributed.global_state.client.wait_at_barrier(f"igdrivsim-{name}", timeout_s * 1000)
+
+
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
           stop_after: int | None = None, progress: bool = True, devices=None,
           log=print, val_data=None, cache_dir: str | None = None) -> TrainResult:
@@ -223,6 +233,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
     settings = settings_as_data(config)
     settings = None if settings is None else inputs.place(settings, rep)
+    barrier("start")
     ckpt = Checkpoints(out_dir, t.max_checkpoints)
     start, data_state = 0, None
     if resume and ckpt.latest_step() is not None:
@@ -267,6 +278,10 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
             write_curves(curves_file, 0, validation(params))
         for u, ((teacher, states), data_state) in zip(range(start, end), batches, strict=True):
             lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+            if u == start and jax.process_count() > 1:  # compile everywhere, then meet
+                update = update.lower(params, opt_state, teacher, states, settings, keys, u,
+                                      lr).compile()
+                barrier("compiled")
             params, opt_state, metrics = update(params, opt_state, teacher, states, settings,
                                                 keys, u, lr)
             done = u + 1
@@ -293,6 +308,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                     from igdrivsim.training.stream import save_state
 
                     save_state(out_dir, done, data_state, ckpt.manager.all_steps())
+                barrier(f"save-{done}")
                 ckpt.save(done, params, opt_state)
     if bar is not None:
         bar.close()
