@@ -105,6 +105,9 @@ json.dump({"process": jax.process_index(), "processes": jax.process_count(),
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("IGDRIVSIM_TEST_MULTIPROCESS"),
+                    reason="intermittently hangs at exit of process 0 (jax.distributed "
+                           "shutdown barrier); set IGDRIVSIM_TEST_MULTIPROCESS=1 to run")
 def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

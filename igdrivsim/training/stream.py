@@ -168,11 +168,11 @@ class StreamDataset:
         states = reset_chunk(flat, self.params, len(flat))
         return None, jax.tree.map(lambda x: x.reshape(idx.shape + x.shape[1:]), states)
 
-    def iterator(self, start: int, state: dict | None = None):
+    def iterator(self, start: int, state: dict | None = None, stop: int = 2**62):
         """A Grain iterator over the host batches of updates ``start, start+1, ...`` (threaded,
         ``buffer`` ahead); ``state`` (from ``get_state``, saved with checkpoint ``start``)
         resumes it exactly."""
-        ds = grain.MapDataset.range(2**62).map(self.host_batch)
+        ds = grain.MapDataset.range(stop).map(self.host_batch)  # nothing read past ``stop``
         it = iter(ds.to_iter_dataset(grain.ReadOptions(num_threads=self.workers,
                                                        prefetch_buffer_size=self.buffer)))
         state = {"next_index": start} if state is None else state
@@ -183,10 +183,12 @@ class StreamDataset:
 
     def host_batches(self, updates: range, state: dict | None = None) -> Iterator:
         """``(host batch, iterator state after it)`` for each of ``updates``."""
-        it = self.iterator(updates.start, state)
+        it = self.iterator(updates.start, state, updates.stop)
         for _ in updates:
             batch = next(it)
             yield batch, it.get_state()
+        if hasattr(it, "close"):  # stop Grain's reader threads now, not at exit
+            it.close()
 
     def place(self, batch, sharding: NamedSharding):
         """This process's part ``[S, b_local]`` -> global arrays ``[S, B]``."""
