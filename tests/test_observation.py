@@ -13,6 +13,7 @@ from flax import struct
 from igdrivsim.data.scenario import Roadgraph
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import (
+    PAPER_SETTINGS,
     PRESETS,
     CircularFieldOfView,
     ConicFieldOfView,
@@ -275,8 +276,9 @@ def _hide_behind(obs, episode_key, step_key):
 
 
 def test_settings_compose_register_and_describe():
-    assert set(PRESETS) == {"full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4",
-                            "random_masking"}
+    assert PAPER_SETTINGS == ("full", "gaussian_noise", "circular_r4", "circular_r6",
+                              "conic_r4", "random_masking")
+    assert set(PAPER_SETTINGS) < set(PRESETS)  # the registry also holds settings beyond them
     combo = get_setting("gaussian_noise+circular_r4")
     assert [type(m) for m in combo.models] == [GaussianPositionNoise, CircularFieldOfView]
     # The field of view is applied around the believed (noisy) position.

@@ -1,7 +1,8 @@
 """The smoke profile of ``scripts/reproduce.sh`` end to end, in process (shared compiles).
 
-One pipeline run (module fixture): synthetic data -> filter -> train (two observation settings
-trained together x {BC, BC-RL}) -> evaluate (+ references) -> maze smoke -> render -> report.
+One pipeline run (module fixture): synthetic data -> filter -> train (three observation settings
+trained together, one beyond the paper's six (occlusion), x {BC, BC-RL}) -> evaluate
+(+ references) -> maze smoke -> render -> report.
 Then: every expected output exists and parses, a rerun skips every stage, and re-running
 evaluation gives identical tables.
 """
@@ -20,7 +21,7 @@ from igdrivsim.evaluation import pipeline as pl
 from igdrivsim.evaluation.schema import PER_STEP_COLUMNS, SCENARIO_COLUMNS
 
 SETTING = "circular_r4"
-SETTINGS = ("full", SETTING)
+SETTINGS = ("full", SETTING, "occlusion")
 
 
 def make(tmp: Path) -> pl.Pipeline:
@@ -48,14 +49,17 @@ def test_every_output_exists_and_parses(done):
     assert r"\begin{table*}" in tex and tex.count(r"\midrule") == 6
     md = (paper / "tables" / "table1.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| log divergence | BC-RL"))
-    assert row.count("--") == 4  # four settings not trained in this test, two with numbers
+    assert row.count("--") == 4  # four settings not trained in this test, three with numbers
+    assert md.splitlines()[[i for i, line in enumerate(md.splitlines())
+                            if line.startswith("| metric | method")][0]].endswith(
+        "| Mask p=.7 | Occlusion |")  # the registered extra setting: a column after the six
     assert "Expert (discretised replay)" in md and "Constant velocity" in md
     assert "| Circ r=4 |" in (paper / "tables" / "vs_paper.md").read_text()
     prov = (paper / "generated" / "provenance.tex").read_text()
     assert r"\newcommand{\ProvProfile}{smoke}" in prov and "synthetic" in prov
-    assert (paper / "generated" / "verdicts.tex").read_text().count(r"\item") == 6
+    assert (paper / "generated" / "verdicts.tex").read_text().count(r"\item") == 7
     for method in ("bc", "bc_rl"):
-        run = method  # one run per method: both settings in one program
+        run = method  # one run per method: every setting in one program
         assert (work / "runs" / run / "DONE").is_file()
         curves = pd.read_json(work / "runs" / run / "curves.jsonl", lines=True)
         assert set(curves.setting) == set(SETTINGS) and curves.log_divergence.notna().any()

@@ -34,8 +34,8 @@ from igdrivsim.evaluation.schema import (  # noqa: E402
     EXPERT,
     METHOD_LABELS,
     METRIC_BY_KEY,
-    SETTING_SHORT,
-    SETTINGS,
+    setting_short,
+    table_settings,
 )
 from igdrivsim.io import atomic_savefig  # noqa: E402
 
@@ -52,11 +52,12 @@ def _t_errorbar(values) -> tuple[float, float]:
 def fig3_metrics(seed_level: pd.DataFrame):
     """Build the figure from the long ``setting, method, seed, metric, value`` frame
     (:func:`igdrivsim.evaluation.aggregate.seed_means`)."""
+    settings = table_settings(seed_level)
     data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.metric.isin(PANELS)
-                      & seed_level.setting.isin(SETTINGS)].copy()
+                      & seed_level.setting.isin(settings)].copy()
     data["Method"] = data.method.map(METHOD_LABELS)
-    data["Setting"] = data.setting.map(SETTING_SHORT)
-    order = [SETTING_SHORT[s] for s in SETTINGS if s in set(data.setting)]
+    data["Setting"] = data.setting.map(setting_short)
+    order = [setting_short(s) for s in settings if s in set(data.setting)]
     hue_order = [METHOD_LABELS[m] for m in (BC, BC_RL)]
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.2, 6.4), sharex=True)
@@ -185,7 +186,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     if curves.empty:
         return []
     present = list(dict.fromkeys(curves.setting.astype(str)))
-    settings = [s for s in SETTINGS if s in present] + sorted(set(present) - set(SETTINGS))
+    settings = [s for s in table_settings(curves) if s in present]
     methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
         set(curves.method) - {BC, BC_RL})
     extra = sns.color_palette("tab10")
@@ -196,7 +197,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     fig, axes = plt.subplots(len(CURVE_ROWS), len(settings), squeeze=False, sharex="col",
                              figsize=(1.2 + 2.3 * len(settings), 1.2 + 1.8 * len(CURVE_ROWS)))
     for col, setting in enumerate(settings):
-        axes[0, col].set_title(SETTING_SHORT.get(setting, setting))
+        axes[0, col].set_title(setting_short(setting))
         axes[-1, col].set_xlabel("update")
         for row, (key, label, scale, _) in enumerate(CURVE_ROWS):
             ax = axes[row, col]
@@ -243,8 +244,8 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
     velocity as horizontal lines when evaluated. ``seed_level``: :func:`seed_means` over the
     registry's metrics."""
     panels = [m for m in metrics if m.figure]
-    order = list(SETTINGS)
-    data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.setting.isin(SETTINGS)]
+    order = list(table_settings(seed_level))
+    data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.setting.isin(order)]
     data = data.assign(Method=data.method.map(METHOD_LABELS), Setting=data.setting)
     refs = seed_level[seed_level.method.isin((EXPERT, CONSTANT_VELOCITY))]
     sns.set_theme(style="whitegrid", context="paper")
@@ -269,7 +270,7 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
         ax.set_title(f"{metric.label} {arrow}", fontsize=9)
         ax.set_ylabel(metric.unit)
         ax.set_xlabel("")
-        ax.set_xticks(range(len(order)), [SETTING_SHORT[s] for s in order], rotation=30,
+        ax.set_xticks(range(len(order)), [setting_short(s) for s in order], rotation=30,
                       ha="right")
         if ax.get_legend() is not None:
             ax.get_legend().remove()

@@ -35,6 +35,7 @@ from igdrivsim.cli import DefaultsFormatter, deprecated_alias
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_write_json, atomic_write_text
+from igdrivsim.observation import get_setting, setting_params
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 PAPER_SOURCES = ("main.tex", "references.bib", "Makefile")
@@ -87,9 +88,11 @@ class Pipeline:
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
         self.settings = tuple(self.settings or self.profile.settings)
-        unknown = [s for s in self.settings if s not in SETTINGS]
-        if unknown:
-            raise ConfigError(f"unknown setting {unknown[0]!r}; choose from {', '.join(SETTINGS)}")
+        for name in self.settings:  # any registered setting or '+' composition of them
+            if setting_params(get_setting(name)) is None:
+                raise ConfigError(f"setting {name!r} has no data form (ObservationParams), so it "
+                                  "cannot train together with the others; train it on its own "
+                                  "with igdrivsim train")
         self.ran: set[str] = set()  # stages that ran in this invocation
 
     # ----------------------------------------------------------------------- bookkeeping
@@ -423,8 +426,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="put everything under OUT (work files, and the report in "
                              "OUT/paper); default: outputs/<profile>/ and paper/")
     parser.add_argument("--obs", dest="settings", default=None, metavar="SETTINGS",
-                        help="comma-separated subset of the six observation settings "
-                             "(default: all six)")
+                        help="comma-separated observation settings: any of the paper's six, "
+                             "a registered one (occlusion) or a '+' composition "
+                             "(default: the paper's six)")
     deprecated_alias(parser, "--settings", "settings")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="SECTION.FIELD=VALUE",

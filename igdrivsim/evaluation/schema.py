@@ -10,11 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from igdrivsim.evaluation import registry as _registry
+from igdrivsim.observation.models import PAPER_SETTINGS
 
 # The six observation settings of the paper, in Table I column order (observation PRESETS names).
-SETTINGS: tuple[str, ...] = (
-    "full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4", "random_masking",
-)
+SETTINGS: tuple[str, ...] = PAPER_SETTINGS
 SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the paper's Table I
     "full": ("Full obs", ""),
     "gaussian_noise": ("Gaussian", r"noise ($\sigma$=3)"),
@@ -27,6 +26,31 @@ SETTING_SHORT: dict[str, str] = {
     "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
     "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
 }
+
+
+
+def table_settings(*frames) -> tuple[str, ...]:
+    """The columns of a table over ``frames`` (DataFrames with a ``setting`` column, or None):
+    the paper's six in Table I order, then any other registered setting present, by name."""
+    present: set[str] = set()
+    for frame in frames:
+        if frame is not None and len(frame) and "setting" in frame:
+            present |= set(frame["setting"].astype(str))
+    extra = sorted(present - set(SETTINGS) - {REFERENCE_SETTING})
+    return SETTINGS + tuple(extra)
+
+
+def setting_short(name: str) -> str:
+    """A setting's short column name (the paper's six, else the observation registry's)."""
+    from igdrivsim.observation import PRESET_SHORT
+
+    return SETTING_SHORT.get(name) or PRESET_SHORT.get(name, name)
+
+
+def setting_labels(name: str) -> tuple[str, str]:
+    """A setting's two header lines for the LaTeX tables."""
+    return SETTING_LABELS.get(name) or (setting_short(name), "")
+
 
 # Learned methods compared in Table I, and reference rows that need no training.
 BC, BC_RL = "bc", "bc_rl"

@@ -23,9 +23,11 @@ from igdrivsim.evaluation.schema import (
     PAPER_TABLE1,
     REFERENCE_SETTING,
     REFERENCES,
-    SETTING_LABELS,
     SETTING_SHORT,
     SETTINGS,
+    setting_labels,
+    setting_short,
+    table_settings,
 )
 
 MISSING = "--"
@@ -67,6 +69,7 @@ def _has_references(summary: pd.DataFrame) -> list[str]:
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """The ``table*`` float for the report (needs booktabs, colortbl and the colours
     ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
+    cols = table_settings(summary, tests)
     colours = {BC_RL: "bcrlcolor", BC: "bccolor"}
     lines = [
         r"\begin{table*}[t]",
@@ -79,20 +82,20 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         rf"$\alpha={ALPHA}$). {caption_extra}}}",
         r"\label{tab:results}",
         r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{l" + "c" * len(SETTINGS) + "}",
+        r"\begin{tabular}{l" + "c" * len(cols) + "}",
         r"\toprule",
         r"\textbf{Metric} & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][0]}}}" for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
         " & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][1]}}}" if SETTING_LABELS[s][1] else ""
-            for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
+            for s in cols) + r" \\",
     ]
     references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
         for i, method in enumerate((BC_RL, BC)):
             cells = []
-            for setting in SETTINGS:
+            for setting in cols:
                 row = _lookup(summary, metric.key, setting, method)
                 text = _fmt(None if row is None else float(row["mean"]))
                 if _better(tests, metric.key, setting) == method:
@@ -103,7 +106,7 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
             row = _lookup(summary, metric.key, REFERENCE_SETTING, method)
             value = _fmt(None if row is None else float(row["mean"]))
             lines.append(rf"\quad\textit{{{METHOD_LABELS[method].lower()}}} & "
-                         rf"\multicolumn{{{len(SETTINGS)}}}{{c}}{{\textit{{{value}}}}} \\")
+                         rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
     lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
     return "\n".join(lines)
 
@@ -120,10 +123,11 @@ def _ci_text(row: pd.Series | None) -> str:
 def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
     """Per setting, a one-line answer to "is BC-RL safer than BC?" from the safety metrics
     (overlap %, overlap rate, offroad %, offroad rate) and their significance."""
+    cols = table_settings(tests)
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
     verdicts = {}
     cells = _cells(tests)
-    for setting in SETTINGS:
+    for setting in cols:
         rows = cells[(cells.setting == setting) & cells.metric.isin(safety)] if len(cells) else []
         if len(rows) == 0:
             verdicts[setting] = "not evaluated"
@@ -147,20 +151,21 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
 def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
     """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
     bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
+    cols = table_settings(summary, tests)
     out = ["# Table I: BC-RL vs BC", ""]
     if header:
         out += [header, ""]
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
-    out.append("| metric | method | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS) + " |")
-    out.append("|---|---|" + "---|" * len(SETTINGS))
+    out.append("| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |")
+    out.append("|---|---|" + "---|" * len(cols))
     references = _has_references(summary)
     for metric in METRICS:
         name = f"{' '.join(metric.label).replace(chr(92), '')}"
         for method in (BC_RL, BC):
             cells = []
-            for setting in SETTINGS:
+            for setting in cols:
                 text = _ci_text(_lookup(summary, metric.key, setting, method))
                 if _better(tests, metric.key, setting) == method:
                     text = f"**{text}**"
@@ -169,12 +174,12 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
         for method in references:
             text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             out.append(f"| {name} | *{METHOD_LABELS[method]}* | " + " | ".join(
-                [f"*{text}*"] * len(SETTINGS)) + " |")
+                [f"*{text}*"] * len(cols)) + " |")
     if len(_cells(tests)):
         out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
     out += ["", "## Is BC-RL safer than BC?", ""]
     for setting, verdict in safety_verdicts(tests).items():
-        out.append(f"- **{SETTING_SHORT[setting]}**: {verdict}")
+        out.append(f"- **{setting_short(setting)}**: {verdict}")
     return "\n".join(out) + "\n"
 
 
@@ -243,13 +248,14 @@ def _interval_text(row: pd.Series | None) -> str:
 def effects_markdown(tests: pd.DataFrame) -> str:
     """BC-RL minus BC per metric and setting with the 95% two-level bootstrap interval;
     bold where significant after the Holm correction."""
+    cols = table_settings(tests)
     out = ["## BC-RL − BC (95% bootstrap interval over seeds and scenarios)", "",
            f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
            f"{len(_cells(tests))} cells ({TEST_NAME}).", "",
-           "| metric (unit) | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS) + " |",
-           "|---|" + "---|" * len(SETTINGS)]
+           "| metric (unit) | " + " | ".join(setting_short(s) for s in cols) + " |",
+           "|---|" + "---|" * len(cols)]
     for metric in METRICS:
-        cells = [_interval_text(_test_row(tests, metric.key, s)) for s in SETTINGS]
+        cells = [_interval_text(_test_row(tests, metric.key, s)) for s in cols]
         out.append(f"| {_metric_name(metric)} ({metric.unit}) | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 
@@ -257,16 +263,20 @@ def effects_markdown(tests: pd.DataFrame) -> str:
 def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, bool]]]]:
     """Per metric: (name, unit, [(cell text, detectable)]) rows for the paper effect, MDE and
     Holm MDE; a paper effect is "detectable" when its size is at least the MDE."""
+    cols = table_settings(tests)
     rows = []
     for metric in METRICS:
         paper, mde, holm = [], [], []
-        for setting in SETTINGS:
-            pa, pb = PAPER_TABLE1[metric.key][setting]
-            effect = pa - pb
+        for setting in cols:
             row = _test_row(tests, metric.key, setting)
             m = float(row.mde) if row is not None else float("nan")
             mh = float(row.mde_holm) if row is not None else float("nan")
-            paper.append((_signed(effect), math.isfinite(m) and abs(effect) >= m))
+            if setting in PAPER_TABLE1[metric.key]:
+                pa, pb = PAPER_TABLE1[metric.key][setting]
+                effect = pa - pb
+                paper.append((_signed(effect), math.isfinite(m) and abs(effect) >= m))
+            else:  # a setting beyond the paper: no paper effect to compare with
+                paper.append((MISSING, False))
             mde.append((_fmt(m), False))
             holm.append((_fmt(mh), False))
         rows.append((_metric_name(metric), metric.unit, [paper, mde, holm]))
@@ -275,11 +285,13 @@ def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, boo
 
 def _power_counts(tests: pd.DataFrame) -> tuple[int, int, int]:
     """(paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
+    cols = table_settings(tests)
     n = k = kh = 0
     for metric in METRICS:
-        for setting in SETTINGS:
+        for setting in cols:
             row = _test_row(tests, metric.key, setting)
-            if row is None or not math.isfinite(float(row.mde)):
+            if (row is None or not math.isfinite(float(row.mde))
+                    or setting not in PAPER_TABLE1[metric.key]):
                 continue
             pa, pb = PAPER_TABLE1[metric.key][setting]
             n += 1
@@ -290,6 +302,7 @@ def _power_counts(tests: pd.DataFrame) -> tuple[int, int, int]:
 
 def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     """Minimum detectable effect (80% power) per cell next to the paper's BC-RL − BC."""
+    cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
     out = ["## Could the paper's effects be detected here?", ""]
@@ -302,8 +315,8 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
             f"(the first Holm step). Paper effect: BC-RL − BC in the paper's Table I, **bold** "
             f"where its size reaches the uncorrected MDE. Paper effects at least the MDE: {k} of "
             f"{n} cells (uncorrected), {kh} of {n} (Holm).", "",
-            "| metric (unit) | row | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS) + " |",
-            "|---|---|" + "---|" * len(SETTINGS)]
+            "| metric (unit) | row | " + " | ".join(setting_short(s) for s in cols) + " |",
+            "|---|---|" + "---|" * len(cols)]
     labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
     for name, unit, groups in _power_rows(tests):
         for label, cells in zip(labels, groups, strict=True):
@@ -314,6 +327,7 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
 
 def power_latex(tests: pd.DataFrame) -> str:
     """The MDE table as a ``table*`` float (label ``tab:power``) for the report."""
+    cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
     lines = [
@@ -327,13 +341,13 @@ def power_latex(tests: pd.DataFrame) -> str:
         rf"{k} of {n} cells ({kh} with Holm).}}",
         r"\label{tab:power}",
         r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(SETTINGS) + "}",
+        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
         r"\toprule",
         r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][0]}}}" for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
         " & & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][1]}}}" if SETTING_LABELS[s][1] else ""
-            for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
+            for s in cols) + r" \\",
     ]
     labels = ("paper effect", "MDE", "MDE (Holm)")
     for name, unit, groups in _power_rows(tests):
@@ -351,16 +365,17 @@ def power_latex(tests: pd.DataFrame) -> str:
 def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
     """Per registry metric: (metric, [(method, italic, [cell per setting])]) for the methods
     present; a reference row repeats its one value in every setting column."""
+    cols = table_settings(summary)
     rows = []
     references = _has_references(summary)
     for metric in metrics:
         groups = []
         for method in (BC_RL, BC):
             groups.append((method, False, [_lookup(summary, metric.key, s, method)
-                                           for s in SETTINGS]))
+                                           for s in cols]))
         for method in references:
             row = _lookup(summary, metric.key, REFERENCE_SETTING, method)
-            groups.append((method, True, [row] * len(SETTINGS)))
+            groups.append((method, True, [row] * len(cols)))
         rows.append((metric, groups))
     return rows
 
@@ -377,6 +392,7 @@ def _md(text: str) -> str:
 def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> str:
     """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
     half-width, with each metric's unit, direction and source (no significance tests)."""
+    cols = table_settings(summary)
     out = ["# Supplementary metrics (beyond Table I)", ""]
     if header:
         out += [header, ""]
@@ -384,8 +400,8 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
             "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
             "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
             "existed).", "",
-            "| metric (unit) | method | " + " | ".join(SETTING_SHORT[s] for s in SETTINGS)
-            + " |", "|---|---|" + "---|" * len(SETTINGS)]
+            "| metric (unit) | method | " + " | ".join(setting_short(s) for s in cols)
+            + " |", "|---|---|" + "---|" * len(cols)]
     for metric, groups in _supplementary_rows(summary, metrics):
         name = _md(f"{metric.label} ({metric.unit}; {_direction(metric)})")
         for method, italic, cells in groups:
@@ -406,6 +422,7 @@ def _tex(text: str) -> str:
 
 def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "") -> str:
     """The supplementary table as a ``table*`` float (label ``tab:supplementary``)."""
+    cols = table_settings(summary)
     lines = [
         r"\begin{table*}[t]",
         r"\centering",
@@ -414,13 +431,13 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
         rf"scenarios; rates in \%. {caption_extra}}}",
         r"\label{tab:supplementary}",
         r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(SETTINGS) + "}",
+        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
         r"\toprule",
         r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][0]}}}" for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
         " & & " + " & ".join(
-            rf"\textbf{{{SETTING_LABELS[s][1]}}}" if SETTING_LABELS[s][1] else ""
-            for s in SETTINGS) + r" \\",
+            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
+            for s in cols) + r" \\",
     ]
     for metric, groups in _supplementary_rows(summary, metrics):
         lines.append(r"\midrule")
@@ -431,7 +448,7 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
             name = METHOD_LABELS[method]
             if italic:
                 lines.append(rf"{first} & \textit{{{name.lower()}}} & \multicolumn"
-                             rf"{{{len(SETTINGS)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
+                             rf"{{{len(cols)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
             else:
                 lines.append(f"{first} & {name} & " + " & ".join(texts) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]

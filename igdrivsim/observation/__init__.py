@@ -3,7 +3,8 @@
 Pipeline per step (one example; ``jax.vmap`` for batches): the setting's pose models give the
 ego's believed pose (Gaussian position noise, one offset per episode) -> the nearest objects and
 roadgraph points in that frame as features (:mod:`.features`) -> the setting's hiding models
-(fields of view, random masking; :mod:`.models`). ``PRESETS`` holds the paper's six settings.
+(fields of view, random masking; :mod:`.models`). ``PRESETS`` holds the paper's six settings
+and those registered beyond them (line-of-sight occlusion, :mod:`.occlusion`).
 :mod:`.candidates` computes the same observation for a batch from cached candidate points;
 :mod:`.render` draws the settings (paper Fig. 1) and rollout animations.
 """
@@ -29,6 +30,8 @@ from igdrivsim.observation.features import (
     roadgraph_positions,
 )
 from igdrivsim.observation.models import (
+    PAPER_SETTINGS,
+    PRESET_SHORT,
     PRESET_TITLES,
     PRESETS,
     CircularFieldOfView,
@@ -43,6 +46,7 @@ from igdrivsim.observation.models import (
     apply_setting,
     get_setting,
     perceive_pose,
+    register_setting,
     setting_params,
     stack_params,
 )
@@ -52,6 +56,7 @@ from igdrivsim.observation.observe import (
     observe_with_selection,
     sdc_pose,
 )
+from igdrivsim.observation.occlusion import LineOfSightOcclusion, line_of_sight  # registers
 
 __all__ = [
     "OBJECT_FEATURES", "POSITION_SCALE", "ROADGRAPH_FEATURES", "SPEED_SCALE",
@@ -60,7 +65,9 @@ __all__ = [
     "PRESET_TITLES", "PRESETS", "CircularFieldOfView", "ConicFieldOfView", "FullObservability",
     "FunctionModel", "GaussianPositionNoise", "ObservationModel", "ObservationSetting",
     "RandomMasking", "apply_setting", "get_setting", "perceive_pose", "ObservationParams",
-    "setting_params", "stack_params",
+    "setting_params", "stack_params", "register_setting", "PRESET_SHORT",
+    "PAPER_SETTINGS",
+    "LineOfSightOcclusion", "line_of_sight",
     "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
     "CandidateConfig", "RoadCandidates", "init_candidates", "observe_batch_with_candidates",
 ]

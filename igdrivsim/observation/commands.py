@@ -31,6 +31,9 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--obs", dest="setting", default="circular_r6", metavar="SETTING",
                         help="observation setting of the animation (a preset, '+' composes)")
     deprecated_alias(parser, "--setting", "setting")
+    parser.add_argument("--panels", default=None, metavar="SETTINGS",
+                        help="comma-separated settings of the Fig. 1 panels (default: the paper's "
+                             "six; e.g. full,occlusion)")
     parser.add_argument("--view", type=float, default=30.0, help="panel size scale (metres)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (noise, masking)")
     parser.add_argument("--every", type=int, default=1, help="animate every N-th step")
@@ -48,13 +51,17 @@ def _data_path(args) -> str:
 
 
 def render_command(args) -> int:
-    from igdrivsim.observation.models import PRESETS, get_setting
+    from igdrivsim.observation.models import PAPER_SETTINGS, get_setting
 
     if not 10 <= args.step <= 90:
         raise ConfigError(f"--step must be in 10..90, got {args.step}")
     if args.view <= 0 or args.every < 1:
         raise ConfigError("--view must be > 0 and --every >= 1")
     setting = get_setting(args.setting)  # fail early on a bad name
+    panels = ([p.strip() for p in args.panels.split(",") if p.strip()] if args.panels
+              else list(PAPER_SETTINGS))
+    for name in panels:
+        get_setting(name)
 
     import jax
 
@@ -68,7 +75,7 @@ def render_command(args) -> int:
     key = jax.random.PRNGKey(args.seed)
     need = 80 if args.gif is not None else args.step - 10
     states = render.expert_states(state, need)
-    written = render.write_observation_figure(states[args.step - 10], args.out, list(PRESETS),
+    written = render.write_observation_figure(states[args.step - 10], args.out, panels,
                                               key, args.view)
     if args.gif is not None:
         gif = args.gif or os.path.join(args.out, f"rollout_{setting.name.replace('+', '_')}.gif")

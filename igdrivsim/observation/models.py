@@ -22,7 +22,10 @@ Adding a model takes one small function and a registry entry::
         obs = hide_objects(obs, object_positions(obs)[..., 0] >= 0)
         return hide_roadgraph(obs, roadgraph_positions(obs)[..., 0] >= 0)
 
-    PRESETS["front_only"] = ObservationSetting("front_only", (FunctionModel(hide_behind),))
+    register_setting(ObservationSetting("front_only", (FunctionModel(hide_behind),)))
+
+A complete model with a data form (so it trains together with the paper's six) is
+:mod:`igdrivsim.observation.occlusion`; ``docs/EXTENDING.md`` walks through it.
 
 Settings compose: ``ObservationSetting("noisy_fov", (GaussianPositionNoise(3.0),
 CircularFieldOfView(4.0)))``, or by name with :func:`get_setting`
@@ -219,7 +222,9 @@ class ObservationParams:
     ``vmap``; training and evaluation run every setting of a method together this way). The
     draws equal the static setting's: the noise offset and the masking use the keys of the
     models' positions ``noise_key`` / ``mask_key`` in the setting. Neutral values: ``noise_sigma
-    = 0``, ``fov_radius = inf``, ``fov_half_angle = inf``, ``mask_p = 0``.
+    = 0``, ``fov_radius = inf``, ``fov_half_angle = inf``, ``mask_p = 0``. The occluder box
+    (:mod:`.occlusion`) is ``None`` when no setting occludes, so the paper's six settings never
+    trace the occlusion geometry; a stack that mixes both uses ``0`` for "no occlusion".
     """
 
     noise_sigma: Any = 0.0
@@ -228,13 +233,16 @@ class ObservationParams:
     mask_p: Any = 0.0
     noise_key: Any = 0
     mask_key: Any = 0
+    occluder_length: Any = None
+    occluder_width: Any = None
 
     def as_arrays(self) -> ObservationParams:
-        f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+        f32 = lambda v: None if v is None else jnp.asarray(v, jnp.float32)  # noqa: E731
         i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
         return ObservationParams(f32(self.noise_sigma), f32(self.fov_radius),
                                  f32(self.fov_half_angle), f32(self.mask_p),
-                                 i32(self.noise_key), i32(self.mask_key))
+                                 i32(self.noise_key), i32(self.mask_key),
+                                 f32(self.occluder_length), f32(self.occluder_width))
 
 
 def setting_params(setting: ObservationSetting | str) -> ObservationParams | None:
@@ -250,6 +258,10 @@ def setting_params(setting: ObservationSetting | str) -> ObservationParams | Non
 
 def stack_params(settings: list[ObservationParams]) -> ObservationParams:
     """Stack per-setting parameters on a leading axis (for ``vmap``)."""
+    if any(p.occluder_length is not None for p in settings):
+        zero = jnp.zeros((), jnp.float32)
+        settings = [p if p.occluder_length is not None else
+                    p.replace(occluder_length=zero, occluder_width=zero) for p in settings]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *settings)
 
 
@@ -259,6 +271,13 @@ def _params_pose(p: ObservationParams, sdc_xy, sdc_yaw, episode_key, step_key):
 
 
 def _params_apply(p: ObservationParams, obs: Observation, episode_key, step_key) -> Observation:
+    if p.occluder_length is not None:  # first, so that every object occludes
+        from igdrivsim.observation.occlusion import line_of_sight
+
+        keep_objects, keep_roadgraph = line_of_sight(obs, p.occluder_length, p.occluder_width)
+        off = p.occluder_length <= 0
+        obs = hide_roadgraph(hide_objects(obs, keep_objects | off), keep_roadgraph | off)
+
     def inside(xy):
         bearing = jnp.abs(jnp.arctan2(xy[..., 1], xy[..., 0]))
         return (jnp.sum(xy**2, axis=-1) <= p.fov_radius**2) & (bearing <= p.fov_half_angle)
@@ -308,6 +327,9 @@ PRESETS: dict[str, ObservationSetting] = {
     "random_masking": ObservationSetting("random_masking", (RandomMasking(p=0.7),)),
 }
 
+# The paper's six, in Table I column order (the registry may hold more: register_setting).
+PAPER_SETTINGS: tuple[str, ...] = tuple(PRESETS)
+
 # Panel titles as in the paper's Table I.
 PRESET_TITLES: dict[str, str] = {
     "full": "Full obs",
@@ -317,6 +339,25 @@ PRESET_TITLES: dict[str, str] = {
     "conic_r4": "Conic FoV (r=4 m, α=2π/3)",
     "random_masking": "Random masking (p=0.7)",
 }
+
+
+PRESET_SHORT: dict[str, str] = {
+    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
+    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
+}
+
+
+def register_setting(setting: ObservationSetting, title: str | None = None,
+                     short: str | None = None) -> ObservationSetting:
+    """Add ``setting`` to the registry under its name: ``--obs NAME`` in every command, the
+    pipeline's ``--obs`` and the tables' and figures' columns (``title`` and ``short`` label
+    them; default: the name). Returns the setting."""
+    if setting.name in PRESETS and PRESETS[setting.name] != setting:
+        raise ConfigError(f"observation setting {setting.name!r} is already registered")
+    PRESETS[setting.name] = setting
+    PRESET_TITLES[setting.name] = title or setting.name
+    PRESET_SHORT[setting.name] = short or title or setting.name
+    return setting
 
 
 def get_setting(spec: str | ObservationSetting) -> ObservationSetting:
