@@ -13,6 +13,7 @@ import sys
 
 import jax
 import numpy as np
+import pandas as pd
 import pytest
 
 from igdrivsim.cli import main as cli_main
@@ -121,3 +122,23 @@ def test_four_devices_match_one_device(full_run, data_dir, tmp_path):
     assert json.loads((out / "config.json").read_text())["devices"] == 4
     _, params = load_run(out)
     assert _max_diff(params, result.params) < 1e-4
+
+
+def test_evaluation_on_four_devices_matches_one_device(full_run, data_dir, tmp_path):
+    """Evaluation spreads each batch's scenarios over every device (7 scenarios in batches of
+    5: padded to multiples of 4) and gives the one-device numbers."""
+    run, _ = full_run
+    args = ["evaluate", str(run), "--data", data_dir, "--limit", "7", "--batch-size", "5",
+            "--references", "--no-progress"]
+    assert cli_main([*args, "--out", str(tmp_path / "one")]) == 0
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4",
+               JAX_PLATFORMS="cpu")
+    cmd = [sys.executable, "-m", "igdrivsim.cli", *args, "--out", str(tmp_path / "four")]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in ("per_scenario.csv", "references/per_scenario.csv"):
+        one = pd.read_csv(tmp_path / "one" / name)
+        four = pd.read_csv(tmp_path / "four" / name)
+        assert len(one) == len(four) > 0 and list(one.columns) == list(four.columns)
+        numeric = one.select_dtypes("number").columns
+        np.testing.assert_allclose(four[numeric], one[numeric], atol=1e-4)

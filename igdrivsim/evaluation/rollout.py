@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from igdrivsim.data.scenario import CURRENT_INDEX, decode_scenario_id
 from igdrivsim.evaluation import registry
@@ -193,10 +194,43 @@ def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, se
 
 
 def _to_host(outs) -> StepOutputs:
+    """Device outputs -> numpy; with several processes, every process gets the whole batch."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        outs = multihost_utils.process_allgather(outs, tiled=True)
     per_step, episode = outs
     ld, ov, off, valid = (np.asarray(x) for x in per_step)
     scenario = {k: np.asarray(v) for k, v in episode.items()} if episode else None
     return StepOutputs(ld, ov, off, valid.astype(bool), scenario)
+
+
+def _spread(tree, axis: int | None):
+    """Place arrays with ``axis`` (the scenario axis) split over every device of every process
+    (each process builds the same host batch and keeps its own part), or replicated when
+    ``axis`` is None (parameters); one device: unchanged. Typed PRNG keys travel as their raw
+    data."""
+    devices = jax.devices()
+    if len(devices) == 1 or tree is None:
+        return tree
+    mesh = Mesh(np.asarray(devices), ("data",))
+    spec = () if axis is None else (*([None] * axis), "data")
+
+    def put(x):
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            impl = jax.random.key_impl(x)
+            return jax.random.wrap_key_data(put(np.asarray(jax.random.key_data(x))), impl=impl)
+        x = np.asarray(x)
+        sharding = NamedSharding(mesh, PartitionSpec(*spec[:x.ndim]))
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree.map(put, tree)
+
+
+def _device_multiple(size: int) -> int:
+    """``size`` rounded up to a multiple of the global device count."""
+    count = jax.device_count()
+    return -(-size // count) * count
 
 
 def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
@@ -215,11 +249,13 @@ def _pad_batch(batch, size: int):
 
 
 def _batches(scenarios, batch_size: int):
+    """``(start, stop, batch)``: fixed-size batches (padded; a multiple of the device count),
+    the scenario axis spread over all devices."""
     n = jax.tree.leaves(scenarios)[0].shape[0]
     for start in range(0, n, batch_size):
         stop = min(start + batch_size, n)
         part = jax.tree.map(lambda x, a=start, b=stop: np.asarray(x)[a:b], scenarios)
-        yield start, stop, _pad_batch(part, min(batch_size, n))
+        yield start, stop, _spread(_pad_batch(part, _device_multiple(min(batch_size, n))), 0)
 
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
@@ -287,11 +323,12 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     base = jax.random.key(seed)
+    policy_params, settings = _spread(policy_params, None), _spread(settings, None)
     parts = []
     for start, stop, batch in _batches(scenarios, batch_size):
-        size = jax.tree.leaves(batch)[0].shape[0]
+        size = jax.tree.leaves(batch)[0].shape[0]  # padded
         index = np.minimum(np.arange(start, start + size), stop - 1)
-        keys = _episode_keys(base, num_seeds, index)
+        keys = _spread(_episode_keys(base, num_seeds, index), 1)
         outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
                                       policy_config=policy_config, setting=static,
                                       obs_config=obs_config, params=params, greedy=greedy,
