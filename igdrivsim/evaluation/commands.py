@@ -172,7 +172,13 @@ def _read_json(path: Path) -> dict:
 
 
 def _write(out, per_step, per_scenario, info: dict) -> Path:
+    """Write the tidy CSVs and the evaluation record (process 0 only when several processes
+    evaluate together: they all hold the same gathered outputs)."""
     out = Path(out)
+    import jax
+
+    if jax.process_index() != 0:
+        return out
     atomic_write_csv(out / "per_step.csv", per_step.round(6))
     atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
     atomic_write_json(out / EVAL_CONFIG, info, indent=2, sort_keys=True)
@@ -182,6 +188,9 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
 def evaluate_command(args: argparse.Namespace) -> int:
     if not args.runs and not args.references:
         raise ConfigError("give at least one RUN_DIR, or --references")
+    from igdrivsim.training.commands import maybe_init_distributed
+
+    maybe_init_distributed()  # several hosts: the scenarios are spread over all their devices
     for run in args.runs:
         if not (Path(run) / "config.json").is_file():
             raise DataError("not a training run folder (no config.json)", file=run)

@@ -23,7 +23,8 @@ NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
 
 @dataclass(frozen=True)
 class PolicyConfig:
-    """Layer widths; the defaults are the paper's (about 4.3M parameters)."""
+    """Layer widths; the defaults are the paper's (4.15M parameters; the paper reports about
+    4.3M)."""
 
     object_hidden: tuple[int, ...] = (512, 512)  # per-object MLP, then masked max-pool
     point_hidden: tuple[int, ...] = (256, 256)  # per-point MLP of the polyline encoder

@@ -197,6 +197,9 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
             return TrainResult(None, -1, -1, True, 0.0)
         if not resume:
             raise ConfigError(f"{out_dir} holds an unfinished run; pass --resume to continue it")
+    # every process has looked at the folder before process 0 writes config.json below
+    # (otherwise a slower process would find it and refuse to start a "resumed" run)
+    barrier("checked")
     spec = update_spec(config)
     settings_list = run_settings(config)
     mesh = inputs.make_mesh(devices)
