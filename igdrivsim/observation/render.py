@@ -255,8 +255,12 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
         ax.axis("off")
     fig.suptitle("What the imitator observes, in the ego's frame (colour: in the observation; "
                  "grey: the true scene)", fontsize=11)
-    fig.legend(handles=legend_handles(), loc="lower center", ncol=5, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    handles = legend_handles()
+    legend_cols = 5 if ncols >= 3 else 2 * ncols  # about 0.8 inch of width per entry
+    legend_rows = math.ceil(len(handles) / legend_cols)
+    fig.legend(handles=handles, loc="lower center", ncol=legend_cols, fontsize=8, frameon=False)
+    height = fig.get_figheight()
+    fig.tight_layout(rect=(0, min(0.4, (0.1 + 0.2 * legend_rows) / height), 1, 1))
     return fig
 
 
