@@ -172,6 +172,22 @@ def _band(part: pd.DataFrame, key: str, scale: float) -> pd.DataFrame:
     return values.groupby("update").value.agg(["mean", "min", "max"]).reset_index()
 
 
+def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
+    """Scale a learning-curve panel to the trained part when the untrained policy's value
+    would flatten it; that value is then written in the panel instead."""
+    first = [v for v in first if math.isfinite(v)]
+    later = [v for v in later if math.isfinite(v)]
+    if not first or not later:
+        return
+    low, high = min(later), max(later)
+    span = max(high - low, 1e-9)
+    if max(first) <= high + span:  # the start fits without squashing the rest
+        return
+    ax.set_ylim(low - 0.1 * span, high + 0.25 * span)
+    ax.text(0.97, 0.95, f"update 0: {max(first):.3g} (off scale)", ha="right", va="top",
+            transform=ax.transAxes, fontsize=6, color="0.35")
+
+
 def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                            references_csv: str | Path | pd.DataFrame | None = None,
                            stem: str = "fig4_learning_curves") -> list[Path]:
@@ -202,11 +218,16 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
         for row, (key, label, scale, _) in enumerate(CURVE_ROWS):
             ax = axes[row, col]
             drawn = False
+            first: list[float] = []  # the untrained policy (first evaluated update)
+            later: list[float] = []  # everything else drawn in the panel
             for method in methods:
                 part = curves[(curves.setting == setting) & (curves.method == method)]
                 name = METHOD_LABELS.get(method, method)
                 band = _band(part, key, scale)
                 if not band.empty:
+                    start = band["update"] == band["update"].min()
+                    first += band.loc[start, "mean"].tolist()
+                    later += band.loc[~start, ["min", "max"]].to_numpy().ravel().tolist()
                     ax.plot(band["update"], band["mean"], color=colours[method], label=name,
                             linewidth=1.4)
                     ax.fill_between(band["update"], band["min"], band["max"],
@@ -215,14 +236,17 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                 if key == "val_bc_loss":
                     train = _band(part, "bc_loss", 1.0)
                     if not train.empty:
+                        later += train["mean"].tolist()
                         ax.plot(train["update"], train["mean"], color=colours[method],
                                 linestyle="--", linewidth=0.9, alpha=0.7,
                                 label=f"{name} (training loss)")
                         drawn = True
             for method, values in levels.items():
                 if key in values and math.isfinite(values[key]):
+                    later.append(values[key])
                     ax.axhline(values[key], label=METHOD_LABELS[method],
                                **_REFERENCE_STYLE[method])
+            _zoom_past_start(ax, first, later)
             if not drawn:
                 ax.text(0.5, 0.5, "not logged", ha="center", va="center",
                         transform=ax.transAxes, color="0.5")
