@@ -38,8 +38,9 @@ from igdrivsim.evaluation.schema import (  # noqa: E402
     table_settings,
 )
 from igdrivsim.io import atomic_savefig  # noqa: E402
+from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 
-PALETTE = {METHOD_LABELS[BC]: "#4C9BE8", METHOD_LABELS[BC_RL]: "#F28E2B"}  # blue / orange
+PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange
 PANELS = ("log_divergence", "overlap", "offroad")
 
 

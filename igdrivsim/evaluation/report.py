@@ -42,6 +42,7 @@ from igdrivsim.evaluation.tables import (
     vs_paper_markdown,
 )
 from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     summary = summarize(per_scenario)
     tests = compare_methods(per_scenario)
     seeds = seed_means(per_scenario)
-    learned = per_scenario[per_scenario.method.isin(("bc", "bc_rl"))]
+    learned = per_scenario[per_scenario.method.isin(list(METHOD_REGISTRY))]
     n_seeds = int(learned.seed.nunique()) if len(learned) else 0
     n_scenarios = int(per_scenario.scenario_id.nunique())
     header = (f"Profile `{provenance.profile}`, data `{provenance.data}`, {n_seeds} seeds, "

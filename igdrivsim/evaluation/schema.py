@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from igdrivsim.evaluation import registry as _registry
 from igdrivsim.observation.models import PAPER_SETTINGS
+from igdrivsim.training import methods as _methods
 
 # The six observation settings of the paper, in Table I column order (observation PRESETS names).
 SETTINGS: tuple[str, ...] = PAPER_SETTINGS
@@ -57,9 +58,9 @@ BC, BC_RL = "bc", "bc_rl"
 EXPERT, CONSTANT_VELOCITY = "expert", "constant_velocity"
 METHODS: tuple[str, ...] = (BC_RL, BC)
 REFERENCES: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
-METHOD_LABELS: dict[str, str] = {
-    BC_RL: "BC-RL", BC: "BC", EXPERT: "Expert (discretised replay)",
-    CONSTANT_VELOCITY: "Constant velocity",
+METHOD_LABELS: dict[str, str] = {  # the method registry's labels, then the references'
+    **{m.name: m.label for m in _methods.METHODS.values()},
+    EXPERT: "Expert (discretised replay)", CONSTANT_VELOCITY: "Constant velocity",
 }
 # Reference rows do not depend on the observation: their CSV `setting` is this value.
 REFERENCE_SETTING = "none"

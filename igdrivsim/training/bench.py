@@ -23,12 +23,13 @@ import numpy as np
 
 from igdrivsim.cli import deprecated_alias
 from igdrivsim.evaluation.schema import SETTINGS as PAPER_SETTINGS
+from igdrivsim.training.methods import METHODS
 
 
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profiles", default="laptop,paper",
                         help="comma-separated profiles (default: laptop,paper)")
-    parser.add_argument("--method", choices=("bc", "bc_rl"), default="bc",
+    parser.add_argument("--method", choices=list(METHODS), default="bc",
                         help="learning method (default: bc)")
     parser.add_argument("--obs", default=",".join(PAPER_SETTINGS), metavar="SETTINGS",
                         help="settings trained together, comma-separated (default: the "

@@ -14,7 +14,8 @@ import argparse
 import os
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.training.config import METHODS, PROFILES, get_profile, with_overrides
+from igdrivsim.training.config import PROFILES, get_profile, with_overrides
+from igdrivsim.training.methods import METHODS
 
 
 def train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,8 +26,9 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--obs", default=None, metavar="SETTING",
                         help=f"observation setting: {', '.join(PRESETS)} (compose with '+'; "
                              "comma-separate several) (default: the profile's, full)")
-    parser.add_argument("--method", choices=METHODS, default=None,
-                        help="bc or bc_rl (default: the profile's, bc)")
+    parser.add_argument("--method", choices=list(METHODS), default=None,
+                        help="a registered learning method, " + " or ".join(METHODS)
+                             + " (default: the profile's, bc)")
     parser.add_argument("--seeds", type=int, default=None,
                         help="number of seeds, vmapped (default: the profile's, 3 for laptop)")
     parser.add_argument("--data", required=True,

@@ -16,8 +16,7 @@ from typing import Any
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.policy.network import PolicyConfig
-
-METHODS = ("bc", "bc_rl")
+from igdrivsim.training.methods import get_method
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,7 @@ class ObsConfig:
 class TrainConfig:
     """Optimisation and the BC / BC+PPO loss (paper: Adam, cosine 1e-3 -> 0, w_BC=1, w_RL=0.05)."""
 
-    method: str = "bc"  # "bc" (w_rl forced to 0) or "bc_rl"
+    method: str = "bc"  # a registered method (training/methods.py): "bc" or "bc_rl"
     seeds: int = 3
     seed_offset: int = 0  # seeds are seed_offset .. seed_offset + seeds - 1
     epochs: float = 200.0  # passes over the data (ignored when num_updates > 0)
@@ -91,12 +90,11 @@ class RunConfig:
     @property
     def use_rl(self) -> bool:
         """Static flag: the PPO rollout and loss are built only when this is true."""
-        return self.training.method == "bc_rl" and self.training.w_rl != 0.0
+        return get_method(self.training.method).uses_rl and self.training.w_rl != 0.0
 
     def validate(self) -> RunConfig:
         t, d = self.training, self.data
-        if t.method not in METHODS:
-            raise ConfigError(f"training.method must be one of {METHODS}, got {t.method!r}")
+        get_method(t.method)  # a registered method, else a one-line error
         if t.seeds < 1:
             raise ConfigError(f"training.seeds must be >= 1, got {t.seeds}")
         if d.batch_size < 1 or d.batch_size % t.ppo_minibatches:
