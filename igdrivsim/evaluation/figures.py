@@ -207,7 +207,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
         set(curves.method) - {BC, BC_RL})
     extra = sns.color_palette("tab10")
-    colours = {m: PALETTE.get(METHOD_LABELS.get(m, m), extra[i % 10])
+    colours = {m: METHOD_REGISTRY[m].colour if m in METHOD_REGISTRY else extra[i % 10]
                for i, m in enumerate(methods)}
     levels = _reference_levels(references_csv)
     sns.set_theme(style="whitegrid", context="paper")
