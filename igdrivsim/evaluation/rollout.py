@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import NamedSharding, PartitionSpec
 
 from igdrivsim.data.scenario import CURRENT_INDEX, decode_scenario_id
 from igdrivsim.evaluation import registry
@@ -54,6 +54,7 @@ from igdrivsim.observation import (
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator import SimParams, reset, step
 from igdrivsim.simulator.dynamics import undiscretize
+from igdrivsim.training import inputs
 
 EVAL_SEED = 0  # fixed evaluation key: rerunning gives the same CSVs
 DEFAULT_SIM_PARAMS = SimParams()
@@ -208,23 +209,11 @@ def _to_host(outs) -> StepOutputs:
 def _spread(tree, axis: int | None):
     """Place arrays with ``axis`` (the scenario axis) split over every device of every process
     (each process builds the same host batch and keeps its own part), or replicated when
-    ``axis`` is None (parameters); one device: unchanged. Typed PRNG keys travel as their raw
-    data."""
-    devices = jax.devices()
-    if len(devices) == 1 or tree is None:
+    ``axis`` is None (parameters); one device: unchanged."""
+    if jax.device_count() == 1 or tree is None:
         return tree
-    mesh = Mesh(np.asarray(devices), ("data",))
-    spec = () if axis is None else (*([None] * axis), "data")
-
-    def put(x):
-        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-            impl = jax.random.key_impl(x)
-            return jax.random.wrap_key_data(put(np.asarray(jax.random.key_data(x))), impl=impl)
-        x = np.asarray(x)
-        sharding = NamedSharding(mesh, PartitionSpec(*spec[:x.ndim]))
-        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
-
-    return jax.tree.map(put, tree)
+    spec = PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), "data")
+    return inputs.place(tree, NamedSharding(inputs.make_mesh(), spec))
 
 
 def _device_multiple(size: int) -> int:

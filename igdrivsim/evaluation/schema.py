@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from igdrivsim.evaluation import registry as _registry
-from igdrivsim.observation.models import PAPER_SETTINGS
+from igdrivsim.observation.models import PAPER_SETTINGS, PRESET_SHORT
 from igdrivsim.training import methods as _methods
 
 # The six observation settings of the paper, in Table I column order (observation PRESETS names).
@@ -23,10 +23,7 @@ SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the pa
     "conic_r4": ("Conic FoV", r"(r=4, $\alpha=\frac{2}{3}\pi$)"),
     "random_masking": ("Random", "masking (p=0.7)"),
 }
-SETTING_SHORT: dict[str, str] = {
-    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
-    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
-}
+SETTING_SHORT: dict[str, str] = PRESET_SHORT  # the observation registry's short names
 
 
 
@@ -42,10 +39,8 @@ def table_settings(*frames) -> tuple[str, ...]:
 
 
 def setting_short(name: str) -> str:
-    """A setting's short column name (the paper's six, else the observation registry's)."""
-    from igdrivsim.observation import PRESET_SHORT
-
-    return SETTING_SHORT.get(name) or PRESET_SHORT.get(name, name)
+    """A setting's short column name (from the observation registry)."""
+    return PRESET_SHORT.get(name, name)
 
 
 def setting_labels(name: str) -> tuple[str, str]:

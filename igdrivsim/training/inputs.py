@@ -131,9 +131,13 @@ def replicated(mesh: Mesh) -> NamedSharding:
 
 def place(tree, sharding: NamedSharding):
     """Host arrays -> global device arrays; every process holds the full host copy and hands
-    over the pieces its local devices own (works for one and for several hosts)."""
+    over the pieces its local devices own (works for one and for several hosts). Typed PRNG
+    keys travel as their raw data."""
 
     def one(x):
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            return jax.random.wrap_key_data(one(jax.random.key_data(x)),
+                                            impl=jax.random.key_impl(x))
         x = np.asarray(x)
         return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
 
