@@ -1,10 +1,11 @@
 """The registry of learning methods: a method's name, label, colour and what its update does.
 
-``igdrivsim train --method``, ``igdrivsim bench train --method``, the configuration check, the
-pipeline's runs and the figures' colours read :data:`METHODS`. The paper's two are registered
-here; Table I compares each method with its declared ``baseline``. The update itself
-(:mod:`igdrivsim.training.update`) is the paper's loss ``w_BC BC + w_RL PPO``; a method sets
-whether it adds the PPO term and its closed-loop rollout (``uses_rl``).
+``igdrivsim train --method`` and ``igdrivsim bench train --method`` offer every registered
+method, the configuration check accepts it and decides from ``uses_rl`` whether the update adds
+the PPO term and its closed-loop rollout, and the report and the learning-curve figure take its
+label and colour. The update itself (:mod:`igdrivsim.training.update`) is the paper's loss
+``w_BC BC + w_RL PPO``; the pipeline trains the paper's two, and the report compares every
+learned method with BC (Table I: BC-RL against BC).
 """
 
 from __future__ import annotations
@@ -22,8 +23,7 @@ class Method:
     label: str  # tables and figures
     colour: str  # figures (matplotlib colour)
     uses_rl: bool  # adds the PPO term (w_rl) and a closed-loop rollout to every update
-    baseline: str | None = None  # the method it is compared with in the tables
-    description: str = ""
+    baseline: str | None = None  # the method it is meant to be compared with (report: BC)
 
 
 METHODS: dict[str, Method] = {}
@@ -44,7 +44,7 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-register_method(Method("bc", "BC", "#4C9BE8", uses_rl=False,
-                       description="behaviour cloning on the logged episodes (w_RL forced to 0)"))
-register_method(Method("bc_rl", "BC-RL", "#F28E2B", uses_rl=True, baseline="bc",
-                       description="w_BC BC + w_RL PPO on the policy's own closed-loop episodes"))
+# behaviour cloning on the logged episodes (w_RL forced to 0)
+register_method(Method("bc", "BC", "#4C9BE8", uses_rl=False))
+# w_BC BC + w_RL PPO on the policy's own closed-loop episodes
+register_method(Method("bc_rl", "BC-RL", "#F28E2B", uses_rl=True, baseline="bc"))
