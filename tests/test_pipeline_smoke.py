@@ -71,7 +71,7 @@ def test_every_output_exists_and_parses(done):
         assert set(scen.setting) == set(SETTINGS)
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()
         info = json.loads((work / "evals" / run / "eval_config.json").read_text())
-        assert info["settings"] == list(SETTINGS) and info["greedy"] is False
+        assert info["settings"] == list(SETTINGS) and info["actions"] == "sample"
     refs = pd.read_csv(work / "evals" / "references" / "per_scenario.csv")
     assert set(refs.method) == {"expert", "constant_velocity"}
     assert refs[refs.method == "expert"].log_divergence.max() < 0.2

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from igdrivsim.observation import ObservationConfig
 from igdrivsim.policy.act import example_observation, policy_step
-from igdrivsim.policy.network import PolicyConfig, apply_step, init_params_per_seed
+from igdrivsim.policy.network import PolicyConfig, apply_step, init_params, init_params_per_seed
 from igdrivsim.training.losses import (
     action_log_prob,
     bc_loss,
@@ -98,8 +100,37 @@ def test_gru_reset_zeroes_the_state():
     np.testing.assert_allclose(c_reset, c_zero, atol=1e-6)
     np.testing.assert_allclose(logits_reset, logits_zero, atol=1e-6)
     assert not np.allclose(c_keep, c_zero)
-    # policy_step: greedy picks the arg-max level and returns a bounded continuous action.
+    # policy_step: greedy picks the arg-max level and returns a bounded continuous action;
+    # mean takes the expected level (between the levels, inside their range).
     act = jax.jit(policy_step, static_argnums=(0, 5))
-    action, _, levels = act(TINY, params, zero, obs, jax.random.PRNGKey(1), True)
+    action, _, levels = act(TINY, params, zero, obs, jax.random.PRNGKey(1), "greedy")
     np.testing.assert_array_equal(levels, jnp.argmax(logits_zero, -1))
     assert action.shape == (3,) and float(jnp.abs(action[:2]).max()) <= 6.0
+    _, _, mean = act(TINY, params, zero, obs, jax.random.PRNGKey(1), "mean")
+    probs = jax.nn.softmax(logits_zero, -1)
+    np.testing.assert_allclose(mean, (probs * jnp.arange(probs.shape[-1])).sum(-1), rtol=1e-5)
+
+
+def test_relative_dx_head_scores_offsets_from_constant_velocity():
+    from igdrivsim.policy.network import relative_to_constant_velocity, unroll_sequence
+    from igdrivsim.simulator.dynamics import discretize
+
+    # offset index 128 (zero offset) peaked: the most likely level is constant velocity's
+    offsets = jnp.zeros((3, 257)).at[:, 128].set(5.0).at[:, 129].set(4.0)
+    speeds = jnp.array([0.0, 4.7, 12.3])  # m/s
+    levels = relative_to_constant_velocity(offsets, speeds / 50.0)
+    cv = discretize(jnp.stack([speeds * 0.1, 0 * speeds, 0 * speeds], -1))[:, 0]
+    np.testing.assert_array_equal(jnp.argmax(levels, -1), cv)
+    np.testing.assert_allclose(jnp.take_along_axis(levels, cv[:, None] + 1, -1)[:, 0], 4.0)
+    # the same policy stepped and unrolled gives the same logits (the head reads the speed)
+    cfg = replace(TINY, relative_dx=True, speed_input_scale=10.0)
+    obs = example_observation(ObservationConfig(2, 4))
+    params = init_params(cfg, jax.random.PRNGKey(0), obs)
+    seq = jax.tree.map(lambda x: jnp.stack([x] * 3)[:, None], obs)  # [T=3, B=1, ...]
+    seq = seq.replace(sdc_speed=jnp.array([0.1, 0.2, 0.3])[:, None, None])
+    _, unrolled, _ = unroll_sequence(cfg, params, jnp.zeros((1, cfg.gru_hidden)), seq, True)
+    carry = jnp.zeros((1, cfg.gru_hidden))
+    for t in range(3):
+        o = jax.tree.map(lambda x, t=t: x[t], seq)
+        carry, logits, _ = apply_step(cfg, params, carry, o, jnp.array([t == 0]))
+        np.testing.assert_allclose(logits, unrolled[t], atol=1e-5)

@@ -1,8 +1,9 @@
 """``igdrivsim evaluate`` and ``igdrivsim report``.
 
-``igdrivsim evaluate RUN_DIR --data DIR --out DIR [--greedy] [--references]`` evaluates every
-seed of a trained run on the validation scenarios of ``DIR`` under the run's own observation
-setting and writes ``OUT/per_step.csv``, ``OUT/per_scenario.csv`` and ``OUT/eval_config.json``.
+``igdrivsim evaluate RUN_DIR --data DIR --out DIR [--actions sample|greedy|mean]
+[--references]`` evaluates every seed of a trained run on the validation scenarios of ``DIR``
+under the run's own observation setting and writes ``OUT/per_step.csv``,
+``OUT/per_scenario.csv`` and ``OUT/eval_config.json``.
 ``--references`` also (or, without RUN_DIR, only) evaluates the discretised expert replay and the
 constant-velocity baseline (into ``OUT/references/`` when a run is evaluated too).
 
@@ -86,8 +87,14 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="validation data: a filter output folder (manifest.jsonl) or WOMD "
                              "files (file, folder, glob, name@N)")
     parser.add_argument("--out", required=True, help="output folder for the tidy CSVs")
-    parser.add_argument("--greedy", action="store_true",
-                        help="take the most likely action level (default: sample, as the paper)")
+    from igdrivsim.policy.act import ACTION_MODES
+
+    parser.add_argument("--actions", choices=ACTION_MODES, default="sample",
+                        help="how the policy picks its action level: sample (the paper's "
+                             "protocol), greedy (most likely), mean (expected level, a "
+                             "diagnostic without the sampling noise)")
+    parser.add_argument("--greedy", dest="actions", action="store_const", const="greedy",
+                        help="same as --actions greedy")
     parser.add_argument("--references", action="store_true",
                         help="also evaluate the discretised expert and constant velocity")
     parser.add_argument("--like", default=None, metavar="RUN_DIR",
@@ -101,7 +108,7 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
+def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
                  progress: bool = True, scenarios=None) -> Path:
     """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
@@ -131,7 +138,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
     with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
                                   setting=settings, obs_config=obs_config,
-                                  params=sim_params(config), greedy=greedy,
+                                  params=sim_params(config), actions=actions,
                                   batch_size=batch_size, seed=seed, progress=bar.update,
                                   episode_metrics=True)
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
@@ -140,7 +147,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, greedy: bool = False,
     per_scenario = pd.concat([f[1] for f in frames], ignore_index=True)
     return _write(out, per_step, per_scenario, dict(
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
-        seeds=seeds, profile=config.profile, greedy=greedy, eval_seed=seed,
+        seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
         num_scenarios=len(ids), sim=dataclasses.asdict(sim_params(config))))
 
 
@@ -197,7 +204,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     progress = not args.no_progress
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
-        evaluate_run(run, args.data, out, args.greedy, args.max_scenarios, args.batch_size,
+        evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
                      args.seed, progress)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:

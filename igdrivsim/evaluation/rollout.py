@@ -3,7 +3,8 @@
 A learned policy is evaluated as in the paper: after the 10 warm-up steps replayed from the log
 (``reset``; the GRU sees their observations, as in training), it drives the SDC for 80 steps
 under its own observation setting, sampling its action from the three categoricals
-(``greedy=True`` takes the most likely level instead). The rollout is a ``lax.scan`` over
+(``actions="greedy"`` takes the most likely level, ``"mean"`` the expected one; see
+:data:`igdrivsim.policy.act.ACTION_MODES`). The rollout is a ``lax.scan`` over
 steps, ``vmap``-ped over a batch of scenarios and over the seeds of a run (stacked parameters),
 so one compiled function evaluates every seed at once.
 
@@ -51,6 +52,7 @@ from igdrivsim.observation import (
     setting_params,
     stack_params,
 )
+from igdrivsim.policy.act import choose_levels
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator import SimParams, reset, step
 from igdrivsim.simulator.dynamics import undiscretize
@@ -126,7 +128,7 @@ def _reference_episode(state, actor, params: SimParams, metrics_fn, episode: boo
 
 
 def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
-                    obs_config: ObservationConfig, params: SimParams, greedy: bool, metrics_fn,
+                    obs_config: ObservationConfig, params: SimParams, actions: str, metrics_fn,
                     episode: bool = False):
     """One scenario, one seed: per-step metrics ``[steps]`` each and the registry's episode
     metrics (``{}`` unless ``episode``).
@@ -151,10 +153,7 @@ def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, s
         s, h = carry
         t = s.timestep
         h, logits, _ = apply_step(policy_config, policy_params, h, look(s, t), jnp.bool_(False))
-        if greedy:
-            level = jnp.argmax(logits, axis=-1)
-        else:
-            level = jax.random.categorical(jax.random.fold_in(action_key, t), logits, axis=-1)
+        level = choose_levels(logits, jax.random.fold_in(action_key, t), actions)
         s = step(s, undiscretize(level), params)
         return (s, h), _metrics(s, params, metrics_fn)
 
@@ -171,10 +170,10 @@ def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_f
                                                  metrics_fn, episode))(state)
 
 
-@partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "greedy",
+@partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "actions",
                                    "metrics_fn", "episode"))
 def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
-                  obs_config, params, greedy, metrics_fn, episode: bool = False):
+                  obs_config, params, actions, metrics_fn, episode: bool = False):
     """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
     ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
     :class:`~igdrivsim.observation.ObservationParams` ``[G]`` (settings as data), or ``None``
@@ -183,7 +182,7 @@ def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, se
 
     def per_setting(policy_params, setting_value):
         one = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
-                      obs_config=obs_config, params=params, greedy=greedy,
+                      obs_config=obs_config, params=params, actions=actions,
                       metrics_fn=metrics_fn, episode=episode)
         over_scenarios = jax.vmap(one, in_axes=(None, 0, 0))
         return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
@@ -276,7 +275,7 @@ def _episode_keys(base, num_seeds: int, index: np.ndarray):
 def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                     setting: str | Sequence[str],
                     obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
-                    params: SimParams = DEFAULT_SIM_PARAMS, greedy: bool = False,
+                    params: SimParams = DEFAULT_SIM_PARAMS, actions: str = "sample",
                     batch_size: int = 32,
                     seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
                     progress: Callable[[int], Any] | None = None,
@@ -301,7 +300,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     if settings is None and len(names) > 1:
         groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
                                   policy_config=policy_config, setting=n,
-                                  obs_config=obs_config, params=params, greedy=greedy,
+                                  obs_config=obs_config, params=params, actions=actions,
                                   batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
                                   progress=progress, episode_metrics=episode_metrics)
                   for g, n in enumerate(names)]
@@ -320,7 +319,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
         keys = _spread(_episode_keys(base, num_seeds, index), 1)
         outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
                                       policy_config=policy_config, setting=static,
-                                      obs_config=obs_config, params=params, greedy=greedy,
+                                      obs_config=obs_config, params=params, actions=actions,
                                       metrics_fn=metrics_fn, episode=episode_metrics))
         parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
         if progress:

@@ -2,14 +2,17 @@
 
 The training episode (and therefore evaluation) is: observe the logged warm-up steps
 ``t = 0..9`` (GRU state zeroed at ``t = 0``), then at every controlled step ``t = 10..89``
-observe, step the GRU, pick one of 257 levels per dimension (sampled, or the most likely with
-``greedy``) and convert it to the continuous delta-local action ``(dx, dy, dyaw)``.
+observe, step the GRU, pick one of 257 levels per dimension and convert it to the continuous
+delta-local action ``(dx, dy, dyaw)``. How the level is picked is the *action mode*
+(:data:`ACTION_MODES`): ``sample`` (the paper's protocol), ``greedy`` (the most likely level)
+or ``mean`` (the expected level, a continuous action between levels: the policy's average
+intent without the sampling noise, a diagnostic).
 
 For one scenario (``vmap`` for batches / seeds)::
 
     carry = warmup_carry(cfg, params, state, setting, obs_config, episode_key)  # state at reset
     obs = observe(state, setting, episode_key, fold_in(episode_key, state.timestep), obs_config)
-    action, carry = policy_step(cfg, params, carry, obs, key, greedy=False)
+    action, carry, levels = policy_step(cfg, params, carry, obs, key, mode="sample")
     state = step(state, action, sim_params)
 """
 
@@ -33,19 +36,31 @@ def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Obser
                        roadgraph_valid=jnp.zeros((m,), bool), sdc_speed=jnp.zeros((1,)))
 
 
+ACTION_MODES = ("sample", "greedy", "mean")
+
+
+def choose_levels(logits: jax.Array, key: jax.Array, mode: str = "sample") -> jax.Array:
+    """Levels ``[..., 3]`` from logits ``[..., 3, 257]`` by action mode (``mean``: the expected
+    level, fractional; the others: int32)."""
+    if mode == "sample":
+        return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+    if mode == "greedy":
+        return jnp.argmax(logits, axis=-1).astype(jnp.int32)
+    if mode == "mean":
+        probs = jax.nn.softmax(logits, axis=-1)
+        return jnp.sum(probs * jnp.arange(logits.shape[-1], dtype=probs.dtype), axis=-1)
+    raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
+
+
 def policy_step(config: PolicyConfig, params, carry: jax.Array, obs: Observation,
-                key: jax.Array, greedy: bool = False, reset=False):
-    """One step: ``-> (action f32[..., 3] continuous delta-local, carry, levels int32[..., 3])``.
+                key: jax.Array, mode: str = "sample", reset=False):
+    """One step: ``-> (action f32[..., 3] continuous delta-local, carry, levels [..., 3])``.
 
     ``reset`` zeroes the GRU state first (an episode start; the warm-up does this at t = 0).
     """
     reset = jnp.broadcast_to(jnp.asarray(reset, bool), carry.shape[:-1])
     carry, logits, _ = apply_step(config, params, carry, obs, reset)
-    if greedy:
-        levels = jnp.argmax(logits, axis=-1)
-    else:
-        levels = jax.random.categorical(key, logits, axis=-1)
-    levels = levels.astype(jnp.int32)
+    levels = choose_levels(logits, key, mode)
     return undiscretize(levels), carry, levels
 
 

@@ -35,6 +35,13 @@ class PolicyConfig:
     value_hidden: tuple[int, ...] = (512,)
     num_bins: int = NUM_BINS
     remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
+    # the dx head scores offsets from the constant-velocity displacement (speed x 0.1 s, read
+    # from the observed ego speed) instead of absolute levels: the same 257-level action space,
+    # but "keep my speed" is one bias away instead of a regression from a scalar input
+    relative_dx: bool = False
+    # the ego speed feature (speed / 50) is multiplied by this before the trunk: at 1 a change
+    # of one dx level (0.47 m/s) moves it by 0.01, too little for a small network to read
+    speed_input_scale: float = 1.0
 
 
 class MLP(nn.Module):
@@ -94,7 +101,8 @@ class DrivingPolicy(nn.Module):
         objects = masked_max(self.object_mlp(obs.objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
         x = jnp.concatenate(
-            [self.object_norm(objects), self.roadgraph_norm(roads), obs.sdc_speed], axis=-1)
+            [self.object_norm(objects), self.roadgraph_norm(roads),
+             obs.sdc_speed * self.config.speed_input_scale], axis=-1)
         return self.trunk(x)
 
     def core(self, carry, x, reset):
@@ -102,16 +110,38 @@ class DrivingPolicy(nn.Module):
         carry = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(carry), carry)
         return self.gru(carry, x)
 
-    def heads(self, y):
-        """Actor logits ``[..., 3, bins]`` and value ``[...]`` from GRU outputs."""
+    def heads(self, y, sdc_speed=None):
+        """Actor logits ``[..., 3, bins]`` and value ``[...]`` from GRU outputs (``sdc_speed
+        [..., 1]``, the observed feature, is needed when ``relative_dx``)."""
         logits = self.actor_out(self.actor_mlp(y))
         logits = logits.reshape(*logits.shape[:-1], NUM_ACTION_DIMS, self.config.num_bins)
+        if self.config.relative_dx:
+            logits = logits.at[..., 0, :].set(relative_to_constant_velocity(
+                logits[..., 0, :], sdc_speed[..., 0]))
         return logits, self.value_out(self.value_mlp(y))[..., 0]
 
     def __call__(self, carry, obs, reset):
         carry, y = self.core(carry, self.encode(obs), reset)
-        logits, value = self.heads(y)
+        logits, value = self.heads(y, obs.sdc_speed)
         return carry, logits, value
+
+
+def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array) -> jax.Array:
+    """Absolute dx-level logits from logits over offsets: level ``b`` gets the score of offset
+    index ``b - shift``, where ``shift`` is the constant-velocity displacement (``speed x
+    0.1 s``, ``sdc_speed`` being the observation's ``speed / 50``) in levels; so the middle
+    index scores the constant-velocity level. Levels with no offset index get -1e9."""
+    from igdrivsim.observation.features import SPEED_SCALE
+    from igdrivsim.simulator.dynamics import ACTION_HIGH, ACTION_LOW
+
+    bins = offset_logits.shape[-1]
+    level_width = (ACTION_HIGH[0] - ACTION_LOW[0]) / (bins - 1)
+    shift = jnp.round(sdc_speed * SPEED_SCALE * 0.1 / level_width).astype(jnp.int32)
+    # offset index o scores level o + shift: o = middle (zero offset) is the constant-velocity
+    # level middle + shift, since level ``middle`` is a zero displacement
+    offset = jnp.arange(bins) - shift[..., None]
+    picked = jnp.take_along_axis(offset_logits, jnp.clip(offset, 0, bins - 1), axis=-1)
+    return jnp.where((offset >= 0) & (offset < bins), picked, -1e9)
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
@@ -187,7 +217,7 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
         return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)
 
     carry, ys = jax.lax.scan(body, carry, (x, resets))
-    logits, values = model.apply(params, ys, method=DrivingPolicy.heads)
+    logits, values = model.apply(params, ys, obs_seq.sdc_speed, method=DrivingPolicy.heads)
     return carry, logits, values
 
 

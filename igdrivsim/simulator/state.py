@@ -62,6 +62,10 @@ class SimParams:
     ``offroad_method``: ``"point"`` (Waymax's nearest-point rule, the default for comparability)
     or ``"segment"`` (distance to edge segments, vertex bisectors for the sign; no false offroad
     at convex corners of closed edge loops).
+    ``roadgraph_stride``: the observable map keeps every k-th point of each polyline (and its
+    last), so a fixed number of nearest points reaches k times farther (WOMD samples its
+    polylines every 0.5 m; 1: the map as stored, Waymax's); see :func:`thin_roadgraph`. The
+    offroad metric's road edges are selected before the thinning and keep full resolution.
     """
 
     dynamics: str = "delta_local"
@@ -70,6 +74,7 @@ class SimParams:
     edge_capacity: int = 1024
     offroad_method: str = "point"
     crop_path_stride: int = 5
+    roadgraph_stride: int = 1
 
     def __post_init__(self):
         if self.dynamics not in dynamics.DYNAMICS:
@@ -81,7 +86,7 @@ class SimParams:
         if not 1 <= self.num_controlled_steps <= NUM_STEPS - 1 - CURRENT_INDEX:
             raise ConfigError("SimParams.num_controlled_steps must be in 1..80, "
                               f"got {self.num_controlled_steps}")
-        for name in ("edge_radius", "edge_capacity", "crop_path_stride"):
+        for name in ("edge_radius", "edge_capacity", "crop_path_stride", "roadgraph_stride"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SimParams.{name} must be positive, got {getattr(self, name)}")
 
@@ -175,6 +180,28 @@ def check_scenario(scenario: Scenario) -> None:
             raise DataError(f"{where}: the SDC is invalid at the current step {CURRENT_INDEX}")
 
 
+def thin_roadgraph(rg: Roadgraph, stride: int, ref_xy: jax.Array) -> Roadgraph:
+    """The observable map of ONE scenario: every ``stride``-th point of each run of equal
+    polyline ``id`` and the run's last point, compacted to the ``ceil(R / stride)`` of them
+    nearest to ``ref_xy`` (the SDC at the current step: the same present-only rule as the
+    load-time capacities), so observing it costs ``stride`` times less. Points are stored in
+    polyline order, so which points are kept depends on the map alone."""
+    if stride == 1:
+        return rg
+    ids = jnp.asarray(rg.id)
+    n = ids.shape[-1]
+    i = jnp.arange(n)
+    first = jnp.concatenate([jnp.ones((1,), bool), ids[1:] != ids[:-1]])
+    last = jnp.concatenate([ids[:-1] != ids[1:], jnp.ones((1,), bool)])
+    run_start = jax.lax.cummax(jnp.where(first, i, 0))
+    keep = jnp.asarray(rg.valid, bool) & (((i - run_start) % stride == 0) | last)
+    d2 = jnp.sum((jnp.asarray(rg.xyz)[:, :2] - ref_xy) ** 2, axis=-1)
+    _, idx = jax.lax.top_k(jnp.where(keep, -d2, -jnp.inf), -(-n // stride))
+    idx = jnp.sort(idx)
+    rg = jax.tree.map(lambda a: jnp.take(jnp.asarray(a), idx, axis=0), rg)
+    return rg.replace(valid=jnp.take(keep, idx))
+
+
 def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
     """The state at timestep 10 (warm-up replayed from the log) and the metric's road edges.
 
@@ -195,6 +222,9 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
             edge_capacity=params.edge_capacity, path_stride=params.crop_path_stride)
 
     road_edges = _vmap_batch(edges, sdc_index.ndim)(sc.roadgraph, path_x, path_y, path_valid)
+    ref = jnp.stack([path_x[..., CURRENT_INDEX], path_y[..., CURRENT_INDEX]], -1)
+    roadgraph = _vmap_batch(lambda rg, r: thin_roadgraph(rg, params.roadgraph_stride, r),
+                            sdc_index.ndim)(sc.roadgraph, ref)
     t = jnp.arange(traj.x.shape[-1])
     past = t <= CURRENT_INDEX
     sdc = SdcTrajectory(
@@ -202,7 +232,7 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
         vel_y=_row(traj.vel_y, sdc_index), valid=path_valid & past,
     )
     return SimState(
-        log=traj, metadata=sc.metadata, roadgraph=sc.roadgraph, road_edges=road_edges,
+        log=traj, metadata=sc.metadata, roadgraph=roadgraph, road_edges=road_edges,
         traffic_lights=sc.traffic_lights, scenario_id=sc.scenario_id, sdc=sdc,
         sdc_index=sdc_index, timestep=jnp.full(sdc_index.shape, CURRENT_INDEX, jnp.int32),
     )

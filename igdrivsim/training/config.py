@@ -49,6 +49,9 @@ class ObsConfig:
     setting: str = "full"
     num_objects: int = 32
     num_roadgraph_points: int = 1500
+    # the observable map keeps every k-th point of each polyline (WOMD: 0.5 m apart), so the
+    # nearest ``num_roadgraph_points`` reach k times farther (1: the map as stored)
+    roadgraph_stride: int = 1
 
 
 @dataclass(frozen=True)

@@ -88,8 +88,9 @@ class UpdateSpec:
 
 
 def sim_params(config: RunConfig) -> SimParams:
-    """Simulator settings of a run (the offroad metric's road-edge selection)."""
-    return SimParams()
+    """Simulator settings of a run (the observable map's resolution; the offroad metric's
+    road-edge selection keeps its defaults)."""
+    return SimParams(roadgraph_stride=config.observation.roadgraph_stride)
 
 
 def run_settings(config: RunConfig) -> list[str]:
