@@ -1,0 +1,143 @@
+"""Why sampled BC drifts along the road: the speed random walk of the discretised expert's labels.
+
+``python -m igdrivsim.evaluation.speed_walk --data DIR [--limit N] [--out FILE.json]``
+
+The expert's label at a step is the quantised displacement to the next logged pose from the
+*simulated* pose (Waymax's convention): it corrects the quantisation error, which the imitator
+cannot see. Relative to the level of its observed speed (the constant-velocity level), the label
+is therefore close to memoryless noise of +-1 level (0.47 m/s per step). A policy that samples
+from the best BC fit of that noise integrates it twice (speed, then position). This module
+measures that on a dataset, with no trained policy:
+
+* the labels' offsets from the constant-velocity level: their distribution, its entropy, and
+  the entropy left given the previous offset (what a recurrent policy could still predict);
+* three actors that steer like the expert (its ``dy``, ``dyaw``) but choose ``dx``
+  differently: the expert's own ``dx``; the constant-velocity level; the constant-velocity level
+  plus an offset drawn i.i.d. from the labels' own distribution. The last is what perfect BC of
+  the offsets, sampled, would drive: its log divergence is a floor for sampled BC unless the
+  policy learns a restoring force that teacher-forced data does not show.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from igdrivsim.data.scenario import DT
+from igdrivsim.errors import IGDrivSimError
+from igdrivsim.simulator import SimParams, dynamics, reset, step
+from igdrivsim.simulator.expert import expert_action
+from igdrivsim.simulator.metrics import step_metrics
+
+LEVEL_WIDTH = (dynamics.ACTION_HIGH[0] - dynamics.ACTION_LOW[0]) / dynamics.NUM_BINS
+MIDDLE = dynamics.NUM_BINS // 2
+PARAMS = SimParams()
+ACTORS = ("expert", "expert_steering_constant_speed", "expert_steering_sampled_offsets")
+
+
+def constant_velocity_level(state) -> jax.Array:
+    """The dx level of keeping the current (simulated) speed, ``int32[...]``, as
+    :func:`igdrivsim.policy.network.relative_to_constant_velocity` computes it."""
+    t = state.timestep[..., None]
+    vx = jnp.take_along_axis(state.sdc.vel_x, t, -1)[..., 0]
+    vy = jnp.take_along_axis(state.sdc.vel_y, t, -1)[..., 0]
+    return MIDDLE + jnp.round(jnp.hypot(vx, vy) * DT / LEVEL_WIDTH).astype(jnp.int32)
+
+
+def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
+            params: SimParams = PARAMS):
+    """80 steps of one actor on a batch of states at reset: per-step ``(log divergence,
+    offroad, overlap, valid, label offset)``, each ``[80, B]``."""
+
+    def body(s, k):
+        levels = dynamics.discretize(expert_action(s, params))
+        cv = constant_velocity_level(s)
+        label_offset = levels[..., 0] - cv
+        if actor == "expert_steering_constant_speed":
+            levels = levels.at[..., 0].set(cv)
+        elif actor == "expert_steering_sampled_offsets":
+            draw = offsets[jax.random.categorical(k, log_probs, shape=cv.shape)]
+            levels = levels.at[..., 0].set(cv + draw)
+        s = step(s, dynamics.undiscretize(levels), params)
+        m = step_metrics(s, params)
+        return s, (m.log_divergence, m.offroad, m.overlap, m.valid, label_offset)
+
+    _, out = jax.lax.scan(body, state, jax.random.split(key, params.num_controlled_steps))
+    return out
+
+
+def entropy(counts: np.ndarray) -> float:
+    p = counts[counts > 0] / counts.sum()
+    return float(-(p * np.log(p)).sum())
+
+
+def label_statistics(offsets: np.ndarray, valid: np.ndarray) -> dict:
+    """Distribution and entropies of the label offsets ``[T, B]`` (valid steps only)."""
+    values, counts = np.unique(offsets[valid], return_counts=True)
+    both = valid[1:] & valid[:-1]
+    prev, cur = offsets[:-1][both], offsets[1:][both]
+    conditional = sum(len(cur[prev == v]) / len(cur)
+                      * entropy(np.unique(cur[prev == v], return_counts=True)[1])
+                      for v in np.unique(prev))
+    return {"offset_levels": values.tolist(),
+            "offset_probability": (counts / counts.sum()).round(4).tolist(),
+            "entropy_nats": round(entropy(counts), 3),
+            "entropy_given_previous_nats": round(float(conditional), 3)}
+
+
+def measure(scenarios, seed: int = 0) -> dict:
+    """The label statistics and the three actors' mean metrics on stacked scenarios ``[N]``."""
+    state = jax.jit(jax.vmap(reset))(scenarios)
+    run = jax.jit(episode, static_argnames="actor")
+    key = jax.random.key(seed)
+    dummy = (jnp.zeros(1, jnp.int32), jnp.zeros(1))
+    *_, valid, offsets = run(state, key, "expert", *dummy)
+    stats = label_statistics(np.asarray(offsets), np.asarray(valid))
+    table = (jnp.asarray(stats["offset_levels"], jnp.int32),
+             jnp.log(jnp.asarray(stats["offset_probability"])))
+    actors = {}
+    for actor in ACTORS:
+        ld, off, ov, v, _ = (np.asarray(a) for a in run(state, key, actor, *table))
+        actors[actor] = {"log_divergence_m": round(float(ld[v].mean()), 3),
+                         "offroad_pct_steps": round(100 * float(off[v].mean()), 2),
+                         "overlap_pct_steps": round(100 * float(ov[v].mean()), 2)}
+    return {"scenarios": int(np.shape(state.timestep)[0]), "label_offsets": stats,
+            "actors": actors}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from igdrivsim.cli import DefaultsFormatter
+    from igdrivsim.data import Capacities
+    from igdrivsim.evaluation.commands import load_validation
+    from igdrivsim.io import atomic_write_json
+
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.speed_walk",
+                                     description=__doc__.split("\n")[0],
+                                     formatter_class=DefaultsFormatter)
+    parser.add_argument("--data", required=True,
+                        help="scenarios: a filter output folder or WOMD files")
+    parser.add_argument("--limit", type=int, default=0, help="at most N scenarios (0: all)")
+    parser.add_argument("--out", default=None, help="also write the result to this JSON file")
+    parser.add_argument("--seed", type=int, default=0, help="key of the sampled offsets")
+    args = parser.parse_args(argv)
+    try:
+        scenarios = load_validation(args.data, Capacities(max_objects=32,
+                                                          max_roadgraph_points=10_240),
+                                    args.limit)
+        result = measure(scenarios, args.seed)
+    except IGDrivSimError as err:
+        print(f"speed_walk: error: {err}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    if args.out:
+        atomic_write_json(args.out, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

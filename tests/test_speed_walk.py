@@ -1,0 +1,33 @@
+"""The speed-walk diagnostic on the real WOMD sample: label statistics and the three actors."""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from igdrivsim.data import load_scenario
+from igdrivsim.evaluation.speed_walk import label_statistics, measure
+
+SAMPLE = (Path(__file__).resolve().parents[1]
+          / "../shared/data/womd/motion_data_one_example.tfrecord")
+
+
+def test_label_statistics_by_hand():
+    offsets = np.array([[0, 1], [1, -1], [0, 0], [1, 1]])  # [T=4, B=2]
+    valid = np.ones_like(offsets, bool)
+    stats = label_statistics(offsets, valid)
+    assert stats["offset_levels"] == [-1, 0, 1]
+    np.testing.assert_allclose(stats["offset_probability"], [1 / 8, 3 / 8, 4 / 8], atol=1e-4)
+    # after 0 always 1 (or 0: ...): the conditional entropy is below the marginal
+    assert stats["entropy_given_previous_nats"] < stats["entropy_nats"]
+
+
+@pytest.mark.skipif(not SAMPLE.exists(), reason="real WOMD sample not present")
+def test_expert_replays_and_constant_speed_drifts_on_the_real_sample():
+    scenario = load_scenario(str(SAMPLE))
+    result = measure(jax.tree.map(lambda x: np.asarray(x)[None], scenario))
+    actors = result["actors"]
+    assert actors["expert"]["log_divergence_m"] < 0.05
+    assert actors["expert_steering_constant_speed"]["log_divergence_m"] > 0.1
+    assert sum(result["label_offsets"]["offset_probability"]) == pytest.approx(1.0, abs=1e-3)
