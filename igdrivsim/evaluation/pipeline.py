@@ -1,15 +1,17 @@
 """The whole reproduction as resumable stages (what ``scripts/reproduce.sh`` runs).
 
 Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``filter``
-(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}, every seed of a
-(setting, method) in one run), ``evaluate`` (each run, plus the reference actors), ``maze``
+(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}: one run per method
+with every setting and seed in one program, the methods' runs side by side in two processes),
+``evaluate`` (each run, plus the reference actors), ``maze``
 (paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance)
 and ``pdf`` (when ``latexmk`` is installed).
 
 Resumability: a stage that completes writes ``WORK/stages/<stage>.json``; a later invocation
 skips it while that stamp exists and nothing it depends on ran again. An interrupted training
 stage resumes from its checkpoints (``igdrivsim train --resume``). Every stage logs to
-``WORK/logs/<stage>.log`` and echoes its output (progress bars) on the terminal; a failing stage
+``WORK/logs/<stage>.log`` and echoes its output (progress bars) on the terminal (stages running
+side by side: their latest progress line every minute); a failing stage
 stops the pipeline with a message naming the stage and its log.
 
 Layout: work files (data, filtered manifests, runs, evaluations, logs) under ``WORK``
@@ -26,8 +28,10 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Sequence
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -38,6 +42,7 @@ from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.observation import get_setting, setting_params
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
+HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
 PAPER_SOURCES = ("main.tex", "references.bib", "Makefile")
 
 
@@ -94,6 +99,7 @@ class Pipeline:
                                   "cannot train together with the others; train it on its own "
                                   "with igdrivsim train")
         self.ran: set[str] = set()  # stages that ran in this invocation
+        self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
 
     # ----------------------------------------------------------------------- bookkeeping
     def log_path(self, stage: str) -> Path:
@@ -121,9 +127,13 @@ class Pipeline:
         print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
     def stage(self, name: str, commands: Sequence[Sequence[str]], depends: Sequence[str] = (),
-              outputs: Sequence[Path] = ()) -> bool:
+              outputs: Sequence[Path] = (), echo: bool = True) -> bool:
         """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
-        ``name`` unless it is complete. Returns True when it ran."""
+        ``name`` unless it is complete. Returns True when it ran. ``echo=False`` (stages running
+        side by side): the output goes to the log only, and the terminal gets the stage's latest
+        progress line every minute."""
+        if self.stopping.is_set():
+            raise StageError(f"stage '{name}' not started: a stage beside it failed")
         if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):
             self._say(f"{name}: complete, skipped")
             return False
@@ -136,7 +146,7 @@ class Pipeline:
             for argv in commands:
                 fh.write("$ " + " ".join(map(str, argv)) + "\n")
                 fh.flush()
-                rc = self._run(list(map(str, argv)), fh)
+                rc = self._run(list(map(str, argv)), fh, name if not echo else None)
                 if rc != 0:
                     raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
         missing = [str(p) for p in outputs if not Path(p).exists()]
@@ -150,7 +160,7 @@ class Pipeline:
         self._say(f"{name}: done in {time.time() - start:.0f} s")
         return True
 
-    def _run(self, argv: list[str], fh) -> int:
+    def _run(self, argv: list[str], fh, beat: str | None = None) -> int:
         if self.in_process and argv[0] in ("igdrivsim", "python"):
             return self._run_in_process(argv, fh)
         if argv[0] == "igdrivsim":
@@ -164,14 +174,25 @@ class Pipeline:
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 cwd=REPO_ROOT, env=env)
         assert proc.stdout is not None
+        latest, next_beat = "", time.time() + HEARTBEAT_S
         try:
             while chunk := os.read(proc.stdout.fileno(), 4096):
+                if self.stopping.is_set():
+                    proc.terminate()
                 text = chunk.decode("utf-8", "replace")
                 fh.write(text)
                 fh.flush()
-                if not self.quiet:
+                if self.quiet:
+                    continue
+                if beat is None:
                     sys.stderr.write(text)
                     sys.stderr.flush()
+                    continue
+                lines = [ln.strip() for ln in text.replace("\r", "\n").splitlines()]
+                latest = next((ln for ln in reversed(lines) if ln), latest)
+                if time.time() >= next_beat and latest:
+                    self._say(f"{beat}: {latest}")
+                    next_beat = time.time() + HEARTBEAT_S
         except KeyboardInterrupt:
             proc.terminate()
             proc.wait()
@@ -235,46 +256,44 @@ class Pipeline:
             outs.append(out)
         return outs[0], outs[1]
 
-    def run_train(self, train_manifest: Path, val_manifest: Path) -> list[str]:
+    def run_train(self, method: str, train_manifest: Path, val_manifest: Path,
+                  echo: bool = True) -> None:
         """One run per method: every setting and seed in one compiled program (settings as
         data); the teacher-forced observations are computed once and cached in WORK/cache."""
-        names = []
-        for method in self.methods:
-            run = self.work / "runs" / method
-            self.stage(f"train_{method}", [[
-                "igdrivsim", "train", "--profile", self.profile.name,
-                "--obs", ",".join(self.settings), "--method", method,
-                "--seeds", self.profile.seeds, "--data", train_manifest,
-                "--val-data", val_manifest, "--cache-dir", self.work / "cache",
-                "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
-                depends=["filter_training", "filter_validation"], outputs=[run / "DONE"])
-            names.append(method)
-        return names
+        run = self.work / "runs" / method
+        self.stage(f"train_{method}", [[
+            "igdrivsim", "train", "--profile", self.profile.name,
+            "--obs", ",".join(self.settings), "--method", method,
+            "--seeds", self.profile.seeds, "--data", train_manifest,
+            "--val-data", val_manifest, "--cache-dir", self.work / "cache",
+            "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
+            depends=["filter_training", "filter_validation"], outputs=[run / "DONE"], echo=echo)
 
-    def run_evaluate(self, names: list[str], val_manifest: Path) -> Path:
-        evals = self.work / "evals"
-        limit = ["--limit", self.profile.eval_max_scenarios]
-        common = ["--data", val_manifest, "--batch-size", self.profile.eval_batch, *limit]
-        for name in names:
-            out = evals / name
-            self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
-                                             "--out", out, *common]],
-                       depends=[f"train_{name}", "filter_validation"],
-                       outputs=[out / "per_scenario.csv"])
-        if names:  # the references use the capacities and simulator settings of a run
-            out = evals / "references"
-            self.stage("evaluate_references", [[
-                "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / names[0],
-                "--out", out, *common]],
-                depends=["filter_validation", f"train_{names[0]}"],
-                outputs=[out / "per_scenario.csv"])
-        return evals
+    def _eval_common(self, val_manifest: Path) -> list:
+        return ["--data", val_manifest, "--batch-size", self.profile.eval_batch,
+                "--limit", self.profile.eval_max_scenarios]
 
-    def run_maze(self) -> None:
+    def run_evaluate(self, name: str, val_manifest: Path, echo: bool = True) -> None:
+        out = self.work / "evals" / name
+        self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
+                                         "--out", out, *self._eval_common(val_manifest)]],
+                   depends=[f"train_{name}", "filter_validation"],
+                   outputs=[out / "per_scenario.csv"], echo=echo)
+
+    def run_references(self, like: str, val_manifest: Path, echo: bool = True) -> None:
+        """The reference actors, with the capacities and simulator settings of run ``like``."""
+        out = self.work / "evals" / "references"
+        self.stage("evaluate_references", [[
+            "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / like,
+            "--out", out, *self._eval_common(val_manifest)]],
+            depends=["filter_validation", f"train_{like}"],
+            outputs=[out / "per_scenario.csv"], echo=echo)
+
+    def run_maze(self, echo: bool = True) -> None:
         out = self.work / "maze"
         self.stage("maze", [["python", "-m", "maze", "--profile",
                              self.profile.maze_profile, "--out", out, "--work", out / "work"]],
-                   outputs=[out / "figures" / "fig2_maze.png"])
+                   outputs=[out / "figures" / "fig2_maze.png"], echo=echo)
         for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv",
                                         "fig2b_maze_baselines.pdf", "fig2b_maze_baselines.png")),
                            ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv"))):
@@ -284,7 +303,7 @@ class Pipeline:
                     (self.paper / sub).mkdir(parents=True, exist_ok=True)
                     shutil.copyfile(src, self.paper / sub / fname)
 
-    def run_render(self, val: str) -> None:
+    def run_render(self, val: str, echo: bool = True) -> None:
         from igdrivsim.data import expand_paths
         from igdrivsim.observation.commands import DEFAULT_DATA
 
@@ -296,7 +315,7 @@ class Pipeline:
             raise StageError(f"stage 'render': no validation file in {val}")
         figures = self.paper / "figures"
         self.stage("render", [["igdrivsim", "render", "--data", files[0], "--out", figures]],
-                   depends=["data"], outputs=[figures / "fig1_observations.png"])
+                   depends=["data"], outputs=[figures / "fig1_observations.png"], echo=echo)
 
     def run_report(self, evals: Path, upstream: Sequence[str]) -> None:
         self.stage("report", [["igdrivsim", "report", "--evals", evals, "--out", self.paper,
@@ -379,10 +398,32 @@ class Pipeline:
         self.check_work_folder()
         train, val = self.run_data()
         train_manifest, val_manifest = self.run_filter(train, val)
-        names = self.run_train(train_manifest, val_manifest)
-        evals = self.run_evaluate(names, val_manifest)
-        self.run_maze()
-        self.run_render(val)
+        names = list(self.methods)
+
+        def lane(methods: Sequence[str], rest: bool, echo: bool) -> None:
+            """Train and evaluate ``methods``; with ``rest`` also the reference actors, the
+            maze study and Fig. 1."""
+            for method in methods:
+                self.run_train(method, train_manifest, val_manifest, echo)
+                self.run_evaluate(method, val_manifest, echo)
+            if rest:
+                self.run_references(methods[-1], val_manifest, echo)
+                self.run_maze(echo)
+                self.run_render(val, echo)
+
+        if self.in_process or len(names) == 1:
+            lane(names, True, True)
+        else:  # two lanes side by side (each process keeps about one core busy): the first
+            # method alone, the others followed by the references, the maze and Fig. 1
+            with ThreadPoolExecutor(2) as pool:
+                jobs = [pool.submit(lane, names[:1], False, False),
+                        pool.submit(lane, names[1:], True, False)]
+                wait(jobs, return_when=FIRST_EXCEPTION)
+                if any(j.done() and j.exception() for j in jobs):
+                    self.stopping.set()
+                for job in jobs:
+                    job.result()
+        evals = self.work / "evals"
         upstream = ["maze", "render", "evaluate_references"] + [f"evaluate_{n}" for n in names]
         self.run_report(evals, upstream)
         self.run_pdf()

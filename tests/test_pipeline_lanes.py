@@ -1,0 +1,71 @@
+"""The pipeline's two lanes (real subprocesses, trivial commands): the methods train side by
+side, stages beside each other log and report progress, a failure stops the other lane."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from igdrivsim.evaluation import pipeline as pl
+
+
+def _pipeline(tmp: Path, monkeypatch, fail: str | None = None) -> pl.Pipeline:
+    pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "paper", quiet=False,
+                       settings=("full",))
+    times = tmp / "times.jsonl"
+
+    def fake(name, echo, seconds=1.0):
+        code = (f"import json,time; t=time.time(); print('step 1/2', flush=True); "
+                f"time.sleep({seconds}); print('step 2/2 {name}', flush=True); "
+                f"open({str(times)!r}, 'a').write(json.dumps(["
+                f"{name!r}, t, time.time()]) + chr(10)); "
+                f"raise SystemExit(3 if {name == fail} else 0)")
+        pipe.stage(name, [["python", "-c", code]], echo=echo)
+
+    monkeypatch.setattr(pl, "HEARTBEAT_S", 0.0)
+    monkeypatch.setattr(pipe, "check_work_folder", lambda: None)
+    monkeypatch.setattr(pipe, "run_data", lambda: ("train", "val"))
+    monkeypatch.setattr(pipe, "run_filter", lambda a, b: (Path(a), Path(b)))
+    monkeypatch.setattr(pipe, "run_train",
+                        lambda m, a, b, echo=True: fake(f"train_{m}", echo, 1.5))
+    monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True: fake(f"evaluate_{m}", echo))
+    monkeypatch.setattr(pipe, "run_references",
+                        lambda m, v, echo=True: fake("evaluate_references", echo))
+    monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
+    monkeypatch.setattr(pipe, "run_render", lambda v, echo=True: fake("render", echo))
+    monkeypatch.setattr(pipe, "run_report", lambda e, u: fake("report", True, 0.1))
+    monkeypatch.setattr(pipe, "run_pdf", lambda: None)
+    pipe.times = times
+    return pipe
+
+
+def _spans(path: Path) -> dict[str, tuple[float, float]]:
+    return {n: (a, b) for n, a, b in map(json.loads, path.read_text().splitlines())}
+
+
+def test_methods_train_side_by_side_and_report_progress(tmp_path, monkeypatch, capsys):
+    pipe = _pipeline(tmp_path, monkeypatch)
+    pipe.run()
+    spans = _spans(pipe.times)
+    assert set(spans) == {"train_bc_rl", "evaluate_bc_rl", "train_bc", "evaluate_bc",
+                          "evaluate_references", "maze", "render", "report"}
+    (a0, a1), (b0, b1) = spans["train_bc_rl"], spans["train_bc"]
+    assert a0 < b1 and b0 < a1  # the two trainings overlap in time
+    assert spans["report"][0] >= max(end for _, end in spans.values() if end != spans[
+        "report"][1]) - 1e-3  # the report waits for both lanes
+    err = capsys.readouterr().err
+    assert "train_bc: step 2/2 train_bc" in err or "train_bc: step 1/2" in err
+    assert "step 2/2 train_bc_rl" in (pipe.work / "logs" / "train_bc_rl.log").read_text()
+
+
+def test_a_failing_lane_stops_the_other(tmp_path, monkeypatch):
+    pipe = _pipeline(tmp_path, monkeypatch, fail="train_bc_rl")
+    start = time.time()
+    with pytest.raises(pl.StageError, match="train_bc_rl"):
+        pipe.run()
+    spans = _spans(pipe.times)
+    assert "report" not in spans and "render" not in spans
+    assert time.time() - start < 6.0  # the other lane did not run on to its end
