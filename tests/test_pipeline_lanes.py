@@ -69,3 +69,14 @@ def test_a_failing_lane_stops_the_other(tmp_path, monkeypatch):
     spans = _spans(pipe.times)
     assert "report" not in spans and "render" not in spans
     assert time.time() - start < 6.0  # the other lane did not run on to its end
+
+
+def test_methods_option_reads_the_registry():
+    from igdrivsim.errors import ConfigError
+
+    args = pl.build_parser().parse_args(["--profile", "smoke", "--methods", "bc"])
+    assert pl.pipeline_from_args(args).methods == ("bc",)
+    default = pl.pipeline_from_args(pl.build_parser().parse_args(["--profile", "smoke"]))
+    assert default.methods == ("bc_rl", "bc")
+    with pytest.raises(ConfigError, match="unknown learning method 'dagger'"):
+        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "bc,dagger"]))

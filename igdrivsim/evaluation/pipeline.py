@@ -471,6 +471,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "a registered one (occlusion) or a '+' composition "
                              "(default: the paper's six)")
     deprecated_alias(parser, "--settings", "settings")
+    parser.add_argument("--methods", default=",".join(METHODS), metavar="METHODS",
+                        help="comma-separated registered learning methods to train and "
+                             "compare (igdrivsim/training/methods.py)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="SECTION.FIELD=VALUE",
                         help="override a config field for every training run (repeatable; "
@@ -505,10 +508,18 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
         work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
     settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
     from igdrivsim.training.config import get_profile, with_overrides
+    from igdrivsim.training.methods import get_method
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not methods or len(set(methods)) != len(methods):
+        raise ConfigError(f"--methods must name distinct methods, got {args.methods!r}")
+    for name in methods:
+        get_method(name)  # a registered method, else a one-line error naming the choices
 
     with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
     return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
-                    quiet=args.quiet, settings=settings, overrides=tuple(args.overrides))
+                    quiet=args.quiet, settings=settings, methods=methods,
+                    overrides=tuple(args.overrides))
 
 
 def main(argv: list[str] | None = None) -> int:
