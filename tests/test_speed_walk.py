@@ -31,3 +31,18 @@ def test_expert_replays_and_constant_speed_drifts_on_the_real_sample():
     assert actors["expert"]["log_divergence_m"] < 0.05
     assert actors["expert_steering_constant_speed"]["log_divergence_m"] > 0.1
     assert sum(result["label_offsets"]["offset_probability"]) == pytest.approx(1.0, abs=1e-3)
+
+
+def test_report_files_carry_the_numbers():
+    from igdrivsim.evaluation.speed_walk import ACTORS, report_markdown, report_tex
+
+    result = {"scenarios": 3,
+              "label_offsets": {"offset_levels": [-1, 0, 1],
+                                "offset_probability": [0.25, 0.5, 0.25],
+                                "entropy_nats": 1.04, "entropy_given_previous_nats": 0.9},
+              "actors": {a: {"log_divergence_m": 1.0 + i, "offroad_pct_steps": 2.0,
+                             "overlap_pct_steps": 3.5} for i, a in enumerate(ACTORS)}}
+    tex = report_tex(result)
+    assert r"\newcommand{\SpeedWalkProbs}{0.25, 0.50, 0.25}" in tex
+    assert r"\newcommand{\SpeedWalkSampled}{3.00}" in tex
+    assert "| expert_steering_constant_speed | 2.00 | 2.00 | 3.50 |" in report_markdown(result)

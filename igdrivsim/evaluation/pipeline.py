@@ -289,6 +289,14 @@ class Pipeline:
             depends=["filter_validation", f"train_{like}"],
             outputs=[out / "per_scenario.csv"], echo=echo)
 
+    def run_speed_walk(self, val_manifest: Path, echo: bool = True) -> None:
+        """The speed-walk diagnostic of the validation scenarios (no trained policy)."""
+        out = self.work / "evals" / "speed_walk.json"
+        self.stage("speed_walk", [["python", "-m", "igdrivsim.evaluation.speed_walk", "--data",
+                                   val_manifest, "--limit", self.profile.eval_max_scenarios,
+                                   "--out", out]],
+                   depends=["filter_validation"], outputs=[out], echo=echo)
+
     def run_maze(self, echo: bool = True) -> None:
         out = self.work / "maze"
         self.stage("maze", [["python", "-m", "maze", "--profile",
@@ -408,6 +416,7 @@ class Pipeline:
                 self.run_evaluate(method, val_manifest, echo)
             if rest:
                 self.run_references(methods[-1], val_manifest, echo)
+                self.run_speed_walk(val_manifest, echo)
                 self.run_maze(echo)
                 self.run_render(val, echo)
 
@@ -424,7 +433,8 @@ class Pipeline:
                 for job in jobs:
                     job.result()
         evals = self.work / "evals"
-        upstream = ["maze", "render", "evaluate_references"] + [f"evaluate_{n}" for n in names]
+        upstream = ["maze", "render", "evaluate_references", "speed_walk",
+                    *[f"evaluate_{n}" for n in names]]
         self.run_report(evals, upstream)
         self.run_pdf()
         self._say(f"finished: tables in {self.paper / 'tables'}, figures in "

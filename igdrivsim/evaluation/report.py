@@ -97,6 +97,22 @@ def verdicts_tex(tests) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path) -> list[Path]:
+    """``tables/speed_walk.md`` and ``generated/speed_walk.tex`` from the first
+    ``speed_walk.json`` among the evaluation folders (none: nothing written)."""
+    import json
+
+    from igdrivsim.evaluation import speed_walk
+
+    for root in map(Path, eval_dirs):
+        path = root / speed_walk.RESULT_FILE
+        if path.is_file():
+            result = json.loads(path.read_text(encoding="utf-8"))
+            return [atomic_write_text(tables / "speed_walk.md", speed_walk.report_markdown(result)),
+                    atomic_write_text(generated / "speed_walk.tex", speed_walk.report_tex(result))]
+    return []
+
+
 def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     """The ``runs/`` folder next to each evaluation folder (``WORK/evals`` -> ``WORK/runs``)."""
     found = []
@@ -154,6 +170,7 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     ]
     written += save_figure(supplementary_figure(seed_means(per_scenario, extra), extra),
                            figures, "fig5_supplementary")
+    written += _speed_walk_files(eval_dirs, tables, generated)
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]
     written += learning_curves_figure(runs, figures, references if len(references) else None)
