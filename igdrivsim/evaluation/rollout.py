@@ -4,9 +4,10 @@ A learned policy is evaluated as in the paper: after the 10 warm-up steps replay
 (``reset``; the GRU sees their observations, as in training), it drives the SDC for 80 steps
 under its own observation setting, sampling its action from the three categoricals
 (``actions="greedy"`` takes the most likely level, ``"mean"`` the expected one; see
-:data:`igdrivsim.policy.act.ACTION_MODES`). The rollout is a ``lax.scan`` over
-steps, ``vmap``-ped over a batch of scenarios and over the seeds of a run (stacked parameters),
-so one compiled function evaluates every seed at once.
+:data:`igdrivsim.policy.act.ACTION_MODES`). Every episode, learned or reference, is the
+simulator's one runner (:func:`igdrivsim.simulator.rollout.run_episode`, a ``lax.scan`` over
+steps) with an actor, ``vmap``-ped over a batch of scenarios and over the seeds of a run
+(stacked parameters), so one compiled function evaluates every seed at once.
 
 Two reference actors need no training and no observation: the discretised expert replay (the
 inverse dynamics to the next logged pose, quantised to the 257 levels: the floor of the metrics)
@@ -35,7 +36,7 @@ import numpy as np
 import pandas as pd
 from jax.sharding import NamedSharding, PartitionSpec
 
-from igdrivsim.data.scenario import CURRENT_INDEX, decode_scenario_id
+from igdrivsim.data.scenario import decode_scenario_id
 from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.schema import (
     CONSTANT_VELOCITY,
@@ -48,14 +49,13 @@ from igdrivsim.evaluation.schema import (
 from igdrivsim.observation import (
     ObservationConfig,
     get_setting,
-    observe,
     setting_params,
     stack_params,
 )
-from igdrivsim.policy.act import choose_levels
-from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
-from igdrivsim.simulator import SimParams, reset, step
-from igdrivsim.simulator.dynamics import undiscretize
+from igdrivsim.policy.act import policy_actor
+from igdrivsim.policy.network import PolicyConfig
+from igdrivsim.simulator import SimParams, reset
+from igdrivsim.simulator.rollout import ACTORS, run_episode
 from igdrivsim.training import inputs
 
 EVAL_SEED = 0  # fixed evaluation key: rerunning gives the same CSVs
@@ -102,9 +102,7 @@ def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
 
 # ----------------------------------------------------------------------------------- actors
 def _reference_actor(name: str, params: SimParams):
-    """The simulator's reference actor ``(state, carry, key) -> (action, carry, extras)``."""
-    from igdrivsim.simulator.rollout import ACTORS
-
+    """The simulator's reference actor (:data:`igdrivsim.simulator.rollout.ACTORS`)."""
     return ACTORS[name](params)
 
 
@@ -117,14 +115,17 @@ def _episode_values(final, params: SimParams, episode: bool) -> dict:
     return registry.episode_values(final, params) if episode else {}
 
 
-def _reference_episode(state, actor, params: SimParams, metrics_fn, episode: bool = False):
-    def body(s, _):
-        action, _, _ = actor(s, None, None)
-        s = step(s, action, params)
-        return s, _metrics(s, params, metrics_fn)
+def _run(state, actor, key, params: SimParams, metrics_fn, episode: bool):
+    """One episode through the simulator's runner: per-step metrics ``[steps]`` each and the
+    registry's episode metrics (``{}`` unless ``episode``)."""
+    final, tr = run_episode(state, actor, key, params,
+                            metrics_fn=lambda s, p: _metrics(s, p, metrics_fn))
+    return tr.metrics, _episode_values(final, params, episode)
 
-    final, outs = jax.lax.scan(body, state, None, length=params.num_controlled_steps)
-    return outs, _episode_values(final, params, episode)  # tuple of [steps], {key: []}
+
+def _reference_episode(state, actor, params: SimParams, metrics_fn, episode: bool = False):
+    # reference actors draw nothing: the key is a placeholder
+    return _run(state, actor, jax.random.key(0), params, metrics_fn, episode)
 
 
 def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
@@ -134,32 +135,12 @@ def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, s
     metrics (``{}`` unless ``episode``).
 
     As in training: the GRU is reset at t = 0 and warmed on the logged observations of
-    t = 0..9, then the policy drives from t = 10. The episode key is fixed over the episode
-    (position-noise offset), the step key is ``fold_in(episode_key, t)`` (masking draws).
+    t = 0..9, then the policy drives from t = 10 (:func:`igdrivsim.policy.act.policy_actor`).
+    The episode key is fixed over the episode (position-noise offset), the step key is
+    ``fold_in(episode_key, t)`` (masking draws).
     """
-    episode_key, action_key = jax.random.split(key)
-
-    def look(s, t):
-        return observe(s, setting, episode_key, jax.random.fold_in(episode_key, t), obs_config)
-
-    def warm(h, t):
-        obs = look(state.replace(timestep=t), t)
-        h, _, _ = apply_step(policy_config, policy_params, h, obs, t == 0)
-        return h, None
-
-    h0, _ = jax.lax.scan(warm, initial_carry(policy_config), jnp.arange(CURRENT_INDEX))
-
-    def body(carry, _):
-        s, h = carry
-        t = s.timestep
-        h, logits, _ = apply_step(policy_config, policy_params, h, look(s, t), jnp.bool_(False))
-        level = choose_levels(logits, jax.random.fold_in(action_key, t), actions)
-        s = step(s, undiscretize(level), params)
-        return (s, h), _metrics(s, params, metrics_fn)
-
-    (final, _), outs = jax.lax.scan(body, (state, h0), None,
-                                    length=params.num_controlled_steps)
-    return outs, _episode_values(final, params, episode)
+    actor = policy_actor(policy_config, policy_params, setting, obs_config, actions)
+    return _run(state, actor, key, params, metrics_fn, episode)
 
 
 @partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn", "episode"))

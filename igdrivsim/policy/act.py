@@ -8,24 +8,31 @@ delta-local action ``(dx, dy, dyaw)``. How the level is picked is the *action mo
 or ``mean`` (the expected level, a continuous action between levels: the policy's average
 intent without the sampling noise, a diagnostic).
 
-For one scenario (``vmap`` for batches / seeds)::
+Every closed-loop episode of a learned policy goes through the simulator's runner with
+:func:`policy_actor`::
 
-    carry = warmup_carry(cfg, params, state, setting, obs_config, episode_key)  # state at reset
-    obs = observe(state, setting, episode_key, fold_in(episode_key, state.timestep), obs_config)
-    action, carry, levels = policy_step(cfg, params, carry, obs, key, mode="sample")
-    state = step(state, action, sim_params)
+    actor = policy_actor(cfg, params, setting, obs_config, mode="sample")
+    final, transitions = run_episode(state_at_reset, actor, episode_key, sim_params)
+
+:func:`warmup_carry` and :func:`policy_step` are its two halves for one scenario, for callers
+that step by hand (the Gymnasium environment, tests).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ROADGRAPH_FEATURES, Observation, ObservationConfig, observe
 from igdrivsim.observation.features import DEFAULT_CONFIG
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator.dynamics import undiscretize
+from igdrivsim.simulator.rollout import Actor, StepInfo
+from igdrivsim.training.losses import action_log_prob
 
 
 def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Observation:
@@ -77,3 +84,72 @@ def warmup_carry(config: PolicyConfig, params, state, setting, obs_config: Obser
 
     carry, _ = jax.lax.scan(body, initial_carry(config), jnp.arange(CURRENT_INDEX))
     return carry
+
+
+@struct.dataclass
+class PolicyCarry:
+    """The learned actor's carry: the GRU state, the episode key(s) (observation noise offset;
+    the observation's step key is ``fold_in(episode_key, t)``) and the action key (levels are
+    drawn with ``fold_in(action_key, t)``; ``None``: with the runner's step key, one draw for
+    the whole batch, as BC-RL's training rollout does)."""
+
+    hidden: jax.Array  # f32[..., gru_hidden]
+    episode_key: jax.Array  # key[...]
+    action_key: jax.Array | None = None  # key[...] or None
+
+
+def _over_batch(fn, batch_ndim: int):
+    """``fn`` of one scenario mapped over ``batch_ndim`` leading dims (0: ``fn`` itself)."""
+    for _ in range(batch_ndim):
+        fn = jax.vmap(fn)
+    return fn
+
+
+def observe_now(state, setting, episode_key: jax.Array, obs_config: ObservationConfig
+                ) -> Observation:
+    """The observation of ``state`` (one scenario or a batch with one episode key each), with
+    the step key ``fold_in(episode_key, t)``."""
+
+    def one(s, k):
+        return observe(s, setting, k, jax.random.fold_in(k, s.timestep), obs_config)
+
+    return _over_batch(one, jnp.ndim(state.timestep))(state, episode_key)
+
+
+def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationConfig,
+                 mode: str = "sample") -> Actor:
+    """The learned policy as an actor of :func:`igdrivsim.simulator.rollout.run_episode`.
+
+    ``init(state, key)`` (one scenario at reset; ``vmap`` it for a batch): ``episode_key,
+    action_key = split(key)`` and the GRU warmed on the logged steps 0..9
+    (:func:`warmup_carry`), a :class:`PolicyCarry`. ``step`` observes under ``setting``,
+    steps the GRU and picks levels by ``mode`` (:func:`choose_levels`); it reports a
+    :class:`~igdrivsim.simulator.rollout.StepInfo` with the observation, the value, the
+    log-probability of the levels (not in ``mean`` mode) and the levels as ``extras``.
+    ``params`` and ``setting`` may be traced (seeds and settings as data).
+    """
+    if mode not in ACTION_MODES:
+        raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
+
+    def init(state, key) -> PolicyCarry:
+        episode_key, action_key = jax.random.split(key)
+        hidden = warmup_carry(config, params, state, setting, obs_config, episode_key)
+        return PolicyCarry(hidden, episode_key, action_key)
+
+    def step(state, carry: PolicyCarry, key) -> tuple[jax.Array, PolicyCarry, Any]:
+        obs = observe_now(state, setting, carry.episode_key, obs_config)
+        h = carry.hidden
+        h, logits, value = apply_step(config, params, h, obs, jnp.zeros(h.shape[:-1], bool))
+        if carry.action_key is None:
+            levels = choose_levels(logits, key, mode)
+        else:
+            def pick(lg, k, t):
+                return choose_levels(lg, jax.random.fold_in(k, t), mode)
+
+            levels = _over_batch(pick, jnp.ndim(state.timestep))(
+                logits, carry.action_key, state.timestep)
+        log_prob = None if mode == "mean" else action_log_prob(logits, levels)
+        info = StepInfo(observation=obs, value=value, log_prob=log_prob, extras=levels)
+        return undiscretize(levels), carry.replace(hidden=h), info
+
+    return Actor(step=step, init=init)

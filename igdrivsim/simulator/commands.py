@@ -24,7 +24,7 @@ import numpy as np
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, atomic_write_json
 from igdrivsim.simulator.metrics import StepMetrics, mean_log_divergence
-from igdrivsim.simulator.rollout import ACTORS, log_metrics, rollout
+from igdrivsim.simulator.rollout import ACTORS, log_metrics, run_episode
 from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
 
 DEFAULT_PARAMS = SimParams()
@@ -32,7 +32,9 @@ DEFAULT_PARAMS = SimParams()
 
 def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
     """Jitted ``f(scenario, key) -> (final_state, replay_metrics [80], log_metrics [80])`` for one
-    (unbatched) scenario; cached per ``(actor, params)`` so callers share the compilation."""
+    (unbatched) scenario, through the simulator's one runner
+    (:func:`~igdrivsim.simulator.rollout.run_episode`); cached per ``(actor, params)`` so
+    callers share the compilation."""
     return _replay_fn(actor, params)
 
 
@@ -43,8 +45,8 @@ def _replay_fn(actor: str, params: SimParams):
     @jax.jit
     def run(scenario, key):
         state = reset(scenario, params)
-        final, metrics, _ = rollout(state, policy, key, params)
-        return final, metrics, log_metrics(state, params)
+        final, tr = run_episode(state, policy, key, params)
+        return final, tr.metrics, log_metrics(state, params)
 
     return run
 

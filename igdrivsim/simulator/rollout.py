@@ -1,34 +1,49 @@
-"""Rollouts over the 80 controlled steps with ``lax.scan``, and ready-made actors.
+"""The one episode runner (``run_episode``), the actor interface and the reference actors.
 
-A *policy function* has the signature ``policy_fn(state, carry, key) -> (action, carry, extras)``:
-``action`` is the float ``[..., 3]`` delta action applied by :func:`~igdrivsim.simulator.step`,
-``carry`` any recurrent state (e.g. a GRU hidden state; ``None`` is fine), and ``extras`` any
-pytree recorded at every step (e.g. discrete actions, log-probabilities, observations).
+Every closed-loop episode in the package (evaluation, BC-RL's rollout, replay) is
+:func:`run_episode`: an :class:`Actor` drives the SDC for ``params.num_controlled_steps`` steps
+of a ``lax.scan`` from a state at reset, and each step leaves one :class:`Transition` (as
+PureJaxRL's transition tuple is the only interface between rollout and loss). An actor is two
+pure functions (Waymax's ``init`` / ``select_action`` split):
 
-:func:`rollout` works on a single state or on a batched one (leading dims ``...``); it is also
-``jit``-able and ``vmap``-able (pass ``policy_fn`` and ``params`` as static arguments, see
-:func:`jit_rollout`). Outputs are stacked over time on the axis right after the batch dims:
-``StepMetrics [..., 80]``, extras ``[..., 80, ...]``. The metrics of step ``k`` are those of the
-state *after* the ``k``-th action (timesteps 11..90), as in Waymax.
+* ``init(state, key) -> carry``: the recurrent state before the first controlled step (the
+  learned policy: its GRU warmed on the logged observations of steps 0..9; ``None`` for
+  actors without memory);
+* ``step(state, carry, key) -> (action, carry, extras)``: ``action`` is the continuous
+  delta-local ``f32[..., 3]`` applied by :func:`~igdrivsim.simulator.step`; ``extras`` any
+  pytree recorded per step, or a :class:`StepInfo` when the actor also observes (observation,
+  value, log-probability).
+
+An :class:`Actor` is callable as its ``step``, and a bare ``step`` function (the older
+*policy function*) is accepted wherever an actor is. The runner works on a single state or on
+a batched one (leading dims ``...``; the actor then acts on the whole batch) and is
+``jit``-/``vmap``-able. What costs is computed only when asked for: observations, values and
+log-probabilities are recorded on request, the expert labels, the reward and the metrics by
+flag or ``metrics_fn``.
+
+:func:`rollout` is the runner's older face: time on the axis right after the batch dims,
+``(final, StepMetrics [..., 80], extras [..., 80, ...])``. The metrics of step ``k`` are those of
+the state *after* the ``k``-th action (timesteps 11..90), as in Waymax.
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.data.scenario import DT
+from igdrivsim.data.scenario import DT, NUM_STEPS
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.expert import expert_action, expert_discrete_action
-from igdrivsim.simulator.metrics import StepMetrics, step_metrics
+from igdrivsim.simulator.metrics import StepMetrics, reward, step_metrics
 from igdrivsim.simulator.state import (
     SdcTrajectory,
     SimParams,
     SimState,
+    log_sdc_at,
     log_sdc_row,
     sdc_pose,
     step,
@@ -38,31 +53,115 @@ DEFAULT_PARAMS = SimParams()
 PolicyFn = Callable[[SimState, Any, jax.Array], tuple[jax.Array, Any, Any]]
 
 
+def _no_carry(state: SimState, key: jax.Array) -> None:
+    del state, key
+    return None
+
+
+class Actor(NamedTuple):
+    """``init(state, key) -> carry`` and ``step(state, carry, key) -> (action, carry,
+    extras)``, pure functions (see the module docstring). Calling the actor calls ``step``."""
+
+    step: PolicyFn
+    init: Callable[[SimState, jax.Array], Any] = _no_carry
+
+    def __call__(self, state: SimState, carry: Any, key: jax.Array):
+        return self.step(state, carry, key)
+
+
+class StepInfo(NamedTuple):
+    """What an observing actor reports per step besides its action (``None``: not computed)."""
+
+    observation: Any = None  # the Observation the actor acted on
+    value: jax.Array | None = None  # f32[...], the critic's estimate
+    log_prob: jax.Array | None = None  # f32[...], log pi(levels)
+    extras: Any = None  # anything else (the chosen levels for the learned policy)
+
+
+class Transition(NamedTuple):
+    """One step of an episode; stacked by :func:`run_episode` on a leading time axis ``[T]``.
+
+    Fields not requested (or that the actor does not produce) are ``None``.
+    """
+
+    observation: Any  # Observation [T, ..., ...] (observing actors, when requested)
+    action: jax.Array  # f32[T, ..., 3], the continuous delta-local action applied
+    extras: Any  # the actor's own record (levels for the discretised expert and the policy)
+    expert: jax.Array | None  # int32[T, ..., 3], discretised expert levels at the same state
+    log_prob: jax.Array | None  # f32[T, ...]
+    value: jax.Array | None  # f32[T, ...]
+    reward: jax.Array | None  # f32[T, ...], -1[overlap] - 1[offroad] of the state reached
+    valid: jax.Array  # bool[T, ...], the logged SDC valid now and next (the action is defined)
+    metrics: Any  # metrics_fn(state reached, params), e.g. StepMetrics (with validity)
+
+
+def as_actor(policy: Actor | PolicyFn) -> Actor:
+    """An :class:`Actor` from an actor or a bare ``step`` function (no carry by default)."""
+    return policy if isinstance(policy, Actor) else Actor(step=policy)
+
+
+def action_defined(state: SimState) -> jax.Array:
+    """Whether the logged SDC is valid now and at the next step (an expert label exists)."""
+    t = state.timestep
+    return log_sdc_at(state, t)[3] & log_sdc_at(state, jnp.minimum(t + 1, NUM_STEPS - 1))[3]
+
+
+def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
+                params: SimParams = DEFAULT_PARAMS, *, carry: Any = None,
+                metrics_fn: Callable | None = step_metrics, observation: bool = False,
+                value: bool = False, log_prob: bool = False, expert: bool = False,
+                with_reward: bool = False, num_steps: int | None = None
+                ) -> tuple[SimState, Transition]:
+    """Drive ``num_steps`` (default ``params.num_controlled_steps``) steps from ``state``.
+
+    ``carry``: the actor's initial carry; ``None`` calls ``actor.init(state, key)`` (for a
+    batched state, call ``init`` yourself with the keys it expects). The step keys are
+    ``split(key, num_steps)`` (a batched state gets one key per step for the whole batch).
+    ``metrics_fn(state, params)`` (``None``: no metrics) is applied to the state reached;
+    the flags ask for the recorded observation, value and log-probability (from a
+    :class:`StepInfo`), the discretised expert levels and the reward. Returns
+    ``(final_state, Transition)``, time-major.
+    """
+    actor = as_actor(actor)
+    num_steps = params.num_controlled_steps if num_steps is None else num_steps
+    if carry is None:
+        carry = actor.init(state, key)
+
+    def body(c, k):
+        s, pc = c
+        action, pc, info = actor.step(s, pc, k)
+        if not isinstance(info, StepInfo):
+            info = StepInfo(extras=info)
+        label = expert_discrete_action(s, params) if expert else None
+        valid = action_defined(s)
+        s = step(s, action, params)
+        r = reward(step_metrics(s, params)) if with_reward else None
+        tr = Transition(info.observation if observation else None, action, info.extras, label,
+                        info.log_prob if log_prob else None, info.value if value else None,
+                        r, valid, None if metrics_fn is None else metrics_fn(s, params))
+        return (s, pc), tr
+
+    (final, _), out = jax.lax.scan(body, (state, carry), jax.random.split(key, num_steps))
+    return final, out
+
+
 def _time_last(tree, batch_ndim: int):
     """Move the scan's leading time axis to position ``batch_ndim``."""
     return jax.tree.map(lambda a: jnp.moveaxis(a, 0, batch_ndim), tree)
 
 
-def rollout(state: SimState, policy_fn: PolicyFn, key: jax.Array,
+def rollout(state: SimState, policy_fn: Actor | PolicyFn, key: jax.Array,
             params: SimParams = DEFAULT_PARAMS, carry: Any = None
             ) -> tuple[SimState, StepMetrics, Any]:
-    """Run ``params.num_controlled_steps`` steps from ``state`` (normally right after reset).
+    """:func:`run_episode` with the simulator's metrics, time after the batch dims.
 
-    ``key`` is split into one key per step, passed to ``policy_fn`` (for a batched state without
+    ``key`` is split into one key per step, passed to the actor (for a batched state without
     ``vmap``, the policy itself must split it per scenario if it needs independent draws).
     Returns ``(final_state, per_step_metrics [..., T], extras [..., T, ...])``.
     """
+    final, tr = run_episode(state, policy_fn, key, params, carry=carry)
     batch_ndim = jnp.ndim(state.timestep)
-    keys = jax.random.split(key, params.num_controlled_steps)
-
-    def body(c, k):
-        st, pc = c
-        action, pc, extras = policy_fn(st, pc, k)
-        st = step(st, action, params)
-        return (st, pc), (step_metrics(st, params), extras)
-
-    (final, _), (metrics, extras) = jax.lax.scan(body, (state, carry), keys)
-    return final, _time_last(metrics, batch_ndim), _time_last(extras, batch_ndim)
+    return final, _time_last(tr.metrics, batch_ndim), _time_last(tr.extras, batch_ndim)
 
 
 def with_logged_sdc(state: SimState) -> SimState:
@@ -88,28 +187,28 @@ def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetr
     return _time_last(metrics, jnp.ndim(start))
 
 
-def jit_rollout(policy_fn: PolicyFn, params: SimParams = DEFAULT_PARAMS):
-    """A jitted ``f(state, key, carry=None)`` for a fixed policy and params (cached per pair)."""
+def jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams = DEFAULT_PARAMS):
+    """A jitted ``f(state, key, carry=None)`` for a fixed actor and params (cached per pair)."""
     return _jit_rollout(policy_fn, params)
 
 
 @functools.cache
-def _jit_rollout(policy_fn: PolicyFn, params: SimParams):
+def _jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams):
     return jax.jit(lambda state, key, carry=None: rollout(state, policy_fn, key, params, carry))
 
 
-def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> PolicyFn:
-    """The expert as a policy: the discretised expert (default) or the continuous one.
+def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> Actor:
+    """The expert as an actor: the discretised expert (default) or the continuous one.
 
     Extras: the discrete action ``int32[..., 3]`` (or the continuous ``f32[..., 3]``). The same
-    ``(params, discrete)`` always gives the same function object, so jitted callers that take
-    it as a static argument compile once.
+    ``(params, discrete)`` always gives the same object, so jitted callers that take it as a
+    static argument compile once.
     """
     return _expert_actor(params, discrete)
 
 
 @functools.cache
-def _expert_actor(params: SimParams, discrete: bool) -> PolicyFn:
+def _expert_actor(params: SimParams, discrete: bool) -> Actor:
     def policy(state, carry, key):
         del key
         if discrete:
@@ -118,16 +217,16 @@ def _expert_actor(params: SimParams, discrete: bool) -> PolicyFn:
         action = expert_action(state, params)
         return action, carry, action
 
-    return policy
+    return Actor(step=policy)
 
 
-def constant_velocity_actor(params: SimParams = DEFAULT_PARAMS) -> PolicyFn:
+def constant_velocity_actor(params: SimParams = DEFAULT_PARAMS) -> Actor:
     """Keep the current velocity vector and heading (a simple baseline). Extras: the action."""
     return _constant_velocity_actor(params)
 
 
 @functools.cache
-def _constant_velocity_actor(params: SimParams) -> PolicyFn:
+def _constant_velocity_actor(params: SimParams) -> Actor:
     _, inverse = dynamics.DYNAMICS[params.dynamics]
 
     def policy(state, carry, key):
@@ -140,7 +239,8 @@ def _constant_velocity_actor(params: SimParams) -> PolicyFn:
         action = jnp.where(valid[..., None], action, 0.0)
         return action, carry, action
 
-    return policy
+    return Actor(step=policy)
 
 
-ACTORS = {"expert": expert_actor, "constant_velocity": constant_velocity_actor}
+ACTORS: dict[str, Callable[[SimParams], Actor]] = {
+    "expert": expert_actor, "constant_velocity": constant_velocity_actor}
