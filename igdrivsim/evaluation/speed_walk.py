@@ -30,9 +30,9 @@ import numpy as np
 
 from igdrivsim.data.scenario import DT
 from igdrivsim.errors import IGDrivSimError
-from igdrivsim.simulator import SimParams, dynamics, reset, step
+from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.expert import expert_action
-from igdrivsim.simulator.metrics import step_metrics
+from igdrivsim.simulator.rollout import Actor, run_episode
 
 LEVEL_WIDTH = (dynamics.ACTION_HIGH[0] - dynamics.ACTION_LOW[0]) / dynamics.NUM_BINS
 MIDDLE = dynamics.NUM_BINS // 2
@@ -51,10 +51,10 @@ def constant_velocity_level(state) -> jax.Array:
 
 def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
             params: SimParams = PARAMS):
-    """80 steps of one actor on a batch of states at reset: per-step ``(log divergence,
-    offroad, overlap, valid, label offset)``, each ``[80, B]``."""
+    """80 steps of one actor on a batch of states at reset (the simulator's runner):
+    per-step ``(log divergence, offroad, overlap, valid, label offset)``, each ``[80, B]``."""
 
-    def body(s, k):
+    def act(s, carry, k):
         levels = dynamics.discretize(expert_action(s, params))
         cv = constant_velocity_level(s)
         label_offset = levels[..., 0] - cv
@@ -63,12 +63,11 @@ def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
         elif actor == "expert_steering_sampled_offsets":
             draw = offsets[jax.random.categorical(k, log_probs, shape=cv.shape)]
             levels = levels.at[..., 0].set(cv + draw)
-        s = step(s, dynamics.undiscretize(levels), params)
-        m = step_metrics(s, params)
-        return s, (m.log_divergence, m.offroad, m.overlap, m.valid, label_offset)
+        return dynamics.undiscretize(levels), carry, label_offset
 
-    _, out = jax.lax.scan(body, state, jax.random.split(key, params.num_controlled_steps))
-    return out
+    _, tr = run_episode(state, Actor(step=act), key, params)
+    m = tr.metrics
+    return m.log_divergence, m.offroad, m.overlap, m.valid, tr.extras
 
 
 def entropy(counts: np.ndarray) -> float:

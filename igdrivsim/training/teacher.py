@@ -48,9 +48,9 @@ from igdrivsim.observation import (
 )
 from igdrivsim.observation.features import POSITION_SCALE, nearest, rotate_to_frame
 from igdrivsim.observation.models import apply_setting
-from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose, step
+from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose
 from igdrivsim.simulator.expert import expert_action
-from igdrivsim.simulator.state import log_sdc_at
+from igdrivsim.simulator.rollout import Actor, run_episode
 
 FORMAT_VERSION = 3
 EPISODE_STEPS = NUM_STEPS - 1  # 10 warm-up + 80 controlled observations per episode
@@ -95,26 +95,19 @@ def _record(state: SimState, rec: ObservationConfig):
             obs.sdc_speed, yaw)
 
 
-def _logged_valid(state: SimState, t) -> jax.Array:
-    """Whether the logged SDC is valid at step ``t``."""
-    return log_sdc_at(state, t)[3]
-
-
 def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> TeacherSteps:
     """Warm-up (log) and expert-driven observations and labels of ONE scenario at reset
     (the record of :class:`TeacherSteps`)."""
     warm = jax.vmap(lambda t: _record(state.replace(timestep=t), rec))(
         jnp.arange(CURRENT_INDEX))
 
-    def body(s, _):
-        out = _record(s, rec)
+    def teacher(s, carry, key):  # the discretised expert, recording what it sees
+        del key
         idx = dynamics.discretize(expert_action(s, sim))
-        t = s.timestep
-        valid = _logged_valid(s, t) & _logged_valid(s, jnp.minimum(t + 1, NUM_STEPS - 1))
-        return step(s, dynamics.undiscretize(idx), sim), (out, idx.astype(jnp.int16), valid)
+        return dynamics.undiscretize(idx), carry, (_record(s, rec), idx.astype(jnp.int16))
 
-    _, (drive, actions, valid) = jax.lax.scan(body, state, None,
-                                              length=sim.num_controlled_steps)
+    _, tr = run_episode(state, Actor(step=teacher), jax.random.key(0), sim, metrics_fn=None)
+    (drive, actions), valid = tr.extras, tr.valid
     fields = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), warm, drive)
     return TeacherSteps(*fields, actions=actions, action_valid=valid)
 
