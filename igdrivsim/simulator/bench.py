@@ -25,6 +25,13 @@ log divergence). The scenario is a real one tiled to the batch size (``--distinc
 scenarios of ``--data``, so that examples need the fast path's repairs at different steps).
 Results: one JSON line per (batch, implementation) and a table; ``--out FILE`` also writes them
 as JSON (atomically).
+
+This is the one episode loop not on the simulator's runner
+(:func:`igdrivsim.simulator.rollout.run_episode`), on purpose: it times the observation
+paths themselves, so its scan carries only what changes (the simulated SDC, the timestep, the
+candidate cache) and keeps the log and the roadgraph as loop constants, and the naive path
+needs its own reset; through the runner (the whole state carried, the cache in an actor's
+carry) it would measure something else than the numbers quoted above.
 """
 
 from __future__ import annotations
