@@ -33,11 +33,15 @@ from igdrivsim.simulator.metrics import (
 from igdrivsim.simulator.roadgraph import RoadEdges, select_road_edges
 from igdrivsim.simulator.rollout import (
     ACTORS,
+    Actor,
+    StepInfo,
+    Transition,
     constant_velocity_actor,
     expert_actor,
     jit_rollout,
     log_metrics,
     rollout,
+    run_episode,
     with_logged_sdc,
 )
 from igdrivsim.simulator.state import (
@@ -54,6 +58,7 @@ from igdrivsim.simulator.state import (
 )
 
 __all__ = [
+    "Actor", "StepInfo", "Transition", "run_episode",
     "ACTORS", "ScenarioMetrics", "StepMetrics", "constant_velocity_actor", "expert_action",
     "expert_actor", "expert_discrete_action", "jit_rollout", "log_divergence",
     "mean_log_divergence", "offroad", "overlap", "reward", "rollout", "scenario_metrics",
