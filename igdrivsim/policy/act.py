@@ -14,8 +14,8 @@ Every closed-loop episode of a learned policy goes through the simulator's runne
     actor = policy_actor(cfg, params, setting, obs_config, mode="sample")
     final, transitions = run_episode(state_at_reset, actor, episode_key, sim_params)
 
-:func:`warmup_carry` and :func:`policy_step` are its two halves for one scenario, for callers
-that step by hand (the Gymnasium environment, tests).
+:func:`warmup_carry` is the actor's GRU warm-up for one scenario; :func:`policy_step` is one
+step by hand from a given observation (tests, interactive use).
 """
 
 from __future__ import annotations
