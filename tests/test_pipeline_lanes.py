@@ -34,6 +34,7 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None) -> pl.Pipeline:
     monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True: fake(f"evaluate_{m}", echo))
     monkeypatch.setattr(pipe, "run_references",
                         lambda m, v, echo=True: fake("evaluate_references", echo))
+    monkeypatch.setattr(pipe, "run_speed_walk", lambda v, echo=True: fake("speed_walk", echo))
     monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
     monkeypatch.setattr(pipe, "run_render", lambda v, echo=True: fake("render", echo))
     monkeypatch.setattr(pipe, "run_report", lambda e, u: fake("report", True, 0.1))
@@ -51,7 +52,7 @@ def test_methods_train_side_by_side_and_report_progress(tmp_path, monkeypatch, c
     pipe.run()
     spans = _spans(pipe.times)
     assert set(spans) == {"train_bc_rl", "evaluate_bc_rl", "train_bc", "evaluate_bc",
-                          "evaluate_references", "maze", "render", "report"}
+                          "evaluate_references", "speed_walk", "maze", "render", "report"}
     (a0, a1), (b0, b1) = spans["train_bc_rl"], spans["train_bc"]
     assert a0 < b1 and b0 < a1  # the two trainings overlap in time
     assert spans["report"][0] >= max(end for _, end in spans.values() if end != spans[
