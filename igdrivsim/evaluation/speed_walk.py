@@ -28,13 +28,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from igdrivsim.data.scenario import DT
 from igdrivsim.errors import IGDrivSimError
 from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.expert import expert_action
 from igdrivsim.simulator.rollout import Actor, run_episode
 
-LEVEL_WIDTH = (dynamics.ACTION_HIGH[0] - dynamics.ACTION_LOW[0]) / dynamics.NUM_BINS
 MIDDLE = dynamics.NUM_BINS // 2
 PARAMS = SimParams()
 ACTORS = ("expert", "expert_steering_constant_speed", "expert_steering_sampled_offsets")
@@ -46,7 +44,7 @@ def constant_velocity_level(state) -> jax.Array:
     t = state.timestep[..., None]
     vx = jnp.take_along_axis(state.sdc.vel_x, t, -1)[..., 0]
     vy = jnp.take_along_axis(state.sdc.vel_y, t, -1)[..., 0]
-    return MIDDLE + jnp.round(jnp.hypot(vx, vy) * DT / LEVEL_WIDTH).astype(jnp.int32)
+    return MIDDLE + dynamics.constant_speed_offset(jnp.hypot(vx, vy))
 
 
 def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,

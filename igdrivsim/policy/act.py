@@ -32,6 +32,7 @@ from igdrivsim.observation.features import DEFAULT_CONFIG
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator.dynamics import undiscretize
 from igdrivsim.simulator.rollout import Actor, StepInfo
+from igdrivsim.simulator.state import vmap_batch
 from igdrivsim.training.losses import action_log_prob
 
 
@@ -98,13 +99,6 @@ class PolicyCarry:
     action_key: jax.Array | None = None  # key[...] or None
 
 
-def _over_batch(fn, batch_ndim: int):
-    """``fn`` of one scenario mapped over ``batch_ndim`` leading dims (0: ``fn`` itself)."""
-    for _ in range(batch_ndim):
-        fn = jax.vmap(fn)
-    return fn
-
-
 def observe_now(state, setting, episode_key: jax.Array, obs_config: ObservationConfig
                 ) -> Observation:
     """The observation of ``state`` (one scenario or a batch with one episode key each), with
@@ -113,7 +107,7 @@ def observe_now(state, setting, episode_key: jax.Array, obs_config: ObservationC
     def one(s, k):
         return observe(s, setting, k, jax.random.fold_in(k, s.timestep), obs_config)
 
-    return _over_batch(one, jnp.ndim(state.timestep))(state, episode_key)
+    return vmap_batch(one, jnp.ndim(state.timestep))(state, episode_key)
 
 
 def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationConfig,
@@ -146,7 +140,7 @@ def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationC
             def pick(lg, k, t):
                 return choose_levels(lg, jax.random.fold_in(k, t), mode)
 
-            levels = _over_batch(pick, jnp.ndim(state.timestep))(
+            levels = vmap_batch(pick, jnp.ndim(state.timestep))(
                 logits, carry.action_key, state.timestep)
         log_prob = None if mode == "mean" else action_log_prob(logits, levels)
         info = StepInfo(observation=obs, value=value, log_prob=log_prob, extras=levels)

@@ -132,11 +132,10 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
     0.1 s``, ``sdc_speed`` being the observation's ``speed / 50``) in levels; so the middle
     index scores the constant-velocity level. Levels with no offset index get -1e9."""
     from igdrivsim.observation.features import SPEED_SCALE
-    from igdrivsim.simulator.dynamics import ACTION_HIGH, ACTION_LOW
+    from igdrivsim.simulator.dynamics import constant_speed_offset
 
     bins = offset_logits.shape[-1]
-    level_width = (ACTION_HIGH[0] - ACTION_LOW[0]) / (bins - 1)
-    shift = jnp.round(sdc_speed * SPEED_SCALE * 0.1 / level_width).astype(jnp.int32)
+    shift = constant_speed_offset(sdc_speed * SPEED_SCALE)
     # offset index o scores level o + shift: o = middle (zero offset) is the constant-velocity
     # level middle + shift, since level ``middle`` is a zero displacement
     offset = jnp.arange(bins) - shift[..., None]

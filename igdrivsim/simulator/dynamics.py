@@ -25,6 +25,13 @@ NUM_BINS = 256  # bins per dimension; NUM_BINS + 1 levels
 NUM_LEVELS = NUM_BINS + 1
 
 
+def constant_speed_offset(speed):
+    """Levels above the zero-displacement level (``NUM_BINS // 2``) of the dx that keeps
+    ``speed`` (m/s) over one step: ``round(speed * DT / level width)``, ``int32[...]``."""
+    width = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS
+    return jnp.round(jnp.asarray(speed) * DT / width).astype(jnp.int32)
+
+
 def wrap_angle(a):
     """Wrap an angle (radians) to ``[-pi, pi)``."""
     return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi

@@ -135,10 +135,14 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
         label = expert_discrete_action(s, params) if expert else None
         valid = action_defined(s)
         s = step(s, action, params)
-        r = reward(step_metrics(s, params)) if with_reward else None
+        m = None if metrics_fn is None else metrics_fn(s, params)
+        if with_reward:  # the simulator's metrics once, when metrics_fn is them too
+            r = reward(m if metrics_fn is step_metrics else step_metrics(s, params))
+        else:
+            r = None
         tr = Transition(info.observation if observation else None, action, info.extras, label,
                         info.log_prob if log_prob else None, info.value if value else None,
-                        r, valid, None if metrics_fn is None else metrics_fn(s, params))
+                        r, valid, m)
         return (s, pc), tr
 
     (final, _), out = jax.lax.scan(body, (state, carry), jax.random.split(key, num_steps))

@@ -154,7 +154,8 @@ def _row(a, i):
     return jnp.take_along_axis(a, idx, axis=-2)[..., 0, :]
 
 
-def _vmap_batch(fn, n: int):
+def vmap_batch(fn, n: int):
+    """``fn`` of one example mapped over ``n`` leading batch dims (0: ``fn`` itself)."""
     for _ in range(n):
         fn = jax.vmap(fn)
     return fn
@@ -221,9 +222,9 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
             rg, jnp.stack([px, py], -1), pv, edge_radius=params.edge_radius,
             edge_capacity=params.edge_capacity, path_stride=params.crop_path_stride)
 
-    road_edges = _vmap_batch(edges, sdc_index.ndim)(sc.roadgraph, path_x, path_y, path_valid)
+    road_edges = vmap_batch(edges, sdc_index.ndim)(sc.roadgraph, path_x, path_y, path_valid)
     ref = jnp.stack([path_x[..., CURRENT_INDEX], path_y[..., CURRENT_INDEX]], -1)
-    roadgraph = _vmap_batch(lambda rg, r: thin_roadgraph(rg, params.roadgraph_stride, r),
+    roadgraph = vmap_batch(lambda rg, r: thin_roadgraph(rg, params.roadgraph_stride, r),
                             sdc_index.ndim)(sc.roadgraph, ref)
     t = jnp.arange(traj.x.shape[-1])
     past = t <= CURRENT_INDEX
