@@ -12,9 +12,10 @@ import pytest
 from igdrivsim.evaluation import pipeline as pl
 
 
-def _pipeline(tmp: Path, monkeypatch, fail: str | None = None) -> pl.Pipeline:
+def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
+              methods: tuple[str, ...] = ("bc_rl", "bc")) -> pl.Pipeline:
     pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "paper", quiet=False,
-                       settings=("full",))
+                       settings=("full",), methods=methods)
     times = tmp / "times.jsonl"
 
     def fake(name, echo, seconds=1.0):
@@ -37,6 +38,7 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None) -> pl.Pipeline:
     monkeypatch.setattr(pipe, "run_speed_walk", lambda v, echo=True: fake("speed_walk", echo))
     monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
     monkeypatch.setattr(pipe, "run_render", lambda v, echo=True: fake("render", echo))
+    monkeypatch.setattr(pipe, "run_teacher", lambda c: fake("teacher", True, 0.1))
     monkeypatch.setattr(pipe, "run_report", lambda e, u: fake("report", True, 0.1))
     monkeypatch.setattr(pipe, "run_pdf", lambda: None)
     pipe.times = times
@@ -79,5 +81,20 @@ def test_methods_option_reads_the_registry():
     assert pl.pipeline_from_args(args).methods == ("bc",)
     default = pl.pipeline_from_args(pl.build_parser().parse_args(["--profile", "smoke"]))
     assert default.methods == ("bc_rl", "bc")
-    with pytest.raises(ConfigError, match="unknown learning method 'dagger'"):
-        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "bc,dagger"]))
+    with pytest.raises(ConfigError, match="unknown learning method 'nope'"):
+        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "bc,nope"]))
+    with pytest.raises(ConfigError, match="privileged teacher needs a method without one"):
+        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "dagger"]))
+    with pytest.raises(ConfigError, match="privileged teacher needs"):
+        pl.pipeline_from_args(pl.build_parser().parse_args(
+            ["--methods", "bc,dagger", "--obs", "circular_r4"]))
+
+
+def test_taught_methods_train_after_the_teacher_is_chosen(tmp_path, monkeypatch):
+    pipe = _pipeline(tmp_path, monkeypatch, methods=("bc", "dagger", "advisor"))
+    pipe.run()
+    spans = _spans(pipe.times)
+    assert spans["teacher"][0] >= spans["train_bc"][1]
+    (d0, d1), (a0, a1) = spans["train_dagger"], spans["train_advisor"]
+    assert min(d0, a0) >= spans["teacher"][1] and d0 < a1 and a0 < d1  # side by side
+    assert spans["report"][0] >= max(spans["evaluate_dagger"][1], spans["evaluate_advisor"][1])

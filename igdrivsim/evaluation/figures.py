@@ -8,6 +8,9 @@ Fig. 4: what each training run logged in its ``curves.jsonl`` (teacher-forced va
 loss, closed-loop validation metrics every K updates) against the update, one column per
 setting, so a reader sees whether training converged; constant velocity and the expert replay
 are drawn as horizontal references when their evaluation is available.
+
+Fig. 6 (only with methods beyond BC and BC-RL): Fig. 3's panels with one bar per learned
+method in its registry colour, the constant-velocity and expert levels as dashed lines.
 """
 
 from __future__ import annotations
@@ -27,6 +30,11 @@ import seaborn as sns  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
 from igdrivsim.evaluation.aggregate import CONFIDENCE, t_interval  # noqa: E402
+from igdrivsim.evaluation.methods_table import (  # noqa: E402
+    learned_methods,
+    method_colours,
+    method_label,
+)
 from igdrivsim.evaluation.schema import (  # noqa: E402
     BC,
     BC_RL,
@@ -313,4 +321,61 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
         fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                    ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.06 if handles else 0, 1, 1))
+    return fig
+
+
+_FIG6_REFERENCES = {CONSTANT_VELOCITY: "0.45", EXPERT: "0.1"}
+
+
+def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS):
+    """Fig. 6: one panel per metric key in ``panels``, settings on the x axis, a bar per
+    learned method (mean over seeds, 95% t-interval over seed means), constant velocity and
+    the expert as dashed horizontal lines when evaluated. ``seed_level``: :func:`seed_means`."""
+    methods = learned_methods(seed_level)
+    learned = seed_level[seed_level.method.isin(methods)]
+    present = set(learned.setting.astype(str))
+    settings = [s for s in table_settings(learned) if s in present]
+    data = learned[learned.metric.isin(panels) & learned.setting.isin(settings)].copy()
+    data["Method"] = data.method.map(method_label)
+    data["Setting"] = data.setting.map(setting_short)
+    order = [setting_short(s) for s in settings]
+    hue_order = [method_label(m) for m in methods]
+    palette = {method_label(m): c for m, c in method_colours(methods).items()}
+    refs = seed_level[seed_level.method.isin(_FIG6_REFERENCES)]
+    sns.set_theme(style="whitegrid", context="paper")
+    width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.6),
+                             sharex=True, squeeze=False)
+    for ax, key in zip(axes[:, 0], panels, strict=True):
+        metric = METRIC_BY_KEY[key]
+        panel = data[data.metric == key]
+        if panel.empty or panel.value.isna().all():
+            ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
+        else:
+            sns.barplot(data=panel, x="Setting", y="value", hue="Method", order=order,
+                        hue_order=hue_order, palette=palette, errorbar=_t_errorbar,
+                        capsize=0.15, err_kws={"linewidth": 1.0}, ax=ax)
+        for method, colour in _FIG6_REFERENCES.items():
+            level = refs[(refs.method == method) & (refs.metric == key)].value.mean()
+            if pd.notna(level):
+                ax.axhline(level, color=colour, linestyle="--", linewidth=1.0,
+                           label=method_label(method))
+        ax.set_ylabel(f"{' '.join(metric.label).replace(chr(92), '').replace(' (%)', '')} "
+                      f"({metric.unit})")
+        ax.set_xlabel("")
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+    axes[-1, 0].tick_params(axis="x", rotation=30)
+    for label in axes[-1, 0].get_xticklabels():
+        label.set_horizontalalignment("right")
+    handles: dict[str, object] = {}
+    for ax in axes.ravel():
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    ncols = 3 if width >= 6.5 else 2
+    if handles:
+        fig.legend(list(handles.values()), list(handles), loc="upper center", frameon=False,
+                   ncols=min(len(handles), ncols), bbox_to_anchor=(0.5, 1.0))
+    rows = math.ceil(len(handles) / ncols)
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.035 * rows if handles else 0)))
     return fig

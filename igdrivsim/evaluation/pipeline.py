@@ -5,7 +5,10 @@ Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``
 with every setting and seed in one program, the methods' runs side by side in two processes),
 ``evaluate`` (each run, plus the reference actors), ``maze``
 (paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance)
-and ``pdf`` (when ``latexmk`` is installed).
+and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
+bc,bc_rl,dagger,advisor``) come after the others: a ``teacher`` stage picks the run whose
+full setting drives better on validation, and they train the other settings with it
+(``report`` then adds Table II and Fig. 6).
 
 Resumability: a stage that completes writes ``WORK/stages/<stage>.json``; a later invocation
 skips it while that stamp exists and nothing it depends on ran again. An interrupted training
@@ -40,6 +43,8 @@ from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.observation import get_setting, setting_params
+from igdrivsim.training.methods import get_method
+from igdrivsim.training.privileged import TEACHER_SETTING
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
@@ -259,15 +264,35 @@ class Pipeline:
     def run_train(self, method: str, train_manifest: Path, val_manifest: Path,
                   echo: bool = True) -> None:
         """One run per method: every setting and seed in one compiled program (settings as
-        data); the teacher-forced observations are computed once and cached in WORK/cache."""
+        data); the teacher-forced observations are computed once and cached in WORK/cache.
+        A method with a privileged teacher trains the settings other than ``full`` with the
+        teacher the ``teacher`` stage chose."""
         run = self.work / "runs" / method
+        settings, sets, depends = self.settings, list(self.overrides), []
+        if get_method(method).teacher:
+            choice = json.loads(self.teacher_choice.read_text(encoding="utf-8"))
+            settings = tuple(s for s in self.settings if s != TEACHER_SETTING)
+            sets.append(f"training.teacher={choice['run']}")
+            depends = ["teacher"]
         self.stage(f"train_{method}", [[
             "igdrivsim", "train", "--profile", self.profile.name,
-            "--obs", ",".join(self.settings), "--method", method,
+            "--obs", ",".join(settings), "--method", method,
             "--seeds", self.profile.seeds, "--data", train_manifest,
             "--val-data", val_manifest, "--cache-dir", self.work / "cache",
-            "--out", run, "--resume", *[a for o in self.overrides for a in ("--set", o)]]],
-            depends=["filter_training", "filter_validation"], outputs=[run / "DONE"], echo=echo)
+            "--out", run, "--resume", *[a for o in sets for a in ("--set", o)]]],
+            depends=["filter_training", "filter_validation", *depends],
+            outputs=[run / "DONE"], echo=echo)
+
+    @property
+    def teacher_choice(self) -> Path:
+        return self.work / "runs" / "teacher.json"
+
+    def run_teacher(self, candidates: Sequence[str]) -> None:
+        """Pick the privileged teacher among the finished runs of ``candidates``."""
+        self.stage("teacher", [["python", "-m", "igdrivsim.training.privileged", "--runs",
+                                *[self.work / "runs" / m for m in candidates],
+                                "--out", self.teacher_choice]],
+                   depends=[f"train_{m}" for m in candidates], outputs=[self.teacher_choice])
 
     def _eval_common(self, val_manifest: Path) -> list:
         return ["--data", val_manifest, "--batch-size", self.profile.eval_batch,
@@ -395,6 +420,21 @@ class Pipeline:
         finally:
             fh.close()
 
+    def side_by_side(self, first, second, serial: bool = False) -> None:
+        """Run two lanes (``lane(echo)``) in two threads, each driving its own processes; a
+        failing lane stops the other. ``serial`` (or in-process): one after the other."""
+        if self.in_process or serial:
+            first(True)
+            second(True)
+            return
+        with ThreadPoolExecutor(2) as pool:
+            jobs = [pool.submit(first, False), pool.submit(second, False)]
+            wait(jobs, return_when=FIRST_EXCEPTION)
+            if any(j.done() and j.exception() for j in jobs):
+                self.stopping.set()
+            for job in jobs:
+                job.result()
+
     def run(self) -> None:
         """Every stage in order, holding the work folder's lock."""
         with self.work_lock():
@@ -406,7 +446,8 @@ class Pipeline:
         self.check_work_folder()
         train, val = self.run_data()
         train_manifest, val_manifest = self.run_filter(train, val)
-        names = list(self.methods)
+        taught = [m for m in self.methods if get_method(m).teacher]
+        names = [m for m in self.methods if m not in taught]
 
         def lane(methods: Sequence[str], rest: bool, echo: bool) -> None:
             """Train and evaluate ``methods``; with ``rest`` also the reference actors, the
@@ -415,26 +456,23 @@ class Pipeline:
                 self.run_train(method, train_manifest, val_manifest, echo)
                 self.run_evaluate(method, val_manifest, echo)
             if rest:
-                self.run_references(methods[-1], val_manifest, echo)
+                self.run_references(names[-1], val_manifest, echo)
                 self.run_speed_walk(val_manifest, echo)
                 self.run_maze(echo)
                 self.run_render(val, echo)
 
-        if self.in_process or len(names) == 1:
-            lane(names, True, True)
-        else:  # two lanes side by side (each process keeps about one core busy): the first
-            # method alone, the others followed by the references, the maze and Fig. 1
-            with ThreadPoolExecutor(2) as pool:
-                jobs = [pool.submit(lane, names[:1], False, False),
-                        pool.submit(lane, names[1:], True, False)]
-                wait(jobs, return_when=FIRST_EXCEPTION)
-                if any(j.done() and j.exception() for j in jobs):
-                    self.stopping.set()
-                for job in jobs:
-                    job.result()
+        # two lanes side by side (each process keeps about one core busy): the first method
+        # alone, the others followed by the references, the maze and Fig. 1
+        self.side_by_side(lambda echo: lane(names[:1], False, echo),
+                          lambda echo: lane(names[1:], True, echo), serial=len(names) == 1)
+        if taught:  # then the methods taught by the better full-setting policy
+            self.run_teacher(names)
+            self.side_by_side(lambda echo: lane(taught[:1], False, echo),
+                              lambda echo: lane(taught[1:], False, echo),
+                              serial=len(taught) == 1)
         evals = self.work / "evals"
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
-                    *[f"evaluate_{n}" for n in names]]
+                    *[f"evaluate_{n}" for n in (*names, *taught)]]
         self.run_report(evals, upstream)
         self.run_pdf()
         self._say(f"finished: tables in {self.paper / 'tables'}, figures in "
@@ -483,7 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
     deprecated_alias(parser, "--settings", "settings")
     parser.add_argument("--methods", default=",".join(METHODS), metavar="METHODS",
                         help="comma-separated registered learning methods to train and "
-                             "compare (igdrivsim/training/methods.py)")
+                             "compare (igdrivsim/training/methods/); dagger and advisor are taught "
+                             "by the better full-setting run of the others")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="SECTION.FIELD=VALUE",
                         help="override a config field for every training run (repeatable; "
@@ -518,13 +557,19 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
         work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
     settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
     from igdrivsim.training.config import get_profile, with_overrides
-    from igdrivsim.training.methods import get_method
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not methods or len(set(methods)) != len(methods):
         raise ConfigError(f"--methods must name distinct methods, got {args.methods!r}")
     for name in methods:
         get_method(name)  # a registered method, else a one-line error naming the choices
+    if any(get_method(m).teacher for m in methods):
+        plain = [m for m in methods if not get_method(m).teacher]
+        chosen = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
+        if not plain or (chosen is not None and TEACHER_SETTING not in chosen):
+            raise ConfigError("--methods: a method with a privileged teacher needs a method "
+                              f"without one (bc, bc_rl) trained on the {TEACHER_SETTING!r} "
+                              "setting to pick the teacher from")
 
     with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
     return Pipeline(profile, work, paper, train, val, in_process=args.in_process,

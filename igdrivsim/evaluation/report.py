@@ -10,7 +10,11 @@ effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``t
 (``tables/supplementary_metrics.{md,tex}``, ``tables/supplementary_summary.csv``,
 ``figures/fig5_supplementary.{pdf,png}``; see :mod:`igdrivsim.evaluation.registry`),
 ``generated/provenance.tex`` (profile, data, seeds, date, commit: macros the report uses)
-and ``generated/verdicts.tex`` (is BC-RL safer, per setting).
+and ``generated/verdicts.tex`` (is BC-RL safer, per setting). Table I, the power tables, the
+verdicts and ``tests.csv`` compare BC-RL with BC only (Holm over Table I's cells). When the
+evaluations hold learned methods beyond BC and BC-RL, also Table II (every learned method vs
+BC, Holm over its own cells; :mod:`igdrivsim.evaluation.methods_table`):
+``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``.
 Every file but the provenance (which records the date) is a pure function of the inputs, so
 reruns give identical tables.
 """
@@ -22,15 +26,16 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from igdrivsim.evaluation import registry
+from igdrivsim.evaluation import methods_table, registry
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.evaluation.figures import (
     fig3_metrics,
+    fig6_methods,
     learning_curves_figure,
     save_figure,
     supplementary_figure,
 )
-from igdrivsim.evaluation.schema import REFERENCES, setting_labels
+from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
 from igdrivsim.evaluation.tables import (
     power_latex,
     power_markdown,
@@ -123,6 +128,20 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     return found
 
 
+def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, header: str,
+                   caption: str) -> list[Path]:
+    """Table II, its tests (every learned method vs BC) and Fig. 6."""
+    tests_all = methods_table.compare_all(per_scenario)
+    return [
+        atomic_write_csv(tables / "tests_all.csv", tests_all.round(6)),
+        atomic_write_text(tables / "table2.md",
+                          methods_table.table2_markdown(summary, tests_all, header)),
+        atomic_write_text(tables / "table2.tex",
+                          methods_table.table2_latex(summary, tests_all, caption)),
+        *save_figure(fig6_methods(seeds), figures, "fig6_methods"),
+    ]
+
+
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
@@ -134,7 +153,9 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     out = Path(out)
     _, per_scenario = load_evaluations(eval_dirs)
     summary = summarize(per_scenario)
-    tests = compare_methods(per_scenario)
+    # Table I is the paper's comparison: Holm over its own cells, whatever else was run.
+    tests = compare_methods(per_scenario, methods=[BC_RL] if (
+        per_scenario.method == BC_RL).any() else [])
     seeds = seed_means(per_scenario)
     learned = per_scenario[per_scenario.method.isin(list(METHOD_REGISTRY))]
     n_seeds = int(learned.seed.nunique()) if len(learned) else 0
@@ -171,6 +192,8 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     written += save_figure(supplementary_figure(seed_means(per_scenario, extra), extra),
                            figures, "fig5_supplementary")
     written += _speed_walk_files(eval_dirs, tables, generated)
+    if methods_table.extended_methods(per_scenario):
+        written += _methods_files(per_scenario, summary, seeds, tables, figures, header, caption)
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]
     written += learning_curves_figure(runs, figures, references if len(references) else None)

@@ -42,6 +42,9 @@ class PolicyConfig:
     # the ego speed feature (speed / 50) is multiplied by this before the trunk: at 1 a change
     # of one dx level (0.47 m/s) moves it by 0.01, too little for a small network to read
     speed_input_scale: float = 1.0
+    # a second actor head on the same GRU output, trained by imitation only (ADVISOR's
+    # auxiliary policy); the method decides (training/methods), acting never reads it
+    aux_head: bool = False
 
 
 class MLP(nn.Module):
@@ -95,6 +98,9 @@ class DrivingPolicy(nn.Module):
         self.actor_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
         self.value_mlp = MLP(c.value_hidden)
         self.value_out = nn.Dense(1)
+        if c.aux_head:
+            self.aux_mlp = MLP(c.actor_hidden)
+            self.aux_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
 
     def encode(self, obs):
         """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]``."""
@@ -110,19 +116,26 @@ class DrivingPolicy(nn.Module):
         carry = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(carry), carry)
         return self.gru(carry, x)
 
-    def heads(self, y, sdc_speed=None):
-        """Actor logits ``[..., 3, bins]`` and value ``[...]`` from GRU outputs (``sdc_speed
-        [..., 1]``, the observed feature, is needed when ``relative_dx``)."""
-        logits = self.actor_out(self.actor_mlp(y))
+    def _logits(self, mlp, out, y, sdc_speed):
+        logits = out(mlp(y))
         logits = logits.reshape(*logits.shape[:-1], NUM_ACTION_DIMS, self.config.num_bins)
         if self.config.relative_dx:
             logits = logits.at[..., 0, :].set(relative_to_constant_velocity(
                 logits[..., 0, :], sdc_speed[..., 0]))
-        return logits, self.value_out(self.value_mlp(y))[..., 0]
+        return logits
+
+    def heads(self, y, sdc_speed=None):
+        """Actor logits ``[..., 3, bins]``, value ``[...]`` and the auxiliary head's logits
+        (``None`` without ``aux_head``) from GRU outputs (``sdc_speed [..., 1]``, the observed
+        feature, is needed when ``relative_dx``)."""
+        logits = self._logits(self.actor_mlp, self.actor_out, y, sdc_speed)
+        aux = (self._logits(self.aux_mlp, self.aux_out, y, sdc_speed)
+               if self.config.aux_head else None)
+        return logits, self.value_out(self.value_mlp(y))[..., 0], aux
 
     def __call__(self, carry, obs, reset):
         carry, y = self.core(carry, self.encode(obs), reset)
-        logits, value = self.heads(y, obs.sdc_speed)
+        logits, value, _ = self.heads(y, obs.sdc_speed)
         return carry, logits, value
 
 
@@ -189,9 +202,11 @@ def unroll(config: PolicyConfig, params, carry, obs_seq, reset_seq):
     return carry, jnp.swapaxes(logits, 0, 1), jnp.swapaxes(values, 0, 1)
 
 
-def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: bool = True):
+def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: bool = True,
+                    with_aux: bool = False):
     """Run the network over time-major observations ``[T, B, ...]``: ``(carry, logits
-    [T, B, 3, bins], values [T, B])``, the GRU state zeroed before step 0 if ``reset_first``.
+    [T, B, 3, bins], values [T, B])``, plus the auxiliary head's logits when ``with_aux``; the
+    GRU state is zeroed before step 0 if ``reset_first``.
 
     The per-step encoders do not depend on the recurrence, so they run once over all ``T x B``
     observations (large matrix products) and only the GRU is scanned; the same values as
@@ -201,23 +216,26 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]
     resets = jnp.zeros((t, *carry.shape[:-1]), bool).at[0].set(reset_first)
+
+    def core(c, x_t, reset):
+        return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)
+
+    def heads(ys, speed):
+        return model.apply(params, ys, speed, method=DrivingPolicy.heads)
+
     if config.remat:
         def step(c, xs):
             obs, reset = xs
-            c, logits, value = model.apply(params, c, obs, reset)
-            return c, (logits, value)
+            c, y = core(c, model.apply(params, obs, method=DrivingPolicy.encode), reset)
+            return c, heads(y, obs.sdc_speed)
 
-        carry, (logits, values) = jax.lax.scan(jax.checkpoint(step), carry, (obs_seq, resets))
-        return carry, logits, values
-    x = model.apply(params, obs_seq, method=DrivingPolicy.encode)
-
-    def body(c, xs):
-        x_t, reset = xs
-        return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)
-
-    carry, ys = jax.lax.scan(body, carry, (x, resets))
-    logits, values = model.apply(params, ys, obs_seq.sdc_speed, method=DrivingPolicy.heads)
-    return carry, logits, values
+        carry, (logits, values, aux) = jax.lax.scan(jax.checkpoint(step), carry,
+                                                    (obs_seq, resets))
+    else:
+        x = model.apply(params, obs_seq, method=DrivingPolicy.encode)
+        carry, ys = jax.lax.scan(lambda c, xs: core(c, *xs), carry, (x, resets))
+        logits, values, aux = heads(ys, obs_seq.sdc_speed)
+    return (carry, logits, values, aux) if with_aux else (carry, logits, values)
 
 
 def count_params(params) -> int:

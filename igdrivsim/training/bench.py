@@ -15,6 +15,7 @@ observations (once per dataset) is not timed. Prints one JSON line per profile
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -29,7 +30,7 @@ from igdrivsim.training.methods import METHODS
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profiles", default="laptop,paper",
                         help="comma-separated profiles (default: laptop,paper)")
-    parser.add_argument("--method", choices=list(METHODS), default="bc",
+    parser.add_argument("--method", choices=list(METHODS), default=next(iter(METHODS)),
                         help="learning method (default: bc)")
     parser.add_argument("--obs", default=",".join(PAPER_SETTINGS), metavar="SETTINGS",
                         help="settings trained together, comma-separated (default: the "
@@ -45,14 +46,16 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a config field, as in `igdrivsim train` (repeatable)")
 
 
-def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int = 0,
+def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 0, seeds: int = 0,
                   updates: int = 3, overrides: tuple[str, ...] = (),
                   obs: str = ",".join(PAPER_SETTINGS)) -> dict:
     """Measure one profile; returns the JSON record."""
+    from igdrivsim.policy.act import example_observation
+    from igdrivsim.policy.network import init_params_per_seed
     from igdrivsim.simulator import toy
     from igdrivsim.training import inputs
     from igdrivsim.training.config import get_profile, with_overrides
-    from igdrivsim.training.loop import get_update, init_state, seed_keys
+    from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
     from igdrivsim.training.update import run_settings, settings_as_data, update_spec
 
     cpu = jax.default_backend() == "cpu"
@@ -63,31 +66,40 @@ def bench_profile(profile: str, method: str = "bc", batch: int = 0, seeds: int =
         sets.append(f"training.seeds={seeds or 1}")
     config = with_overrides(get_profile(profile), sets + list(overrides))
     minibatches = min(config.training.ppo_minibatches, config.data.batch_size)
-    config = with_overrides(config, [f"training.ppo_minibatches={minibatches}"]).validate()
-    spec = update_spec(config)
+    config = with_overrides(config, [f"training.ppo_minibatches={minibatches}",
+                                     "training.teacher=untrained"]).validate()
+    # methods with a privileged teacher are timed with an untrained one of the same network
+    teacher_policy = dataclasses.replace(config.policy, aux_head=False)
+    spec = update_spec(config, teacher_policy)
     mesh = inputs.make_mesh()
     inputs.check_batch(config.data.batch_size, mesh)
     caps = inputs.capacities(config)
     scenarios = [toy.straight_road(caps, speed=4.0 + i % 8) for i in range(config.data.batch_size)]
-    dataset = inputs.Dataset.from_config(config, scenarios, spec.sim, need_states=spec.use_rl)
+    dataset = inputs.Dataset.from_config(config, scenarios, spec.sim,
+                                         need_states=config.collects_rollout)
     rep = inputs.replicated(mesh)
     params, opt_state = init_state(config, spec)
     n_params = int(sum(x[0, 0].size for x in jax.tree.leaves(params)))
     params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
+    buffer = inputs.place(init_buffer(config, spec), rep)
+    teacher_params = None
+    if spec.learner.teacher:
+        teacher_params = init_params_per_seed(
+            teacher_policy, list(seed_keys(config)), example_observation(spec.obs))
     keys = inputs.place(seed_keys(config), rep)
     settings = settings_as_data(config)
     teacher, states = inputs.place(dataset.host_batch(0), inputs.batch_sharding(mesh))
-    args = (teacher, states, settings, keys)
+    args = (teacher, states, settings, teacher_params, keys)
     t0 = time.perf_counter()
-    update = get_update(spec).lower(params, opt_state, *args, 0, 1e-3).compile()
+    update = get_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    params, opt_state, m = update(params, opt_state, *args, 0, 1e-3)
+    params, opt_state, buffer, m = update(params, opt_state, buffer, *args, 0, 1e-3)
     jax.block_until_ready(params)
     first_s = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), time.process_time()
     for u in range(1, updates + 1):
-        params, opt_state, m = update(params, opt_state, *args, u, 1e-3)
+        params, opt_state, buffer, m = update(params, opt_state, buffer, *args, u, 1e-3)
     jax.block_until_ready(params)
     per_update = (time.perf_counter() - t0) / updates
     cpu_per_update = (time.process_time() - c0) / updates

@@ -1,9 +1,10 @@
-"""Orbax checkpoints of a run: ``RUN/checkpoints/<updates done>/`` holding params + optimiser.
+"""Orbax checkpoints of a run: ``RUN/checkpoints/<updates done>/`` holding params + optimiser
+(+ DAgger's buffer of labelled episodes, for the methods that keep one).
 
 Orbax writes each step into a temporary folder and renames it when complete, so a run killed
 mid-save leaves the previous checkpoint intact. The step number is the number of updates done;
 everything else (data order, keys, learning rate) is a function of it, so restoring
-``(params, opt_state)`` at step ``k`` resumes the run exactly.
+``(params, opt_state, buffer)`` at step ``k`` resumes the run exactly.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import os
 
 import jax
 import orbax.checkpoint as ocp
+from flax import serialization
 
 
 class Checkpoints:
@@ -25,16 +27,19 @@ class Checkpoints:
     def latest_step(self) -> int | None:
         return self.manager.latest_step()
 
-    def save(self, step: int, params, opt_state) -> None:
+    def save(self, step: int, params, opt_state, buffer=None) -> None:
         """Save synchronously (returns when the checkpoint is complete on disk)."""
         if step in self.manager.all_steps():
             return
-        self.manager.save(step, args=ocp.args.StandardSave(
-            {"params": params, "opt_state": opt_state}))
+        items = {"params": params, "opt_state": opt_state}
+        if buffer is not None:
+            items["buffer"] = serialization.to_state_dict(buffer)
+        self.manager.save(step, args=ocp.args.StandardSave(items))
         self.manager.wait_until_finished()
 
-    def restore(self, step: int, params_like, opt_state_like):
-        """Restore into the structure (and shardings) of the given templates."""
+    def restore(self, step: int, params_like, opt_state_like, buffer_like=None):
+        """``(params, opt_state, buffer)`` restored into the structure (and shardings) of the
+        given templates (``buffer`` is ``None`` without a template)."""
 
         default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
 
@@ -42,9 +47,14 @@ class Checkpoints:
             sharding = getattr(x, "sharding", None) or default
             return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
 
-        target = jax.tree.map(abstract, {"params": params_like, "opt_state": opt_state_like})
-        out = self.manager.restore(step, args=ocp.args.StandardRestore(target))
-        return out["params"], out["opt_state"]
+        items = {"params": params_like, "opt_state": opt_state_like}
+        if buffer_like is not None:
+            items["buffer"] = serialization.to_state_dict(buffer_like)
+        out = self.manager.restore(step, args=ocp.args.StandardRestore(
+            jax.tree.map(abstract, items)))
+        buffer = (None if buffer_like is None
+                  else serialization.from_state_dict(buffer_like, out["buffer"]))
+        return out["params"], out["opt_state"], buffer
 
     def close(self) -> None:
         self.manager.close()

@@ -58,7 +58,7 @@ class ObsConfig:
 class TrainConfig:
     """Optimisation and the BC / BC+PPO loss (paper: Adam, cosine 1e-3 -> 0, w_BC=1, w_RL=0.05)."""
 
-    method: str = "bc"  # a registered method (training/methods.py): "bc" or "bc_rl"
+    method: str = "bc"  # a registered method (igdrivsim/training/methods/)
     seeds: int = 3
     seed_offset: int = 0  # seeds are seed_offset .. seed_offset + seeds - 1
     epochs: float = 200.0  # passes over the data (ignored when num_updates > 0)
@@ -80,6 +80,11 @@ class TrainConfig:
     val_scenarios: int = 32  # the fixed validation subset of the learning curves
     checkpoint_every: int = 100
     max_checkpoints: int = 2
+    # methods with a privileged teacher (dagger, advisor): the run folder of a policy trained
+    # with the "full" setting among its settings (the pipeline picks the better of BC / BC-RL)
+    teacher: str = ""
+    aggregate_batches: int = 4  # DAgger keeps the labelled episodes of this many updates
+    advisor_alpha: float = 1.0  # ADVISOR: imitation weight exp(-alpha KL(teacher || aux))
 
 
 @dataclass(frozen=True)
@@ -91,13 +96,21 @@ class RunConfig:
     training: TrainConfig = field(default_factory=TrainConfig)
 
     @property
-    def use_rl(self) -> bool:
-        """Static flag: the PPO rollout and loss are built only when this is true."""
-        return get_method(self.training.method).uses_rl and self.training.w_rl != 0.0
+    def collects_rollout(self) -> bool:
+        """Static flag: every update drives the policy in closed loop (needs reset states)."""
+        return get_method(self.training.method).rollout
 
     def validate(self) -> RunConfig:
+        """Check the fields (one-line :class:`ConfigError`) and return the config with what
+        the method decides filled in (the auxiliary head)."""
         t, d = self.training, self.data
-        get_method(t.method)  # a registered method, else a one-line error
+        method = get_method(t.method)  # a registered method, else a one-line error
+        if method.teacher and not t.teacher:
+            raise ConfigError(f"method {t.method!r} needs a privileged teacher: set "
+                              "training.teacher=RUN (a run trained with the full setting)")
+        if t.aggregate_batches < 1:
+            raise ConfigError(f"training.aggregate_batches must be >= 1, got "
+                              f"{t.aggregate_batches}")
         if t.seeds < 1:
             raise ConfigError(f"training.seeds must be >= 1, got {t.seeds}")
         if d.batch_size < 1 or d.batch_size % t.ppo_minibatches:
@@ -121,6 +134,9 @@ class RunConfig:
         if len(names) > 1 and any(setting_params(get_setting(n)) is None for n in names):
             raise ConfigError("settings trained together must be expressible as data "
                               "(ObservationParams); train a custom setting on its own")
+        if self.policy.aux_head != method.aux_head:
+            return dataclasses.replace(self, policy=dataclasses.replace(
+                self.policy, aux_head=method.aux_head))
         return self
 
 

@@ -15,9 +15,11 @@ import sys
 from igdrivsim.training.config import RunConfig
 
 # Paper network on a 2-core CPU (shared, load ~3.5): `igdrivsim bench train --profiles paper
-# --method bc --obs full --updates 2` = 31.1 s per update of one episode; BC-RL scaled by the
-# BC-RL / BC ratio of README's "Measured speeds" (45.6 / 24.3). README "Running at paper scale".
-CPU_SECONDS_PER_EPISODE = {"bc": 31.1, "bc_rl": 58.4}
+# --method bc --obs full --updates 2` = 31.1 s per update of one episode; a method that drives
+# closed-loop episodes (BC-RL and the taught methods) scaled by the BC-RL / BC ratio of README's
+# "Measured speeds" (45.6 / 24.3). README "Running at paper scale".
+CPU_SECONDS_PER_EPISODE = 31.1  # teacher-forced methods (BC)
+CPU_SECONDS_PER_ROLLOUT_EPISODE = 58.4  # methods that also drive (BC-RL, DAgger, ADVISOR)
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 
 
@@ -42,7 +44,8 @@ def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: in
     message (None when there is nothing to warn about)."""
     if config.profile != "paper" or backend != "cpu":
         return None
-    per = CPU_SECONDS_PER_EPISODE.get(config.training.method, CPU_SECONDS_PER_EPISODE["bc"])
+    per = (CPU_SECONDS_PER_ROLLOUT_EPISODE if config.collects_rollout
+           else CPU_SECONDS_PER_EPISODE)
     hours = run_hours(config, per, num_scenarios, devices)
     msg = (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
            f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "

@@ -45,6 +45,7 @@ from igdrivsim.training.config import RunConfig, from_dict, to_dict
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
+    empty_aggregate,
     make_update,
     make_validation_loss,
     optimizer,
@@ -90,6 +91,15 @@ def init_state(config: RunConfig, spec: UpdateSpec):
     return params, opt_state
 
 
+def init_buffer(config: RunConfig, spec: UpdateSpec):
+    """DAgger's empty buffers ``[G, S]`` (``None`` for methods without one)."""
+    one = empty_aggregate(spec, config.data.batch_size)
+    if one is None:
+        return None
+    shape = (len(run_settings(config)), config.training.seeds)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (*shape, *x.shape)), one)
+
+
 def get_update(spec: UpdateSpec):
     """The compiled update for ``spec`` (shared by every run in this process)."""
     if spec not in _UPDATE_CACHE:
@@ -102,10 +112,16 @@ def is_complete(out_dir: str) -> bool:
 
 
 def _check_config(out_dir: str, record: dict) -> None:
+    """Refuse to resume a run started with another configuration (fields added to the config
+    classes since then count at their defaults)."""
     path = os.path.join(out_dir, CONFIG)
     with open(path) as f:
         old = json.load(f)
-    if old.get("config") != json.loads(json.dumps(record["config"])):
+    try:
+        old_config = to_dict(from_dict(old.get("config", {})))
+    except (ConfigError, TypeError):
+        old_config = old.get("config")
+    if json.loads(json.dumps(old_config)) != json.loads(json.dumps(record["config"])):
         raise ConfigError(f"{path}: the run was started with a different configuration; "
                           "use another --out or the same options")
 
@@ -211,7 +227,8 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         dataset = StreamDataset.from_config(config, data, spec.sim)
     else:
         dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main,
-                                             cache_dir=cache_dir, need_states=spec.use_rl)
+                                             cache_dir=cache_dir,
+                                             need_states=config.collects_rollout)
     num_updates = total_updates(config, dataset.num)
     if main:  # the paper profile without an accelerator: say how long it would take
         from igdrivsim.training.cost import warn_if_cpu
@@ -228,12 +245,20 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         validation = Validation(config, spec, val_data, cache_dir)
 
     params, opt_state = init_state(config, spec)
+    buffer = init_buffer(config, spec)
+    teacher_params = None
+    if spec.learner.teacher:
+        from igdrivsim.training.privileged import load_teacher
+
+        teacher_params = load_teacher(t.teacher, config)
+        log(f"privileged teacher: the full setting of {t.teacher}")
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], params))
     log(f"policy: {per_seed:,} parameters per run x {len(settings_list)} setting(s) x "
         f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
         f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
     rep = inputs.replicated(mesh)
     params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
+    buffer, teacher_params = inputs.place(buffer, rep), inputs.place(teacher_params, rep)
     settings = settings_as_data(config)
     settings = None if settings is None else inputs.place(settings, rep)
     barrier("start")
@@ -241,7 +266,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     start, data_state = 0, None
     if resume and ckpt.latest_step() is not None:
         start = ckpt.latest_step()
-        params, opt_state = ckpt.restore(start, params, opt_state)
+        params, opt_state, buffer = ckpt.restore(start, params, opt_state, buffer)
         if config.data.stream:
             from igdrivsim.training.stream import load_state
 
@@ -282,11 +307,12 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         for u, ((teacher, states), data_state) in zip(range(start, end), batches, strict=True):
             lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
             if u == start and jax.process_count() > 1:  # compile everywhere, then meet
-                update = update.lower(params, opt_state, teacher, states, settings, keys, u,
-                                      lr).compile()
+                update = update.lower(params, opt_state, buffer, teacher, states, settings,
+                                      teacher_params, keys, u, lr).compile()
                 barrier("compiled")
-            params, opt_state, metrics = update(params, opt_state, teacher, states, settings,
-                                                keys, u, lr)
+            params, opt_state, buffer, metrics = update(
+                params, opt_state, buffer, teacher, states, settings, teacher_params, keys, u,
+                lr)
             done = u + 1
             if bar is not None:
                 bar.update()
@@ -299,9 +325,10 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                     "grad_steps_per_s": rate * grads_per_update})
                 metrics_file.write(json.dumps(line) + "\n")
                 metrics_file.flush()
-                write_curves(curves_file, done, {"bc_loss": metrics["bc_loss"]})
+                loss_key = "bc_loss" if "bc_loss" in metrics else "teacher_ce"
+                write_curves(curves_file, done, {loss_key: metrics[loss_key]})
                 if bar is not None:
-                    bar.set_postfix(bc=f"{line['bc_loss']:.3f}", refresh=False)
+                    bar.set_postfix({loss_key: f"{line[loss_key]:.3f}"}, refresh=False)
                 last_log, last_time = done, time.perf_counter()
             if validation is not None and (done % t.eval_every == 0 or done == num_updates):
                 write_curves(curves_file, done, validation(params))
@@ -312,7 +339,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
                     save_state(out_dir, done, data_state, ckpt.manager.all_steps())
                 barrier(f"save-{done}")
-                ckpt.save(done, params, opt_state)
+                ckpt.save(done, params, opt_state, buffer)
     if bar is not None:
         bar.close()
     ckpt.close()
@@ -337,7 +364,7 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None):
     step = ckpt.latest_step() if step is None else step
     if step is None:
         raise ConfigError(f"{run_dir}: no checkpoint yet")
-    params, _ = ckpt.restore(step, params_like, opt_like)
+    params, _, _ = ckpt.restore(step, params_like, opt_like)
     ckpt.close()
     return config, params
 

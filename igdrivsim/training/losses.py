@@ -56,13 +56,30 @@ def gae(rewards: jax.Array, values: jax.Array, last_value: jax.Array, gamma: flo
     return adv, adv + values
 
 
+def surrogate_terms(logp_new: jax.Array, logp_old: jax.Array, advantages: jax.Array,
+                    clip: float) -> jax.Array:
+    """Per-state PPO policy loss ``-min(r A, clip(r, 1-eps, 1+eps) A)``, ``[...]``."""
+    ratio = jnp.exp(logp_new - logp_old)
+    return -jnp.minimum(ratio * advantages, jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages)
+
+
 def clipped_surrogate(logp_new: jax.Array, logp_old: jax.Array, advantages: jax.Array,
                       clip: float, mask: jax.Array | None = None) -> jax.Array:
     """PPO policy loss (to minimise): -mean(min(r A, clip(r, 1-eps, 1+eps) A))."""
-    ratio = jnp.exp(logp_new - logp_old)
-    unclipped = ratio * advantages
-    clipped = jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages
-    return -masked_mean(jnp.minimum(unclipped, clipped), mask)
+    return masked_mean(surrogate_terms(logp_new, logp_old, advantages, clip), mask)
+
+
+def soft_cross_entropy(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
+    """Cross-entropy of the policy ``logits [..., 3, bins]`` to a target distribution given by
+    its log-probabilities (a teacher's), summed over the 3 dimensions: ``[...]``."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    return -(jnp.exp(target_logp) * logp).sum(-1).sum(-1)
+
+
+def kl_divergence(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
+    """KL(target || policy) summed over the 3 dimensions, ``[...]``."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    return (jnp.exp(target_logp) * (target_logp - logp)).sum(-1).sum(-1)
 
 
 def value_loss(values: jax.Array, returns: jax.Array, mask: jax.Array | None = None):

@@ -1,35 +1,36 @@
-"""The jitted training update (PureJaxRL style): BC and BC + PPO for every setting and seed.
+"""The jitted training update (PureJaxRL style), generic over the learning methods.
 
 One update consumes, per seed, a batch of ``B`` scenarios: their teacher-forced records
-(:mod:`igdrivsim.training.teacher`; computed once per dataset) and, for BC-RL, their simulator
-states at reset. Settings are data (:class:`~igdrivsim.observation.ObservationParams`, axis
-``G``) and seeds a batch axis (``S``): one compiled program trains every (setting, seed) pair.
+(:mod:`igdrivsim.training.teacher`; computed once per dataset) and, for methods that drive,
+their simulator states at reset. Settings are data (:class:`~igdrivsim.observation.
+ObservationParams`, axis ``G``) and seeds a batch axis (``S``): one compiled program trains
+every (setting, seed) pair of a method.
 
-1. BC data: the recorded warm-up (t = 0..9) and expert-driven (t = 10..89) episode under the
-   setting's observation model, built on the fly from the record, with the discretised expert
-   actions as labels;
-2. only for BC-RL (static flag): the policy drives from the same warm-up state (GRU warmed on
-   the same observations), sampling its actions and observing the simulator's exact state;
-   rewards -1[overlap] - 1[offroad]; GAE (the episode ends at step 90, so V = 0 there);
-3. ``epochs`` passes over ``minibatches`` random minibatches of scenarios, each one Adam step
-   on ``w_bc * BC + w_rl * PPO`` (PPO = clipped surrogate + vf_coef * value loss - ent_coef *
-   entropy). The recurrent network is re-run over the whole 90-step episode with the current
-   parameters (encoders batched over time, see :func:`~igdrivsim.policy.network.
-   unroll_sequence`), so after the first step the PPO ratio differs from 1.
+1. the episodes the method asks for (:mod:`igdrivsim.training.methods`): the logged episode
+   under the setting's observation model, built on the fly from the record (labels: the
+   discretised expert actions); the policy's own closed-loop episode from the same warm-up
+   state (sampled actions, rewards ``-1[overlap] - 1[offroad]``, GAE; the episode ends at step
+   90, so V = 0 there); a privileged teacher's labels of the states it visits (the teacher
+   sees them fully observed); the buffer of the last labelled episodes (DAgger);
+2. ``epochs`` passes over ``minibatches`` random minibatches of scenarios, each one Adam step
+   on the method's loss. The recurrent network is re-run over every episode of the minibatch
+   with the current parameters in one pass (encoders batched over time, see
+   :func:`~igdrivsim.policy.network.unroll_sequence`), so after the first step the PPO ratio
+   differs from 1.
 
-BC is the same code with ``w_rl = 0``: no simulator state, no rollout, no PPO term. The
-learning rate is an argument (the driver computes the cosine schedule), so one compiled update
-serves any run length.
+The learning rate is an argument (the driver computes the cosine schedule), so one compiled
+update serves any run length.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 import optax
+from flax import struct
 
 from igdrivsim.observation import (
     Observation,
@@ -45,16 +46,8 @@ from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training import env
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.env import WARMUP_STEPS
-from igdrivsim.training.losses import (
-    action_log_prob,
-    bc_loss,
-    clipped_surrogate,
-    entropy,
-    gae,
-    masked_mean,
-    normalize,
-    value_loss,
-)
+from igdrivsim.training.losses import bc_loss, gae, normalize
+from igdrivsim.training.methods import Method, Outputs, get_method
 from igdrivsim.training.teacher import (
     EPISODE_STEPS,
     TeacherSteps,
@@ -73,7 +66,7 @@ class UpdateSpec:
     setting: ObservationSetting | None
     obs: ObservationConfig
     sim: SimParams
-    use_rl: bool
+    method: str  # a registered method (what the update collects, its loss)
     w_bc: float
     w_rl: float
     gamma: float
@@ -85,6 +78,13 @@ class UpdateSpec:
     minibatches: int
     grad_clip: float
     record: ObservationConfig  # what a teacher-forced record holds (superset of ``obs``)
+    advisor_alpha: float = 1.0
+    aggregate_batches: int = 4  # DAgger: updates' worth of labelled episodes kept
+    teacher_policy: PolicyConfig | None = None  # the privileged teacher's network (static)
+
+    @property
+    def learner(self) -> Method:
+        return get_method(self.method)
 
 
 def sim_params(config: RunConfig) -> SimParams:
@@ -107,19 +107,32 @@ def settings_as_data(config: RunConfig) -> ObservationParams | None:
     return stack_params(params)
 
 
-def update_spec(config: RunConfig) -> UpdateSpec:
+def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
+    """The static part of a run's update; ``teacher_policy`` overrides the teacher run's
+    network config (benchmarks use an untrained teacher)."""
     t, o = config.training, config.observation
     names = run_settings(config)
     static = None if settings_as_data(config) is not None else get_setting(names[0])
     return UpdateSpec(
         policy=config.policy, setting=static,
         obs=ObservationConfig(o.num_objects, o.num_roadgraph_points), sim=sim_params(config),
-        use_rl=config.use_rl, w_bc=t.w_bc, w_rl=t.w_rl if config.use_rl else 0.0,
+        method=t.method, w_bc=t.w_bc, w_rl=t.w_rl,
         gamma=t.gamma, gae_lambda=t.gae_lambda, clip_eps=t.clip_eps, ent_coef=t.ent_coef,
         vf_coef=t.vf_coef, epochs=t.ppo_epochs, minibatches=t.ppo_minibatches,
         grad_clip=t.grad_clip,
         record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
-                               config.data.max_objects))
+                               config.data.max_objects),
+        advisor_alpha=t.advisor_alpha, aggregate_batches=t.aggregate_batches,
+        teacher_policy=teacher_policy or teacher_policy_config(config))
+
+
+def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
+    """The privileged teacher's network config (``None`` when the method has no teacher)."""
+    if not get_method(config.training.method).teacher:
+        return None
+    from igdrivsim.training.privileged import teacher_config
+
+    return teacher_config(config.training.teacher, config).policy
 
 
 def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
@@ -145,79 +158,160 @@ def expert_sequences(spec: UpdateSpec, rec: TeacherSteps, setting, episode_keys,
     return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs)
 
 
-def _loss(spec: UpdateSpec, setting, params, mb: dict):
-    """``w_bc * BC + w_rl * PPO`` on one minibatch (scenario axis first)."""
-    rec = mb["teacher"]
-    obs = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), mb["expert_obs"])  # time-major
-    b = rec.sdc_yaw.shape[0]
-    if spec.use_rl:  # one pass of the network over both episodes (expert- and policy-driven)
-        policy_obs = jax.tree.map(lambda w, p: jnp.concatenate([w[:WARMUP_STEPS],
-                                                                jnp.swapaxes(p, 0, 1)]),
-                                  obs, mb["policy_obs"])
-        obs = jax.tree.map(lambda x, y: jnp.concatenate([x, y], 1), obs, policy_obs)
-    carry = initial_carry(spec.policy, (jax.tree.leaves(obs)[0].shape[1],))
-    _, logits_all, values_all = unroll_sequence(spec.policy, params, carry, obs, True)
-    logits_all, values_all = logits_all[WARMUP_STEPS:], values_all[WARMUP_STEPS:]
-    logits = logits_all[:, :b]
-    actions = jnp.swapaxes(rec.actions, 0, 1).astype(jnp.int32)
-    valid = jnp.swapaxes(rec.action_valid, 0, 1)
-    bc = bc_loss(logits, actions, valid)
-    aux = {"bc_loss": bc, "entropy": masked_mean(entropy(logits), valid)}
-    total = spec.w_bc * bc
-    if spec.use_rl:
-        tm = lambda k: jnp.swapaxes(mb[k], 0, 1)  # noqa: E731
-        mask = tm("valid")
-        logits_pi, values = logits_all[:, b:], values_all[:, b:]
-        logp = action_log_prob(logits_pi, tm("actions"))
-        pg = clipped_surrogate(logp, tm("log_probs"), tm("advantages"), spec.clip_eps, mask)
-        vl = value_loss(values, tm("returns"), mask)
-        ent_pi = masked_mean(entropy(logits_pi), mask)
-        ppo = pg + spec.vf_coef * vl - spec.ent_coef * ent_pi
-        total = total + spec.w_rl * ppo
-        ratio = jnp.exp(logp - tm("log_probs"))
-        aux |= {"ppo_loss": ppo, "policy_loss": pg, "value_loss": vl, "policy_entropy": ent_pi,
-                "clip_frac": masked_mean((jnp.abs(ratio - 1) > spec.clip_eps).astype(
-                    jnp.float32), mask),
-                "ratio_dev": masked_mean(jnp.abs(ratio - 1.0), mask)}
-    return total, aux
+@struct.dataclass
+class Aggregate:
+    """DAgger's data set of one (setting, seed): the student's episodes of the last ``slots``
+    updates with the teacher's labels, written one batch of ``B`` at a time in a ring."""
+
+    obs: Observation  # [slots * B, 90, ...] the student's observations (warm-up + its steps)
+    logp: jax.Array  # f32[slots * B, 80, 3, bins] the teacher's log-probabilities
+    valid: jax.Array  # bool[slots * B, 80]
+    pushes: jax.Array  # int32, batches written so far
+    slots: int = struct.field(pytree_node=False, default=1)
+
+    @property
+    def episodes(self) -> jax.Array:
+        """Episodes held: grows by ``B`` per update up to ``slots * B``."""
+        b = self.valid.shape[0] // self.slots
+        return jnp.minimum(self.pushes, self.slots) * b
+
+    def push(self, obs: Observation, logp: jax.Array, valid: jax.Array) -> Aggregate:
+        """Write one batch ``[B, ...]`` over the oldest."""
+        at = (self.pushes % self.slots) * valid.shape[0]
+
+        def put(buf, x):
+            return jax.lax.dynamic_update_slice_in_dim(buf, x.astype(buf.dtype), at, axis=0)
+
+        return self.replace(obs=jax.tree.map(put, self.obs, obs), logp=put(self.logp, logp),
+                            valid=put(self.valid, valid), pushes=self.pushes + 1)
+
+    def sample(self, key: jax.Array, n: int):
+        """``(obs, logp, valid)`` of ``n`` episodes drawn uniformly from those held."""
+        idx = jax.random.randint(key, (n,), 0, jnp.maximum(self.episodes, 1))
+        return _take((self.obs, self.logp, self.valid), idx)
+
+
+def empty_aggregate(spec: UpdateSpec, batch: int) -> Aggregate | None:
+    """The empty buffer of one (setting, seed) (``None`` unless the method aggregates)."""
+    if "aggregate" not in spec.learner.episodes:
+        return None
+    from igdrivsim.policy.act import example_observation
+
+    n = spec.aggregate_batches * batch
+    obs = jax.tree.map(lambda x: jnp.zeros((n, EPISODE_STEPS, *x.shape), x.dtype),
+                       example_observation(spec.obs))
+    steps = EPISODE_STEPS - WARMUP_STEPS
+    return Aggregate(obs, jnp.zeros((n, steps, 3, spec.policy.num_bins)),
+                     jnp.zeros((n, steps), bool), jnp.zeros((), jnp.int32),
+                     spec.aggregate_batches)
+
+
+def _time_major(x):
+    return jnp.swapaxes(x, 0, 1)
+
+
+def _loss(spec: UpdateSpec, params, mb: dict):
+    """The method's loss on one minibatch (scenario axis first): the network runs once over
+    every episode kind the method reads, and the loss gets each kind's outputs."""
+    method = spec.learner
+    logged = jax.tree.map(_time_major, mb["logged_obs"])  # [90, b, ...]
+    sequences = {}
+    if "logged" in method.episodes:
+        sequences["logged"] = logged
+    if "rollout" in method.episodes:  # the same logged warm-up, then the policy's own steps
+        sequences["rollout"] = jax.tree.map(lambda w, p: jnp.concatenate(
+            [w[:WARMUP_STEPS], _time_major(p)]), logged, mb["rollout_obs"])
+    if "aggregate" in method.episodes:
+        sequences["aggregate"] = jax.tree.map(_time_major, mb["aggregate_obs"])
+    kinds = list(sequences)
+    obs = jax.tree.map(lambda *xs: jnp.concatenate(xs, 1), *sequences.values())
+    width = jax.tree.leaves(obs)[0].shape[1]
+    _, logits, values, aux = unroll_sequence(spec.policy, params,
+                                             initial_carry(spec.policy, (width,)), obs, True,
+                                             with_aux=True)
+    outputs, at = {}, 0
+    for kind in kinds:
+        n = jax.tree.leaves(sequences[kind])[0].shape[1]
+        lo, hi = at, at + n
+        outputs[kind] = Outputs(*(None if x is None else x[WARMUP_STEPS:, lo:hi]
+                                  for x in (logits, values, aux)))
+        at += n
+    batch = {k: _time_major(v) for k, v in mb.items() if not k.endswith("_obs")}
+    return method.loss(spec, outputs, batch)
 
 
 def _take(tree, idx):
     return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), tree)
 
 
-def update_one(spec: UpdateSpec, params, opt_state, rec: TeacherSteps, states: SimState | None,
-               setting, key, lr):
-    """One update of one (setting, seed) on its batch ``[B]``: ``(params, opt_state,
+def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Observation
+                   ) -> jax.Array:
+    """The privileged teacher's log-probabilities ``[80, B, 3, bins]`` along an episode: its
+    GRU warmed on the fully observed logged steps ``warm [10, B]``, then stepped over the
+    fully observed states ``seen [80, B]`` the student drove through."""
+    obs = jax.tree.map(lambda w, s: jnp.concatenate([w, s]), warm, seen)
+    b = jax.tree.leaves(seen)[0].shape[1]
+    _, logits, _ = unroll_sequence(spec.teacher_policy, teacher_params,
+                                   initial_carry(spec.teacher_policy, (b,)), obs, True)
+    return jax.nn.log_softmax(logits[WARMUP_STEPS:], axis=-1)
+
+
+def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: TeacherSteps,
+            states: SimState | None, setting, teacher_params, key):
+    """The episodes of one update (scenario-major arrays for minibatching), the buffer after
+    this update's push, and the collection's metrics."""
+    method = spec.learner
+    b = rec.sdc_yaw.shape[0]
+    k_ep, k_act, k_agg = jax.random.split(key, 3)
+    episode_keys = jax.random.split(k_ep, b)
+    logged = expert_sequences(spec, rec, setting, episode_keys)  # [90, b]: built once
+    data = {"logged_obs": jax.tree.map(_time_major, logged), "expert_actions": rec.actions,
+            "expert_valid": rec.action_valid}
+    metrics = {}
+    if not method.rollout:
+        return data, buffer, metrics
+    warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], logged)
+    carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
+                                  warm, True)
+    full = get_setting("full") if method.teacher else None
+    roll = env.policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
+                              episode_keys, k_act, privileged=full)
+    roll = jax.tree.map(jax.lax.stop_gradient, roll)
+    # Episodes end at step 90 (terminal): the value after the last step is 0.
+    adv, ret = gae(roll.rewards.T, roll.values.T, jnp.zeros((b,)), spec.gamma,
+                   spec.gae_lambda)
+    adv = normalize(adv.T, roll.valid)
+    bm = _time_major  # time-major -> scenario-major
+    data |= {"rollout_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),
+             "log_probs": bm(roll.log_probs), "valid": bm(roll.valid),
+             "advantages": bm(adv), "returns": ret}
+    metrics["mean_return"] = roll.rewards.sum(0).mean()
+    metrics["overlap_or_offroad_steps"] = (roll.rewards < 0).astype(jnp.float32).mean()
+    if method.teacher:
+        full_warm = expert_sequences(spec, rec, full, episode_keys, WARMUP_STEPS)
+        logp = jax.lax.stop_gradient(
+            teacher_labels(spec, teacher_params, full_warm, roll.privileged_obs))
+        data["teacher_logp"] = bm(logp)
+        if "aggregate" in method.episodes:
+            student = jax.tree.map(lambda w, p: bm(jnp.concatenate([w, p])), warm, roll.obs)
+            buffer = buffer.push(student, bm(logp), bm(roll.valid))
+            obs, agg_logp, agg_valid = buffer.sample(k_agg, b)
+            data |= {"aggregate_obs": obs, "aggregate_logp": agg_logp,
+                     "aggregate_valid": agg_valid}
+            metrics["aggregate_episodes"] = buffer.episodes.astype(jnp.float32)
+    return data, buffer, metrics
+
+
+def update_one(spec: UpdateSpec, params, opt_state, buffer: Aggregate | None,
+               rec: TeacherSteps, states: SimState | None, setting, teacher_params, key, lr):
+    """One update of one (setting, seed) on its batch ``[B]``: ``(params, opt_state, buffer,
     metrics)``."""
     b = rec.sdc_yaw.shape[0]
-    k_ep, k_act, k_perm = jax.random.split(key, 3)
-    episode_keys = jax.random.split(k_ep, b)
-    # the setting's observations of the recorded episodes, built once for every epoch
-    expert_obs = expert_sequences(spec, rec, setting, episode_keys)
-    data = {"teacher": rec.replace(roadgraph=None, roadgraph_type=None, roadgraph_valid=None,
-                                   objects=None, objects_valid=None),
-            "expert_obs": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), expert_obs)}
-    metrics = {}
-    if spec.use_rl:
-        warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], expert_obs)
-        carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
-                                      warm, True)
-        roll = env.policy_rollout(spec.policy, params, carry, states, setting, spec.obs,
-                                  spec.sim, episode_keys, k_act)
-        roll = jax.tree.map(jax.lax.stop_gradient, roll)
-        # Episodes end at step 90 (terminal): the value after the last step is 0.
-        adv, ret = gae(roll.rewards.T, roll.values.T, jnp.zeros((b,)), spec.gamma,
-                       spec.gae_lambda)
-        adv = normalize(adv.T, roll.valid)
-        bm = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731  time-major -> scenario-major
-        data |= {"policy_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),
-                 "log_probs": bm(roll.log_probs), "valid": bm(roll.valid),
-                 "advantages": bm(adv), "returns": ret}
-        metrics["mean_return"] = roll.rewards.sum(0).mean()
-        metrics["overlap_or_offroad_steps"] = (roll.rewards < 0).astype(jnp.float32).mean()
+    k_collect, k_perm = jax.random.split(key)
+    data, buffer, metrics = collect(spec, params, buffer, rec, states, setting, teacher_params,
+                                    k_collect)
     tx = optimizer(spec)
-    grad_fn = jax.value_and_grad(partial(_loss, spec, setting), has_aux=True)
+    grad_fn = jax.value_and_grad(partial(_loss, spec), has_aux=True)
     per_mb = b // spec.minibatches
 
     def minibatch_step(carry, idx):
@@ -235,33 +329,38 @@ def update_one(spec: UpdateSpec, params, opt_state, rec: TeacherSteps, states: S
     (params, opt_state), aux = jax.lax.scan(
         epoch, (params, opt_state), jax.random.split(k_perm, spec.epochs))
     metrics |= jax.tree.map(jnp.mean, aux)
-    return params, opt_state, metrics
+    return params, opt_state, buffer, metrics
 
 
 def make_update(spec: UpdateSpec, donate: bool = True):
     """The jitted update over all settings and seeds: ``(params[G, S], opt_state[G, S],
-    teacher[S, B] | None, states[S, B] | None, settings[G] | None, seed_keys[S], update_index,
-    lr) -> (params, opt_state, metrics[G, S])``; without ``teacher`` the batch is recorded
-    from ``states`` inside the update. Every setting sees the same scenarios and draws
-    of a seed (the comparison between settings is paired)."""
+    buffer[G, S] | None, teacher[S, B] | None, states[S, B] | None, settings[G] | None,
+    teacher_params[S] | None, seed_keys[S], update_index, lr) -> (params, opt_state, buffer,
+    metrics[G, S])``; without ``teacher`` records the batch is recorded from ``states`` inside
+    the update. Every setting sees the same scenarios and draws of a seed (the comparison
+    between settings is paired); seed ``s`` is labelled by the teacher's seed ``s``."""
 
-    def update(params, opt_state, teacher, states, settings, seed_keys, update_index, lr):
+    def update(params, opt_state, buffer, teacher, states, settings, teacher_params,
+               seed_keys, update_index, lr):
         keys = jax.vmap(lambda k: jax.random.fold_in(k, update_index))(seed_keys)
         if teacher is None:  # records not kept in memory: record this batch now
             teacher = jax.vmap(jax.vmap(lambda s: record_episode(s, spec.sim, spec.record)))(
                 states)
 
-        def one_setting(setting, params, opt_state):
-            per_seed = partial(update_one, spec)
-            return jax.vmap(lambda p, o, r, s, k: per_seed(p, o, r, s, setting, k, lr))(
-                params, opt_state, teacher, states, keys)
+        def one_setting(setting, params, opt_state, buffer):
+            def per_seed(p, o, buf, r, s, tp, k):
+                return update_one(spec, p, o, buf, r, s, setting, tp, k, lr)
+
+            return jax.vmap(per_seed)(params, opt_state, buffer, teacher, states,
+                                      teacher_params, keys)
 
         if spec.setting is not None:
-            out = one_setting(spec.setting, *jax.tree.map(lambda x: x[0], (params, opt_state)))
+            first = jax.tree.map(lambda x: x[0], (params, opt_state, buffer))
+            out = one_setting(spec.setting, *first)
             return jax.tree.map(lambda x: x[None], out)
-        return jax.vmap(one_setting)(settings, params, opt_state)
+        return jax.vmap(one_setting)(settings, params, opt_state, buffer)
 
-    return jax.jit(update, donate_argnums=(0, 1) if donate else ())
+    return jax.jit(update, donate_argnums=(0, 1, 2) if donate else ())
 
 
 def make_validation_loss(spec: UpdateSpec):
@@ -271,13 +370,13 @@ def make_validation_loss(spec: UpdateSpec):
     def loss(params, teacher, settings, key):
         v = teacher.sdc_yaw.shape[0]
         keys = jax.random.split(key, v)
-        bc_spec = replace(spec, use_rl=False, w_rl=0.0)
 
         def one(setting, p):
             obs = expert_sequences(spec, teacher, setting, keys)
-            data = {"teacher": teacher,
-                    "expert_obs": jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs)}
-            return _loss(bc_spec, setting, p, data)[1]["bc_loss"]
+            _, logits, _ = unroll_sequence(spec.policy, p, initial_carry(spec.policy, (v,)),
+                                           obs, True)
+            return bc_loss(logits[WARMUP_STEPS:], _time_major(teacher.actions),
+                           _time_major(teacher.action_valid))
 
         if spec.setting is not None:
             return jax.vmap(lambda p: one(spec.setting, p))(

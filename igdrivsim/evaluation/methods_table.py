@@ -1,0 +1,231 @@
+"""Table II: every learned method against BC (Markdown for the README, LaTeX for the report).
+
+Written by the report only when the evaluations hold learned methods beyond the paper's two
+(``bc``, ``bc_rl``), e.g. DAgger or ADVISOR runs. Rows: Table I's metrics, one row per learned
+method (BC, BC-RL, then the method registry's order, then unregistered names), the reference
+rows last; columns: the settings evaluated. A cell is the mean over seeds ± 95% CI half-width
+(as Table I's Markdown); a non-BC cell adds its difference from BC with the two-level bootstrap
+95% interval of :func:`igdrivsim.evaluation.aggregate.compare_methods`, run over all methods vs
+BC so that Holm counts every comparison cell of this table, and is bold where significant.
+A method not evaluated in a setting (an extended run may skip ``full``) shows ``--``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_methods
+from igdrivsim.evaluation.schema import (
+    BC,
+    BC_RL,
+    METHOD_LABELS,
+    METRICS,
+    REFERENCE_SETTING,
+    REFERENCES,
+    setting_labels,
+    setting_short,
+    table_settings,
+)
+from igdrivsim.evaluation.tables import (
+    MISSING,
+    _ci_text,
+    _fmt,
+    _has_references,
+    _lookup,
+    _metric_name,
+    _signed,
+    _tex,
+)
+from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
+
+PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
+
+
+def learned_methods(frame: pd.DataFrame) -> list[str]:
+    """The learned methods in ``frame`` (any frame with a ``method`` column), in Table II
+    order: BC, BC-RL, the rest in the method registry's order, then unregistered names."""
+    present = set(frame["method"].astype(str)) - set(REFERENCES) if len(frame) else set()
+    first = [m for m in PAPER_METHODS if m in present]
+    registered = [m for m in METHOD_REGISTRY if m in present and m not in PAPER_METHODS]
+    return first + registered + sorted(present - set(first) - set(registered))
+
+
+def extended_methods(frame: pd.DataFrame) -> list[str]:
+    """The learned methods in ``frame`` beyond the paper's BC and BC-RL (Table II order)."""
+    return [m for m in learned_methods(frame) if m not in PAPER_METHODS]
+
+
+def method_label(name: str) -> str:
+    """A method's label: the registry's, a reference's, else the name itself."""
+    if name in METHOD_REGISTRY:
+        return METHOD_REGISTRY[name].label
+    return METHOD_LABELS.get(name, name)
+
+
+def method_colours(methods: Sequence[str]) -> dict[str, str]:
+    """Each method's registry colour; an unregistered one gets a matplotlib cycle colour
+    (``C2`` onwards, so never the default blue/orange of BC and BC-RL)."""
+    colours, spare = {}, 0
+    for name in methods:
+        if name in METHOD_REGISTRY:
+            colours[name] = METHOD_REGISTRY[name].colour
+        else:
+            colours[name] = f"C{2 + spare % 8}"
+            spare += 1
+    return colours
+
+
+def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
+    """Every learned method but ``baseline`` against it (:func:`compare_methods`), rows in
+    Table II order; Holm runs over all of these rows (Table II's comparison cells)."""
+    methods = [m for m in learned_methods(per_scenario) if m != baseline]
+    return compare_methods(per_scenario, baseline=baseline, methods=methods)
+
+
+def _columns(summary: pd.DataFrame, methods: Sequence[str]) -> list[str]:
+    present = set(summary.loc[summary.method.isin(methods), "setting"].astype(str))
+    return [s for s in table_settings(summary) if s in present]
+
+
+def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Series | None:
+    rows = tests[(tests.method == method) & (tests.metric == metric) & (tests.setting == setting)]
+    if rows.empty or not math.isfinite(float(rows.iloc[0]["diff"])):
+        return None
+    return rows.iloc[0]
+
+
+def _n_cells(tests: pd.DataFrame) -> int:
+    return int(np.isfinite(tests.p_value.to_numpy(float)).sum()) if len(tests) else 0
+
+
+def _ranges(tests: pd.DataFrame, column: str) -> str:
+    """``lo–hi unit`` per metric unit over the cells with a finite ``column``."""
+    parts = []
+    for unit in dict.fromkeys(m.unit for m in METRICS):
+        keys = [m.key for m in METRICS if m.unit == unit]
+        values = tests.loc[tests.metric.isin(keys), column].to_numpy(float) if len(tests) else []
+        values = [v for v in values if math.isfinite(v)]
+        if values:
+            parts.append(f"{min(values):.2f}–{max(values):.2f} {unit}")
+    return ", ".join(parts) or MISSING
+
+
+def methods_caption(tests: pd.DataFrame) -> str:
+    """The Holm and MDE sentence of Table II (plain text; LaTeX callers escape it)."""
+    n = _n_cells(tests)
+    k = int(tests.significant.sum()) if len(tests) else 0
+    return (f"Holm correction over the table's {n} comparison cells ({k} significant). "
+            f"Minimum detectable effect ({POWER:.0%} power) at alpha={ALPHA}: "
+            f"{_ranges(tests, 'mde')}; "
+            f"at the strictest Holm level alpha/{n}: {_ranges(tests, 'mde_holm')}.")
+
+
+def _diff_text(row: pd.Series) -> str:
+    return (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
+            f"{_signed(float(row.ci_high))}]")
+
+
+def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
+    """Markdown Table II from ``summary`` (:func:`summarize`) and ``tests``
+    (:func:`compare_all`)."""
+    methods = learned_methods(summary)
+    cols = _columns(summary, methods)
+    out = ["# Table II: learned methods vs BC", ""]
+    if header:
+        out += [header, ""]
+    out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
+            "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
+            f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
+            f"(alpha={ALPHA}). `{MISSING}`: not evaluated in that setting.", "",
+            "| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |",
+            "|---|---|" + "---|" * len(cols)]
+    references = _has_references(summary)
+    for metric in METRICS:
+        name = _metric_name(metric) + f" ({metric.unit})"
+        for method in methods:
+            cells = []
+            for setting in cols:
+                text = _ci_text(_lookup(summary, metric.key, setting, method))
+                row = None if method == BC else _test(tests, method, metric.key, setting)
+                if row is not None:
+                    text = f"{text} (Δ {_diff_text(row)})"
+                    text = f"**{text}**" if bool(row.significant) else text
+                cells.append(text)
+            out.append(f"| {name} | {method_label(method)} | " + " | ".join(cells) + " |")
+        for method in references:
+            text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
+            out.append(f"| {name} | *{method_label(method)}* | "
+                       + " | ".join([f"*{text}*"] * len(cols)) + " |")
+    out += ["", methods_caption(tests)]
+    return "\n".join(out) + "\n"
+
+
+def _tex_number(text: str) -> str:
+    return text if text == MISSING else text.replace("+", "$+$").replace("-", "$-$")
+
+
+def _tex_ci(row: pd.Series | None) -> str:
+    return _tex_number(_ci_text(row)).replace("±", r"$\pm$")
+
+
+def _mean(row: pd.Series | None) -> float | None:
+    return None if row is None else float(row["mean"])
+
+
+def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
+    """Table II as a ``table*`` float (label ``tab:methods``; needs booktabs and graphicx):
+    per metric a row per method (mean ± CI half-width), under each non-BC method a row with
+    its difference from BC and bootstrap interval, bold where significant after Holm."""
+    methods = learned_methods(summary)
+    cols = _columns(summary, methods)
+    holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
+    lines = [
+        r"\begin{table*}[t]",
+        r"\centering",
+        r"\caption{\textbf{Learned methods versus BC.} Mean over seeds $\pm$ 95\% CI "
+        r"half-width on the validation scenarios; lower is better. Under each method, "
+        r"$\Delta$: its difference from BC with the 95\% interval of a "
+        rf"{_tex(TEST_NAME)}; bold: significant ($\alpha={ALPHA}$). "
+        rf"{holm} "
+        rf"{MISSING}: not evaluated. {caption_extra}}}",
+        r"\label{tab:methods}",
+        r"\resizebox{\textwidth}{!}{%",
+        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
+        r"\toprule",
+        r"\textbf{Metric} & & " + " & ".join(
+            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
+        " & & " + " & ".join(
+            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
+            for s in cols) + r" \\",
+    ]
+    references = _has_references(summary)
+    for metric in METRICS:
+        lines.append(r"\midrule")
+        first = f"{_metric_name(metric)} ({_tex(metric.unit)})"
+        for method in methods:
+            means, diffs = [], []
+            for setting in cols:
+                text = _tex_ci(_lookup(summary, metric.key, setting, method))
+                row = None if method == BC else _test(tests, method, metric.key, setting)
+                diff = "" if row is None else _tex_number(_diff_text(row))
+                if row is not None and bool(row.significant):
+                    text, diff = rf"\textbf{{{text}}}", rf"\textbf{{{diff}}}"
+                means.append(text)
+                diffs.append(diff)
+            lines.append(f"{first} & {_tex(method_label(method))} & " + " & ".join(means)
+                         + r" \\")
+            first = ""
+            if method != BC:
+                lines.append(r" & \quad\footnotesize $\Delta$ vs BC & " + " & ".join(
+                    rf"\footnotesize {d}" if d else "" for d in diffs) + r" \\")
+        for method in references:
+            value = _fmt(_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method)))
+            lines.append(rf"{first} & \textit{{{_tex(method_label(method)).lower()}}} & "
+                         rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
+            first = ""
+    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
+    return "\n".join(lines)

@@ -1,0 +1,98 @@
+"""The registry of learning methods: what a method collects each update and its loss.
+
+A method is one module in this package ending with one :func:`register_method` call. The
+update (:mod:`igdrivsim.training.update`) is generic: every update builds, per (setting, seed),
+the episodes the method asks for (``episodes``), runs the network once over all of them and
+hands the method's ``loss`` the outputs. The episodes:
+
+- ``logged``: the logged (expert-driven) episodes of the batch under the setting's observation,
+  labelled with the discretised expert actions (teacher-forced; BC's data);
+- ``rollout``: the policy drives the same scenarios from the same warm-up (sampled actions),
+  with log-probabilities, values, rewards ``-1[overlap] - 1[offroad]``, GAE advantages and
+  returns; with ``teacher=True`` a privileged teacher (``training.teacher``, a Full-setting
+  run) labels each visited state with its action distribution, seeing the full observation;
+- ``aggregate``: teacher-labelled rollouts of the last ``training.aggregate_batches`` updates,
+  kept in a buffer that grows with the student's states (DAgger's data set).
+
+``igdrivsim train --method``, the configuration, the pipeline's ``--methods``, the tables and
+the figures all read this registry (name, label, colour, baseline); a method is named nowhere
+else. Table I compares BC-RL with BC; Table II every method with its ``baseline``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+
+from igdrivsim.errors import ConfigError
+
+EPISODES = ("logged", "rollout", "aggregate")
+
+
+class Outputs(NamedTuple):
+    """The network over one kind of episode, time-major over the 80 controlled steps."""
+
+    logits: jax.Array  # [80, b, 3, bins]
+    values: jax.Array  # [80, b]
+    aux_logits: jax.Array | None  # [80, b, 3, bins] with the auxiliary head, else None
+
+
+# loss(spec, outputs by episode kind, batch) -> (total, metrics): ``spec`` is the update's
+# static UpdateSpec (weights, clip, ...); ``batch`` holds time-major [80, b, ...] arrays:
+# expert_actions / expert_valid (logged), actions / log_probs / valid / advantages / returns
+# (rollout), teacher_logp (rollout with teacher), aggregate_logp / aggregate_valid (aggregate)
+LossFn = Callable[[Any, dict[str, Outputs], dict[str, jax.Array]],
+                  tuple[jax.Array, dict[str, jax.Array]]]
+
+
+@dataclass(frozen=True)
+class Method:
+    """One learning method."""
+
+    name: str  # --method value and the ``method`` column of the CSVs
+    label: str  # tables and figures
+    colour: str  # figures (matplotlib colour)
+    loss: LossFn
+    episodes: tuple[str, ...] = ("logged",)  # what the loss reads (see the module docstring)
+    teacher: bool = False  # a privileged teacher labels the rollout's states
+    aux_head: bool = False  # the network gets an auxiliary imitation head (ADVISOR)
+    baseline: str | None = "bc"  # the method it is compared with (Tables I-II: BC)
+
+    def __post_init__(self):
+        unknown = set(self.episodes) - set(EPISODES)
+        if unknown or not self.episodes:
+            raise ConfigError(f"method {self.name!r}: episodes must be among {EPISODES}")
+        if "aggregate" in self.episodes and not self.teacher:
+            raise ConfigError(f"method {self.name!r}: aggregate episodes need teacher=True")
+
+    @property
+    def rollout(self) -> bool:
+        """The policy drives a closed-loop episode every update."""
+        return "rollout" in self.episodes or "aggregate" in self.episodes or self.teacher
+
+
+METHODS: dict[str, Method] = {}
+
+
+def register_method(method: Method) -> Method:
+    """Add ``method`` to the registry (its name must be new)."""
+    if method.name in METHODS and METHODS[method.name] != method:
+        raise ConfigError(f"learning method {method.name!r} is already registered")
+    METHODS[method.name] = method
+    return method
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name`` (one-line error naming the choices otherwise)."""
+    if name not in METHODS:
+        raise ConfigError(f"unknown learning method {name!r}; choose from {', '.join(METHODS)}")
+    return METHODS[name]
+
+
+# the paper's two, then the remedies beyond it (registration order is the tables' order)
+for _module in ("bc", "bc_rl", "dagger", "advisor"):
+    importlib.import_module(f"{__name__}.{_module}")

@@ -1,0 +1,51 @@
+"""Adaptive imitation weighting (ADVISOR, Weihs et al. 2021; the idea, our code).
+
+The student drives its own closed-loop episodes; the privileged teacher (``training.teacher``)
+labels each visited state with its action distribution. An auxiliary actor head on the same
+GRU is trained by imitation only; where even it cannot match the teacher (the teacher uses
+information the student's observation lacks) imitation is down-weighted in favour of RL::
+
+    w(s) = exp(-alpha * KL(teacher || aux)(s))          (not differentiated)
+    loss = mean_s[w(s) CE(teacher, pi)(s) + (1 - w(s)) PPO(s)]
+           + vf_coef * value loss - ent_coef * entropy + mean_s CE(teacher, aux)(s)
+
+``alpha`` is ``training.advisor_alpha``; PPO's reward is the paper's ``-1[overlap] -
+1[offroad]``. The logged episodes only warm the GRU up.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from igdrivsim.training.losses import (
+    action_log_prob,
+    entropy,
+    kl_divergence,
+    masked_mean,
+    soft_cross_entropy,
+    surrogate_terms,
+    value_loss,
+)
+from igdrivsim.training.methods import Method, register_method
+
+
+def loss(spec, out, batch):
+    roll, mask, teacher = out["rollout"], batch["valid"], batch["teacher_logp"]
+    ce = soft_cross_entropy(teacher, roll.logits)
+    weight = jnp.exp(-spec.advisor_alpha * jax.lax.stop_gradient(
+        kl_divergence(teacher, roll.aux_logits)))
+    pg = surrogate_terms(action_log_prob(roll.logits, batch["actions"]), batch["log_probs"],
+                         batch["advantages"], spec.clip_eps)
+    vl = value_loss(roll.values, batch["returns"], mask)
+    ent = masked_mean(entropy(roll.logits), mask)
+    aux_ce = masked_mean(soft_cross_entropy(teacher, roll.aux_logits), mask)
+    total = (masked_mean(weight * ce + (1.0 - weight) * pg, mask)
+             + spec.vf_coef * vl - spec.ent_coef * ent + aux_ce)
+    return total, {"teacher_ce": masked_mean(ce, mask), "aux_teacher_ce": aux_ce,
+                   "imitation_weight": masked_mean(weight, mask), "value_loss": vl,
+                   "policy_entropy": ent, "policy_loss": masked_mean(pg, mask)}
+
+
+register_method(Method("advisor", "ADVISOR", "#B07AA1", loss, episodes=("rollout",),
+                       teacher=True, aux_head=True))

@@ -1,0 +1,28 @@
+"""DAgger with a privileged teacher (Ross et al. 2011; the idea, our code).
+
+Iteration 0 is the logged data (BC on the discretised expert actions, weight ``w_BC``). Every
+update the student drives its own closed-loop episodes under its setting; the teacher (the
+Full-setting policy of ``training.teacher``) labels every state the student visits with its
+action distribution, seeing the full observation of that state; the labelled episodes join a
+buffer of the last ``training.aggregate_batches`` updates, and the student is trained on a
+batch drawn from the buffer with the soft cross-entropy to the teacher's labels. The student
+always drives (no mixing with the teacher: beta = 0 after iteration 0).
+"""
+
+from __future__ import annotations
+
+from igdrivsim.training.losses import masked_mean, soft_cross_entropy
+from igdrivsim.training.methods import Method, register_method
+from igdrivsim.training.methods.bc import logged_bc
+
+
+def loss(spec, out, batch):
+    bc, metrics = logged_bc(spec, out, batch)
+    mask = batch["aggregate_valid"]
+    imitation = masked_mean(soft_cross_entropy(batch["aggregate_logp"],
+                                               out["aggregate"].logits), mask)
+    return spec.w_bc * bc + imitation, metrics | {"teacher_ce": imitation}
+
+
+register_method(Method("dagger", "DAgger", "#59A14F", loss, episodes=("logged", "aggregate"),
+                       teacher=True))

@@ -1,0 +1,118 @@
+"""The privileged teacher of DAgger and ADVISOR: a policy trained with the ``full`` setting.
+
+The teacher is an earlier run (``training.teacher``): its ``full`` setting's parameters label
+the student's states, seed ``s`` of the student by seed ``s`` of the teacher (cycling when the
+teacher has fewer seeds). It must observe with the same capacities as the student (the
+student's rollout records the full observation at those capacities). :func:`choose_teacher`
+picks, among finished runs, the one that drives better on the validation subset of its
+learning curves (the paper's failure rate, overlap + offroad, at the last update).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from igdrivsim.errors import ConfigError
+from igdrivsim.training.config import RunConfig, from_dict
+
+TEACHER_SETTING = "full"
+
+
+def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
+    """The teacher run's config, checked against the student's observation capacities."""
+    path = os.path.join(os.fspath(run_dir), "config.json")
+    if not os.path.isfile(path):
+        raise ConfigError(f"training.teacher: {path} not found (train the full setting first)")
+    with open(path) as f:
+        config = from_dict(json.load(f)["config"])
+    names = [s.strip() for s in config.observation.setting.split(",")]
+    if TEACHER_SETTING not in names:
+        raise ConfigError(f"training.teacher: {run_dir} was not trained with the "
+                          f"{TEACHER_SETTING!r} setting (it has {', '.join(names)})")
+    o, t = student.observation, config.observation
+    mine = (o.num_objects, o.num_roadgraph_points, o.roadgraph_stride)
+    theirs = (t.num_objects, t.num_roadgraph_points, t.roadgraph_stride)
+    if mine != theirs:
+        raise ConfigError(f"training.teacher: {run_dir} observes (objects, road points, "
+                          f"stride) = {theirs}, the student {mine}; they must match")
+    return config
+
+
+def load_teacher(run_dir: str, student: RunConfig):
+    """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
+    from igdrivsim.training.loop import is_complete, load_run
+    from igdrivsim.training.update import run_settings
+
+    teacher_config(run_dir, student)
+    if not is_complete(run_dir):
+        raise ConfigError(f"training.teacher: {run_dir} has not finished training")
+    config, params = load_run(run_dir)
+    g = run_settings(config).index(TEACHER_SETTING)
+    seeds = config.training.seeds
+    pick = np.arange(student.training.seeds) % seeds
+    return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
+
+
+def teacher_score(run_dir: str) -> dict | None:
+    """Closed-loop validation metrics of a run's ``full`` setting at its last learning-curve
+    point, averaged over seeds (``None`` without such a point)."""
+    path = os.path.join(os.fspath(run_dir), "curves.jsonl")
+    if not os.path.isfile(path):
+        return None
+    with open(path) as f:
+        rows = [json.loads(ln) for ln in f if ln.strip()]
+    rows = [r for r in rows if r.get("setting") == TEACHER_SETTING and "offroad" in r]
+    if not rows:
+        return None
+    last = max(r["update"] for r in rows)
+    rows = [r for r in rows if r["update"] == last]
+    mean = {k: float(np.mean([r[k] for r in rows]))
+            for k in ("log_divergence", "offroad", "overlap")}
+    return {"run": os.fspath(run_dir), "update": last, "seeds": len(rows), **mean,
+            "failure": mean["offroad"] + mean["overlap"]}
+
+
+def choose_teacher(run_dirs: list[str]) -> dict:
+    """The score of the run (among ``run_dirs``) whose ``full`` setting fails least (overlap +
+    offroad, then log divergence), with every candidate's score under ``candidates``."""
+    scores = [s for s in map(teacher_score, run_dirs) if s is not None]
+    if not scores:
+        raise ConfigError("no run with closed-loop validation curves of the full setting among "
+                          + ", ".join(map(os.fspath, run_dirs)))
+    best = min(scores, key=lambda s: (s["failure"], s["log_divergence"]))
+    return {**best, "candidates": scores}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m igdrivsim.training.privileged --runs RUN... --out teacher.json``: pick the
+    teacher among finished runs and record the choice (the pipeline's ``teacher`` stage)."""
+    import argparse
+
+    from igdrivsim.io import atomic_write_json
+
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.training.privileged",
+                                     description=main.__doc__)
+    parser.add_argument("--runs", nargs="+", required=True, help="candidate run folders")
+    parser.add_argument("--out", required=True, help="where to write the choice (JSON)")
+    args = parser.parse_args(argv)
+    try:
+        choice = choose_teacher(args.runs)
+    except ConfigError as err:
+        print(f"error: {err}")
+        return 2
+    atomic_write_json(args.out, choice, indent=2)
+    for s in choice["candidates"]:
+        print(f"{s['run']}: full setting at update {s['update']}: offroad "
+              f"{100 * s['offroad']:.2f}%, overlap {100 * s['overlap']:.2f}%, log divergence "
+              f"{s['log_divergence']:.2f} m")
+    print(f"teacher: {choice['run']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
