@@ -358,13 +358,15 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None):
         raise ConfigError(f"{path}: not a training run (no {CONFIG})")
     with open(path) as f:
         config = from_dict(json.load(f)["config"])
-    spec = update_spec(config)
+    spec = update_spec(config, teacher_policy=config.policy)  # shapes only: no teacher read
     params_like, opt_like = jax.eval_shape(lambda: init_state(config, spec))
+    # the checkpoint's tree must be restored whole: DAgger's buffer too (then dropped)
+    buffer_like = jax.eval_shape(lambda: init_buffer(config, spec))
     ckpt = Checkpoints(run_dir)
     step = ckpt.latest_step() if step is None else step
     if step is None:
         raise ConfigError(f"{run_dir}: no checkpoint yet")
-    params, _, _ = ckpt.restore(step, params_like, opt_like)
+    params, _, _ = ckpt.restore(step, params_like, opt_like, buffer_like)
     ckpt.close()
     return config, params
 
