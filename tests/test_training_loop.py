@@ -15,10 +15,9 @@ import jax
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import write_toy_shard
 
 from igdrivsim.cli import main as cli_main
-from igdrivsim.data import write_tfexample
-from igdrivsim.simulator import toy
 from igdrivsim.training import inputs
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.loop import load_run, train
@@ -34,12 +33,7 @@ def _max_diff(a, b) -> float:
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory):
     """Eight toy straight-road scenarios (different speeds and lanes) as a tf.Example shard."""
-    caps = inputs.capacities(CONFIG)
-    scenarios = [toy.straight_road(caps, speed=3.0 + 1.5 * i, scenario_id=f"toy-{i}")
-                 for i in range(8)]
-    path = tmp_path_factory.mktemp("toy") / "train.tfrecord"
-    write_tfexample(path, scenarios)
-    return str(path.parent)
+    return write_toy_shard(tmp_path_factory.mktemp("toy"), CONFIG)
 
 
 @pytest.fixture(scope="module")

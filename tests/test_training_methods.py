@@ -12,10 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import write_toy_shard
 
-from igdrivsim.data import write_tfexample
 from igdrivsim.errors import ConfigError
-from igdrivsim.simulator import toy
 from igdrivsim.training import inputs, methods
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.loop import train
@@ -93,12 +92,8 @@ def test_train_command_offers_every_registered_method(extra_method):
 # ------------------------------------------------------------------ taught methods, tiny case
 @pytest.fixture(scope="module")
 def toy_data(tmp_path_factory):
-    caps = inputs.capacities(SMOKE)
-    scenarios = [toy.straight_road(caps, speed=3.0 + 1.5 * i, scenario_id=f"toy-{i}")
-                 for i in range(8)]
-    path = tmp_path_factory.mktemp("toy") / "train.tfrecord"
-    write_tfexample(path, scenarios)
-    return str(path.parent)
+    """Eight toy straight-road scenarios (different speeds and lanes) as a tf.Example shard."""
+    return write_toy_shard(tmp_path_factory.mktemp("toy"), SMOKE)
 
 
 @pytest.fixture(scope="module")

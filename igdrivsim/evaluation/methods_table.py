@@ -26,7 +26,6 @@ from igdrivsim.evaluation.schema import (
     METRICS,
     REFERENCE_SETTING,
     REFERENCES,
-    setting_labels,
     setting_short,
     table_settings,
 )
@@ -39,6 +38,7 @@ from igdrivsim.evaluation.tables import (
     _metric_name,
     _signed,
     _tex,
+    setting_header,
 )
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
 
@@ -196,11 +196,7 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         r"\resizebox{\textwidth}{!}{%",
         r"\begin{tabular}{ll" + "c" * len(cols) + "}",
         r"\toprule",
-        r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
+        *setting_header(cols, r"\textbf{Metric} &"),
     ]
     references = _has_references(summary)
     for metric in METRICS:

@@ -66,6 +66,15 @@ def _has_references(summary: pd.DataFrame) -> list[str]:
             if ((summary.method == m) & (summary.setting == REFERENCE_SETTING)).any()]
 
 
+def setting_header(cols: list[str], lead: str) -> list[str]:
+    """The two LaTeX header lines naming the settings ``cols``, after the cell(s) ``lead``."""
+    blank = " &" * lead.count("&")
+    return [lead + " & " + " & ".join(rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols)
+            + r" \\",
+            blank + " & " + " & ".join(rf"\textbf{{{setting_labels(s)[1]}}}"
+                                       if setting_labels(s)[1] else "" for s in cols) + r" \\"]
+
+
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """The ``table*`` float for the report (needs booktabs, colortbl and the colours
     ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
@@ -84,11 +93,7 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         r"\resizebox{\textwidth}{!}{%",
         r"\begin{tabular}{l" + "c" * len(cols) + "}",
         r"\toprule",
-        r"\textbf{Metric} & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
+        *setting_header(cols, r"\textbf{Metric}"),
     ]
     references = _has_references(summary)
     for metric in METRICS:
