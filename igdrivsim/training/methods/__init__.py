@@ -72,7 +72,7 @@ class Method:
     @property
     def rollout(self) -> bool:
         """The policy drives a closed-loop episode every update."""
-        return "rollout" in self.episodes or "aggregate" in self.episodes or self.teacher
+        return "rollout" in self.episodes or self.teacher  # aggregate implies teacher
 
 
 METHODS: dict[str, Method] = {}
