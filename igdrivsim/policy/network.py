@@ -17,6 +17,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.policy.gru import fused_gru_cell, gru_scan
+
 NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
 NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
 
@@ -218,9 +220,11 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     [T, B, 3, bins], values [T, B])``, plus the auxiliary head's logits when ``with_aux``; the
     GRU state is zeroed before step 0 if ``reset_first``.
 
-    The per-step encoders do not depend on the recurrence, so they run once over all ``T x B``
-    observations (large matrix products) and only the GRU is scanned; the same values as
-    stepping :func:`apply_step`, several times faster on CPU. With ``config.remat`` the
+    The per-step encoders and the GRU's input projection do not depend on the recurrence, so
+    they run once over all ``T x B`` observations (large matrix products) and only the
+    recurrence is scanned (:func:`igdrivsim.policy.gru.gru_scan`, the cell's equations with a
+    hand-written gradient); the same values as stepping :func:`apply_step`, several times
+    faster on CPU. With ``config.remat`` the
     step-wise scan with rematerialisation is used instead (bounded activation memory).
     """
     model = DrivingPolicy(config)
@@ -243,7 +247,9 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
                                                     (obs_seq, resets))
     else:
         x = model.apply(params, obs_seq, method=DrivingPolicy.encode)
-        carry, ys = jax.lax.scan(lambda c, xs: core(c, *xs), carry, (x, resets))
+        w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"]["gru"])
+        x_proj = (x.reshape(-1, x.shape[-1]) @ w_i + b_i).reshape(*x.shape[:-1], -1)
+        carry, ys = gru_scan(x_proj, resets, carry, w_h, b_hn)
         logits, values, aux = heads(ys, obs_seq.sdc_speed)
     return (carry, logits, values, aux) if with_aux else (carry, logits, values)
 

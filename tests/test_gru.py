@@ -1,4 +1,4 @@
-"""The maze GRU's hand-written gradient matches autodiff through the plain scan."""
+"""The sequence GRU's hand-written gradient matches autodiff through the plain scan."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from maze.network import _gru_forward, gru_scan
+from igdrivsim.policy.gru import _gru_forward, gru_scan
 
 
 def test_gru_scan_gradient_matches_autodiff():
@@ -36,3 +36,27 @@ def test_gru_scan_gradient_matches_autodiff():
     batched = jax.vmap(jax.grad(loss(gru_scan), argnums=2), (None, None, 0, None))(
         x, h0, jnp.stack([w, w]), bias)
     np.testing.assert_allclose(batched[1], want[2], rtol=1e-4, atol=1e-5)
+
+
+def test_gru_scan_is_flax_gru_cell_stepped():
+    """With ``fused_gru_cell``'s parameters the scan equals stepping ``nn.GRUCell`` (state
+    zeroed at the flagged steps), over two batch axes."""
+    import flax.linen as nn
+
+    from igdrivsim.policy.gru import fused_gru_cell
+
+    t, batch, d, h = 7, (2, 3), 5, 4
+    keys = jax.random.split(jax.random.PRNGKey(1), 4)
+    cell = nn.GRUCell(features=h)
+    params = cell.init(keys[0], jnp.zeros((h,)), jnp.zeros((d,)))
+    params = jax.tree.map(lambda p: p + 0.1 * jax.random.normal(keys[3], p.shape), params)
+    xs = jax.random.normal(keys[1], (t, *batch, d))
+    first = jax.random.bernoulli(keys[2], 0.3, (t, *batch))
+    carry = jnp.ones((*batch, h))
+    w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"])
+    last, seq = gru_scan(xs @ w_i + b_i, first, carry, w_h, b_hn)
+    for step in range(t):
+        carry = jnp.where(first[step][..., None], 0.0, carry)
+        carry, out = cell.apply(params, carry, xs[step])
+        np.testing.assert_allclose(seq[step], out, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(last, carry, rtol=1e-5, atol=1e-6)
