@@ -160,12 +160,17 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
     from igdrivsim.simulator.dynamics import constant_speed_offset
 
     bins = offset_logits.shape[-1]
-    shift = constant_speed_offset(sdc_speed * SPEED_SCALE)
+    lead = offset_logits.shape[:-1]
+    shift = jnp.broadcast_to(constant_speed_offset(sdc_speed * SPEED_SCALE), lead).reshape(-1)
     # offset index o scores level o + shift: o = middle (zero offset) is the constant-velocity
-    # level middle + shift, since level ``middle`` is a zero displacement
-    offset = jnp.arange(bins) - shift[..., None]
-    picked = jnp.take_along_axis(offset_logits, jnp.clip(offset, 0, bins - 1), axis=-1)
-    return jnp.where((offset >= 0) & (offset < bins), picked, -1e9)
+    # level middle + shift, since level ``middle`` is a zero displacement. Each row is a window
+    # of the row padded with -1e9 (a sliced gather; an elementwise take_along_axis built index
+    # arrays that cost a tenth of a BC-RL update on XLA:CPU).
+    padded = jnp.pad(offset_logits.reshape(-1, bins), ((0, 0), (bins, bins)),
+                     constant_values=-1e9)
+    start = jnp.clip(bins - shift, 0, 2 * bins)
+    rows = jax.vmap(lambda row, s: jax.lax.dynamic_slice(row, (s,), (bins,)))(padded, start)
+    return rows.reshape(*lead, bins)
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
