@@ -14,12 +14,12 @@ import sys
 
 from igdrivsim.training.config import RunConfig
 
-# Paper network on a 2-core CPU (shared, load ~3.5): `igdrivsim bench train --profiles paper
-# --method bc --obs full --updates 2` = 31.1 s per update of one episode; a method that drives
-# closed-loop episodes (BC-RL and the taught methods) scaled by the BC-RL / BC ratio of README's
-# "Measured speeds" (45.6 / 24.3). README "Running at paper scale".
-CPU_SECONDS_PER_EPISODE = 31.1  # teacher-forced methods (BC)
-CPU_SECONDS_PER_ROLLOUT_EPISODE = 58.4  # methods that also drive (BC-RL, DAgger, ADVISOR)
+# Paper network on an idle 2-core CPU: `igdrivsim bench train --profiles paper --method bc
+# --obs full --updates 2` = 9.78 s per update of one episode; a method that drives closed-loop
+# episodes (BC-RL and the taught methods), the same with `--method bc_rl` = 20.3 s. README
+# "Running at paper scale".
+CPU_SECONDS_PER_EPISODE = 9.78  # teacher-forced methods (BC)
+CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger, ADVISOR)
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 
 
