@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from igdrivsim.policy.gru import gru_scan
+from igdrivsim.policy.network import dense_2d
 from maze.env import MazeParams
 
 
@@ -53,25 +54,20 @@ class GRUPolicy(nn.Module):
     @nn.compact
     def __call__(self, h: jax.Array, obs: jax.Array, first: jax.Array):
         hid = self.hidden
-        x_proj = _flat(nn.Dense(3 * hid, name="input"), self.features(obs))  # all steps at once
+        x_proj = dense_2d(nn.Dense(3 * hid, name="input"), self.features(obs))  # all steps at once
         w_h = self.param("recurrent", nn.initializers.orthogonal(), (hid, 3 * hid))
         b_hn = self.param("recurrent_bias", nn.initializers.zeros, (hid,))
 
         h, hs = gru_scan(x_proj, first, h, w_h, b_hn)
-        logits = _flat(nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
-                                name="actor"), hs)
-        value = _flat(nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0), name="critic"), hs)
+        logits = dense_2d(nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
+                                   name="actor"), hs)
+        value = dense_2d(nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0),
+                                  name="critic"), hs)
         if self.aux_head:
-            aux = _flat(nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
-                                 name="aux"), hs)
+            aux = dense_2d(nn.Dense(self.num_actions, kernel_init=nn.initializers.orthogonal(0.01),
+                                name="aux"), hs)
             return h, logits, value[..., 0], aux
         return h, logits, value[..., 0]
-
-
-def _flat(layer: nn.Dense, x: jax.Array) -> jax.Array:
-    """``layer`` on ``x[T, B, D]`` as one 2-D matmul: with the time and batch axes kept, the
-    weight gradient (a contraction over both) was several times slower on XLA:CPU."""
-    return layer(x.reshape(-1, x.shape[-1])).reshape(*x.shape[:-1], -1)
 
 
 def make_policy(hidden: int, params: MazeParams, encoding: str = "onehot",
