@@ -172,9 +172,9 @@ def laptop() -> RunConfig:
         data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
                         max_roadgraph_points=10_240, prefetch=2),
         observation=ObsConfig(num_objects=16, num_roadgraph_points=64, roadgraph_stride=8),
-        training=TrainConfig(seeds=3, num_updates=200, lr=3e-3, ppo_epochs=2,
-                             ppo_minibatches=4, log_every=10, eval_every=40, val_scenarios=32,
-                             checkpoint_every=40),
+        training=TrainConfig(seeds=3, num_updates=300, lr=3e-3, ppo_epochs=2,
+                             ppo_minibatches=4, log_every=10, eval_every=50, val_scenarios=32,
+                             checkpoint_every=50),
     )
 
 
