@@ -139,3 +139,8 @@ def test_build_report_writes_table2_only_with_extended_methods(tmp_path):
     assert not (plain / "tables" / "table2.md").exists()
     assert not (plain / "figures" / "fig6_methods.png").exists()
     assert set(pd.read_csv(plain / "tables" / "tests.csv").method) == {"bc_rl"}
+    # a plain report over an extended one's folder leaves no Table II of the earlier run
+    build_report([tmp_path / "plain" / "evals"], out,
+                 Provenance(profile="smoke", data="synthetic_test"), run_dirs=[])
+    assert not (tables / "table2.md").exists() and not (figures / "fig6_methods.png").exists()
+    assert (tables / "table1.md").is_file()

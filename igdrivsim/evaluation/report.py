@@ -14,9 +14,10 @@ and ``generated/verdicts.tex`` (is BC-RL safer, per setting). Table I, the power
 verdicts and ``tests.csv`` compare BC-RL with BC only (Holm over Table I's cells). When the
 evaluations hold learned methods beyond BC and BC-RL, also Table II (every learned method vs
 BC, Holm over its own cells; :mod:`igdrivsim.evaluation.methods_table`):
-``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``.
-Every file but the provenance (which records the date) is a pure function of the inputs, so
-reruns give identical tables.
+``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``
+(without them, those files of an earlier report in ``OUT`` are removed). Every file but the
+provenance (which records the date) is a pure function of the inputs, so reruns give
+identical tables.
 """
 
 from __future__ import annotations
@@ -128,6 +129,12 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     return found
 
 
+# Table II's files, relative to ``out``: removed by a report without extended methods, so a
+# folder never shows a Table II from an earlier run next to this run's Table I.
+METHODS_OUTPUTS = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex",
+                   "figures/fig6_methods.pdf", "figures/fig6_methods.png")
+
+
 def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, header: str,
                    caption: str) -> list[Path]:
     """Table II, its tests (every learned method vs BC) and Fig. 6."""
@@ -194,6 +201,9 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     written += _speed_walk_files(eval_dirs, tables, generated)
     if methods_table.extended_methods(per_scenario):
         written += _methods_files(per_scenario, summary, seeds, tables, figures, header, caption)
+    else:
+        for name in METHODS_OUTPUTS:
+            (out / name).unlink(missing_ok=True)
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]
     written += learning_curves_figure(runs, figures, references if len(references) else None)
