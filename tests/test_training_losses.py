@@ -134,3 +134,32 @@ def test_relative_dx_head_scores_offsets_from_constant_velocity():
         o = jax.tree.map(lambda x, t=t: x[t], seq)
         carry, logits, _ = apply_step(cfg, params, carry, o, jnp.array([t == 0]))
         np.testing.assert_allclose(logits, unrolled[t], atol=1e-5)
+
+
+def test_speed_history_feeds_the_last_speed_changes_in_levels():
+    from igdrivsim.policy.network import initial_carry, speed_changes, unroll_sequence
+
+    level = 0.46875 / 50.0  # one dx level (12/256 m per 0.1 s) in the feature's units
+    v = jnp.array([[5.0, 5.5, 4.0]]) / 50.0  # now, previous, the one before (m/s / 50)
+    changes, past = speed_changes(v[:, :1], v[:, 1:])
+    np.testing.assert_allclose(changes, [[-0.5 / 50 / level, 1.5 / 50 / level]], rtol=1e-5)
+    np.testing.assert_allclose(past, v[:, :2])
+    # stepping and unrolling agree, the carry holds the speeds, and a reset forgets them
+    cfg = replace(TINY, relative_dx=True, speed_history=2)
+    obs = example_observation(ObservationConfig(2, 4))
+    params = init_params(cfg, jax.random.PRNGKey(0), obs)
+    speeds = jnp.array([0.10, 0.11, 0.13, 0.12])
+    seq = jax.tree.map(lambda x: jnp.stack([x] * 4)[:, None], obs)  # [T=4, B=1, ...]
+    seq = seq.replace(sdc_speed=speeds[:, None, None])
+    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    carry = jnp.full((1, cfg.gru_hidden + 2), 0.5)  # a stale carry: the reset must drop it
+    for t in range(4):
+        o = jax.tree.map(lambda x, t=t: x[t], seq)
+        carry, logits, _ = apply_step(cfg, params, carry, o, jnp.array([t == 0]))
+        np.testing.assert_allclose(logits, unrolled[t], atol=1e-5)
+    np.testing.assert_allclose(carry, end, atol=1e-5)
+    np.testing.assert_allclose(end[0, -2:], [0.12, 0.13], atol=1e-7)
+    # the changes reach the network: other past speeds, other logits
+    other = seq.replace(sdc_speed=jnp.array([0.10, 0.10, 0.10, 0.12])[:, None, None])
+    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
+    assert not np.allclose(moved[3], unrolled[3])

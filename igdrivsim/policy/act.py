@@ -94,7 +94,7 @@ class PolicyCarry:
     drawn with ``fold_in(action_key, t)``; ``None``: with the runner's step key, one draw for
     the whole batch, as BC-RL's training rollout does)."""
 
-    hidden: jax.Array  # f32[..., gru_hidden]
+    hidden: jax.Array  # f32[..., gru_hidden + speed_history]: the network's carry
     episode_key: jax.Array  # key[...]
     action_key: jax.Array | None = None  # key[...] or None
 

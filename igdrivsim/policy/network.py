@@ -47,6 +47,11 @@ class PolicyConfig:
     # a second actor head on the same GRU output, trained by imitation only (ADVISOR's
     # auxiliary policy); the method decides (training/methods), acting never reads it
     aux_head: bool = False
+    # the policy keeps its last H observed speeds in its recurrent carry and sees the last H
+    # speed changes, in dx levels (0.47 m/s), next to the speed: the expert's next level
+    # depends on them (it corrects its quantisation error), which a GRU fed the speed alone
+    # does not pick up (docs/training.md, "the speed walk"); 0: off (the paper's network)
+    speed_history: int = 0
 
 
 class MLP(nn.Module):
@@ -144,14 +149,16 @@ class DrivingPolicy(nn.Module):
             self.aux_mlp = MLP(c.actor_hidden)
             self.aux_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
 
-    def encode(self, obs):
-        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]``."""
+    def encode(self, obs, speed_changes=None):
+        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]`` (``speed_changes
+        [..., H]`` with ``speed_history``: see :func:`speed_changes`)."""
         objects = masked_max(self.object_mlp(obs.objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
-        x = jnp.concatenate(
-            [self.object_norm(objects), self.roadgraph_norm(roads),
-             obs.sdc_speed * self.config.speed_input_scale], axis=-1)
-        return self.trunk(x)
+        parts = [self.object_norm(objects), self.roadgraph_norm(roads),
+                 obs.sdc_speed * self.config.speed_input_scale]
+        if self.config.speed_history:
+            parts.append(speed_changes)
+        return self.trunk(jnp.concatenate(parts, axis=-1))
 
     def core(self, carry, x, reset):
         """The recurrent part: ``(carry, encoded x, reset) -> (carry, GRU output)``."""
@@ -176,9 +183,32 @@ class DrivingPolicy(nn.Module):
         return logits, dense_2d(self.value_out, self.value_mlp(y))[..., 0], aux
 
     def __call__(self, carry, obs, reset):
-        carry, y = self.core(carry, self.encode(obs), reset)
+        h, past = split_carry(self.config, carry)
+        if self.config.speed_history:  # no past at an episode start: no change
+            past = jnp.where(jnp.expand_dims(reset, -1), obs.sdc_speed, past)
+        changes, past = speed_changes(obs.sdc_speed, past)
+        h, y = self.core(h, self.encode(obs, changes), reset)
         logits, value, _ = self.heads(y, obs.sdc_speed)
-        return carry, logits, value
+        return jnp.concatenate([h, past], -1), logits, value
+
+
+def split_carry(config: PolicyConfig, carry: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The GRU state ``[..., gru_hidden]`` and the last observed speeds ``[..., H]`` (most
+    recent first, the observation's ``speed / 50``) of a carry."""
+    return carry[..., :config.gru_hidden], carry[..., config.gru_hidden:]
+
+
+def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The last ``H`` speed changes in dx levels, ``[now - previous, previous - the one
+    before, ...]``, from the observed ``sdc_speed [..., 1]`` and the ``H`` previous ones
+    ``past [..., H]`` (most recent first), and the updated ``past``."""
+    from igdrivsim.data.scenario import DT
+    from igdrivsim.observation.features import SPEED_SCALE
+    from igdrivsim.simulator.dynamics import ACTION_HIGH, ACTION_LOW, NUM_BINS
+
+    level = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS / DT / SPEED_SCALE  # one level
+    seq = jnp.concatenate([sdc_speed, past], -1)
+    return (seq[..., :-1] - seq[..., 1:]) / level, seq[..., :-1]
 
 
 def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array) -> jax.Array:
@@ -204,8 +234,9 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
-    """The zero GRU state, ``[*batch_shape, gru_hidden]``."""
-    return jnp.zeros((*batch_shape, config.gru_hidden), jnp.float32)
+    """The zero carry, ``[*batch_shape, gru_hidden + speed_history]``: the GRU state, then
+    the last observed speeds (:func:`split_carry`)."""
+    return jnp.zeros((*batch_shape, config.gru_hidden + config.speed_history), jnp.float32)
 
 
 def init_params(config: PolicyConfig, key: jax.Array, example_obs) -> dict:
@@ -265,6 +296,13 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]
     resets = jnp.zeros((t, *carry.shape[:-1]), bool).at[0].set(reset_first)
+    h, past = split_carry(config, carry)
+    changes = None
+    if config.speed_history:  # the speed changes of every step, before the network runs
+        if reset_first:
+            past = jnp.broadcast_to(obs_seq.sdc_speed[0], past.shape)
+        past, changes = jax.lax.scan(lambda p, v: speed_changes(v, p)[::-1], past,
+                                     obs_seq.sdc_speed)
 
     def core(c, x_t, reset):
         return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)
@@ -274,18 +312,19 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
 
     if config.remat:
         def step(c, xs):
-            obs, reset = xs
-            c, y = core(c, model.apply(params, obs, method=DrivingPolicy.encode), reset)
+            obs, ch, reset = xs
+            c, y = core(c, model.apply(params, obs, ch, method=DrivingPolicy.encode), reset)
             return c, heads(y, obs.sdc_speed)
 
-        carry, (logits, values, aux) = jax.lax.scan(jax.checkpoint(step), carry,
-                                                    (obs_seq, resets))
+        h, (logits, values, aux) = jax.lax.scan(jax.checkpoint(step), h,
+                                                (obs_seq, changes, resets))
     else:
-        x = model.apply(params, obs_seq, method=DrivingPolicy.encode)
+        x = model.apply(params, obs_seq, changes, method=DrivingPolicy.encode)
         w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"]["gru"])
         x_proj = (x.reshape(-1, x.shape[-1]) @ w_i + b_i).reshape(*x.shape[:-1], -1)
-        carry, ys = gru_scan(x_proj, resets, carry, w_h, b_hn)
+        h, ys = gru_scan(x_proj, resets, h, w_h, b_hn)
         logits, values, aux = heads(ys, obs_seq.sdc_speed)
+    carry = jnp.concatenate([h, past], -1)
     return (carry, logits, values, aux) if with_aux else (carry, logits, values)
 
 
