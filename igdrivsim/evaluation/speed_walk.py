@@ -11,11 +11,14 @@ measures that on a dataset, with no trained policy:
 
 * the labels' offsets from the constant-velocity level: their distribution, its entropy, and
   the entropy left given the previous offset (what a recurrent policy could still predict);
-* three actors that steer like the expert (its ``dy``, ``dyaw``) but choose ``dx``
+* four actors that steer like the expert (its ``dy``, ``dyaw``) but choose ``dx``
   differently: the expert's own ``dx``; the constant-velocity level; the constant-velocity level
-  plus an offset drawn i.i.d. from the labels' own distribution. The last is what perfect BC of
-  the offsets, sampled, would drive: its log divergence is a floor for sampled BC unless the
-  policy learns a restoring force that teacher-forced data does not show.
+  plus an offset drawn i.i.d. from the labels' own distribution; the same but drawn from the
+  labels' distribution given the actor's own previous offset. The third is what perfect BC of
+  the offsets would drive, sampled, by a policy that sees only its present speed; the fourth,
+  by one that also remembers its last speed change (``policy.speed_history``): the labels'
+  dependence on the previous offset (the expert undoes its last quantisation error) is a
+  restoring force that keeps the sampled speed from walking away.
 """
 
 from __future__ import annotations
@@ -35,7 +38,9 @@ from igdrivsim.simulator.rollout import Actor, run_episode
 
 MIDDLE = dynamics.NUM_BINS // 2
 PARAMS = SimParams()
-ACTORS = ("expert", "expert_steering_constant_speed", "expert_steering_sampled_offsets")
+ACTORS = ("expert", "expert_steering_constant_speed", "expert_steering_sampled_offsets",
+          "expert_steering_offsets_given_previous")
+OFFSETS = jnp.arange(-3, 4)  # the offsets the fourth actor draws (labels beyond are clipped)
 
 
 def constant_velocity_level(state) -> jax.Array:
@@ -48,11 +53,13 @@ def constant_velocity_level(state) -> jax.Array:
 
 
 def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
-            params: SimParams = PARAMS):
+            log_probs_given_previous: jax.Array, params: SimParams = PARAMS):
     """80 steps of one actor on a batch of states at reset (the simulator's runner):
-    per-step ``(log divergence, offroad, overlap, valid, label offset)``, each ``[80, B]``."""
+    per-step ``(log divergence, offroad, overlap, valid, label offset)``, each ``[80, B]``.
+    ``log_probs_given_previous [7, 7]``: row ``i`` is the distribution of the next offset
+    (:data:`OFFSETS`) after offset ``OFFSETS[i]``."""
 
-    def act(s, carry, k):
+    def act(s, previous, k):
         levels = dynamics.discretize(expert_action(s, params))
         cv = constant_velocity_level(s)
         label_offset = levels[..., 0] - cv
@@ -61,9 +68,16 @@ def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
         elif actor == "expert_steering_sampled_offsets":
             draw = offsets[jax.random.categorical(k, log_probs, shape=cv.shape)]
             levels = levels.at[..., 0].set(cv + draw)
-        return dynamics.undiscretize(levels), carry, label_offset
+        elif actor == "expert_steering_offsets_given_previous":
+            draw = OFFSETS[jax.random.categorical(k, log_probs_given_previous[previous + 3])]
+            levels = levels.at[..., 0].set(cv + draw)
+            previous = draw
+        return dynamics.undiscretize(levels), previous, label_offset
 
-    _, tr = run_episode(state, Actor(step=act), key, params)
+    def init(s, k):  # the previous offset: none before the first controlled step
+        return jnp.zeros(jnp.shape(s.timestep), jnp.int32)
+
+    _, tr = run_episode(state, Actor(step=act, init=init), key, params)
     m = tr.metrics
     return m.log_divergence, m.offroad, m.overlap, m.valid, tr.extras
 
@@ -87,6 +101,22 @@ def label_statistics(offsets: np.ndarray, valid: np.ndarray) -> dict:
             "entropy_given_previous_nats": round(float(conditional), 3)}
 
 
+def transition_log_probs(offsets: np.ndarray, valid: np.ndarray, min_count: int = 20
+                         ) -> np.ndarray:
+    """``[7, 7]`` log-probabilities of the next label offset given the previous one (both
+    clipped to :data:`OFFSETS`); a previous offset seen fewer than ``min_count`` times gets the
+    unconditional distribution."""
+    both = valid[1:] & valid[:-1]
+    prev = np.clip(offsets[:-1][both], -3, 3) + 3
+    cur = np.clip(offsets[1:][both], -3, 3) + 3
+    counts = np.zeros((7, 7))
+    np.add.at(counts, (prev, cur), 1.0)
+    total = counts.sum(1, keepdims=True)
+    marginal = counts.sum(0) / counts.sum()
+    probs = np.where(total >= min_count, counts / np.maximum(total, 1.0), marginal)
+    return np.log(np.maximum(probs, 1e-12))
+
+
 def measure(scenarios, seed: int = 0, batch_size: int = 64) -> dict:
     """The label statistics and the three actors' mean metrics on stacked scenarios ``[N]``
     (in batches of ``batch_size``; the i.i.d. offsets follow the whole set's label
@@ -104,10 +134,12 @@ def measure(scenarios, seed: int = 0, batch_size: int = 64) -> dict:
             parts.append([np.asarray(a) for a in run(state, key, actor, *table)])
         return [np.concatenate(k, axis=1) for k in zip(*parts, strict=True)]
 
-    cat = {"expert": over_batches("expert", (jnp.zeros(1, jnp.int32), jnp.zeros(1)))}
+    cat = {"expert": over_batches("expert", (jnp.zeros(1, jnp.int32), jnp.zeros(1),
+                                              jnp.zeros((7, 7))))}
     stats = label_statistics(cat["expert"][4], cat["expert"][3])
     table = (jnp.asarray(stats["offset_levels"], jnp.int32),
-             jnp.log(jnp.asarray(stats["offset_probability"])))
+             jnp.log(jnp.asarray(stats["offset_probability"])),
+             jnp.asarray(transition_log_probs(cat["expert"][4], cat["expert"][3])))
     for actor in ACTORS[1:]:
         cat[actor] = over_batches(actor, table)
     actors = {}
@@ -133,6 +165,8 @@ def report_tex(result: dict) -> str:
         "SpeedWalkSampled": f"{actors[ACTORS[2]]['log_divergence_m']:.2f}",
         "SpeedWalkSampledOverlap": f"{actors[ACTORS[2]]['overlap_pct_steps']:.2f}",
         "SpeedWalkConstant": f"{actors[ACTORS[1]]['log_divergence_m']:.2f}",
+        "SpeedWalkHistory": f"{actors[ACTORS[3]]['log_divergence_m']:.2f}",
+        "SpeedWalkHistoryOverlap": f"{actors[ACTORS[3]]['overlap_pct_steps']:.2f}",
         "SpeedWalkScenarios": str(result["scenarios"]),
     }
     lines = ["% Generated by `igdrivsim report` from speed_walk.json; do not edit."]
