@@ -204,9 +204,9 @@ def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax
     ``past [..., H]`` (most recent first), and the updated ``past``."""
     from igdrivsim.data.scenario import DT
     from igdrivsim.observation.features import SPEED_SCALE
-    from igdrivsim.simulator.dynamics import ACTION_HIGH, ACTION_LOW, NUM_BINS
+    from igdrivsim.simulator.dynamics import DX_LEVEL
 
-    level = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS / DT / SPEED_SCALE  # one level
+    level = DX_LEVEL / DT / SPEED_SCALE  # one dx level in the feature's units
     seq = jnp.concatenate([sdc_speed, past], -1)
     return (seq[..., :-1] - seq[..., 1:]) / level, seq[..., :-1]
 

@@ -23,13 +23,13 @@ ACTION_LOW = (-6.0, -6.0, -np.pi)
 ACTION_HIGH = (6.0, 6.0, np.pi)
 NUM_BINS = 256  # bins per dimension; NUM_BINS + 1 levels
 NUM_LEVELS = NUM_BINS + 1
+DX_LEVEL = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS  # metres between two dx levels
 
 
 def constant_speed_offset(speed):
     """Levels above the zero-displacement level (``NUM_BINS // 2``) of the dx that keeps
-    ``speed`` (m/s) over one step: ``round(speed * DT / level width)``, ``int32[...]``."""
-    width = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS
-    return jnp.round(jnp.asarray(speed) * DT / width).astype(jnp.int32)
+    ``speed`` (m/s) over one step: ``round(speed * DT / DX_LEVEL)``, ``int32[...]``."""
+    return jnp.round(jnp.asarray(speed) * DT / DX_LEVEL).astype(jnp.int32)
 
 
 def wrap_angle(a):
