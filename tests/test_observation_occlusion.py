@@ -40,7 +40,8 @@ def observation(objects, road, valid=None) -> Observation:
     rg = np.zeros((len(road), 25), np.float32)
     rg[:, :2], rg[:, 2], rg[:, 24] = road / 100, 1.0, 1.0
     return Observation(jnp.asarray(feats * valid[:, None]), jnp.asarray(valid), jnp.asarray(rg),
-                       jnp.ones(len(road), bool), jnp.full((1,), 0.2, jnp.float32))
+                       jnp.ones(len(road), bool), jnp.full((1,), 0.2, jnp.float32),
+                       jnp.zeros((1,), jnp.float32))
 
 
 def test_what_a_car_ahead_hides():

@@ -40,6 +40,8 @@ def test_fast_equals_naive_on_a_real_scenario():
     np.testing.assert_allclose(m_n.log_divergence, m_f.log_divergence, atol=1e-6)
     np.testing.assert_allclose(o_n.objects, o_f.objects, atol=1e-6)
     np.testing.assert_allclose(o_n.sdc_speed, o_f.sdc_speed, atol=1e-6)
+    np.testing.assert_allclose(o_n.sdc_yaw_rate, o_f.sdc_yaw_rate, atol=1e-6)
+    assert np.abs(np.asarray(o_n.sdc_yaw_rate)).max() > 0  # the policy turns: rates are seen
     assert np.asarray(o_n.roadgraph_valid).sum(-1).min() == 128
     np.testing.assert_array_equal(o_n.roadgraph_valid, o_f.roadgraph_valid)
     # The same points (as a set: the fast path keeps them in its stored, roughly nearest-first,

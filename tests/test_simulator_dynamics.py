@@ -21,6 +21,7 @@ from igdrivsim.simulator import (
     inverse_delta_global,
     inverse_delta_local,
     reset,
+    sdc_yaw_rate,
     step,
     undiscretize,
 )
@@ -81,6 +82,21 @@ def test_reset_replays_the_warm_up_and_step_follows_the_log(state):
     np.testing.assert_allclose([obj.vel_x[0], obj.vel_y[0]], [20.0, 5.0], atol=1e-3)
     # other objects replay their log
     np.testing.assert_allclose(obj.x[1], state.log.x[1, CURRENT_INDEX + 1])
+
+
+def test_yaw_rate_is_the_last_heading_change_and_zero_at_the_first_step(state):
+    from igdrivsim.observation import get_setting, observe
+
+    assert float(sdc_yaw_rate(state)) == pytest.approx(0.0, abs=1e-6)  # the straight log
+    turned = _step(state, jnp.asarray([1.0, 0.0, 0.05]), PARAMS)
+    assert float(sdc_yaw_rate(turned)) == pytest.approx(0.5, rel=1e-4)
+    back = turned.replace(sdc=turned.sdc.replace(yaw=turned.sdc.yaw.at[10].set(3.1)
+                                                 .at[11].set(-3.1)))
+    assert float(sdc_yaw_rate(back)) == pytest.approx((2 * np.pi - 6.2) / 0.1, rel=1e-3)
+    assert float(sdc_yaw_rate(state.replace(timestep=jnp.int32(0)))) == 0.0
+    key = jax.random.key(0)
+    obs = observe(turned, get_setting("full"), key, key)
+    np.testing.assert_allclose(obs.sdc_yaw_rate, [0.5], rtol=1e-4)
 
 
 def test_actions_are_clipped_and_nan_is_rejected_or_masked(state):

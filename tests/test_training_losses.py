@@ -163,3 +163,31 @@ def test_speed_history_feeds_the_last_speed_changes_in_levels():
     other = seq.replace(sdc_speed=jnp.array([0.10, 0.10, 0.10, 0.12])[:, None, None])
     _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
     assert not np.allclose(moved[3], unrolled[3])
+
+
+def test_yaw_history_feeds_the_last_yaw_rates_in_levels_next_to_the_speed_history():
+    from igdrivsim.policy.network import initial_carry, unroll_sequence, yaw_rate_levels
+
+    level = 2 * np.pi / 256 / 0.1  # one dyaw level per 0.1 s, in rad/s
+    levels, past = yaw_rate_levels(jnp.array([[2 * level]]), jnp.array([[-level, 0.5]]))
+    np.testing.assert_allclose(levels, [[2.0, -1.0, 0.5 / level]], rtol=1e-5)
+    np.testing.assert_allclose(past, [[2 * level, -level]], rtol=1e-6)
+    cfg = replace(TINY, relative_dx=True, speed_history=2, yaw_history=3)
+    obs = example_observation(ObservationConfig(2, 4))
+    params = init_params(cfg, jax.random.PRNGKey(0), obs)
+    seq = jax.tree.map(lambda x: jnp.stack([x] * 4)[:, None], obs)  # [T=4, B=1, ...]
+    seq = seq.replace(sdc_speed=jnp.array([0.10, 0.11, 0.13, 0.12])[:, None, None],
+                      sdc_yaw_rate=jnp.array([0.0, 0.2, -0.1, 0.3])[:, None, None])
+    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    assert end.shape == (1, cfg.gru_hidden + 2 + 2)
+    carry = jnp.full(end.shape, 0.5)  # a stale carry: the reset must drop it
+    for t in range(4):
+        o = jax.tree.map(lambda x, t=t: x[t], seq)
+        carry, logits, _ = apply_step(cfg, params, carry, o, jnp.array([t == 0]))
+        np.testing.assert_allclose(logits, unrolled[t], atol=1e-5)
+    np.testing.assert_allclose(carry, end, atol=1e-5)
+    np.testing.assert_allclose(end[0, -4:], [0.12, 0.13, 0.3, -0.1], atol=1e-7)
+    # the yaw rates reach the network: another past turn, other logits
+    other = seq.replace(sdc_yaw_rate=jnp.array([0.0, 0.0, 0.0, 0.3])[:, None, None])
+    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
+    assert not np.allclose(moved[3], unrolled[3])

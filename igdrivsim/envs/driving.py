@@ -130,6 +130,7 @@ def _observation_space(config: ObservationConfig) -> spaces.Dict:
         "roadgraph": box(n_rg, ROADGRAPH_FEATURES),
         "roadgraph_valid": spaces.MultiBinary(n_rg),
         "sdc_speed": box(1),
+        "sdc_yaw_rate": box(1),
     })
 
 
@@ -141,6 +142,7 @@ def _to_numpy(obs: Observation) -> dict[str, np.ndarray]:
         "roadgraph": np.asarray(obs.roadgraph, np.float32),
         "roadgraph_valid": np.asarray(obs.roadgraph_valid, np.int8),
         "sdc_speed": np.asarray(obs.sdc_speed, np.float32).reshape(1),
+        "sdc_yaw_rate": np.asarray(obs.sdc_yaw_rate, np.float32).reshape(1),
     }
 
 

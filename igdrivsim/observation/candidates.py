@@ -157,7 +157,7 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
 
 
 def _believed(states: Any, setting: Setting, episode_keys, step_keys):
-    from igdrivsim.simulator import current_objects
+    from igdrivsim.simulator import current_objects, sdc_yaw_rate
 
     objects = current_objects(states)
     xy, yaw, speed = jax.vmap(sdc_pose)(objects, states.sdc_index)
@@ -166,7 +166,7 @@ def _believed(states: Any, setting: Setting, episode_keys, step_keys):
     else:
         bxy, byaw = jax.vmap(lambda p, a, e, s: perceive_pose(setting, p, a, e, s))(
             xy, yaw, episode_keys, step_keys)
-    return objects, bxy, byaw, speed
+    return objects, bxy, byaw, (speed, sdc_yaw_rate(states))
 
 
 def init_candidates(states: Any, setting: Setting, episode_keys: jax.Array,
@@ -279,7 +279,7 @@ def _permute(c: RoadCandidates, order: jax.Array) -> RoadCandidates:
     return c.replace(index=c.index[order], points=jax.tree.map(lambda a: a[order], c.points))
 
 
-def _band_observation(bxy, byaw, speed, objects, sdc_index, c: RoadCandidates, band_pos,
+def _band_observation(bxy, byaw, motion, objects, sdc_index, c: RoadCandidates, band_pos,
                       config: ObservationConfig):
     """Observation (before hiding) of one example: the first ``N - band`` stored candidates
     (sliced, not gathered) and the band's picks."""
@@ -297,7 +297,8 @@ def _band_observation(bxy, byaw, speed, objects, sdc_index, c: RoadCandidates, b
     obs = Observation(
         objects=obj, objects_valid=obj_valid,
         roadgraph=roadgraph_features(rx, ry, dx, dy, pick(p.type), valid),
-        roadgraph_valid=valid, sdc_speed=jnp.reshape(speed / SPEED_SCALE, (1,)))
+        roadgraph_valid=valid, sdc_speed=jnp.reshape(motion[0] / SPEED_SCALE, (1,)),
+        sdc_yaw_rate=jnp.reshape(motion[1], (1,)))
     return obs, Selection(object_index=obj_idx, roadgraph_index=pick(c.index))
 
 
@@ -322,7 +323,7 @@ def observe_batch_with_candidates(
     if cand_config.num_candidates < n:
         raise ConfigError(f"CandidateConfig.num_candidates ({cand_config.num_candidates}) must "
                           f"be >= num_roadgraph_points ({n})")
-    objects, bxy, byaw, speed = _believed(states, setting, episode_keys, step_keys)
+    objects, bxy, byaw, motion = _believed(states, setting, episode_keys, step_keys)
     scale = 2.0 * cand_config.max_radius
 
     def choose(c):
@@ -371,7 +372,8 @@ def observe_batch_with_candidates(
                                lambda _: after_resort(resort(candidates, ~exact)),
                                lambda _: after_reselect(reselect(candidates)), None), None)
     obs, sel = jax.vmap(lambda b, y, v, o, i, c, p: _band_observation(
-        b, y, v, o, i, c, p, config))(bxy, byaw, speed, objects, states.sdc_index, candidates, pos)
+        b, y, v, o, i, c, p, config))(bxy, byaw, motion, objects, states.sdc_index, candidates,
+                                      pos)
     if isinstance(setting, ObservationParams):  # settings as data: one per example
         obs = jax.vmap(apply_setting)(setting, obs, episode_keys, step_keys)
     else:

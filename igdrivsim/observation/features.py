@@ -13,6 +13,8 @@ Feature layout (the contract with :mod:`igdrivsim.policy`):
 * ``roadgraph f32[N_rg, 25]``: ``x/100, y/100, dir_x, dir_y`` (direction rotated into the ego
   frame), one-hot type (20), ``valid``.
 * ``sdc_speed f32[1]``: ego speed / 50.
+* ``sdc_yaw_rate f32[1]``: the ego's heading change over the last step, in rad/s (its own
+  turning, known from odometry like its speed; 0 at an episode's first step).
 
 Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first (the
 batched fast path of :mod:`.candidates` observes the same points with the roadgraph slots in its
@@ -64,6 +66,7 @@ class Observation:
     roadgraph: jax.Array  # f32[..., N_rg, 25]
     roadgraph_valid: jax.Array  # bool[..., N_rg]
     sdc_speed: jax.Array  # f32[..., 1]
+    sdc_yaw_rate: jax.Array  # f32[..., 1]
 
 
 @struct.dataclass
@@ -151,6 +154,7 @@ def observe_arrays(
     sdc_index: jax.Array,
     roadgraph: Any,
     config: ObservationConfig = DEFAULT_CONFIG,
+    sdc_yaw_rate: jax.Array = 0.0,
 ) -> tuple[Observation, Selection]:
     """The SDC-frame observation of one example from plain arrays.
 
@@ -162,6 +166,7 @@ def observe_arrays(
       sdc_index: ``int32[]`` the ego's slot in ``objects`` (excluded from the observation).
       roadgraph: anything with ``xyz [R, 3], dir [R, 3], type [R], valid [R]`` (global frame).
       config: capacities.
+      sdc_yaw_rate: ``f32[]`` the ego's heading change over the last step, rad/s.
 
     Returns ``(observation, selection)``; the selection says which source slots were used.
     """
@@ -184,6 +189,7 @@ def observe_arrays(
     obs = Observation(
         objects=obj, objects_valid=obj_valid, roadgraph=rg, roadgraph_valid=rg_valid,
         sdc_speed=jnp.reshape(jnp.asarray(sdc_speed, jnp.float32) / SPEED_SCALE, (1,)),
+        sdc_yaw_rate=jnp.reshape(jnp.asarray(sdc_yaw_rate, jnp.float32), (1,)),
     )
     return obs, Selection(object_index=obj_idx, roadgraph_index=rg_idx)
 

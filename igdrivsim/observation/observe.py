@@ -33,6 +33,7 @@ def observe_setting_arrays(
     episode_key: jax.Array,
     step_key: jax.Array,
     config: ObservationConfig = DEFAULT_CONFIG,
+    sdc_yaw_rate: jax.Array = 0.0,
 ) -> tuple[Observation, Selection]:
     """The observation under ``setting`` from plain arrays (see :func:`observe_arrays`).
 
@@ -41,7 +42,8 @@ def observe_setting_arrays(
     """
     xy, yaw = perceive_pose(setting, jnp.asarray(sdc_xy, jnp.float32),
                             jnp.asarray(sdc_yaw, jnp.float32), episode_key, step_key)
-    obs, sel = observe_arrays(xy, yaw, sdc_speed, objects, sdc_index, roadgraph, config)
+    obs, sel = observe_arrays(xy, yaw, sdc_speed, objects, sdc_index, roadgraph, config,
+                              sdc_yaw_rate)
     return apply_setting(setting, obs, episode_key, step_key), sel
 
 
@@ -60,12 +62,12 @@ def observe_with_selection(
     config: ObservationConfig = DEFAULT_CONFIG,
 ) -> tuple[Observation, Selection]:
     """:func:`observe` that also returns which object / roadgraph slots were selected."""
-    from igdrivsim.simulator import current_objects
+    from igdrivsim.simulator import current_objects, sdc_yaw_rate
 
     objects = current_objects(state)
     xy, yaw, speed = sdc_pose(objects, state.sdc_index)
     return observe_setting_arrays(xy, yaw, speed, objects, state.sdc_index, state.roadgraph,
-                                  setting, episode_key, step_key, config)
+                                  setting, episode_key, step_key, config, sdc_yaw_rate(state))
 
 
 def observe(

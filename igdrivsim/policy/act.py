@@ -41,7 +41,8 @@ def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Obser
     n, m = obs_config.num_objects, obs_config.num_roadgraph_points
     return Observation(objects=jnp.zeros((n, 6)), objects_valid=jnp.zeros((n,), bool),
                        roadgraph=jnp.zeros((m, ROADGRAPH_FEATURES)),
-                       roadgraph_valid=jnp.zeros((m,), bool), sdc_speed=jnp.zeros((1,)))
+                       roadgraph_valid=jnp.zeros((m,), bool), sdc_speed=jnp.zeros((1,)),
+                       sdc_yaw_rate=jnp.zeros((1,)))
 
 
 ACTION_MODES = ("sample", "greedy", "mean")
@@ -94,7 +95,7 @@ class PolicyCarry:
     drawn with ``fold_in(action_key, t)``; ``None``: with the runner's step key, one draw for
     the whole batch, as BC-RL's training rollout does)."""
 
-    hidden: jax.Array  # f32[..., gru_hidden + speed_history]: the network's carry
+    hidden: jax.Array  # f32[..., gru_hidden + history_width]: the network's carry
     episode_key: jax.Array  # key[...]
     action_key: jax.Array | None = None  # key[...] or None
 

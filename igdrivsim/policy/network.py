@@ -5,7 +5,7 @@ The network sees one observation step at a time (memory lives in the GRU state).
 (the original code never reset it). Observations are any pytree with the fields of
 ``igdrivsim.observation.Observation``: ``objects [..., N_obj, F_obj]``, ``objects_valid
 [..., N_obj]``, ``roadgraph [..., N_rg, F_rg]``, ``roadgraph_valid [..., N_rg]``,
-``sdc_speed [..., 1]``.
+``sdc_speed [..., 1]``, ``sdc_yaw_rate [..., 1]``.
 """
 
 from __future__ import annotations
@@ -52,6 +52,11 @@ class PolicyConfig:
     # depends on them (it corrects its quantisation error), which a GRU fed the speed alone
     # does not pick up (docs/training.md, "the speed walk"); 0: off (the paper's network)
     speed_history: int = 0
+    # the policy sees its last H observed yaw rates (the current one, and H - 1 kept in its
+    # carry) in dyaw levels (2 pi / 256 rad per step): the expert's steering labels are a
+    # quantisation walk too, its next level depending on its last ones, and a yaw rate is not
+    # otherwise in view (the frame turns with the ego); 0: off (the paper's network)
+    yaw_history: int = 0
 
 
 class MLP(nn.Module):
@@ -149,15 +154,15 @@ class DrivingPolicy(nn.Module):
             self.aux_mlp = MLP(c.actor_hidden)
             self.aux_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
 
-    def encode(self, obs, speed_changes=None):
-        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]`` (``speed_changes
-        [..., H]`` with ``speed_history``: see :func:`speed_changes`)."""
+    def encode(self, obs, history=None):
+        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]`` (``history``: the
+        ego-motion history features of :func:`step_history`, ``None`` without one)."""
         objects = masked_max(self.object_mlp(obs.objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
         parts = [self.object_norm(objects), self.roadgraph_norm(roads),
                  obs.sdc_speed * self.config.speed_input_scale]
-        if self.config.speed_history:
-            parts.append(speed_changes)
+        if history is not None:
+            parts.append(history)
         return self.trunk(jnp.concatenate(parts, axis=-1))
 
     def core(self, carry, x, reset):
@@ -184,18 +189,45 @@ class DrivingPolicy(nn.Module):
 
     def __call__(self, carry, obs, reset):
         h, past = split_carry(self.config, carry)
-        if self.config.speed_history:  # no past at an episode start: no change
-            past = jnp.where(jnp.expand_dims(reset, -1), obs.sdc_speed, past)
-        changes, past = speed_changes(obs.sdc_speed, past)
-        h, y = self.core(h, self.encode(obs, changes), reset)
+        history, past = step_history(self.config, obs.sdc_speed, obs.sdc_yaw_rate, past, reset)
+        h, y = self.core(h, self.encode(obs, history), reset)
         logits, value, _ = self.heads(y, obs.sdc_speed)
         return jnp.concatenate([h, past], -1), logits, value
 
 
+def history_width(config: PolicyConfig) -> int:
+    """Width of the ego-motion history in the carry: ``speed_history`` speeds, then
+    ``yaw_history - 1`` yaw rates."""
+    return config.speed_history + max(config.yaw_history - 1, 0)
+
+
 def split_carry(config: PolicyConfig, carry: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The GRU state ``[..., gru_hidden]`` and the last observed speeds ``[..., H]`` (most
-    recent first, the observation's ``speed / 50``) of a carry."""
+    """The GRU state ``[..., gru_hidden]`` and the ego-motion history ``[..., W]`` of a carry
+    (:func:`history_width`; the observation's last speeds, then its last yaw rates, most recent
+    first)."""
     return carry[..., :config.gru_hidden], carry[..., config.gru_hidden:]
+
+
+def step_history(config: PolicyConfig, sdc_speed: jax.Array, sdc_yaw_rate: jax.Array,
+                 past: jax.Array, reset: jax.Array) -> tuple[jax.Array | None, jax.Array]:
+    """One step of the ego-motion history: the features the network sees (the last
+    ``speed_history`` speed changes in dx levels, then the last ``yaw_history`` yaw rates in
+    dyaw levels; ``None`` with neither) and the updated history ``past [..., W]``. At an
+    episode start (``reset [...]``) the past is taken to equal the present: no change, a steady
+    turn."""
+    hs = config.speed_history
+    start = jnp.expand_dims(reset, -1)
+    speeds = jnp.where(start, sdc_speed, past[..., :hs])
+    yaws = jnp.where(start, sdc_yaw_rate, past[..., hs:])
+    features = []
+    if hs:
+        changes, speeds = speed_changes(sdc_speed, speeds)
+        features.append(changes)
+    if config.yaw_history:
+        levels, yaws = yaw_rate_levels(sdc_yaw_rate, yaws)
+        features.append(levels)
+    history = jnp.concatenate(features, -1) if features else None
+    return history, jnp.concatenate([speeds, yaws], -1)
 
 
 def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -209,6 +241,17 @@ def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax
     level = DX_LEVEL / DT / SPEED_SCALE  # one dx level in the feature's units
     seq = jnp.concatenate([sdc_speed, past], -1)
     return (seq[..., :-1] - seq[..., 1:]) / level, seq[..., :-1]
+
+
+def yaw_rate_levels(sdc_yaw_rate: jax.Array, past: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The last ``H`` observed yaw rates in dyaw levels per step, ``[now, previous, ...]``,
+    from ``sdc_yaw_rate [..., 1]`` (rad/s) and the ``H - 1`` previous ones ``past [..., H-1]``
+    (most recent first), and the updated ``past``."""
+    from igdrivsim.data.scenario import DT
+    from igdrivsim.simulator.dynamics import DYAW_LEVEL
+
+    seq = jnp.concatenate([sdc_yaw_rate, past], -1)
+    return seq * (DT / DYAW_LEVEL), seq[..., :-1]
 
 
 def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array) -> jax.Array:
@@ -234,9 +277,9 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
-    """The zero carry, ``[*batch_shape, gru_hidden + speed_history]``: the GRU state, then
-    the last observed speeds (:func:`split_carry`)."""
-    return jnp.zeros((*batch_shape, config.gru_hidden + config.speed_history), jnp.float32)
+    """The zero carry, ``[*batch_shape, gru_hidden + history_width]``: the GRU state, then
+    the ego-motion history (:func:`split_carry`)."""
+    return jnp.zeros((*batch_shape, config.gru_hidden + history_width(config)), jnp.float32)
 
 
 def init_params(config: PolicyConfig, key: jax.Array, example_obs) -> dict:
@@ -298,11 +341,10 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     resets = jnp.zeros((t, *carry.shape[:-1]), bool).at[0].set(reset_first)
     h, past = split_carry(config, carry)
     changes = None
-    if config.speed_history:  # the speed changes of every step, before the network runs
-        if reset_first:
-            past = jnp.broadcast_to(obs_seq.sdc_speed[0], past.shape)
-        past, changes = jax.lax.scan(lambda p, v: speed_changes(v, p)[::-1], past,
-                                     obs_seq.sdc_speed)
+    if config.speed_history or config.yaw_history:  # every step's, before the network runs
+        past, changes = jax.lax.scan(
+            lambda p, xs: step_history(config, xs[0], xs[1], p, xs[2])[::-1], past,
+            (obs_seq.sdc_speed, obs_seq.sdc_yaw_rate, resets))
 
     def core(c, x_t, reset):
         return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)

@@ -53,6 +53,7 @@ from igdrivsim.simulator.state import (
     current_objects,
     reset,
     sdc_pose,
+    sdc_yaw_rate,
     simulated_trajectory,
     step,
 )
@@ -66,5 +67,6 @@ __all__ = [
     "ACTION_HIGH", "ACTION_LOW", "NUM_BINS", "NUM_LEVELS", "ObjectState", "RoadEdges",
     "SdcTrajectory", "SimParams", "SimState", "clip_action", "select_road_edges", "current_objects",
     "delta_global", "delta_local", "discretize", "inverse_delta_global", "inverse_delta_local",
-    "reset", "sdc_pose", "simulated_trajectory", "step", "undiscretize", "validate_actions",
+    "reset", "sdc_pose", "sdc_yaw_rate", "simulated_trajectory", "step", "undiscretize",
+    "validate_actions",
 ]

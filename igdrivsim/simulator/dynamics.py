@@ -24,6 +24,7 @@ ACTION_HIGH = (6.0, 6.0, np.pi)
 NUM_BINS = 256  # bins per dimension; NUM_BINS + 1 levels
 NUM_LEVELS = NUM_BINS + 1
 DX_LEVEL = (ACTION_HIGH[0] - ACTION_LOW[0]) / NUM_BINS  # metres between two dx levels
+DYAW_LEVEL = (ACTION_HIGH[2] - ACTION_LOW[2]) / NUM_BINS  # radians between two dyaw levels
 
 
 def constant_speed_offset(speed):

@@ -37,6 +37,7 @@ from flax import struct
 
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
+    DT,
     NUM_STEPS,
     ObjectMetadata,
     Roadgraph,
@@ -244,6 +245,18 @@ def sdc_pose(state: SimState):
     t = state.timestep
     s = state.sdc
     return _at_time(s.x, t), _at_time(s.y, t), _at_time(s.yaw, t), _at_time(s.valid, t)
+
+
+def sdc_yaw_rate(state: SimState):
+    """The SDC's heading change over the last step, in rad/s, ``[...]``: what the ego knows of
+    its own turning (odometry), from the current and the previous simulated pose. 0 at the
+    first step or when either pose is invalid."""
+    t = state.timestep
+    s = state.sdc
+    prev = jnp.maximum(t - 1, 0)
+    ok = (t > 0) & _at_time(s.valid, t) & _at_time(s.valid, prev)
+    turn = dynamics.wrap_angle(_at_time(s.yaw, t) - _at_time(s.yaw, prev))
+    return jnp.where(ok, turn / DT, 0.0).astype(jnp.float32)
 
 
 def log_sdc_at(state: SimState, t):

@@ -52,7 +52,7 @@ from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose
 from igdrivsim.simulator.expert import expert_action
 from igdrivsim.simulator.rollout import Actor, run_episode
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 EPISODE_STEPS = NUM_STEPS - 1  # 10 warm-up + 80 controlled observations per episode
 
 
@@ -72,6 +72,7 @@ class TeacherSteps:
     roadgraph_type: jax.Array  # int8[..., T, M]
     roadgraph_valid: jax.Array  # bool[..., T, M]
     sdc_speed: jax.Array  # f32[..., T, 1]
+    sdc_yaw_rate: jax.Array  # f32[..., T, 1]
     sdc_yaw: jax.Array  # f32[..., T]
     actions: jax.Array  # int16[..., 80, 3]
     action_valid: jax.Array  # bool[..., 80]
@@ -92,7 +93,7 @@ def _record(state: SimState, rec: ObservationConfig):
     kind = jnp.argmax(rg[..., 4:-1], axis=-1).astype(jnp.int8)
     _, _, yaw, _ = sdc_pose(state)
     return (obs.objects, obs.objects_valid, rg[..., :4], kind, obs.roadgraph_valid,
-            obs.sdc_speed, yaw)
+            obs.sdc_speed, obs.sdc_yaw_rate, yaw)
 
 
 def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> TeacherSteps:
@@ -211,7 +212,7 @@ def teacher_observation(rec: TeacherSteps, t, setting, episode_key: jax.Array,
     rg = jnp.concatenate([rg4, onehot, jnp.ones_like(rg4[:, :1])], -1)
     rg = jnp.where(rv[:, None], rg, 0.0)
     obs = Observation(objects=objects, objects_valid=ov, roadgraph=rg, roadgraph_valid=rv,
-                      sdc_speed=rec.sdc_speed)
+                      sdc_speed=rec.sdc_speed, sdc_yaw_rate=rec.sdc_yaw_rate)
     return apply_setting(setting, obs, episode_key, step_key)
 
 
