@@ -166,7 +166,7 @@ def _believed(states: Any, setting: Setting, episode_keys, step_keys):
     else:
         bxy, byaw = jax.vmap(lambda p, a, e, s: perceive_pose(setting, p, a, e, s))(
             xy, yaw, episode_keys, step_keys)
-    return objects, bxy, byaw, (speed, sdc_yaw_rate(states))
+    return objects, bxy, byaw, speed, sdc_yaw_rate(states)
 
 
 def init_candidates(states: Any, setting: Setting, episode_keys: jax.Array,
@@ -174,7 +174,7 @@ def init_candidates(states: Any, setting: Setting, episode_keys: jax.Array,
                     step_keys: jax.Array | None = None) -> RoadCandidates:
     """Select the candidates of a batch ``[B]`` of states (e.g. right after reset)."""
     step_keys = episode_keys if step_keys is None else step_keys
-    _, bxy, _, _ = _believed(states, setting, episode_keys, step_keys)
+    bxy = _believed(states, setting, episode_keys, step_keys)[1]
     idx, points, radius = jax.vmap(lambda rg, c: _select(rg, c, config))(states.roadgraph, bxy)
     return RoadCandidates(index=idx, points=points, center=bxy, radius=radius,
                           reselections=jnp.ones(bxy.shape[:1], jnp.int32),
@@ -279,8 +279,8 @@ def _permute(c: RoadCandidates, order: jax.Array) -> RoadCandidates:
     return c.replace(index=c.index[order], points=jax.tree.map(lambda a: a[order], c.points))
 
 
-def _band_observation(bxy, byaw, motion, objects, sdc_index, c: RoadCandidates, band_pos,
-                      config: ObservationConfig):
+def _band_observation(bxy, byaw, speed, yaw_rate, objects, sdc_index, c: RoadCandidates,
+                      band_pos, config: ObservationConfig):
     """Observation (before hiding) of one example: the first ``N - band`` stored candidates
     (sliced, not gathered) and the band's picks."""
     n = config.num_roadgraph_points
@@ -297,8 +297,8 @@ def _band_observation(bxy, byaw, motion, objects, sdc_index, c: RoadCandidates, 
     obs = Observation(
         objects=obj, objects_valid=obj_valid,
         roadgraph=roadgraph_features(rx, ry, dx, dy, pick(p.type), valid),
-        roadgraph_valid=valid, sdc_speed=jnp.reshape(motion[0] / SPEED_SCALE, (1,)),
-        sdc_yaw_rate=jnp.reshape(motion[1], (1,)))
+        roadgraph_valid=valid, sdc_speed=jnp.reshape(speed / SPEED_SCALE, (1,)),
+        sdc_yaw_rate=jnp.reshape(yaw_rate, (1,)))
     return obs, Selection(object_index=obj_idx, roadgraph_index=pick(c.index))
 
 
@@ -323,7 +323,7 @@ def observe_batch_with_candidates(
     if cand_config.num_candidates < n:
         raise ConfigError(f"CandidateConfig.num_candidates ({cand_config.num_candidates}) must "
                           f"be >= num_roadgraph_points ({n})")
-    objects, bxy, byaw, motion = _believed(states, setting, episode_keys, step_keys)
+    objects, bxy, byaw, speed, yaw_rate = _believed(states, setting, episode_keys, step_keys)
     scale = 2.0 * cand_config.max_radius
 
     def choose(c):
@@ -371,9 +371,9 @@ def observe_batch_with_candidates(
         lambda _: jax.lax.cond(jnp.all(covers),
                                lambda _: after_resort(resort(candidates, ~exact)),
                                lambda _: after_reselect(reselect(candidates)), None), None)
-    obs, sel = jax.vmap(lambda b, y, v, o, i, c, p: _band_observation(
-        b, y, v, o, i, c, p, config))(bxy, byaw, motion, objects, states.sdc_index, candidates,
-                                      pos)
+    obs, sel = jax.vmap(lambda b, y, v, w, o, i, c, p: _band_observation(
+        b, y, v, w, o, i, c, p, config))(bxy, byaw, speed, yaw_rate, objects, states.sdc_index,
+                                         candidates, pos)
     if isinstance(setting, ObservationParams):  # settings as data: one per example
         obs = jax.vmap(apply_setting)(setting, obs, episode_keys, step_keys)
     else:
