@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerate every figure and table of the report from a fresh clone.
 #
-#   bash scripts/reproduce.sh [--profile smoke|laptop|paper] [--data DIR | --data TRAIN VAL]
+#   bash scripts/reproduce.sh [--profile smoke|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
 #                             [--out DIR] [--obs a,b] [--no-progress]
 #
 # Stages: data (synthetic, unless --data) -> filter -> train (6 settings x {BC, BC-RL} x seeds)

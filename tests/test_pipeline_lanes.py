@@ -98,3 +98,28 @@ def test_taught_methods_train_after_the_teacher_is_chosen(tmp_path, monkeypatch)
     (d0, d1), (a0, a1) = spans["train_dagger"], spans["train_advisor"]
     assert min(d0, a0) >= spans["teacher"][1] and d0 < a1 and a0 < d1  # side by side
     assert spans["report"][0] >= max(spans["evaluate_dagger"][1], spans["evaluate_advisor"][1])
+
+
+def test_stage_processes_take_gpu_memory_as_needed(tmp_path, monkeypatch):
+    """Two lanes on one GPU: neither process may take most of its memory up front."""
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE", raising=False)
+    pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True)
+    seen = tmp_path / "env.txt"
+    code = (f"import os; open({str(seen)!r}, 'w').write("
+            "os.environ.get('XLA_PYTHON_CLIENT_PREALLOCATE', 'unset'))")
+    pipe.stage("probe", [["python", "-c", code]])
+    assert seen.read_text() == "false"
+
+
+def test_gpu_profile_is_the_laptop_profile_at_ten_times_the_updates():
+    import dataclasses
+
+    from igdrivsim.training.config import get_profile
+
+    laptop, gpu = get_profile("laptop"), get_profile("gpu")
+    assert gpu.training.num_updates == 10 * laptop.training.num_updates
+    same = dataclasses.replace(gpu, profile="laptop", training=laptop.training)
+    assert same == laptop  # network, data, observation: the laptop's
+    sizes = {k: v for k, v in dataclasses.asdict(pl.PROFILES["gpu"]).items() if k != "name"}
+    assert sizes == {k: v for k, v in dataclasses.asdict(pl.PROFILES["laptop"]).items()
+                     if k != "name"}

@@ -165,7 +165,7 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
     np.testing.assert_allclose(two[numeric], one[numeric], atol=1e-4)
 
 
-def test_paper_profile_on_cpu_warns_with_the_cost_estimate():
+def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     import io
 
     from igdrivsim.training.cost import PAPER_SCENARIOS, num_updates, warn_if_cpu
@@ -177,6 +177,9 @@ def test_paper_profile_on_cpu_warns_with_the_cost_estimate():
     assert msg and "years" in msg and out.getvalue().count("\n") == 1
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
+    gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1, io.StringIO())
+    assert gpu and "10x the laptop" in gpu and "~8 h" in gpu
+    assert warn_if_cpu(get_profile("gpu"), 1000, "gpu", 1) is None
 
 
 @pytest.mark.slow

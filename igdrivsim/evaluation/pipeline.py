@@ -71,6 +71,8 @@ PROFILES: dict[str, PipelineProfile] = {
                              eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
     "laptop": PipelineProfile("laptop", train_scenarios=3072, val_scenarios=512, seeds=3,
                               eval_max_scenarios=0, maze_profile="default"),
+    "gpu": PipelineProfile("gpu", train_scenarios=3072, val_scenarios=512, seeds=3,
+                           eval_max_scenarios=0, maze_profile="default"),
     "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
                              eval_max_scenarios=0, maze_profile="default"),
 }
@@ -175,6 +177,9 @@ class Pipeline:
         # Programs compiled by one stage are reused by later ones with the same shapes (the
         # evaluation of BC and BC-RL of a setting) and by a resumed pipeline.
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # Two lanes share one GPU: each process takes GPU memory as it needs it rather than
+        # most of it up front (JAX's default), so the second one does not run out.
+        env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
         env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 cwd=REPO_ROOT, env=env)
@@ -506,6 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
         "render -> report -> PDF. Resumable: rerun the same command after an interruption."))
     parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
                         help="smoke (minutes, CI), laptop (about an hour on 2 cores, default), "
+                             "gpu (the laptop network at 10x the updates; one GPU), "
                              "paper (the paper's sizes; GPUs)")
     parser.add_argument("--data", nargs="+", metavar="DIR", default=None,
                         help="real data instead of synthetic: one folder holding training/ and "

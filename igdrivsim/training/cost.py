@@ -20,7 +20,15 @@ from igdrivsim.training.config import RunConfig
 # "Running at paper scale".
 CPU_SECONDS_PER_EPISODE = 9.78  # teacher-forced methods (BC)
 CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger, ADVISOR)
+# Paper network on one NVIDIA H200 at the paper's batch: `igdrivsim bench train --profiles
+# paper --obs full --batch-size 256 --seeds 3` = 15.0 s per update of 768 episodes (BC),
+# 30.3 s with `--method bc_rl`. README "Running at paper scale".
+GPU_SECONDS_PER_EPISODE = 15.0 / 768
+GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
+# The `gpu` profile's 3,000 updates are ten times the laptop profile's 300, whose default
+# pipeline run takes about 50 minutes on a 2-core CPU (README, Table I).
+LAPTOP_RUN_CPU_HOURS = 50 / 60
 
 
 def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
@@ -40,10 +48,19 @@ def run_hours(config: RunConfig, seconds_per_episode: float, num_scenarios: int,
 
 def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: int,
                 stream=None) -> str | None:
-    """Warn once (stderr) when the paper profile runs without an accelerator; returns the
-    message (None when there is nothing to warn about)."""
-    if config.profile != "paper" or backend != "cpu":
+    """Warn once (stderr) when the paper or gpu profile runs without an accelerator; returns
+    the message (None when there is nothing to warn about)."""
+    if config.profile not in ("paper", "gpu") or backend != "cpu":
         return None
+    if config.profile == "gpu":
+        n = config.training.num_updates
+        scale, hours = n / 300, n / 300 * LAPTOP_RUN_CPU_HOURS
+        msg = (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {scale:.0f}x "
+               f"the laptop profile's 300, whose whole pipeline takes "
+               f"~{LAPTOP_RUN_CPU_HOURS:.1f} h on 2 cores; expect ~{hours:.0f} h for the "
+               "pipeline; use a GPU or --profile laptop")
+        print(msg, file=stream or sys.stderr, flush=True)
+        return msg
     per = (CPU_SECONDS_PER_ROLLOUT_EPISODE if config.collects_rollout
            else CPU_SECONDS_PER_EPISODE)
     hours = run_hours(config, per, num_scenarios, devices)
