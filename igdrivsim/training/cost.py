@@ -55,7 +55,9 @@ def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: in
     if config.profile == "gpu":
         n = config.training.num_updates
         scale, hours = n / 300, n / 300 * LAPTOP_RUN_CPU_HOURS
-        msg = (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {scale:.0f}x "
+        if scale <= 1:  # overridden down to the laptop's budget or less: nothing to warn about
+            return None
+        msg = (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {scale:.3g}x "
                f"the laptop profile's 300, whose whole pipeline takes "
                f"~{LAPTOP_RUN_CPU_HOURS:.1f} h on 2 cores; expect ~{hours:.0f} h for the "
                "pipeline; use a GPU or --profile laptop")
