@@ -50,30 +50,38 @@ def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: in
                 stream=None) -> str | None:
     """Warn once (stderr) when the paper or gpu profile runs without an accelerator; returns
     the message (None when there is nothing to warn about)."""
-    if config.profile not in ("paper", "gpu") or backend != "cpu":
+    if backend != "cpu":
         return None
-    if config.profile == "gpu":
-        from igdrivsim.training.config import laptop
-
-        n, base = config.training.num_updates, laptop().training.num_updates
-        scale, hours = n / base, n / base * LAPTOP_RUN_CPU_HOURS
-        if scale <= 1:  # overridden down to the laptop's budget or less: nothing to warn about
-            return None
-        msg = (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {scale:.3g}x "
-               f"the laptop profile's {base}, whose whole pipeline takes "
-               f"~{LAPTOP_RUN_CPU_HOURS:.1f} h on 2 cores; expect ~{hours:.0f} h for the "
-               "pipeline; use a GPU or --profile laptop")
+    messages = {"paper": _paper_on_cpu, "gpu": _gpu_profile_on_cpu}
+    msg = messages[config.profile](config, num_scenarios, devices) if (
+        config.profile in messages) else None
+    if msg:
         print(msg, file=stream or sys.stderr, flush=True)
-        return msg
-    per = (CPU_SECONDS_PER_ROLLOUT_EPISODE if config.collects_rollout
-           else CPU_SECONDS_PER_EPISODE)
-    hours = run_hours(config, per, num_scenarios, devices)
-    gpu = run_hours(config, GPU_SECONDS_PER_ROLLOUT_EPISODE if config.collects_rollout
-                    else GPU_SECONDS_PER_EPISODE, num_scenarios, 1)
-    msg = (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
-           f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
-           f"scenarios x {config.training.seeds} seed(s) at ~{per} s per episode (paper network, "
-           f"bench train) is ~{hours:,.1f} hours ({hours / 8766:,.1f} years); use GPUs "
-           f"(~{gpu:,.0f} h on one H200; README: Running at paper scale) or --profile laptop")
-    print(msg, file=stream or sys.stderr, flush=True)
     return msg
+
+
+def _paper_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str:
+    rollout = config.collects_rollout
+    per = CPU_SECONDS_PER_ROLLOUT_EPISODE if rollout else CPU_SECONDS_PER_EPISODE
+    hours = run_hours(config, per, num_scenarios, devices)
+    gpu = run_hours(config, GPU_SECONDS_PER_ROLLOUT_EPISODE if rollout
+                    else GPU_SECONDS_PER_EPISODE, num_scenarios, 1)
+    return (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
+            f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
+            f"scenarios x {config.training.seeds} seed(s) at ~{per} s per episode (paper "
+            f"network, bench train) is ~{hours:,.1f} hours ({hours / 8766:,.1f} years); use GPUs "
+            f"(~{gpu:,.0f} h on one H200; README: Running at paper scale) or --profile laptop")
+
+
+def _gpu_profile_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str | None:
+    """None when the updates were overridden down to the laptop's budget or less."""
+    from igdrivsim.training.config import laptop
+
+    n, base = config.training.num_updates, laptop().training.num_updates
+    if n <= base:
+        return None
+    return (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {n / base:.3g}x "
+            f"the laptop profile's {base}, whose whole pipeline takes "
+            f"~{LAPTOP_RUN_CPU_HOURS:.1f} h on 2 cores; expect "
+            f"~{n / base * LAPTOP_RUN_CPU_HOURS:.0f} h for the pipeline; use a GPU or "
+            "--profile laptop")
