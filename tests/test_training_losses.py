@@ -191,3 +191,39 @@ def test_yaw_history_feeds_the_last_yaw_rates_in_levels_next_to_the_speed_histor
     other = seq.replace(sdc_yaw_rate=jnp.array([0.0, 0.0, 0.0, 0.3])[:, None, None])
     _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
     assert not np.allclose(moved[3], unrolled[3])
+
+
+def test_object_ego_speed_lets_the_object_encoder_read_the_ego_speed():
+    from igdrivsim.observation import OBJECT_FEATURES
+    from igdrivsim.policy.network import DrivingPolicy, initial_carry, unroll_sequence
+
+    cfg = replace(TINY, object_ego_speed=True, speed_input_scale=10.0)
+    obs = example_observation(ObservationConfig(2, 4))
+    obs = obs.replace(objects=obs.objects.at[0].set(jnp.array([0.1, 0.0, 1.0, 0.0, 0.2, 1.0])),
+                      objects_valid=obs.objects_valid.at[0].set(True))
+
+    def per_object(c, o):  # the object MLP's output for each slot, and the parameters
+        p = init_params(c, jax.random.PRNGKey(0), obs)
+        _, state = DrivingPolicy(c).apply(p, o, None, method=DrivingPolicy.encode,
+                                          capture_intermediates=True)
+        return state["intermediates"]["object_mlp"]["__call__"][0], p
+
+    slow, fast = obs.replace(sdc_speed=jnp.array([0.1])), obs.replace(sdc_speed=jnp.array([0.3]))
+    out, params = per_object(cfg, slow)
+    dense = params["params"]["object_mlp"]["Dense_0"]
+    assert dense["kernel"].shape[0] == OBJECT_FEATURES + 1
+    # the input is [the observed features with the object's speed x10, the ego speed x10]
+    x = jnp.concatenate([obs.objects.at[:, 4].multiply(10.0), jnp.full((2, 1), 1.0)], -1)
+    np.testing.assert_allclose(out, jax.nn.relu(x @ dense["kernel"] + dense["bias"]), atol=1e-6)
+    assert not np.allclose(out, per_object(cfg, fast)[0])
+    base = replace(cfg, object_ego_speed=False)  # off: the objects do not see the ego speed
+    np.testing.assert_allclose(per_object(base, slow)[0], per_object(base, fast)[0])
+    # stepping and unrolling agree
+    seq = jax.tree.map(lambda v: jnp.stack([v] * 3)[:, None], obs)
+    seq = seq.replace(sdc_speed=jnp.array([0.1, 0.2, 0.3])[:, None, None])
+    _, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    carry = initial_carry(cfg, (1,))
+    for t in range(3):
+        o = jax.tree.map(lambda v, t=t: v[t], seq)
+        carry, logits, _ = apply_step(cfg, params, carry, o, jnp.array([t == 0]))
+        np.testing.assert_allclose(logits, unrolled[t], atol=1e-5)

@@ -44,6 +44,10 @@ class PolicyConfig:
     # the ego speed feature (speed / 50) is multiplied by this before the trunk: at 1 a change
     # of one dx level (0.47 m/s) moves it by 0.01, too little for a small network to read
     speed_input_scale: float = 1.0
+    # every object's features carry the ego speed next to the object's own speed, both times
+    # ``speed_input_scale``, so the object encoder can form closing speeds before pooling
+    # (after it, which object was closing is lost); False: the objects as observed
+    object_ego_speed: bool = False
     # a second actor head on the same GRU output, trained by imitation only (ADVISOR's
     # auxiliary policy); the method decides (training/methods), acting never reads it
     aux_head: bool = False
@@ -157,7 +161,12 @@ class DrivingPolicy(nn.Module):
     def encode(self, obs, history=None):
         """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]`` (``history``: the
         ego-motion history features of :func:`step_history`, ``None`` without one)."""
-        objects = masked_max(self.object_mlp(obs.objects), obs.objects_valid)
+        objects = obs.objects
+        if self.config.object_ego_speed:
+            k = self.config.speed_input_scale
+            ego = jnp.broadcast_to(obs.sdc_speed[..., None, :], (*objects.shape[:-1], 1))
+            objects = jnp.concatenate([objects.at[..., 4].multiply(k), ego * k], -1)
+        objects = masked_max(self.object_mlp(objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
         parts = [self.object_norm(objects), self.roadgraph_norm(roads),
                  obs.sdc_speed * self.config.speed_input_scale]

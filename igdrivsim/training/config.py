@@ -164,14 +164,15 @@ def laptop() -> RunConfig:
     cores; each batch of teacher-forced episodes is reused for two gradient passes. Chosen by
     the sweep in docs/training.md: the observable map thinned to every 8th point (4 m apart),
     so 64 points reach ~20 m; the dx head scores offsets from constant velocity; the policy
-    sees its last 8 speed changes and its last 5 yaw rates."""
+    sees its last 8 speed changes and its last 5 yaw rates; the object encoder (64 wide) sees
+    the ego speed next to each object's."""
     return RunConfig(
         profile="laptop",
-        policy=PolicyConfig(object_hidden=(32, 32), point_hidden=(32,),
+        policy=PolicyConfig(object_hidden=(64, 64), point_hidden=(32,),
                             roadgraph_hidden=(64,), trunk_hidden=(128,), gru_hidden=128,
                             actor_hidden=(128,), value_hidden=(64,), relative_dx=True,
                             speed_input_scale=10.0, speed_history=8,
-                            yaw_history=5),
+                            yaw_history=5, object_ego_speed=True),
         data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
                         max_roadgraph_points=10_240, prefetch=2),
         observation=ObsConfig(num_objects=16, num_roadgraph_points=64, roadgraph_stride=8),
