@@ -190,9 +190,9 @@ def paper() -> RunConfig:
 
 
 def gpu() -> RunConfig:
-    """The laptop network and data at ten times its updates (3,000): what the laptop
-    profile's competence targets need (docs/training.md, "The budget"); one GPU trains it
-    in minutes, a 2-core CPU in about ten times the laptop run."""
+    """The laptop network and data at ten times its updates (3,000): past the 1,000 at which
+    the laptop profile meets its competence targets (docs/training.md, "The budget"); one GPU
+    trains it in minutes, a 2-core CPU in about ten times the laptop run."""
     base = laptop()
     return dataclasses.replace(base, profile="gpu", training=dataclasses.replace(
         base.training, num_updates=3000, eval_every=500, checkpoint_every=500))

@@ -26,9 +26,9 @@ CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger
 GPU_SECONDS_PER_EPISODE = 15.0 / 768
 GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
-# The laptop profile's default pipeline run takes about 50 minutes on a 2-core CPU (README,
+# The laptop profile's default pipeline run takes about 52 minutes on a 2-core CPU (README,
 # Table I); the `gpu` profile runs ten times its updates.
-LAPTOP_RUN_CPU_HOURS = 50 / 60
+LAPTOP_RUN_CPU_HOURS = 52 / 60
 
 
 def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
