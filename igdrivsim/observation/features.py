@@ -34,7 +34,8 @@ from igdrivsim.data.scenario import RG_NUM_TYPES
 
 POSITION_SCALE = 100.0  # metres -> feature units
 SPEED_SCALE = 50.0  # m/s -> feature units
-OBJECT_FEATURES = 6
+OBJECT_FEATURES = 6  # x, y, cos and sin of the relative yaw, speed, valid
+OBJECT_SPEED = 4  # the speed's column
 ROADGRAPH_FEATURES = 4 + RG_NUM_TYPES + 1  # xy, dir xy, one-hot type, valid = 25
 
 

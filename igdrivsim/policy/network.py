@@ -163,9 +163,11 @@ class DrivingPolicy(nn.Module):
         ego-motion history features of :func:`step_history`, ``None`` without one)."""
         objects = obs.objects
         if self.config.object_ego_speed:
+            from igdrivsim.observation.features import OBJECT_SPEED
+
             k = self.config.speed_input_scale
             ego = jnp.broadcast_to(obs.sdc_speed[..., None, :], (*objects.shape[:-1], 1))
-            objects = jnp.concatenate([objects.at[..., 4].multiply(k), ego * k], -1)
+            objects = jnp.concatenate([objects.at[..., OBJECT_SPEED].multiply(k), ego * k], -1)
         objects = masked_max(self.object_mlp(objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
         parts = [self.object_norm(objects), self.roadgraph_norm(roads),
