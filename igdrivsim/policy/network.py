@@ -17,6 +17,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.observation.features import OBJECT_SPEED
 from igdrivsim.policy.gru import fused_gru_cell, gru_scan
 
 NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
@@ -163,8 +164,6 @@ class DrivingPolicy(nn.Module):
         ego-motion history features of :func:`step_history`, ``None`` without one)."""
         objects = obs.objects
         if self.config.object_ego_speed:
-            from igdrivsim.observation.features import OBJECT_SPEED
-
             k = self.config.speed_input_scale
             ego = jnp.broadcast_to(obs.sdc_speed[..., None, :], (*objects.shape[:-1], 1))
             objects = jnp.concatenate([objects.at[..., OBJECT_SPEED].multiply(k), ego * k], -1)
