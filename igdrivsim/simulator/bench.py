@@ -5,8 +5,9 @@ Two implementations of the same episode are timed in the same run, on the same b
 * **naive** (a port of Waymax's approach): every step selects the 1,500 nearest points with a
   top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the distance
   from the SDC box corners to every roadgraph point (non-edges masked).
-* **fast** (what closed-loop training and evaluation rollouts use): road edges near the logged
-  path in their own small array (1,024), and the observation from 3,000 cached candidate points
+* **fast** (closed-loop rollouts in training and evaluation share its road-edge array but take
+  the naive top-k observation; see docs/simulator-speed.md): road edges near the logged path in
+  their own small array (1,024), and the observation from 3,000 cached candidate points
   stored nearest-first; a step re-ranks only the 512 around the N-th and checks that the result
   is exact, repairing the stored order (or re-selecting from the whole roadgraph) when not
   (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
