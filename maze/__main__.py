@@ -1,7 +1,8 @@
 """``python -m maze --out DIR [--seeds 10] [--quick]``: the maze study (see :mod:`maze.study`).
 
 ``--quick`` runs the seconds-long smoke profile. Besides the study's outputs this writes
-``DIR/summary.csv`` (``curve,final_return_mean,final_return_ci95``, one row per curve).
+``DIR/summary.csv`` (``curve,final_return_mean,final_return_ci95,final_length_mean,
+final_length_ci95,seeds``, one row per curve).
 """
 
 from __future__ import annotations

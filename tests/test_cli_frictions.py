@@ -38,3 +38,14 @@ def test_set_may_not_contradict_obs_or_method():
     args.overrides = ["training.method=bc", "training.lr=3e-4"]
     config = resolve_config(args)
     assert config.training.method == "bc" and config.training.lr == 3e-4
+
+
+def test_bench_train_refuses_overrides_it_would_ignore(capsys):
+    """bench train fixes the method, the settings and an untrained teacher itself: a --set
+    that contradicts them is refused in one line, before anything is compiled."""
+    for extra in (["--method", "bc", "--set", "training.method=bc_rl"],
+                  ["--set", "training.teacher=runs/bc"]):
+        assert main(["bench", "train", "--profiles", "smoke", *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err
+        assert "contradicts --method" in err or "training.teacher" in err

@@ -54,7 +54,7 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
                         help="warn about and count bad records instead of stopping")
     parser.add_argument("--workers", type=int, default=1,
                         help="N worker processes (1: in this process, which starts printing at "
-                             "once; other commands default to all CPUs)")
+                             "once)")
 
 
 def inspect_command(args: argparse.Namespace) -> int:

@@ -50,16 +50,22 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
                   updates: int = 3, overrides: tuple[str, ...] = (),
                   obs: str = ",".join(PAPER_SETTINGS)) -> dict:
     """Measure one profile; returns the JSON record."""
+    from igdrivsim.errors import ConfigError
     from igdrivsim.policy.act import example_observation
     from igdrivsim.policy.network import init_params_per_seed
     from igdrivsim.simulator import toy
     from igdrivsim.training import inputs
+    from igdrivsim.training.commands import refuse_contradictions
     from igdrivsim.training.config import get_profile, with_overrides
     from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
     from igdrivsim.training.update import run_settings, settings_as_data, update_spec
 
     cpu = jax.default_backend() == "cpu"
     sets = [f"training.method={method}", f"observation.setting={obs}"]
+    refuse_contradictions(sets, overrides)
+    if any(o.partition("=")[0].strip() == "training.teacher" for o in overrides):
+        raise ConfigError("bench train times a method's update with an untrained teacher of the "
+                          "same network; --set training.teacher is not taken")
     if batch or (profile == "paper" and cpu):
         sets.append(f"data.batch_size={batch or 1}")
     if seeds or (profile == "paper" and cpu):

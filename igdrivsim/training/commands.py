@@ -53,6 +53,22 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+SHORTCUTS = {"observation.setting": "--obs", "training.method": "--method",
+             "training.seeds": "--seeds"}
+
+
+def refuse_contradictions(shortcuts: list[str], overrides: list[str] | tuple[str, ...]) -> None:
+    """One-line error when a ``--set`` override contradicts a shortcut option's
+    ``key=value`` (``--obs``, ``--method``, ``--seeds``)."""
+    for shortcut in shortcuts:
+        key, value = shortcut.split("=", 1)
+        for override in overrides:
+            okey, _, ovalue = override.partition("=")
+            if okey.strip() == key and ovalue.strip() != value:
+                raise ConfigError(f"--set {override} contradicts {SHORTCUTS[key]} {value}; "
+                                  f"give one of them")
+
+
 def resolve_config(args: argparse.Namespace):
     """The run's config: profile, then the shortcut options, then ``--set`` overrides."""
     config = get_profile(args.profile)
@@ -63,15 +79,7 @@ def resolve_config(args: argparse.Namespace):
         shortcuts.append(f"training.method={args.method}")
     if args.seeds is not None:
         shortcuts.append(f"training.seeds={args.seeds}")
-    for shortcut in shortcuts:
-        key, value = shortcut.split("=", 1)
-        for override in args.overrides:
-            okey, _, ovalue = override.partition("=")
-            if okey.strip() == key and ovalue.strip() != value:
-                option = {"observation.setting": "--obs", "training.method": "--method",
-                          "training.seeds": "--seeds"}[key]
-                raise ConfigError(f"--set {override} contradicts {option} {value}; "
-                                  f"give one of them")
+    refuse_contradictions(shortcuts, args.overrides)
     config = with_overrides(config, shortcuts + list(args.overrides))
     from igdrivsim.observation import get_setting
 
