@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import warnings
 
-from igdrivsim.errors import IGDrivSimError
+from igdrivsim.errors import IGDrivSimError, os_error_line
 
 
 class DefaultsFormatter(argparse.HelpFormatter):
@@ -87,11 +89,21 @@ def main(argv: list[str] | None = None) -> int:
     known, _ = parser.parse_known_args(first)
     known._configure()
     args = parser.parse_args(argv)
+    name = args._name.replace("_", " ")
+    # warnings (a skipped bad record, ...) as one line each, not with their source line
+    warnings.formatwarning = lambda message, *_, **__: f"igdrivsim {name}: warning: {message}\n"
     try:
         func = getattr(importlib.import_module(args._module), f"{args._name}_command")
         return int(func(args) or 0)
     except IGDrivSimError as err:
         print(f"igdrivsim {args._name.replace('_', ' ')}: error: {err}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # the reader went away (``| head``): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except OSError as err:  # a file system refusal (an --out that is a file, no space, ...)
+        print(f"igdrivsim {args._name.replace('_', ' ')}: error: {os_error_line(err)}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"igdrivsim {args._name}: interrupted", file=sys.stderr)

@@ -25,3 +25,17 @@ class DataError(IGDrivSimError):
             ) if part
         )
         super().__init__(f"{where}: {problem}" if where else problem)
+
+
+def os_error_line(err: OSError) -> str:
+    """A file-system error as one line: what went wrong and on which path(s)."""
+    paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
+    what = err.strerror or type(err).__name__
+    return f"{what}: {paths}" if paths else f"{what}: {err}"
+
+
+def check_min(option: str, value: float | None, minimum: float) -> None:
+    """``ConfigError`` naming the option and its value unless ``value >= minimum`` (``None``:
+    not given, accepted)."""
+    if value is not None and not value >= minimum:
+        raise ConfigError(f"{option} must be >= {minimum}, got {value}")

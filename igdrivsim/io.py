@@ -22,6 +22,27 @@ __all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes"
            "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode"]
 
 
+def require_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
+    """``path`` as a folder to write into, refused up front (before any work) when a file is
+    there: ``ConfigError`` naming the option."""
+    from igdrivsim.errors import ConfigError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{option} {path}: a file is there, not a folder")
+    return path
+
+
+def require_file_target(path: str | os.PathLike[str], option: str = "--out") -> Path:
+    """``path`` as a file to write, refused up front when a folder is there."""
+    from igdrivsim.errors import ConfigError
+
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: a folder is there, not a file")
+    return path
+
+
 def _umask() -> int:
     """The process umask, read without changing it where Linux allows (thread-safe)."""
     try:

@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from igdrivsim.cli import DefaultsFormatter
-from igdrivsim.errors import IGDrivSimError
+from igdrivsim.errors import IGDrivSimError, os_error_line
 from igdrivsim.io import atomic_write_csv
 from maze import study
 
@@ -26,10 +26,13 @@ def main(argv: list[str] | None = None) -> int:
         args.profile = "smoke"
     try:
         summary = study.run_study(study.resolve(args), args.out, args.work, args.force)
+        atomic_write_csv(args.out / "summary.csv", summary)
     except IGDrivSimError as err:
         print(f"maze: error: {err}", file=sys.stderr)
         return 2
-    atomic_write_csv(args.out / "summary.csv", summary)
+    except OSError as err:
+        print(f"maze: error: {os_error_line(err)}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -31,8 +31,14 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.cli import DefaultsFormatter
-from igdrivsim.errors import ConfigError, IGDrivSimError
-from igdrivsim.io import atomic_write_bytes, atomic_write_csv, atomic_write_json, atomic_write_text
+from igdrivsim.errors import ConfigError, IGDrivSimError, os_error_line
+from igdrivsim.io import (
+    atomic_write_bytes,
+    atomic_write_csv,
+    atomic_write_json,
+    atomic_write_text,
+    require_folder,
+)
 from maze import extended, lanes, report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.dagger import DAggerConfig, make_dagger
@@ -273,6 +279,8 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     ``study`` reuses already compiled functions (tests); it must have been built from ``cfg``.
     """
     cfg.validate()
+    require_folder(out, "--out")
+    require_folder(work, "--work")
     resolved = config_dict(cfg)
     config_path = out / "maze_config.json"
     if not force and all((out / p).exists() for p in outputs(cfg)):
@@ -421,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
         return study_command(args)
     except IGDrivSimError as err:
         print(f"maze study: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"maze study: error: {os_error_line(err)}", file=sys.stderr)
         return 2
 
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 from igdrivsim.cli import deprecated_alias
 from igdrivsim.data.reader import available_cpus
-from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.errors import DataError, check_min
+from igdrivsim.io import require_file_target
 
 DEFAULT_SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "womd"
 
@@ -96,8 +97,11 @@ def _time_filter(paths, workers: int, folder: str) -> dict:
 def bench_data_command(args: argparse.Namespace) -> int:
     from igdrivsim.data.manifest import write_json
 
-    if args.records < 1 or args.shards < 1 or args.workers < 1:
-        raise ConfigError("--limit, --shards and --workers must be >= 1")
+    for option, value in (("--limit", args.records), ("--shards", args.shards),
+                          ("--workers", args.workers)):
+        check_min(option, value, 1)
+    if args.out:
+        require_file_target(args.out)
     results = {"cpu_count": available_cpus(), "workers": args.workers, "runs": []}
     with tempfile.TemporaryDirectory(prefix="igdrivsim-bench-data-") as folder:
         if args.paths:

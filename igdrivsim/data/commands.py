@@ -17,7 +17,8 @@ from igdrivsim.data.scenario import (
     Scenario,
     decode_scenario_id,
 )
-from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.errors import ConfigError, DataError, check_min
+from igdrivsim.io import require_folder
 
 
 def describe(scenario: Scenario) -> dict:
@@ -63,6 +64,7 @@ def inspect_command(args: argparse.Namespace) -> int:
 
     if args.limit is not None and args.limit < 0:
         raise ConfigError(f"--limit must be >= 0, got {args.limit}")
+    check_min("--workers", args.workers, 1)
     stats = ReadStats()
     shown = 0
     for rec in iter_scenarios(args.files, caps=None, skip_bad=args.skip_bad, stats=stats,
@@ -107,6 +109,7 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
 def filter_command(args: argparse.Namespace) -> int:
     from igdrivsim.data.filter import merge, parse_part, run_filter
 
+    require_folder(args.out)
     explicit = args.criterion is not None or args.min_speed is not None
     config = FilterConfig(criterion=args.criterion or "paper",
                           min_speed=0.7 if args.min_speed is None else args.min_speed)

@@ -229,7 +229,7 @@ def _read_shard_result(path: str, file: str | None = None) -> dict | None:
     try:
         with open(path) as f:
             result = json.load(f)
-    except (OSError, json.JSONDecodeError):
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return None
     if not isinstance(result, dict) or "entries" not in result:
         return None
@@ -338,9 +338,14 @@ def stored_config(dirs) -> FilterConfig | None:
     for d in dirs:
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
             if name.startswith("filter_config") and name.endswith(".json"):
-                with open(os.path.join(d, name)) as f:
-                    c = json.load(f)
-                found.add((c["criterion"], float(c["min_speed"])))
+                path = os.path.join(d, name)
+                try:
+                    with open(path) as f:
+                        c = json.load(f)
+                    found.add((c["criterion"], float(c["min_speed"])))
+                except (OSError, ValueError, TypeError, KeyError) as err:
+                    raise DataError(f"unreadable filter settings ({type(err).__name__}: {err})",
+                                    file=path) from err
     if len(found) > 1:
         raise ConfigError(f"the runs to merge used different filter settings: {sorted(found)}; "
                           "pass --criterion and --min-speed")
@@ -365,8 +370,11 @@ def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
     files = {}
     for p in paths:
         result = _read_shard_result(p)
-        if result is not None:
-            files.setdefault(result["file"], p)
+        if result is None or not isinstance(result.get("file"), str):
+            raise DataError("partial filter result unreadable (corrupt JSON or no \"file\" / "
+                            "\"entries\"); rerun the filter run that wrote it (it redoes "
+                            "unreadable shards)", file=p)
+        files.setdefault(result["file"], p)
     os.makedirs(out, exist_ok=True)
     write_json_config = {**config.to_dict(), "merged": dirs}
     from igdrivsim.data.manifest import write_json

@@ -30,6 +30,7 @@ tables. Welch's t-test over the seed means is kept in ``tests.csv`` as a check.
 
 from __future__ import annotations
 
+import os
 import warnings
 import zlib
 from collections.abc import Iterable, Sequence
@@ -59,16 +60,44 @@ TEST_SEED = 0
 _CHUNK = 2_000  # resamples per block: bounds memory at CHUNK x n_scenarios counts
 
 
-def read_csv_checked(path: str | Path, columns: Iterable[str]) -> pd.DataFrame:
-    """Read a tidy CSV and check that it has ``columns``; DataError names the file otherwise."""
+def _ends_with_line_end(path: Path) -> bool:
+    """Whether a non-empty file's last byte is a line end (pandas writes one after each row)."""
+    with open(path, "rb") as f:
+        if f.seek(0, os.SEEK_END) == 0:
+            return True
+        f.seek(-1, os.SEEK_END)
+        return f.read(1) == b"\n"
+
+
+def read_csv_checked(path: str | Path, columns: Iterable[str],
+                     complete: Iterable[str] = ()) -> pd.DataFrame:
+    """Read a tidy CSV and check that it has ``columns``, that it ends with a whole row (a
+    line end), and values in every row for the ``complete`` columns (identifiers; metrics may
+    be empty: a scenario without a valid step has none); DataError names the file (and the
+    first incomplete row: 1 is the first after the header) otherwise."""
     path = Path(path)
+    try:
+        cut_off = not _ends_with_line_end(path)
+    except OSError as err:
+        raise DataError(f"cannot read CSV ({err})", file=str(path)) from err
+    if cut_off:
+        raise DataError("the last row is cut off (no line end); rerun what wrote it",
+                        file=str(path))
     try:
         frame = pd.read_csv(path, dtype={"setting": str, "method": str, "scenario_id": str})
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as err:
         raise DataError(f"cannot read CSV ({err})", file=str(path)) from err
+    columns = list(columns)
     missing = [c for c in columns if c not in frame.columns]
     if missing:
         raise DataError(f"missing columns {missing}", file=str(path))
+    complete = [c for c in complete if c in frame.columns]
+    empty = frame[complete].isna()
+    if empty.to_numpy().any():
+        row = int(np.flatnonzero(empty.any(axis=1).to_numpy())[0])
+        blank = [c for c in complete if empty[c].iloc[row]]
+        raise DataError(f"row {row + 1} after the header has no value for {blank} "
+                        "(file cut off or edited?)", file=str(path))
     return frame
 
 
@@ -85,7 +114,8 @@ def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.Data
         for csv in sorted(root.rglob("per_step.csv")):
             steps.append(read_csv_checked(csv, PER_STEP_COLUMNS))
         for csv in sorted(root.rglob("per_scenario.csv")):
-            scenarios.append(read_csv_checked(csv, PER_SCENARIO_COLUMNS))
+            scenarios.append(read_csv_checked(csv, PER_SCENARIO_COLUMNS,
+                                              complete=PER_SCENARIO_COLUMNS[:4]))
     if not scenarios:
         raise DataError("no per_scenario.csv found", file=", ".join(map(str, paths)))
     per_step = pd.concat(steps, ignore_index=True) if steps else pd.DataFrame(

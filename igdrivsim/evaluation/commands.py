@@ -22,7 +22,7 @@ from pathlib import Path
 
 from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_write_csv, atomic_write_json
+from igdrivsim.io import atomic_write_csv, atomic_write_json, require_folder
 
 EVAL_CONFIG = "eval_config.json"
 
@@ -108,6 +108,14 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _check_sizes(max_scenarios: int, batch_size: int) -> None:
+    """``--limit`` (0: every scenario) and ``--batch-size`` before anything is read."""
+    if max_scenarios < 0:
+        raise ConfigError(f"--limit must be >= 1 (or 0 for every scenario), got {max_scenarios}")
+    if batch_size < 1:
+        raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
+
+
 def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
                  progress: bool = True, scenarios=None) -> Path:
@@ -125,8 +133,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     from igdrivsim.observation import ObservationConfig
     from igdrivsim.training.update import run_settings, sim_params
 
-    if batch_size < 1:
-        raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
+    _check_sizes(max_scenarios, batch_size)
     config, params, seeds = load_trained(run_dir)
     if scenarios is None:
         scenarios = load_validation(data, data_capacities(config), max_scenarios)
@@ -159,6 +166,7 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
     from igdrivsim.evaluation.rollout import reference_frames
     from igdrivsim.simulator import SimParams
 
+    _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = sim or SimParams()
     if scenarios is None:
@@ -174,7 +182,7 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
 def _read_json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise DataError(f"cannot read JSON ({err})", file=str(path)) from err
 
 
@@ -195,6 +203,7 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
 def evaluate_command(args: argparse.Namespace) -> int:
     if not args.runs and not args.references:
         raise ConfigError("give at least one RUN_DIR, or --references")
+    require_folder(args.out)
     from igdrivsim.training.commands import maybe_init_distributed
 
     maybe_init_distributed()  # several hosts: the scenarios are spread over all their devices
@@ -246,10 +255,10 @@ def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
     profiles, data = set(), set()
     for root in eval_dirs:
         for path in Path(root).rglob(EVAL_CONFIG):
-            try:
-                info = json.loads(path.read_text())
-            except (OSError, json.JSONDecodeError):
-                continue
+            info = _read_json(path)
+            if not isinstance(info, dict):
+                raise DataError("not an evaluation record (expected a JSON object)",
+                                file=str(path))
             if "profile" in info:
                 profiles.add(str(info["profile"]))
             if "data" in info:
@@ -260,6 +269,7 @@ def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
 def report_command(args: argparse.Namespace) -> int:
     from igdrivsim.evaluation.report import Provenance, build_report
 
+    require_folder(args.out)
     profile, data = _provenance_from(args.evals)
     prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
     written = build_report(args.evals, args.out, prov, run_dirs=args.runs)

@@ -39,9 +39,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from igdrivsim.cli import DefaultsFormatter, deprecated_alias
-from igdrivsim.errors import ConfigError, IGDrivSimError
+from igdrivsim.errors import ConfigError, IGDrivSimError, os_error_line
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
-from igdrivsim.io import atomic_write_json, atomic_write_text
+from igdrivsim.io import atomic_write_json, atomic_write_text, require_folder
 from igdrivsim.observation import get_setting, setting_params
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
@@ -556,13 +556,25 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                                   "(or give two locations: --data TRAIN VAL)")
         elif len(args.data) == 2:
             train, val = args.data
+            from igdrivsim.data import expand_paths
+
+            for where in (train, val):
+                expand_paths(where)  # names files, else a one-line error (before any stage)
         else:
             raise ConfigError("--data takes one folder or two locations (TRAIN VAL)")
     if args.out:
         work, paper = Path(args.out), Path(args.out) / "paper"
     else:
         work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
+    require_folder(work)
     settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
+    if settings is not None and (not all(settings) or len(set(settings)) != len(settings)):
+        raise ConfigError(f"--obs must name distinct settings, got {args.settings!r}")
+    for override in args.overrides:
+        key = override.partition("=")[0].strip()
+        if key in ("observation.setting", "training.method"):
+            raise ConfigError(f"--set {override}: the pipeline sets {key} itself (use --obs / "
+                              "--methods)")
     from igdrivsim.training.config import get_profile, with_overrides
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
@@ -590,6 +602,9 @@ def main(argv: list[str] | None = None) -> int:
         pipeline_from_args(args).run()
     except IGDrivSimError as err:
         print(f"reproduce: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"reproduce: error: {os_error_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)

@@ -27,6 +27,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import methods_table, registry
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.evaluation.figures import (
@@ -158,6 +159,10 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     ``runs/`` sibling of each evaluation folder. Returns the written paths.
     """
     out = Path(out)
+    for run in run_dirs or []:  # given explicitly: each must be there (checked before any work)
+        if not Path(run).is_dir():
+            problem = "not a folder" if Path(run).exists() else "no such folder"
+            raise ConfigError(f"--runs {run}: {problem}")
     _, per_scenario = load_evaluations(eval_dirs)
     summary = summarize(per_scenario)
     # Table I is the paper's comparison: Holm over its own cells, whatever else was run.

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.io import require_folder
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data" / "womd" / "motion_data_one_example.tfrecord"
@@ -53,13 +54,20 @@ def _data_path(args) -> str:
 def render_command(args) -> int:
     from igdrivsim.observation.models import PAPER_SETTINGS, get_setting
 
+    require_folder(args.out)
     if not 10 <= args.step <= 90:
         raise ConfigError(f"--step must be in 10..90, got {args.step}")
-    if args.view <= 0 or args.every < 1:
-        raise ConfigError("--view must be > 0 and --every >= 1")
+    if not args.view > 0:  # also rejects nan
+        raise ConfigError(f"--view must be > 0, got {args.view:g}")
+    if args.every < 1:
+        raise ConfigError(f"--every must be >= 1, got {args.every}")
+    if args.record < 0:
+        raise ConfigError(f"--record must be >= 0, got {args.record}")
     setting = get_setting(args.setting)  # fail early on a bad name
-    panels = ([p.strip() for p in args.panels.split(",") if p.strip()] if args.panels
-              else list(PAPER_SETTINGS))
+    panels = ([p.strip() for p in args.panels.split(",") if p.strip()]
+              if args.panels is not None else list(PAPER_SETTINGS))
+    if not panels:
+        raise ConfigError(f"--panels names no setting, got {args.panels!r}")
     for name in panels:
         get_setting(name)
 

@@ -49,7 +49,7 @@ import numpy as np
 from tqdm import tqdm
 
 from igdrivsim.cli import deprecated_alias
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.candidates import (
@@ -198,8 +198,9 @@ def bench_sim_command(args) -> int:
     except ValueError as err:
         raise ConfigError(f"--batch-sizes must be comma-separated integers, got {args.batches!r}"
                           ) from err
-    if not batches or min(batches) < 1 or args.repeats < 1:
-        raise ConfigError("--batch-sizes must be positive integers and --repeats >= 1")
+    if not batches or min(batches) < 1:
+        raise ConfigError(f"--batch-sizes must be positive integers, got {args.batches!r}")
+    check_min("--repeats", args.repeats, 1)
     get_setting(args.setting)
     path = _data_path(args)
     if args.distinct:

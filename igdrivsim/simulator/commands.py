@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_path, atomic_write_json
+from igdrivsim.io import atomic_path, atomic_write_json, require_folder
 from igdrivsim.simulator.metrics import StepMetrics, mean_log_divergence
 from igdrivsim.simulator.rollout import ACTORS, log_metrics, run_episode
 from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
@@ -127,6 +127,8 @@ def _write_gif(path: str, final: SimState) -> None:
 def replay_command(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    if args.out:
+        require_folder(args.out)
     from igdrivsim.data import decode_scenario_id, iter_scenarios
 
     if args.limit is not None and args.limit < 1:

@@ -127,10 +127,15 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
 
 
 def bench_train_command(args: argparse.Namespace) -> int:
-    from igdrivsim.errors import ConfigError
+    from igdrivsim.errors import ConfigError, check_min
     from igdrivsim.training.config import PROFILES
 
     names = [p.strip() for p in args.profiles.split(",") if p.strip()]
+    if not names:
+        raise ConfigError(f"--profiles names no profile, got {args.profiles!r}")
+    check_min("--updates", args.updates, 1)
+    check_min("--batch-size", args.batch, 0)
+    check_min("--seeds", args.seeds, 0)
     for name in names:
         if name not in PROFILES:
             raise ConfigError(f"unknown profile {name!r}; choose from {', '.join(PROFILES)}")

@@ -10,10 +10,43 @@ everything else (data order, keys, learning rate) is a function of it, so restor
 from __future__ import annotations
 
 import os
+import sys
 
 import jax
 import orbax.checkpoint as ocp
 from flax import serialization
+
+from igdrivsim.errors import DataError
+
+_MESSAGE_CHARS = 300  # tensorstore messages carry a whole JSON spec: keep the start
+
+
+def _first_line(err: BaseException) -> str:
+    """``Type: first line of the message``, cut before tensorstore's spec dump and shortened."""
+    lines = str(err).strip().splitlines()
+    text = lines[0].strip() if lines else ""
+    text = text.split(" [tensorstore_spec", 1)[0]
+    if len(text) > _MESSAGE_CHARS:
+        text = text[:_MESSAGE_CHARS - 3].rstrip() + "..."
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
+def _drop_closed_loop_reports() -> None:
+    """After a failed restore, tensorstore reads still in flight call back into orbax's event
+    loop, already closed, and each prints a traceback (via ``sys.unraisablehook``): drop those
+    reports only, so the error stays one line."""
+    previous = sys.unraisablehook
+    if getattr(previous, "_drops_closed_loop", False):
+        return
+
+    def hook(unraisable) -> None:
+        exc = unraisable.exc_value
+        if isinstance(exc, RuntimeError) and str(exc) == "Event loop is closed":
+            return
+        previous(unraisable)
+
+    hook._drops_closed_loop = True  # type: ignore[attr-defined]
+    sys.unraisablehook = hook
 
 
 class Checkpoints:
@@ -50,10 +83,15 @@ class Checkpoints:
         items = {"params": params_like, "opt_state": opt_state_like}
         if buffer_like is not None:
             items["buffer"] = serialization.to_state_dict(buffer_like)
-        out = self.manager.restore(step, args=ocp.args.StandardRestore(
-            jax.tree.map(abstract, items)))
-        buffer = (None if buffer_like is None
-                  else serialization.from_state_dict(buffer_like, out["buffer"]))
+        try:
+            out = self.manager.restore(step, args=ocp.args.StandardRestore(
+                jax.tree.map(abstract, items)))
+            buffer = (None if buffer_like is None
+                      else serialization.from_state_dict(buffer_like, out["buffer"]))
+        except Exception as err:  # orbax / tensorstore: corrupt, truncated or foreign files
+            _drop_closed_loop_reports()
+            raise DataError(f"cannot restore checkpoint {step} ({_first_line(err)})",
+                            file=os.path.join(self.path, str(step))) from err
         return out["params"], out["opt_state"], buffer
 
     def close(self) -> None:

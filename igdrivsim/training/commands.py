@@ -13,7 +13,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, check_min
+from igdrivsim.io import require_folder
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
 
@@ -120,6 +121,10 @@ def train_command(args: argparse.Namespace) -> int:
     import sys
 
     config = resolve_config(args)
+    check_min("--stop-after", args.stop_after, 0)
+    require_folder(args.out)
+    if args.cache_dir:
+        require_folder(args.cache_dir, "--cache-dir")
     defaulted = [f"{opt} {value}" for opt, given, value in (
         ("--obs", args.obs, config.observation.setting),
         ("--method", args.method, config.training.method)) if given is None]

@@ -101,6 +101,23 @@ class RunConfig:
         """Static flag: every update drives the policy in closed loop (needs reset states)."""
         return get_method(self.training.method).rollout
 
+    def _check_ranges(self) -> None:
+        """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
+        import math
+
+        from igdrivsim.policy.network import NUM_BINS
+
+        for (section, name), (low, high) in RANGES.items():
+            value = getattr(getattr(self, section), name)
+            for v in value if isinstance(value, tuple) else (value,):
+                if (not math.isfinite(v) or (low is not None and v < low)
+                        or (high is not None and v > high)):
+                    bound = (f">= {low}" if high is None else f"in [{low}, {high}]")
+                    raise ConfigError(f"{section}.{name} must be finite and {bound}, got {value}")
+        if self.policy.num_bins != NUM_BINS:
+            raise ConfigError(f"policy.num_bins must be {NUM_BINS} (the expert's discretised "
+                              f"levels), got {self.policy.num_bins}")
+
     def validate(self) -> RunConfig:
         """Check the fields (one-line :class:`ConfigError`) and return the config with what
         the method decides filled in (the auxiliary head)."""
@@ -124,6 +141,7 @@ class RunConfig:
             raise ConfigError("data.workers and data.buffer must be >= 1, data.shards >= 0")
         if t.ppo_epochs < 1:
             raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
+        self._check_ranges()
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
             raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
         from igdrivsim.observation import get_setting, setting_params
@@ -142,6 +160,30 @@ class RunConfig:
 
 
 SECTIONS = ("policy", "data", "observation", "training")
+
+# (section, field) -> (lowest, highest) allowed; None: unbounded on that side. Sizes and periods
+# are at least 1; rates are finite. The fields not named here are checked in ``validate``.
+RANGES: dict[tuple[str, str], tuple[float | None, float | None]] = {
+    **{("policy", f): (1, None) for f in ("object_hidden", "point_hidden", "roadgraph_hidden",
+                                          "trunk_hidden", "gru_hidden", "actor_hidden",
+                                          "value_hidden")},
+    ("policy", "speed_history"): (0, None), ("policy", "yaw_history"): (0, None),
+    ("policy", "speed_input_scale"): (0, None),
+    ("data", "max_scenarios"): (0, None), ("data", "max_objects"): (1, None),
+    ("data", "max_roadgraph_points"): (1, None), ("data", "prefetch"): (0, None),
+    ("observation", "num_objects"): (1, None), ("observation", "num_roadgraph_points"): (1, None),
+    ("observation", "roadgraph_stride"): (1, None),
+    ("training", "seed_offset"): (0, None), ("training", "epochs"): (0, None),
+    ("training", "lr"): (0, None), ("training", "lr_end"): (0, None),
+    ("training", "grad_clip"): (0, None), ("training", "w_bc"): (0, None),
+    ("training", "w_rl"): (0, None), ("training", "gamma"): (0, 1),
+    ("training", "gae_lambda"): (0, 1), ("training", "clip_eps"): (0, None),
+    ("training", "ent_coef"): (0, None), ("training", "vf_coef"): (0, None),
+    ("training", "ppo_minibatches"): (1, None), ("training", "log_every"): (1, None),
+    ("training", "eval_every"): (0, None), ("training", "val_scenarios"): (0, None),
+    ("training", "checkpoint_every"): (1, None), ("training", "max_checkpoints"): (1, None),
+    ("training", "advisor_alpha"): (0, None),
+}
 
 
 def smoke() -> RunConfig:

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import count_params, init_params_per_seed
@@ -356,8 +356,14 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None):
     path = os.path.join(run_dir, CONFIG)
     if not os.path.isfile(path):
         raise ConfigError(f"{path}: not a training run (no {CONFIG})")
-    with open(path) as f:
-        config = from_dict(json.load(f)["config"])
+    try:
+        with open(path) as f:
+            record = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise DataError(f"cannot read the run's config ({err})", file=path) from err
+    if not isinstance(record, dict) or not isinstance(record.get("config"), dict):
+        raise DataError("not a run config (no \"config\" object)", file=path)
+    config = from_dict(record["config"])
     spec = update_spec(config, teacher_policy=config.policy)  # shapes only: no teacher read
     params_like, opt_like = jax.eval_shape(lambda: init_state(config, spec))
     # the checkpoint's tree must be restored whole: DAgger's buffer too (then dropped)
@@ -365,9 +371,12 @@ def load_run(run_dir: str | os.PathLike, step: int | None = None):
     ckpt = Checkpoints(run_dir)
     step = ckpt.latest_step() if step is None else step
     if step is None:
+        ckpt.close()
         raise ConfigError(f"{run_dir}: no checkpoint yet")
-    params, _, _ = ckpt.restore(step, params_like, opt_like, buffer_like)
-    ckpt.close()
+    try:
+        params, _, _ = ckpt.restore(step, params_like, opt_like, buffer_like)
+    finally:
+        ckpt.close()
     return config, params
 
 

@@ -39,6 +39,7 @@ import numpy as np
 from flax import struct
 
 from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS, RG_NUM_TYPES
+from igdrivsim.errors import DataError
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -144,6 +145,7 @@ def compute_teacher(states: SimState, sim: SimParams, rec: ObservationConfig,
 def data_identity(data) -> str:
     """A string that changes when the data changes: the manifest's bytes or the files' stats."""
     from igdrivsim.data import expand_paths
+    from igdrivsim.data.manifest import read_manifest
 
     path = os.fspath(data)
     manifest = os.path.join(path, "manifest.jsonl") if os.path.isdir(path) else None
@@ -151,11 +153,13 @@ def data_identity(data) -> str:
     if manifest and os.path.isfile(manifest):
         with open(manifest, "rb") as f:
             h.update(f.read())
-        with open(manifest) as f:  # the files the manifest points at
-            files = sorted({json.loads(line)["file"] for line in f if line.strip()})
+        # the files the manifest points at (relative to its folder; checked line by line)
+        files = sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
     else:
         files = expand_paths(path)
     for name in files:
+        if not os.path.isfile(name):
+            raise DataError("the filter manifest points at a missing file", file=name)
         st = os.stat(name)
         h.update(f"{os.path.abspath(name)}:{st.st_size}:{st.st_mtime_ns}".encode())
     return h.hexdigest()

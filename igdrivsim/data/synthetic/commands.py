@@ -16,8 +16,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 from igdrivsim.data.reader import available_cpus
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
-from igdrivsim.errors import ConfigError
-from igdrivsim.io import atomic_write_json
+from igdrivsim.errors import ConfigError, check_min
+from igdrivsim.io import atomic_write_json, require_folder
 
 CHUNK = 8  # scenarios per worker task
 
@@ -74,6 +74,8 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError(f"--p-intersection must be in [0, 1], got {args.p_intersection}")
     if args.seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {args.seed}")
+    check_min("--workers", args.workers, 1)
+    check_min("--plot", args.plot, 0)
 
 
 def generate_command(args: argparse.Namespace) -> int:
@@ -83,6 +85,7 @@ def generate_command(args: argparse.Namespace) -> int:
     from igdrivsim.data.tfrecord import write_records
 
     _check(args)
+    require_folder(args.out)
     config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection)
     plan = {}
     for split, count in (("training", args.train), ("validation", args.val)):
