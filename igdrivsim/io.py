@@ -117,6 +117,13 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
     return path
 
 
+def atomic_copy(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Path:
+    """Copy the file ``src`` to ``dst`` through a temp file (never half a copy at ``dst``)."""
+    import shutil
+
+    return atomic_write(dst, lambda tmp: shutil.copyfile(src, tmp))
+
+
 def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
     """Write ``text`` to ``path`` atomically; returns ``path``."""
     with atomic_path(path, "w", encoding=encoding) as f:

@@ -25,7 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.profile = "smoke"
     try:
-        summary = study.run_study(study.resolve(args), args.out, args.work, args.force)
+        summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
+                                  progress=not args.no_progress)
         atomic_write_csv(args.out / "summary.csv", summary)
     except IGDrivSimError as err:
         print(f"maze: error: {err}", file=sys.stderr)

@@ -273,10 +273,11 @@ def outputs(cfg: StudyConfig) -> tuple[str, ...]:
 
 
 def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
-              study: Study | None = None) -> pd.DataFrame:
+              study: Study | None = None, progress: bool = True) -> pd.DataFrame:
     """Run (or resume) the study and write every output; returns the summary table.
 
     ``study`` reuses already compiled functions (tests); it must have been built from ``cfg``.
+    ``progress`` False turns the progress bar off (``--no-progress``).
     """
     cfg.validate()
     require_folder(out, "--out")
@@ -319,7 +320,7 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
                                                                    mixed_ticks))
     t_start, cpu_start = time.perf_counter(), time.process_time()
     with tqdm(total=sum(ticks.values()), desc="maze study", unit="chunk",
-              dynamic_ncols=True) as bar:
+              dynamic_ncols=True, disable=not progress) as bar:
 
         def stage(name: str, inputs: tuple[str, ...], fn) -> lanes.Stage:
             def cached(results: dict):
@@ -406,6 +407,7 @@ def study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="rerun even if outputs are current")
     parser.add_argument("--no-baselines", dest="baselines", action="store_false", default=None,
                         help="only the paper's five curves (skip DAgger, BC+PPO, ADVISOR)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def resolve(args: argparse.Namespace) -> StudyConfig:
@@ -416,7 +418,7 @@ def resolve(args: argparse.Namespace) -> StudyConfig:
 
 
 def study_command(args: argparse.Namespace) -> int:
-    run_study(resolve(args), args.out, args.work, args.force)
+    run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress)
     return 0
 
 

@@ -52,7 +52,8 @@ def test_registry_order_and_what_each_method_collects():
 def test_the_registry_is_the_only_place_a_method_is_named():
     """No module outside igdrivsim/training/methods/ spells a method's name as a string,
     except the paper's Table I pair (evaluation/schema.py: BC and BC-RL)."""
-    root = Path(methods.__file__).resolve().parents[2]
+    root = Path(methods.__file__).resolve().parents[3]  # the repository
+    assert (root / "igdrivsim" / "training" / "methods").is_dir()
     pattern = re.compile(r"""["'](bc|bc_rl|dagger|advisor)["']""")
     offenders = []
     for path in (root / "igdrivsim").rglob("*.py"):

@@ -28,9 +28,11 @@ EVAL_CONFIG = "eval_config.json"
 
 
 # ------------------------------------------------------------------------------ data, runs
-def load_validation(data: str, caps, max_scenarios: int = 0):
+def load_validation(data: str, caps, max_scenarios: int = 0, progress: bool = False):
     """Stacked validation scenarios ``[N]`` from a filter output folder (``manifest.jsonl``:
-    the kept scenarios) or from WOMD files (file, folder, glob, ``name@N``)."""
+    the kept scenarios) or from WOMD files (file, folder, glob, ``name@N``). ``progress``: a
+    "loading" bar on stderr with the number of scenarios as its total (when it is cheap to
+    know)."""
     from igdrivsim.data import read_scenarios, stack_scenarios
 
     path = Path(data)
@@ -40,15 +42,23 @@ def load_validation(data: str, caps, max_scenarios: int = 0):
         entries = read_manifest(path / "manifest.jsonl", kept_only=True)
         if max_scenarios:
             entries = entries[:max_scenarios]
-        scenarios = load_manifest_scenarios(entries, caps)
+        scenarios = load_manifest_scenarios(entries, caps, progress=progress)
     else:
         if not path.exists() and not any(ch in data for ch in "*?@"):
             raise DataError("validation data not found", file=data)
+        from tqdm import tqdm
+
+        from igdrivsim.training.inputs import count_scenarios
+
+        total = count_scenarios(data, max_scenarios) if progress else None
         scenarios = []
-        for sc in read_scenarios(data, caps):
-            scenarios.append(sc)
-            if max_scenarios and len(scenarios) >= max_scenarios:
-                break
+        with tqdm(total=total, desc="loading", unit="scn", file=sys.stderr,
+                  disable=not progress, dynamic_ncols=True) as bar:
+            for sc in read_scenarios(data, caps):
+                scenarios.append(sc)
+                bar.update()
+                if max_scenarios and len(scenarios) >= max_scenarios:
+                    break
     if not scenarios:
         raise DataError("no validation scenarios (empty manifest or no records)", file=data)
     return stack_scenarios(scenarios)
@@ -136,7 +146,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     _check_sizes(max_scenarios, batch_size)
     config, params, seeds = load_trained(run_dir)
     if scenarios is None:
-        scenarios = load_validation(data, data_capacities(config), max_scenarios)
+        scenarios = load_validation(data, data_capacities(config), max_scenarios, progress)
     ids = scenario_ids_of(scenarios)
     settings, method = run_settings(config), config.training.method
     obs_config = ObservationConfig(config.observation.num_objects,
@@ -170,7 +180,7 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
     caps = caps or Capacities()
     sim = sim or SimParams()
     if scenarios is None:
-        scenarios = load_validation(data, caps, max_scenarios)
+        scenarios = load_validation(data, caps, max_scenarios, progress)
     n = int(scenarios.scenario_id.shape[0])
     with _bar(2 * n, "evaluate references", progress) as bar:
         per_step, per_scenario = reference_frames(scenarios, sim, batch_size,

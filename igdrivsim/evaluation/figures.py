@@ -152,7 +152,9 @@ def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
         if column not in frame.columns:
             frame[column] = pd.Series(dtype=float)
     key = ["setting", "method", "seed", "update"]
-    return frame.drop_duplicates(key, keep="last").sort_values(key, ignore_index=True)
+    # one row per key: the training line (bc_loss) and the validation line (closed-loop
+    # metrics) of the same update merge; a value logged twice (a resumed run) keeps the last
+    return frame.groupby(key, as_index=False, sort=True).last()
 
 
 def _reference_levels(references: str | Path | pd.DataFrame | None) -> dict[str, dict[str, float]]:

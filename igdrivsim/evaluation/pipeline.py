@@ -41,7 +41,7 @@ from pathlib import Path
 from igdrivsim.cli import DefaultsFormatter, deprecated_alias
 from igdrivsim.errors import ConfigError, IGDrivSimError, os_error_line
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
-from igdrivsim.io import atomic_write_json, atomic_write_text, require_folder
+from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, require_folder
 from igdrivsim.observation import get_setting, setting_params
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
@@ -147,6 +147,9 @@ class Pipeline:
             return False
         log = self.log_path(name)
         log.parent.mkdir(parents=True, exist_ok=True)
+        # an old stamp must not survive a rerun that is killed: the next invocation would take
+        # the half-rewritten stage (and so its dependents) for complete
+        self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
         start = time.time()
         with open(log, "a", encoding="utf-8") as fh:
@@ -340,7 +343,7 @@ class Pipeline:
                 src = out / sub / fname
                 if src.exists():
                     (self.paper / sub).mkdir(parents=True, exist_ok=True)
-                    shutil.copyfile(src, self.paper / sub / fname)
+                    atomic_copy(src, self.paper / sub / fname)
 
     def run_render(self, val: str, echo: bool = True) -> None:
         from igdrivsim.data import expand_paths
@@ -374,7 +377,7 @@ class Pipeline:
             return
         if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
             for name in PAPER_SOURCES:  # a self-contained paper folder under --out
-                shutil.copyfile(REPO_ROOT / "paper" / name, self.paper / name)
+                atomic_copy(REPO_ROOT / "paper" / name, self.paper / name)
         try:
             self.stage("pdf", [["make", "-C", self.paper, target]], depends=["report"],
                        outputs=[self.paper / "main.pdf"])

@@ -1,6 +1,7 @@
 """Why sampled BC drifts along the road: the speed random walk of the discretised expert's labels.
 
-``python -m igdrivsim.evaluation.speed_walk --data DIR [--limit N] [--out FILE.json]``
+``python -m igdrivsim.evaluation.speed_walk --data DIR [--limit N] [--out FILE.json]
+[--no-progress]``
 
 The expert's label at a step is the quantised displacement to the next logged pose from the
 *simulated* pose (Waymax's convention): it corrects the quantisation error, which the imitator
@@ -117,31 +118,40 @@ def transition_log_probs(offsets: np.ndarray, valid: np.ndarray, min_count: int 
     return np.log(np.maximum(probs, 1e-12))
 
 
-def measure(scenarios, seed: int = 0, batch_size: int = 64) -> dict:
+def measure(scenarios, seed: int = 0, batch_size: int = 64, progress: bool = False) -> dict:
     """The label statistics and the three actors' mean metrics on stacked scenarios ``[N]``
     (in batches of ``batch_size``; the i.i.d. offsets follow the whole set's label
-    distribution, so the labels are measured in a first pass)."""
+    distribution, so the labels are measured in a first pass). ``progress``: a bar on stderr
+    over the batches of all four actors."""
+    from tqdm import tqdm
+
     n = int(np.shape(scenarios.scenario_id)[0])
     run = jax.jit(episode, static_argnames="actor")
     start = jax.jit(jax.vmap(reset))
+    batches = range(0, n, batch_size)
+    bar = tqdm(total=len(batches) * len(ACTORS), desc="speed walk", unit="batch",
+               file=sys.stderr, disable=not progress, dynamic_ncols=True)
 
     def over_batches(actor: str, table) -> list[np.ndarray]:
         """The actor's per-step arrays ``[80, N]`` (batches reset again: bounded memory)."""
         parts = []
-        for i in range(0, n, batch_size):
+        bar.set_postfix_str(actor)
+        for i in batches:
             state = start(jax.tree.map(lambda x, i=i: x[i:i + batch_size], scenarios))
             key = jax.random.fold_in(jax.random.key(seed), i)
             parts.append([np.asarray(a) for a in run(state, key, actor, *table)])
+            bar.update()
         return [np.concatenate(k, axis=1) for k in zip(*parts, strict=True)]
 
-    cat = {"expert": over_batches("expert", (jnp.zeros(1, jnp.int32), jnp.zeros(1),
-                                              jnp.zeros((7, 7))))}
-    stats = label_statistics(cat["expert"][4], cat["expert"][3])
-    table = (jnp.asarray(stats["offset_levels"], jnp.int32),
-             jnp.log(jnp.asarray(stats["offset_probability"])),
-             jnp.asarray(transition_log_probs(cat["expert"][4], cat["expert"][3])))
-    for actor in ACTORS[1:]:
-        cat[actor] = over_batches(actor, table)
+    with bar:
+        cat = {"expert": over_batches("expert", (jnp.zeros(1, jnp.int32), jnp.zeros(1),
+                                                  jnp.zeros((7, 7))))}
+        stats = label_statistics(cat["expert"][4], cat["expert"][3])
+        table = (jnp.asarray(stats["offset_levels"], jnp.int32),
+                 jnp.log(jnp.asarray(stats["offset_probability"])),
+                 jnp.asarray(transition_log_probs(cat["expert"][4], cat["expert"][3])))
+        for actor in ACTORS[1:]:
+            cat[actor] = over_batches(actor, table)
     actors = {}
     for actor in ACTORS:
         ld, off, ov, v, _ = cat[actor]
@@ -207,12 +217,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=0, help="at most N scenarios (0: all)")
     parser.add_argument("--out", default=None, help="also write the result to this JSON file")
     parser.add_argument("--seed", type=int, default=0, help="key of the sampled offsets")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     try:
         scenarios = load_validation(args.data, Capacities(max_objects=32,
                                                           max_roadgraph_points=10_240),
-                                    args.limit)
-        result = measure(scenarios, args.seed)
+                                    args.limit, progress=not args.no_progress)
+        result = measure(scenarios, args.seed, progress=not args.no_progress)
     except IGDrivSimError as err:
         print(f"speed_walk: error: {err}", file=sys.stderr)
         return 2

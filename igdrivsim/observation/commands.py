@@ -38,6 +38,7 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view", type=float, default=30.0, help="panel size scale (metres)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (noise, masking)")
     parser.add_argument("--every", type=int, default=1, help="animate every N-th step")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _data_path(args) -> str:
@@ -87,8 +88,9 @@ def render_command(args) -> int:
                                               key, args.view)
     if args.gif is not None:
         gif = args.gif or os.path.join(args.out, f"rollout_{setting.name.replace('+', '_')}.gif")
-        written.append(render.write_rollout_animation(states, setting, gif, key, args.view,
-                                                      every=args.every))
+        written.append(render.write_rollout_animation(
+            states, setting, gif, key, args.view, every=args.every,
+            progress=not args.no_progress))
     print(json.dumps({"data": path, "record": args.record, "step": args.step,
                       "written": written}))
     return 0

@@ -71,13 +71,17 @@ class ObservationModel:
     def fold_params(self, params: ObservationParams, index: int) -> ObservationParams | None:
         """This model (the ``index``-th of its setting) folded into a setting-as-data
         description, or ``None`` when it has no such form (then the setting is compiled as a
-        static program). Default: the identity."""
-        return params
+        static program). Default: ``None``, so a model that overrides a hook but not this one
+        is never silently treated as full observability when settings train together."""
+        return None
 
 
 @dataclass(frozen=True)
 class FullObservability(ObservationModel):
     """Sees everything the SDC-frame observation holds."""
+
+    def fold_params(self, params, index):
+        return params  # nothing hidden: the identity
 
 
 @dataclass(frozen=True)
@@ -182,9 +186,6 @@ class FunctionModel(ObservationModel):
 
     def apply(self, obs, episode_key, step_key):
         return self.fn(obs, episode_key, step_key)
-
-    def fold_params(self, params, index):
-        return None
 
 
 def _within(xy: jax.Array, radius: float) -> jax.Array:

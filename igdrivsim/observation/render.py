@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -310,8 +311,9 @@ def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[A
 
 def write_rollout_animation(states: list[Any], setting: ObservationSetting | str,
                             path: str | os.PathLike, key: jax.Array, view: float = 30.0,
-                            fps: int = 10, every: int = 1) -> str:
-    """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically."""
+                            fps: int = 10, every: int = 1, progress: bool = True) -> str:
+    """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically.
+    ``progress``: a frame bar on stderr (False: none, for ``--no-progress``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -327,7 +329,9 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
 
     def write(tmp: os.PathLike) -> None:
         with writer.saving(fig, tmp, dpi=110):
-            for s in tqdm(states[::every], desc=f"rollout {setting.name}", unit="frame"):
+            frames = states[::every]
+            for s in tqdm(frames, total=len(frames), desc=f"rollout {setting.name}",
+                          unit="frame", file=sys.stderr, disable=not progress):
                 ax.clear()
                 t = int(s.timestep)
                 snap = snapshot(s, setting, episode_key, jax.random.fold_in(step_root, t))

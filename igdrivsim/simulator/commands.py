@@ -117,11 +117,20 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _write_gif(path: str, final: SimState) -> None:
+def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
     from igdrivsim.observation.render import write_rollout_animation
 
     states = [final.replace(timestep=jnp.int32(t)) for t in range(10, int(final.timestep) + 1)]
-    write_rollout_animation(states, "full", path, jax.random.key(0))
+    write_rollout_animation(states, "full", path, jax.random.key(0), progress=progress)
+
+
+def _replay_total(files: list[str], limit: int | None) -> int | None:
+    """The replay bar's total: the scenarios of ``files`` (their record count), capped by
+    ``limit``; where counting is not cheap (ScenarioNet) or fails, ``limit`` (None: no total)."""
+    from igdrivsim.training.inputs import count_scenarios
+
+    total = count_scenarios(files, limit or 0)
+    return limit if total is None else total
 
 
 def replay_command(args: argparse.Namespace) -> int:
@@ -141,9 +150,11 @@ def replay_command(args: argparse.Namespace) -> int:
         # replay.jsonl is streamed into a temp file, published only if every scenario replayed
         out = (stack.enter_context(atomic_path(os.path.join(args.out, "replay.jsonl"), "w"))
                if args.out else None)
-        bar = stack.enter_context(tqdm(total=args.limit, desc="replay", unit="scn",
-                                       file=sys.stderr,
-                                       disable=args.json or args.no_progress))
+        quiet = args.json or args.no_progress
+        bar = stack.enter_context(tqdm(total=None if quiet else _replay_total(args.files,
+                                                                              args.limit),
+                                       desc="replay", unit="scn", file=sys.stderr,
+                                       disable=quiet))
         for rec in iter_scenarios(args.files):
             if args.limit is not None and len(records) >= args.limit:
                 break
@@ -161,7 +172,8 @@ def replay_command(args: argparse.Namespace) -> int:
             if out is not None:
                 out.write(line + "\n")
             if args.gif is not None and not records:
-                _write_gif(args.gif or os.path.join(args.out or ".", "replay.gif"), final)
+                _write_gif(args.gif or os.path.join(args.out or ".", "replay.gif"), final,
+                           progress=not quiet)
             records.append(record)
             bar.update(1)
     elapsed = time.perf_counter() - t0

@@ -17,7 +17,7 @@ from typing import Any
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.policy.network import PolicyConfig
-from igdrivsim.training.methods import get_method
+from igdrivsim.training.methods import DEFAULT_METHOD, get_method
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class ObsConfig:
 class TrainConfig:
     """Optimisation and the BC / BC+PPO loss (paper: Adam, cosine 1e-3 -> 0, w_BC=1, w_RL=0.05)."""
 
-    method: str = "bc"  # a registered method (igdrivsim/training/methods/)
+    method: str = DEFAULT_METHOD  # a registered method (igdrivsim/training/methods/): BC
     seeds: int = 3
     seed_offset: int = 0  # seeds are seed_offset .. seed_offset + seeds - 1
     epochs: float = 200.0  # passes over the data (ignored when num_updates > 0)

@@ -72,6 +72,38 @@ def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int
         yield part
 
 
+def count_scenarios(data, max_scenarios: int = 0) -> int | None:
+    """How many scenarios reading ``data`` (a path spec: file, folder, glob, ``name@N`` or a
+    list of those) yields, at most ``max_scenarios`` (0: no cap), for a progress bar's total:
+    the kept rows of ``DIR/manifest.jsonl`` when there is one, else the record count of the
+    TFRecord files (their framing only; files past the cap are not opened). None where that is
+    not cheap or not known: ScenarioNet pickles (a count decodes the whole file) and paths that
+    do not read (the read itself reports them)."""
+    from igdrivsim.data import scenarionet
+    from igdrivsim.data.reader import count_records, expand_paths
+
+    def cap(n: int) -> int:
+        return min(n, max_scenarios) if max_scenarios else n
+
+    try:
+        if isinstance(data, (str, os.PathLike)) and os.path.isdir(data):
+            manifest = os.path.join(os.fspath(data), MANIFEST)
+            if os.path.isfile(manifest):
+                from igdrivsim.data.manifest import read_manifest
+
+                return cap(len(read_manifest(manifest)))
+        total = 0
+        for path in expand_paths(data):
+            if max_scenarios and total >= max_scenarios:
+                break
+            if scenarionet.is_scenarionet_file(path):
+                return None
+            total += count_records(path)
+        return cap(total)
+    except (DataError, OSError):
+        return None
+
+
 @functools.lru_cache(maxsize=8)
 def _jit_reset(params: SimParams):
     return jax.jit(lambda s: reset(s, params))
@@ -85,13 +117,15 @@ def reset_chunk(scenarios: Sequence[Scenario], params: SimParams, size: int) -> 
     return jax.tree.map(lambda x: np.asarray(x)[:n], state)
 
 
-def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False) -> SimState:
-    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``."""
+def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False,
+              total: int | None = None) -> SimState:
+    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
+    ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(desc="loading", unit="scn", dynamic_ncols=True)
+        bar = tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True)
     parts = []
     for scenarios in chunks:
         parts.append(reset_chunk(scenarios, params, chunk))
@@ -183,6 +217,14 @@ class Dataset:
             scenarios = list(data)[: limit or None]
             return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
 
+        def load() -> SimState:
+            total = None  # the bar's: the manifest's kept rows, the records, the list
+            if progress and isinstance(data, (str, os.PathLike)):
+                total = count_scenarios(data, limit)
+            elif progress and isinstance(data, Sequence):
+                total = min(len(data), limit or len(data))
+            return reset_all(chunks(), params, chunk, progress, total)
+
         states = None
         rec = superset_config(ObservationConfig(config.observation.num_objects,
                                                 config.observation.num_roadgraph_points),
@@ -190,11 +232,11 @@ class Dataset:
 
         def compute():
             nonlocal states
-            states = reset_all(chunks(), params, chunk, progress)
+            states = load()
             return compute_teacher(states, params, rec, progress=progress)
 
         if not (d.record_teacher if record is None else record):
-            states = reset_all(chunks(), params, chunk, progress)
+            states = load()
             seeds = range(t.seed_offset, t.seed_offset + t.seeds)
             return cls(None, states, d.batch_size, seeds)
         key = None
@@ -203,7 +245,7 @@ class Dataset:
                             limit=limit)
         teacher = load_or_compute(cache_dir if key else None, key or "", compute)
         if need_states and states is None:
-            states = reset_all(chunks(), params, chunk, progress)
+            states = load()
         seeds = range(t.seed_offset, t.seed_offset + t.seeds)
         return cls(teacher, states if need_states else None, d.batch_size, seeds)
 

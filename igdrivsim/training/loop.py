@@ -127,12 +127,22 @@ def _check_config(out_dir: str, record: dict) -> None:
 
 
 def _truncate_jsonl(path: str, upto: int) -> None:
-    """Keep the lines of updates ``<= upto`` (a resumed run re-logs the rest)."""
+    """Keep the lines of updates ``<= upto`` (a resumed run re-logs the rest); a line torn by
+    a kill mid-write (not JSON, or without an update) is dropped with the rest."""
     if not os.path.isfile(path):
         return
+
+    def update_of(line: str) -> int | None:
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            return None
+        return entry.get("update") if isinstance(entry, dict) else None
+
     with open(path) as f:
-        lines = [ln for ln in f if ln.strip() and json.loads(ln)["update"] <= upto]
-    atomic_write_text(path, "".join(lines))
+        kept = [ln if ln.endswith("\n") else ln + "\n" for ln in f
+                if isinstance(u := update_of(ln), int) and u <= upto]
+    atomic_write_text(path, "".join(kept))
 
 
 def _log_line(update: int, lr: float, metrics: dict, rates: dict) -> dict:

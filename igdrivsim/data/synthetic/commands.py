@@ -9,6 +9,7 @@ exist (same configuration) and finishes the others. Scenario ``i`` of a split de
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import time
@@ -102,6 +103,10 @@ def generate_command(args: argparse.Namespace) -> int:
         if previous != resolved:
             raise ConfigError(f"{config_path} holds a different configuration; use another --out "
                               "or --overwrite")
+    if args.overwrite:  # before the new config: no shard of the old one may stay to be reused
+        for split in ("training", "validation"):
+            for stale in glob.glob(os.path.join(args.out, split, f"{split}_tfexample.tfrecord-*")):
+                os.remove(stale)
     atomic_write_json(config_path, resolved, indent=2)
 
     todo = []

@@ -22,6 +22,7 @@ else. Table I compares BC-RL with BC; Table II every method with its ``baseline`
 from __future__ import annotations
 
 import importlib
+import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -93,6 +94,18 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-# the paper's two, then the remedies beyond it (registration order is the tables' order)
-for _module in ("bc", "bc_rl", "dagger", "advisor"):
+# Every module of this package registers one method. The paper's two come first, then the
+# remedies beyond it, then any other module (alphabetically): registration order is the
+# tables' order.
+ORDER = ("bc", "bc_rl", "dagger", "advisor")
+DEFAULT_METHOD = ORDER[0]  # what a run trains unless told otherwise: the paper's BC
+
+
+def method_modules() -> list[str]:
+    """The modules of this package, in registration order."""
+    found = {m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")}
+    return [m for m in ORDER if m in found] + sorted(found - set(ORDER))
+
+
+for _module in method_modules():
     importlib.import_module(f"{__name__}.{_module}")

@@ -1,0 +1,53 @@
+"""Interrupted work never leaves stale or torn results that a rerun would take as good."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from igdrivsim.cli import main
+from igdrivsim.errors import IGDrivSimError
+from igdrivsim.evaluation.figures import load_curves
+from igdrivsim.evaluation.pipeline import PROFILES, Pipeline
+from igdrivsim.training.loop import _truncate_jsonl
+
+
+def test_a_killed_rerun_of_a_stage_is_not_taken_for_complete(tmp_path):
+    pipe = Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper", quiet=True)
+    ok = [["python", "-c", "pass"]]
+    assert pipe.stage("a", ok) and pipe.stamp_path("a").is_file()
+    with pytest.raises(IGDrivSimError, match="failed"):  # the rerun dies half-way
+        pipe.stage("a", [["python", "-c", "raise SystemExit(3)"]])
+    assert not pipe.stamp_path("a").is_file()
+    assert not Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper").done("a")
+
+
+def test_a_torn_log_line_is_dropped_on_resume(tmp_path):
+    log = tmp_path / "metrics.jsonl"
+    log.write_text('{"update": 1, "x": 1}\n{"update": 2, "x": 2}\n{"update": 3, "x"')
+    _truncate_jsonl(str(log), upto=5)
+    assert [json.loads(line)["update"] for line in log.read_text().splitlines()] == [1, 2]
+    _truncate_jsonl(str(log), upto=1)
+    assert log.read_text() == '{"update": 1, "x": 1}\n'
+
+
+def test_generate_overwrite_leaves_no_shard_of_the_old_data(tmp_path):
+    out = tmp_path / "data"
+    base = ["generate", "--out", str(out), "--val", "0", "--no-progress", "--workers", "1"]
+    assert main([*base, "--train", "4", "--shards", "2"]) == 0
+    assert main([*base, "--train", "2", "--shards", "1", "--seed", "1", "--overwrite"]) == 0
+    shards = sorted(p.name for p in (out / "training").iterdir())
+    assert shards == ["training_tfexample.tfrecord-00000-of-00001"]
+
+
+def test_learning_curves_merge_the_training_and_validation_lines_of_an_update(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    key = {"setting": "full", "method": "bc", "seed": 0, "update": 50}
+    (run / "curves.jsonl").write_text(
+        json.dumps({**key, "bc_loss": 1.4}) + "\n"
+        + json.dumps({**key, "val_bc_loss": 1.5, "offroad": 0.1}) + "\n")
+    curves = load_curves([run])
+    assert len(curves) == 1
+    assert curves.loc[0, "bc_loss"] == 1.4 and curves.loc[0, "val_bc_loss"] == 1.5
