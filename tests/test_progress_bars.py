@@ -17,6 +17,7 @@ import pytest
 
 from igdrivsim.cli import main as cli_main
 from igdrivsim.data import Capacities
+from igdrivsim.data.manifest import count_scenarios
 from igdrivsim.training import inputs
 
 CAPS = Capacities(max_objects=8, max_roadgraph_points=256)
@@ -55,7 +56,7 @@ def filtered(shard, tmp_path_factory) -> Path:
 
 # --------------------------------------------------------------------------- counting
 def test_count_scenarios(shard, filtered, tmp_path):
-    count = inputs.count_scenarios
+    count = count_scenarios
     assert count(shard) == 3 and count(shard / "train.tfrecord") == 3
     assert count(shard, 2) == 2 and count(shard, 10) == 3
     assert count([shard, shard / "train.tfrecord"]) == 6

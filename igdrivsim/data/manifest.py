@@ -71,6 +71,36 @@ def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]
     return entries
 
 
+def count_scenarios(data, max_scenarios: int = 0) -> int | None:
+    """How many scenarios reading ``data`` (a path spec: file, folder, glob, ``name@N`` or a
+    list of those) yields, at most ``max_scenarios`` (0: no cap), for a progress bar's total:
+    the kept rows of ``DIR/manifest.jsonl`` when there is one, else the record count of the
+    TFRecord files (their framing only; files past the cap are not opened). None where that is
+    not cheap or not known: ScenarioNet pickles (a count decodes the whole file) and paths that
+    do not read (the read itself reports them)."""
+    from igdrivsim.data import scenarionet
+    from igdrivsim.data.reader import count_records, expand_paths
+
+    def cap(n: int) -> int:
+        return min(n, max_scenarios) if max_scenarios else n
+
+    try:
+        if isinstance(data, (str, os.PathLike)) and os.path.isdir(data):
+            manifest = os.path.join(os.fspath(data), MANIFEST)
+            if os.path.isfile(manifest):
+                return cap(len(read_manifest(manifest)))
+        total = 0
+        for path in expand_paths(data):
+            if max_scenarios and total >= max_scenarios:
+                break
+            if scenarionet.is_scenarionet_file(path):
+                return None
+            total += count_records(path)
+        return cap(total)
+    except (DataError, OSError):
+        return None
+
+
 def _load_records(file: str, records: list[int], caps: Capacities | None
                   ) -> list[tuple[int, Scenario]]:
     """Records ``records`` (sorted) of one file, read in one forward pass."""

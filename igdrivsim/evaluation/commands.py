@@ -48,7 +48,7 @@ def load_validation(data: str, caps, max_scenarios: int = 0, progress: bool = Fa
             raise DataError("validation data not found", file=data)
         from tqdm import tqdm
 
-        from igdrivsim.training.inputs import count_scenarios
+        from igdrivsim.data.manifest import count_scenarios
 
         total = count_scenarios(data, max_scenarios) if progress else None
         scenarios = []

@@ -127,7 +127,7 @@ def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
 def _replay_total(files: list[str], limit: int | None) -> int | None:
     """The replay bar's total: the scenarios of ``files`` (their record count), capped by
     ``limit``; where counting is not cheap (ScenarioNet) or fails, ``limit`` (None: no total)."""
-    from igdrivsim.training.inputs import count_scenarios
+    from igdrivsim.data.manifest import count_scenarios
 
     total = count_scenarios(files, limit or 0)
     return limit if total is None else total
