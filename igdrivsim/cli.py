@@ -13,7 +13,7 @@ import os
 import sys
 import warnings
 
-from igdrivsim.errors import IGDrivSimError, os_error_line
+from igdrivsim.errors import REPORTED, error_line
 
 
 class DefaultsFormatter(argparse.HelpFormatter):
@@ -95,15 +95,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         func = getattr(importlib.import_module(args._module), f"{args._name}_command")
         return int(func(args) or 0)
-    except IGDrivSimError as err:
-        print(f"igdrivsim {args._name.replace('_', ' ')}: error: {err}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # the reader went away (``| head``): stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except OSError as err:  # a file system refusal (an --out that is a file, no space, ...)
-        print(f"igdrivsim {args._name.replace('_', ' ')}: error: {os_error_line(err)}",
-              file=sys.stderr)
+    except REPORTED as err:
+        print(f"igdrivsim {name}: error: {error_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"igdrivsim {args._name}: interrupted", file=sys.stderr)

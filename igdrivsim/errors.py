@@ -27,8 +27,15 @@ class DataError(IGDrivSimError):
         super().__init__(f"{where}: {problem}" if where else problem)
 
 
-def os_error_line(err: OSError) -> str:
-    """A file-system error as one line: what went wrong and on which path(s)."""
+# what a command reports as one line (exit 2): its own errors and file-system refusals (an --out
+# that is a file, no space left, ...)
+REPORTED = (IGDrivSimError, OSError)
+
+
+def error_line(err: BaseException) -> str:
+    """One of :data:`REPORTED` as one line; a file-system error names its path(s)."""
+    if not isinstance(err, OSError):
+        return str(err)
     paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
     what = err.strerror or type(err).__name__
     return f"{what}: {paths}" if paths else f"{what}: {err}"

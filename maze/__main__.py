@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from igdrivsim.cli import DefaultsFormatter
-from igdrivsim.errors import IGDrivSimError, os_error_line
+from igdrivsim.errors import REPORTED, error_line
 from igdrivsim.io import atomic_write_csv
 from maze import study
 
@@ -28,11 +28,8 @@ def main(argv: list[str] | None = None) -> int:
         summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
                                   progress=not args.no_progress)
         atomic_write_csv(args.out / "summary.csv", summary)
-    except IGDrivSimError as err:
-        print(f"maze: error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"maze: error: {os_error_line(err)}", file=sys.stderr)
+    except REPORTED as err:
+        print(f"maze: error: {error_line(err)}", file=sys.stderr)
         return 2
     return 0
 

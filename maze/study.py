@@ -31,7 +31,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.cli import DefaultsFormatter
-from igdrivsim.errors import ConfigError, IGDrivSimError, os_error_line
+from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.io import (
     atomic_write_bytes,
     atomic_write_csv,
@@ -429,11 +429,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return study_command(args)
-    except IGDrivSimError as err:
-        print(f"maze study: error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"maze study: error: {os_error_line(err)}", file=sys.stderr)
+    except REPORTED as err:
+        print(f"maze study: error: {error_line(err)}", file=sys.stderr)
         return 2
 
 

@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from igdrivsim.cli import DefaultsFormatter, deprecated_alias
-from igdrivsim.errors import ConfigError, IGDrivSimError, os_error_line
+from igdrivsim.errors import REPORTED, ConfigError, IGDrivSimError, error_line
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, require_folder
 from igdrivsim.observation import get_setting, setting_params
@@ -603,11 +603,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         pipeline_from_args(args).run()
-    except IGDrivSimError as err:
-        print(f"reproduce: error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"reproduce: error: {os_error_line(err)}", file=sys.stderr)
+    except REPORTED as err:
+        print(f"reproduce: error: {error_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)

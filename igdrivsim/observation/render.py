@@ -330,8 +330,8 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
     def write(tmp: os.PathLike) -> None:
         with writer.saving(fig, tmp, dpi=110):
             frames = states[::every]
-            for s in tqdm(frames, total=len(frames), desc=f"rollout {setting.name}",
-                          unit="frame", file=sys.stderr, disable=not progress):
+            for s in tqdm(frames, desc=f"rollout {setting.name}", unit="frame",
+                          file=sys.stderr, disable=not progress):
                 ax.clear()
                 t = int(s.timestep)
                 snap = snapshot(s, setting, episode_key, jax.random.fold_in(step_root, t))
