@@ -43,7 +43,9 @@ def deprecated_alias(parser: argparse.ArgumentParser, name: str, dest: str, **kw
 COMMANDS: dict[str, tuple[str, str]] = {
     "inspect": ("igdrivsim.data.commands", "print one JSON line per scenario in WOMD files"),
     "generate": ("igdrivsim.data.synthetic.commands", "write synthetic WOMD-format shards"),
+    "samples": ("igdrivsim.data.samples", "fetch and verify public real WOMD samples (pip)"),
     "filter": ("igdrivsim.data.commands", "apply the paper's scenario filter, write a manifest"),
+    "stats": ("igdrivsim.data.stats_command", "scene statistics of any data, beside each other"),
     "replay": ("igdrivsim.simulator.commands", "replay the discretised expert, report metrics"),
     "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
     "train": ("igdrivsim.training.commands", "train BC / BC-RL policies"),

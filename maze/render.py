@@ -78,7 +78,7 @@ def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Pat
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.render", description=__doc__.split(
         "\n\n")[0].replace("\n", " "), formatter_class=DefaultsFormatter)
-    parser.add_argument("--out", type=Path, default=Path("paper"),
+    parser.add_argument("--out", type=Path, default=Path("outputs/maze"),
                         help="output folder (the figure goes to OUT/figures/)")
     parser.add_argument("--seed", type=int, default=None,
                         help="maze layout seed (default: the study's)")

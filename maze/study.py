@@ -8,7 +8,7 @@ the remedies of :mod:`maze.extended` for the full expert -> partial imitator cas
 and ``mixed`` (BC+PPO and ADVISOR in one program). Every curve point is the mean return of fresh
 evaluation episodes; the final point uses ``final_eval_rounds`` times more. The RL curves are
 tested for a plateau (:func:`maze.extended.plateau`) and drawn "converged" or "not converged".
-Outputs under ``--out`` (default ``paper/``): ``figures/fig2_maze.{pdf,png,csv}``,
+Outputs under ``--out`` (default ``outputs/maze/``): ``figures/fig2_maze.{pdf,png,csv}``,
 ``figures/fig2b_maze_baselines.{pdf,png}``, ``tables/maze_summary.{md,tex,csv}`` and
 ``maze_config.json``. Deterministic for a given config.
 """
@@ -401,7 +401,9 @@ def study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=None, help="seeds per curve (default 10)")
     parser.add_argument("--seed", type=int, default=None, help="base PRNG seed")
     parser.add_argument("--hidden", type=int, default=None, help="GRU width (default 64)")
-    parser.add_argument("--out", type=Path, default=Path("paper"), help="output directory")
+    parser.add_argument("--out", type=Path, default=Path("outputs/maze"),
+                        help="output directory (`--out paper` writes the report's figures "
+                             "and tables in place)")
     parser.add_argument("--work", type=Path, default=Path("runs/maze"),
                         help="stage cache (resume) directory")
     parser.add_argument("--force", action="store_true", help="rerun even if outputs are current")

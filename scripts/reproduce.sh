@@ -1,24 +1,49 @@
 #!/usr/bin/env bash
-# Regenerate every figure and table of the report from a fresh clone.
+# Regenerate the report's tables and figures from a fresh clone.
 #
-#   bash scripts/reproduce.sh [--profile smoke|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
-#                             [--out DIR] [--obs a,b] [--no-progress]
+#   bash scripts/reproduce.sh [--profile smoke|quick|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
+#                             [--out DIR] [--obs a,b] [--methods a,b] [--set SECTION.FIELD=VALUE ...]
+#                             [--samples DIR] [--workers N] [--in-process] [--no-progress] [--help]
 #
-# Stages: data (synthetic, unless --data) -> filter -> train (6 settings x {BC, BC-RL} x seeds)
-# -> evaluate -> maze study -> render Fig. 1 -> report (Table I, Fig. 3) -> PDF (if latexmk).
+# Stages: data (synthetic, unless --data) -> filter -> train -> evaluate -> speed walk -> maze
+# -> render Fig. 1 -> report (tables, figures, docs/results.md) -> real logs -> PDF (if latexmk).
+# --samples DIR: real scenarios (igdrivsim samples --out DIR fetches the public WOMD ones; else
+# the samples cache) for Fig. 1 and the real-log table; without them both are skipped/synthetic.
 # Resumable: rerun the same command after an interruption; complete stages are skipped.
 # Logs: <work>/logs/<stage>.log (work = outputs/<profile>/, or --out).
+# Python: $PYTHON, else the active virtual environment's, else python3 on PATH. When igdrivsim
+# is not importable there, it is installed into that environment first (pip install -e .);
+# --help prints and exits without installing anything.
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$REPO"
+if [ -z "${PYTHON:-}" ] && [ -n "${VIRTUAL_ENV:-}" ] && [ -x "$VIRTUAL_ENV/bin/python" ]; then
+    PYTHON="$VIRTUAL_ENV/bin/python"
+fi
 PYTHON="${PYTHON:-python3}"
 command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python
 
-if ! "$PYTHON" -c "import igdrivsim.evaluation.pipeline" >/dev/null 2>&1; then
-    echo "[reproduce] setup: igdrivsim is not importable, running: pip install -e ." >&2
+importable() { "$PYTHON" -c "import igdrivsim.evaluation.pipeline" >/dev/null 2>&1; }
+
+for arg in "$@"; do
+    if [ "$arg" = "--help" ] || [ "$arg" = "-h" ]; then
+        if importable; then
+            exec "$PYTHON" -m igdrivsim.evaluation.pipeline --help
+        fi
+        sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
+        echo "(igdrivsim is not installed for $PYTHON; the first run installs it)"
+        exit 0
+    fi
+done
+
+if ! importable; then
+    PREFIX="$("$PYTHON" -c 'import sys; print(sys.prefix)')"
+    echo "[reproduce] setup: igdrivsim is not importable by $PYTHON; installing it and its" \
+         "dependencies into $PREFIX (pip install -e $REPO; set PYTHON or activate a" \
+         "virtual environment to install elsewhere)" >&2
     "$PYTHON" -m pip install -e "$REPO" || {
-        echo "[reproduce] setup failed: could not pip install -e $REPO" >&2
+        echo "[reproduce] setup failed: could not pip install -e $REPO into $PREFIX" >&2
         exit 1
     }
 fi

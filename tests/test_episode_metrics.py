@@ -143,7 +143,7 @@ def real_scene():
     from igdrivsim.simulator import SimParams
 
     sc = load_scenario(SAMPLE, caps=Capacities(max_objects=16, max_roadgraph_points=20_000))
-    return stack_scenarios([sc, sc, sc]), SimParams(edge_capacity=256)
+    return stack_scenarios([sc, sc, sc]), SimParams()
 
 
 @pytest.fixture(scope="module")

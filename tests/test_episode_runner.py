@@ -34,7 +34,7 @@ from igdrivsim.training.losses import action_log_prob
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd" / (
     "motion_data_one_example.tfrecord")
-PARAMS = SimParams(edge_capacity=256)
+PARAMS = SimParams()
 TINY = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
                     trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
 OBS = ObservationConfig(4, 16)

@@ -53,7 +53,7 @@ def scene():
 
     caps = Capacities(max_objects=16, max_roadgraph_points=20_000)  # the whole map
     sc = load_scenario(SAMPLE, caps=caps)
-    return stack_scenarios([sc, sc, sc]), SimParams(edge_capacity=256)
+    return stack_scenarios([sc, sc, sc]), SimParams()
 
 
 def test_reference_actors_on_real_scene(scene):

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
+
 from igdrivsim.observation import features
 from igdrivsim.observation.models import (
     ObservationModel,
@@ -35,3 +37,66 @@ def test_every_module_of_the_methods_package_is_registered_in_the_tables_order()
     assert set(methods.method_modules()) == on_disk
     assert methods.method_modules()[:4] == ["bc", "bc_rl", "dagger", "advisor"]
     assert methods.DEFAULT_METHOD == "bc"
+
+
+# --------------------------------------------- the recipes of docs/EXTENDING.md, literally
+DOC = Path(__file__).resolve().parents[1] / "docs" / "EXTENDING.md"
+
+
+def _snippet(name: str) -> str:
+    """The code block after ``<!-- recipe: NAME -->`` in docs/EXTENDING.md."""
+    text = DOC.read_text(encoding="utf-8")
+    after = text.split(f"<!-- recipe: {name} -->", 1)[1]
+    return after.split("```python\n", 1)[1].split("```", 1)[0]
+
+
+def test_the_metric_recipe_reaches_the_rollout_and_every_methods_table(monkeypatch):
+    import types
+
+    import numpy as np
+    import pandas as pd
+    from test_episode_metrics import _poses_from_speed, make_state
+
+    from igdrivsim.evaluation import aggregate, registry, tables
+    from igdrivsim.simulator import episode_metrics as em
+
+    namespace = dict(vars(em))  # step 1: a function in episode_metrics.py
+    exec(_snippet("metric-function"), namespace)  # noqa: S102 - the documented snippet
+    em_after = types.SimpleNamespace(**namespace)
+    entry = _snippet("metric-entry").strip().rstrip(",")  # step 2: an entry of REGISTRY
+    metric = eval(entry, {**vars(registry), "em": em_after})  # noqa: S307
+    monkeypatch.setattr(registry, "REGISTRY", [*registry.REGISTRY, metric])
+    speed = np.full(91, 10.0)
+    value = registry.episode_values(make_state(_poses_from_speed(speed)), None)[metric.key]
+    assert float(value) == pytest.approx(10.0)
+    rows = [dict(setting="full", method=m, seed=s, scenario_id=f"s{i}", **{metric.key: 1.0 + s})
+            for m in ("bc", "bc_rl", "dagger") for s in (0, 1) for i in range(3)]
+    summary = aggregate.summarize(pd.DataFrame(rows), metrics=[metric])
+    md = tables.supplementary_markdown(summary, [metric])
+    dagger = next(line for line in md.splitlines() if "| DAgger |" in line)
+    assert "1.50" in dagger  # a method beyond the paper's two gets its values, not "--"
+
+
+def test_the_method_recipe_adds_a_hyper_parameter_without_touching_the_config():
+    import sys
+    import types
+
+    from igdrivsim.errors import ConfigError
+    from igdrivsim.training.config import get_profile, with_overrides
+    from igdrivsim.training.update import update_spec
+
+    name = "igdrivsim.training.methods.bc_rl_scaled"
+    module = types.ModuleType(name)
+    sys.modules[name] = module
+    try:
+        exec(_snippet("method-module"), module.__dict__)  # noqa: S102 - the documented module
+        base = with_overrides(get_profile("smoke"), ["training.method=bc_rl_scaled"])
+        assert update_spec(base.validate()).param("rl_scale") == 10.0  # the declared default
+        config = with_overrides(base, ["method.rl_scale=20"]).validate()
+        assert update_spec(config).param("rl_scale") == 20.0
+        assert config.collects_rollout
+        with pytest.raises(ConfigError, match="unknown method parameter"):
+            with_overrides(base, ["method.nope=1"])
+    finally:
+        methods.METHODS.pop("bc_rl_scaled", None)
+        sys.modules.pop(name, None)

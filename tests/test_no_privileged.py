@@ -11,6 +11,7 @@ from igdrivsim.data import Capacities, fit_to_capacities, load_scenario
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ObservationConfig, get_setting, observe_with_selection
 from igdrivsim.simulator import SimParams, reset, sdc_pose
+from igdrivsim.simulator.rollout import Actor, run_episode
 
 SAMPLE = (Path(__file__).resolve().parents[1]
           / "../shared/data/womd/motion_data_one_example.tfrecord")
@@ -122,3 +123,42 @@ def test_thinned_map_off_the_log_exact_nearest_and_offroad_unchanged():
     far_plain = np.linalg.norm(np.asarray(plain.roadgraph.xyz)[
         np.asarray(sel_plain.roadgraph_index), :2] - here, axis=-1).max()
     assert far_thin > 2 * far_plain
+
+
+def _scramble_sdc_future(scenario, seed=1):
+    """The same scenario with only the SDC's logged future pose and velocity (t > 10) noise."""
+    rng = np.random.default_rng(seed)
+    tr = scenario.trajectory
+    rows = np.asarray(scenario.metadata.is_sdc)[:, None] & (np.arange(tr.x.shape[-1])
+                                                             > CURRENT_INDEX)
+    noise = {k: np.where(rows, np.asarray(getattr(tr, k)) + rng.normal(0, 100, rows.shape),
+                         getattr(tr, k)) for k in ("x", "y", "yaw", "vel_x", "vel_y")}
+    return scenario.replace(trajectory=tr.replace(**noise))
+
+
+def _turning(state, carry, key):
+    """10 m/s turning 0.7 deg per step: drifts tens of metres off any log, sees no log."""
+    del key
+    return jnp.array([1.0, 0.0, 0.012]), carry, None
+
+
+@needs_sample
+def test_rewards_and_metrics_of_a_closed_loop_rollout_ignore_the_logged_future():
+    params = SimParams()
+    run = jax.jit(lambda sc: run_episode(reset(sc, params), Actor(step=_turning),
+                                         jax.random.key(0), params, with_reward=True)[1])
+    scenario = load_scenario(str(SAMPLE))
+    base = run(scenario)
+    sdc_scrambled = run(_scramble_sdc_future(scenario))
+    all_scrambled = run(_scramble_future(scenario))
+    m = base.metrics
+    assert float(m.log_divergence.max()) > 20.0 and bool(m.offroad.any())  # a far drift
+    np.testing.assert_array_equal(np.asarray(base.reward), np.asarray(sdc_scrambled.reward))
+    for field in ("overlap", "offroad", "valid"):
+        np.testing.assert_array_equal(np.asarray(getattr(m, field)),
+                                      np.asarray(getattr(sdc_scrambled.metrics, field)))
+    # offroad reads the map and the SDC's own pose only: the others' futures do not matter
+    np.testing.assert_array_equal(np.asarray(m.offroad), np.asarray(all_scrambled.metrics.offroad))
+    # log divergence alone compares with the log
+    assert not np.array_equal(np.asarray(m.log_divergence),
+                              np.asarray(sdc_scrambled.metrics.log_divergence))

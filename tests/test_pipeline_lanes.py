@@ -1,5 +1,6 @@
-"""The pipeline's two lanes (real subprocesses, trivial commands): the methods train side by
-side, stages beside each other log and report progress, a failure stops the other lane."""
+"""The pipeline's lanes (real subprocesses, trivial commands): the methods train side by side,
+stages beside each other log and report progress, a failure stops the other lanes; the grid's
+split over the workers and the plan printed before any stage."""
 
 from __future__ import annotations
 
@@ -10,12 +11,13 @@ from pathlib import Path
 import pytest
 
 from igdrivsim.evaluation import pipeline as pl
+from igdrivsim.evaluation import planning
 
 
 def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
               methods: tuple[str, ...] = ("bc_rl", "bc")) -> pl.Pipeline:
     pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "paper", quiet=False,
-                       settings=("full",), methods=methods)
+                       settings=("full",), methods=methods, workers=2)
     times = tmp / "times.jsonl"
 
     def fake(name, echo, seconds=1.0):
@@ -27,11 +29,12 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
         pipe.stage(name, [["python", "-c", code]], echo=echo)
 
     monkeypatch.setattr(pl, "HEARTBEAT_S", 0.0)
+    monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))  # not probed
     monkeypatch.setattr(pipe, "check_work_folder", lambda: None)
     monkeypatch.setattr(pipe, "run_data", lambda: ("train", "val"))
     monkeypatch.setattr(pipe, "run_filter", lambda a, b: (Path(a), Path(b)))
-    monkeypatch.setattr(pipe, "run_train",
-                        lambda m, a, b, echo=True: fake(f"train_{m}", echo, 1.5))
+    monkeypatch.setattr(pipe, "run_train", lambda m, a, b, echo=True, part=None: fake(
+        f"train_{part.name if part else m}", echo, 1.5))
     monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True: fake(f"evaluate_{m}", echo))
     monkeypatch.setattr(pipe, "run_references",
                         lambda m, v, echo=True: fake("evaluate_references", echo))
@@ -41,6 +44,7 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
     monkeypatch.setattr(pipe, "run_teacher", lambda c: fake("teacher", True, 0.1))
     monkeypatch.setattr(pipe, "run_report", lambda e, u: fake("report", True, 0.1))
     monkeypatch.setattr(pipe, "run_pdf", lambda: None)
+    monkeypatch.setattr(pipe, "publish", lambda: [])
     pipe.times = times
     return pipe
 
@@ -111,15 +115,43 @@ def test_stage_processes_take_gpu_memory_as_needed(tmp_path, monkeypatch):
     assert seen.read_text() == "false"
 
 
-def test_gpu_profile_is_the_laptop_profile_at_ten_times_the_updates():
+def test_gpu_profile_trains_the_laptop_updates_with_more_seeds():
     import dataclasses
 
     from igdrivsim.training.config import get_profile
 
-    laptop, gpu = get_profile("laptop"), get_profile("gpu")
-    assert gpu.training.num_updates == 10 * laptop.training.num_updates
+    laptop, gpu, quick = get_profile("laptop"), get_profile("gpu"), get_profile("quick")
+    assert gpu.training.num_updates == laptop.training.num_updates == 1000
+    assert quick.training.num_updates == 300 and gpu.training.seeds > laptop.training.seeds
     same = dataclasses.replace(gpu, profile="laptop", training=laptop.training)
     assert same == laptop  # network, data, observation: the laptop's
-    sizes = {k: v for k, v in dataclasses.asdict(pl.PROFILES["gpu"]).items() if k != "name"}
-    assert sizes == {k: v for k, v in dataclasses.asdict(pl.PROFILES["laptop"]).items()
-                     if k != "name"}
+    g, lap = pl.PROFILES["gpu"], pl.PROFILES["laptop"]
+    assert g.train_scenarios == lap.train_scenarios and g.seeds == gpu.training.seeds
+    assert g.val_scenarios > lap.val_scenarios
+
+
+def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, monkeypatch,
+                                                                      capsys):
+    from igdrivsim.evaluation.schema import METHODS, SETTINGS
+
+    seconds = planning.part_seconds("laptop", 3, 1000, False)
+    for workers in (1, 2, 4, 8):
+        parts = planning.split_grid(METHODS, SETTINGS, workers, seconds, [534.0])
+        cells = sorted((p.method, s) for p in parts for s in p.settings)
+        assert cells == sorted((m, s) for m in METHODS for s in SETTINGS)  # each cell once
+        assert len(parts) >= min(workers, 2)
+    one = planning.estimate_seconds("laptop", METHODS, (), SETTINGS, 3, 1000, 1)
+    two = planning.estimate_seconds("laptop", METHODS, (), SETTINGS, 3, 1000, 2)
+    assert one and two and 1.6 < one / two < 2.0 and two < 3 * 3600
+    pipe = pl.Pipeline(pl.PROFILES["quick"], tmp_path / "work", tmp_path / "paper", workers=0)
+    monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))
+
+    def first_stage():
+        raise RuntimeError("the first stage")
+
+    monkeypatch.setattr(pipe, "run_data", first_stage)
+    with pytest.raises(RuntimeError, match="the first stage"):
+        pipe.run()
+    err = capsys.readouterr().err
+    assert "plan: estimated wall time ~" in err and "below the competence targets" in err
+    assert "test CPU, 2 cores; 2 worker process(es), one XLA thread each" in err

@@ -25,10 +25,10 @@ from igdrivsim.simulator import (
     step,
     undiscretize,
 )
-from igdrivsim.simulator.roadgraph import select_road_edges, subsample_path
+from igdrivsim.simulator.roadgraph import select_road_edges
 from igdrivsim.simulator.toy import straight_road
 
-PARAMS = SimParams(edge_capacity=256)  # as in test_simulator_metrics
+PARAMS = SimParams()
 _reset = jax.jit(reset, static_argnums=1)
 _step = jax.jit(step, static_argnums=2)
 
@@ -124,37 +124,27 @@ def test_bad_scenarios_raise_a_clear_error_before_tracing():
         reset(sc, PARAMS)
     with pytest.raises(ConfigError, match="offroad_method"):
         SimParams(offroad_method="nearest")
-    with pytest.raises(ConfigError, match="edge_radius"):
-        SimParams(edge_radius=0.0)
+    with pytest.raises(ConfigError, match="edge_capacity"):
+        SimParams(edge_capacity=0)
 
 
-def test_reset_keeps_the_whole_roadgraph_and_selects_edges_near_the_path():
-    sc = straight_road()  # SDC path along y = 0 from x = -10 to x = 80; points x in -30..169
+def test_reset_keeps_the_whole_roadgraph_and_every_road_edge():
+    sc = straight_road()  # SDC at (0, 0) at step 10; edges y = +-5, x in -30..169 (1 m apart)
     rg = sc.roadgraph
     state = reset(sc, PARAMS)
     np.testing.assert_array_equal(np.asarray(state.roadgraph.valid), np.asarray(rg.valid))
-    path = np.stack([sc.trajectory.x[0], sc.trajectory.y[0]], -1)
-    valid = np.ones(NUM_STEPS, bool)
-    select = jax.jit(select_road_edges, static_argnames=(
-        "edge_radius", "edge_capacity", "path_stride"))
-    edges = select(rg, path, valid, edge_radius=10.0, edge_capacity=300, path_stride=1)
+    edges = state.road_edges
     ev = np.asarray(edges.valid)
-    assert ev.sum() == 2 * 107  # |dx| <= sqrt(10**2 - 5**2): x in -18..88 on both edges
+    assert ev.sum() == 400  # every road-edge point of the map, wherever the log goes
+    # segments run to the next point of the same polyline (a polyline's end: the point itself)
+    d = np.abs(np.asarray(edges.next_xy)[ev] - np.asarray(edges.xy)[ev]).sum(-1)
+    assert np.sum(np.abs(d - 1.0) < 1e-5) == 398 and np.sum(d == 0.0) == 2
+    # over capacity: the nearest to the SDC's current position (step 10), not to its log
+    select = jax.jit(select_road_edges, static_argnames="edge_capacity")
+    few = select(rg, np.array([100.0, 0.0], np.float32), edge_capacity=100)
+    x = np.asarray(few.xy)[np.asarray(few.valid), 0]
+    assert len(x) <= 100 and np.abs(x - 100.0).max() <= 25.0 and len(x) >= 96
     assert set(np.unique(np.asarray(rg.type)[np.isin(rg.type, RG_ROAD_EDGE_TYPES)])) <= {15, 16}
-    # segments run to the next point of the same polyline
-    d = np.asarray(edges.next_xy)[ev] - np.asarray(edges.xy)[ev]
-    np.testing.assert_allclose(np.abs(d).sum(-1), 1.0, atol=1e-5)
-
-
-def test_subsampled_path_keeps_every_fifth_valid_point_and_the_last():
-    xy = np.stack([np.arange(12.0), np.zeros(12)], -1)
-    valid = np.ones(12, bool)
-    valid[[0, 1, 7]] = False
-    pts, ok = subsample_path(xy, valid, 5)
-    # valid steps 2,3,4,5,6,8,9,10,11 -> every 5th: 2, 8 (then padding repeats 11), and 11
-    assert set(np.asarray(pts)[:, 0].tolist()) == {2.0, 8.0, 11.0} and bool(np.all(ok))
-    _, ok = subsample_path(xy, np.zeros(12, bool), 5)
-    assert not bool(np.any(ok))
 
 
 def test_scenario_id_survives_reset(state):

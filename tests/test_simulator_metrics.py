@@ -26,8 +26,8 @@ from igdrivsim.simulator.metrics import (
 from igdrivsim.simulator.roadgraph import road_edges_from_roadgraph
 from igdrivsim.simulator.toy import add_polyline, straight_road
 
-PARAMS = SimParams(edge_capacity=256)
-SEGMENT = SimParams(edge_capacity=256, offroad_method="segment")
+PARAMS = SimParams()
+SEGMENT = SimParams(offroad_method="segment")
 _reset = jax.jit(reset, static_argnums=1)
 _metrics = jax.jit(step_metrics, static_argnums=1)
 _sd_point = jax.jit(signed_distance_point)

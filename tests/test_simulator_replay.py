@@ -42,7 +42,7 @@ def test_replay_command_prints_json_lines_and_writes_outputs(tmp_path, capsys):
     assert "summary:" in captured.err
     assert json.loads((tmp_path / "replay.jsonl").read_text()) == rec
     assert json.loads((tmp_path / "summary.json").read_text())["scenarios"] == 1
-    assert json.loads((tmp_path / "config.json").read_text())["sim_params"]["edge_radius"] > 0
+    assert json.loads((tmp_path / "config.json").read_text())["sim_params"]["edge_capacity"] > 0
 
 
 def test_replay_command_reports_bad_input_in_one_line(tmp_path, capsys):

@@ -20,7 +20,7 @@ from igdrivsim.simulator.rollout import (
 )
 from igdrivsim.simulator.toy import set_object, straight_road
 
-PARAMS = SimParams(edge_capacity=256)
+PARAMS = SimParams()
 _reset = jax.jit(reset, static_argnums=1)
 
 

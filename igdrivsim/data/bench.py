@@ -121,5 +121,7 @@ def bench_data_command(args: argparse.Namespace) -> int:
                     results["runs"].append(row)
                     print(json.dumps(row), flush=True)
     if args.out:
-        write_json(args.out, results)
+        from igdrivsim.machine import machine_record
+
+        write_json(args.out, {**results, "machine": machine_record()})
     return 0

@@ -4,8 +4,10 @@ ScenarioNet converts WOMD, nuScenes, nuPlan, Argoverse 2 and Lyft into one pickl
 scenario (``id``, ``version``, ``length``, ``metadata``, ``tracks``, ``dynamic_map_states``,
 ``map_features``); a dataset folder adds ``dataset_summary.pkl`` and ``dataset_mapping.pkl``.
 Files are loaded with :class:`SafeUnpickler`, which rebuilds NumPy arrays and builtin containers
-only: nothing in a file can run code. Logs are resampled to 10 Hz if needed and cut into
-consecutive 91-step windows (10 past, 1 current, 80 future), each one scenario (one "record").
+only, plus the enum type tags of older MetaDrive exports as inert names (:class:`LegacyTag`;
+MetaDrive 0.2's WOMD pickles, :func:`legacy_description`): nothing in a file can run code.
+Logs are resampled to 10 Hz if needed and cut into consecutive 91-step windows (10 past,
+1 current, 80 future), each one scenario (one "record").
 Where a map has no road edges (nuScenes) they are derived from the boundary of the union of the
 lane polygons and closed road-line outlines (ScenarioNet stores nuScenes' drivable area as closed
 ``boundary_*`` lines), with the road interior on the left of ``dir``. Field mapping:
@@ -84,8 +86,49 @@ LIGHT_STATES = {
 }
 
 
+# Type tags of older MetaDrive / ScenarioNet exports (MetaDrive 0.2's WOMD pickles store
+# ``__main__.AgentType(1)``, ``RoadLineType(2)``, ...): enum classes named by these modules, each
+# replaced by an inert stand-in that turns a WOMD enum code into our name (a plain ``str``).
+LEGACY_MODULES = ("__main__", "metadrive.utils.waymo_utils.waymo_utils",
+                  "metadrive.utils.waymo_utils.waymo_type")
+LEGACY_TAGS: dict[str, tuple[str, ...]] = {
+    "AgentType": ("UNSET", "VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER"),
+    "RoadLineType": tuple(ROAD_LINE_TYPES),
+    "RoadEdgeType": ("ROAD_EDGE_UNKNOWN", "ROAD_EDGE_BOUNDARY", "ROAD_EDGE_MEDIAN"),
+    "LaneType": ("LANE_UNKNOWN", "LANE_FREEWAY", "LANE_SURFACE_STREET", "LANE_BIKE_LANE"),
+    "TrafficLightState": tuple(n for n in LIGHT_STATES if n.startswith("LANE_STATE_")),
+}
+_TAG_PREFIXES = ("ROAD_LINE_", "ROAD_EDGE_", "LANE_STATE_", "LANE_")
+
+
+def _member(name: str) -> str:
+    """An enum member's own name: ``ROAD_LINE_SOLID_SINGLE_WHITE`` -> ``SOLID_SINGLE_WHITE``."""
+    return next((name[len(p):] for p in _TAG_PREFIXES if name.startswith(p)), name)
+
+
+class LegacyTag:
+    """Inert stand-in for an old export's enum class: ``Tag(code)`` returns our name (a str).
+
+    It accepts exactly one int among the enum's codes; anything else is a :class:`DataError`.
+    It imports and calls nothing, so a pickle cannot use the legacy names to run code.
+    """
+
+    __slots__ = ("file", "kind", "names")
+
+    def __init__(self, kind: str, file: str):
+        self.kind, self.names, self.file = kind, LEGACY_TAGS[kind], file
+
+    def __call__(self, *args: object) -> str:
+        if len(args) == 1 and type(args[0]) is int and 0 <= args[0] < len(self.names):
+            return self.names[args[0]]
+        shown = ", ".join(repr(a)[:40] for a in args)
+        raise DataError(f"refused {self.kind}({shown}): a legacy type tag takes one of the codes "
+                        f"0..{len(self.names) - 1}", file=self.file)
+
+
 class SafeUnpickler(pickle.Unpickler):
-    """Unpickler that rebuilds only NumPy arrays/dtypes/scalars and builtin containers."""
+    """Unpickler that rebuilds only NumPy arrays/dtypes/scalars, builtin containers and the
+    legacy type tags (:class:`LegacyTag`, never the classes themselves)."""
 
     def __init__(self, file, name: str):
         super().__init__(file)
@@ -94,8 +137,16 @@ class SafeUnpickler(pickle.Unpickler):
     def find_class(self, module: str, name: str):
         if (module, name) in _ALLOWED:
             return super().find_class(module, name)
+        if module in LEGACY_MODULES:
+            kind, _, member = name.partition(".")
+            if kind in LEGACY_TAGS and not member:
+                return LegacyTag(kind, self.name)
+            names = LEGACY_TAGS.get(kind, ())
+            for code, full in enumerate(names):  # an enum member pickled by name
+                if member and member in (full, _member(full)):
+                    return names[code]
         raise DataError(f"refused to load class {module}.{name} (a ScenarioNet file holds only "
-                        "NumPy arrays and builtin containers)", file=self.name)
+                        "NumPy arrays, builtin containers and legacy type tags)", file=self.name)
 
 
 def safe_load(path: str | os.PathLike) -> Any:
@@ -410,9 +461,75 @@ def window_id(source_id: str, first_step: int, windows: int) -> str:
     return sid
 
 
+def is_legacy_description(desc: Any) -> bool:
+    """MetaDrive 0.2's WOMD export (``sdc_index``, ``map``, ``[T, 10]`` states) or its 2022-10
+    successor (``sdc_track_index``, ``map_features``): no ``metadata``."""
+    return (isinstance(desc, dict) and "tracks" in desc and "metadata" not in desc
+            and ("sdc_index" in desc or "sdc_track_index" in desc))
+
+
+def _legacy_state(state: Any, key: str) -> dict:
+    if isinstance(state, dict):  # 2022-10: position, size [T, 3], heading / valid [T, 1]
+        out = dict(state)
+        if "size" in out:
+            size = _array(out.pop("size"), (3,), f"{key}/size")
+            out["length"], out["width"], out["height"] = size[:, 0], size[:, 1], size[:, 2]
+        return out
+    a = _array(state, (10,), key)  # x, y, z, length, width, height, heading, vx, vy, valid
+    return {"position": a[:, 0:3], "length": a[:, 3], "width": a[:, 4], "height": a[:, 5],
+            "heading": a[:, 6], "velocity": a[:, 7:9], "valid": a[:, 9] > 0.5}
+
+
+def _legacy_feature(f: Any) -> dict | None:
+    """A legacy map feature in ScenarioNet's form (``None``: not one we read)."""
+    if not isinstance(f, dict):
+        return None
+    kind = f.get("type")
+    if kind == "center_lane":  # the lane's WOMD type was not exported
+        return {"type": "LANE_UNKNOWN", "polyline": f.get("polyline")}
+    if kind == "stop_sign":
+        return {"type": "STOP_SIGN", "position": f.get("pos", f.get("position"))}
+    if f.get("sign") == "cross_walk":
+        return {"type": "CROSSWALK", "polygon": f.get("polygon")}
+    if isinstance(kind, dict) and "polygon" in f:  # the exporter stored the dict as its type
+        return {"type": "SPEED_BUMP", "polygon": f.get("polygon")}
+    if isinstance(kind, str):  # legacy tags (ROAD_LINE_*, ROAD_EDGE_*) and ScenarioNet names
+        return {**f, "type": kind}
+    return None
+
+
+def legacy_description(desc: dict) -> dict:
+    """An old MetaDrive WOMD export as a ScenarioNet description (field mapping:
+    docs/scenarionet.md). Its traffic lights are dropped: MetaDrive 0.2 kept one step of them."""
+    sdc = desc.get("sdc_track_index", desc.get("sdc_index"))
+    tracks = {}
+    for k, track in (desc.get("tracks") or {}).items():
+        if not isinstance(track, dict) or "state" not in track:
+            raise DataError("expected a dict with 'type' and 'state'", key=f"tracks/{k}")
+        tracks[k] = {"type": str(track.get("type", "OTHER")),
+                     "state": _legacy_state(track["state"], f"tracks/{k}/state")}
+    features = desc.get("map_features", desc.get("map")) or {}
+    if not isinstance(features, dict):
+        raise DataError("expected a dict of map features", key="map")
+    feats = {k: g for k, f in features.items() if (g := _legacy_feature(f)) is not None}
+    sid = str(desc.get("id", ""))
+    return {"id": sid, "version": str(desc.get("version", "metadrive-0.2")),
+            "length": len(next(iter(tracks.values()))["state"]["position"]) if tracks else 0,
+            "metadata": {"scenario_id": sid, "sdc_id": str(sdc), "ts": desc.get("ts"),
+                         "dataset": "waymo", "coordinate": "waymo"},
+            "tracks": tracks, "dynamic_map_states": {}, "map_features": feats}
+
+
 def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING,
                        stride: int = WINDOW_STRIDE) -> list[Window]:
-    """A ScenarioNet scenario dict as its 91-step windows (native sizes, no capacities)."""
+    """A ScenarioNet scenario dict (or a legacy MetaDrive export, :func:`legacy_description`)
+    as its 91-step windows (native sizes, no capacities)."""
+    if is_legacy_description(desc):
+        desc = legacy_description(desc)
+    if (isinstance(desc, tuple) and len(desc) == 2 and isinstance(desc[0], dict)
+            and all(isinstance(v, dict) and "traj" in v for v in desc[0].values())):
+        raise DataError("a MetaDrive Argoverse replay log (actor positions only: no map, object "
+                        "sizes, types or ego), not a scenario description (docs/scenarionet.md)")
     if not isinstance(desc, dict) or "tracks" not in desc or "metadata" not in desc:
         raise DataError("not a ScenarioNet scenario description (a dict with 'tracks' and "
                         "'metadata')")
@@ -486,6 +603,20 @@ def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) 
         z=lxyz[..., 2])
     return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
                     traffic_lights=traffic_lights, scenario_id=encode_scenario_id(sid))
+
+
+DATASET_NAMES = {"waymo": "WOMD", "womd": "WOMD", "nuscenes": "nuScenes", "nuplan": "nuPlan",
+                 "av2": "Argoverse 2", "argoverse2": "Argoverse 2", "lyft": "Lyft"}
+
+
+def source_dataset(path: str | os.PathLike) -> str | None:
+    """The dataset a scenario file comes from (``WOMD``, ``nuScenes``, ...), None if unsaid."""
+    desc = safe_load(path)
+    if is_legacy_description(desc):
+        return "WOMD"
+    meta = desc.get("metadata") if isinstance(desc, dict) else None
+    name = str(meta.get("dataset", "")) if isinstance(meta, dict) else ""
+    return DATASET_NAMES.get(name.lower(), name or None)
 
 
 def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING

@@ -8,7 +8,10 @@ under the run's own observation setting and writes ``OUT/per_step.csv``,
 constant-velocity baseline (into ``OUT/references/`` when a run is evaluated too).
 
 ``igdrivsim report --evals DIR... --out DIR`` aggregates every evaluation found under the
-``--evals`` folders into Table I, the comparison with the paper and Fig. 3.
+``--evals`` folders into Table I, the comparison with the paper and Fig. 3, then writes the
+run's results page (``--results``, default ``OUT/results.md``) and, with ``--readme FILE``, fills
+that file's results block, and the PDF's result macros (``OUT/generated/results.tex``,
+``OUT/generated/maze.tex``); ``--from-tables`` rewrites only those from ``OUT``'s tables.
 """
 
 from __future__ import annotations
@@ -245,9 +248,21 @@ def evaluate_command(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- report
 def report_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--evals", nargs="+", required=True, metavar="DIR",
+    parser.add_argument("--evals", nargs="+", default=None, metavar="DIR",
                         help="folders holding per_scenario.csv / per_step.csv (searched "
-                             "recursively)")
+                             "recursively); required unless --from-tables")
+    parser.add_argument("--from-tables", action="store_true",
+                        help="only rewrite the markdown (--results, --readme) and the PDF's "
+                             "result macros (generated/results.tex, generated/maze.tex) from the "
+                             "tables already in --out, without the evaluations")
+    parser.add_argument("--results", default=None, metavar="FILE",
+                        help="the run's results page (markdown; default: OUT/results.md)")
+    parser.add_argument("--readme", default=None, metavar="FILE",
+                        help="also fill this file's <!-- results:begin/end --> block with the "
+                             "headline table (e.g. README.md)")
+    parser.add_argument("--work", default=None, metavar="DIR",
+                        help="the pipeline's work folder: its stage times go into "
+                             "OUT/tables/run_times.csv")
     parser.add_argument("--out", default="paper",
                         help="report folder: writes OUT/tables/* and OUT/figures/fig3_metrics.* "
                              "(default: paper)")
@@ -278,11 +293,20 @@ def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
 
 def report_command(args: argparse.Namespace) -> int:
     from igdrivsim.evaluation.report import Provenance, build_report
+    from igdrivsim.evaluation.results_doc import write_markdown, write_run_times
 
     require_folder(args.out)
-    profile, data = _provenance_from(args.evals)
-    prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
-    written = build_report(args.evals, args.out, prov, run_dirs=args.runs)
+    written = []
+    if not args.from_tables:
+        if not args.evals:
+            raise ConfigError("report: give --evals DIR... (or --from-tables to rewrite only "
+                              "the markdown from OUT's tables)")
+        profile, data = _provenance_from(args.evals)
+        prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
+        written = build_report(args.evals, args.out, prov, run_dirs=args.runs)
+        if args.work:
+            written += write_run_times(args.work, Path(args.out) / "tables")
+    written += write_markdown(args.out, args.results, args.readme)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -275,12 +275,13 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
 
 def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
     """Fig. 5: one panel per registry metric with ``figure=True`` (``metrics``), bars per
-    setting for BC and BC-RL (mean over seeds, 95% t-interval), the expert and constant
-    velocity as horizontal lines when evaluated. ``seed_level``: :func:`seed_means` over the
-    registry's metrics."""
+    setting for every learned method present (mean over seeds, 95% t-interval), the expert
+    and constant velocity as horizontal lines when evaluated. ``seed_level``:
+    :func:`seed_means` over the registry's metrics."""
     panels = [m for m in metrics if m.figure]
     order = list(table_settings(seed_level))
-    data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.setting.isin(order)]
+    learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
+    data = seed_level[seed_level.method.isin(learned) & seed_level.setting.isin(order)]
     data = data.assign(Method=data.method.map(METHOD_LABELS), Setting=data.setting)
     refs = seed_level[seed_level.method.isin((EXPERT, CONSTANT_VELOCITY))]
     sns.set_theme(style="whitegrid", context="paper")
@@ -288,7 +289,7 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
     nrows = max(1, math.ceil(len(panels) / ncols))
     fig, axes = plt.subplots(nrows, ncols, figsize=(4.0 * ncols, 2.2 * nrows + 0.4),
                              squeeze=False, sharex=True)
-    hue_order = [METHOD_LABELS[m] for m in (BC, BC_RL)]
+    hue_order = [METHOD_LABELS[m] for m in learned]
     for ax, metric in zip(axes.ravel(), panels, strict=False):
         panel = data[data.metric == metric.key]
         if panel.empty or panel.value.isna().all():

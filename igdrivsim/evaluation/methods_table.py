@@ -1,4 +1,4 @@
-"""Table II: every learned method against BC (Markdown for the README, LaTeX for the report).
+"""Table II: every learned method against BC (Markdown for results.md, LaTeX for the report).
 
 Written by the report only when the evaluations hold learned methods beyond the paper's two
 (``bc``, ``bc_rl``), e.g. DAgger or ADVISOR runs. Rows: Table I's metrics, one row per learned

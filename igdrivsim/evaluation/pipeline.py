@@ -1,11 +1,14 @@
 """The whole reproduction as resumable stages (what ``scripts/reproduce.sh`` runs).
 
 Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``filter``
-(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}: one run per method
-with every setting and seed in one program, the methods' runs side by side in two processes),
-``evaluate`` (each run, plus the reference actors), ``maze``
-(paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance)
-and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
+(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}, the grid split into
+parts over one worker process per CPU core, :mod:`igdrivsim.evaluation.planning`; each part's
+settings and seeds in one program), ``evaluate`` (each part, plus the reference actors),
+``maze``
+(paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance),
+``real_logs`` (beyond the paper: the runs and references on the real scenarios of ``--samples``
+or of ``igdrivsim samples``' cache, :mod:`igdrivsim.evaluation.real_logs`; skipped without
+them) and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
 bc,bc_rl,dagger,advisor``) come after the others: a ``teacher`` stage picks the run whose
 full setting drives better on validation, and they train the other settings with it
 (``report`` then adds Table II and Fig. 6).
@@ -17,9 +20,15 @@ stage resumes from its checkpoints (``igdrivsim train --resume``). Every stage l
 side by side: their latest progress line every minute); a failing stage
 stops the pipeline with a message naming the stage and its log.
 
-Layout: work files (data, filtered manifests, runs, evaluations, logs) under ``WORK``
-(``outputs/<profile>`` by default, ``--out`` when given); the report files under ``PAPER``
-(the repository's ``paper/`` by default, ``OUT/paper`` with ``--out``).
+Before any stage the run prints its plan: the machine, the parts, the estimated wall time
+(from measured per-update costs), and the profile to pick for a first look or on a GPU.
+
+Layout: work files (data, filtered manifests, runs, evaluations, logs, the report as written,
+``WORK/report``) under ``WORK`` (``outputs/<profile>`` by default, ``--out`` when given); the
+report files under ``PAPER`` (the repository's ``paper/`` by default, ``OUT/paper`` with
+``--out``), published there with their provenance (:mod:`igdrivsim.evaluation.provenance`):
+a run never deletes or overwrites the files of another kind of run (Table II and Fig. 6 of the
+``--methods`` run survive the default run, and the other way round).
 """
 
 from __future__ import annotations
@@ -34,12 +43,12 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from igdrivsim.cli import DefaultsFormatter, deprecated_alias
 from igdrivsim.errors import REPORTED, ConfigError, IGDrivSimError, error_line
+from igdrivsim.evaluation import lanes, planning, provenance
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, require_folder
 from igdrivsim.observation import get_setting, setting_params
@@ -48,7 +57,8 @@ from igdrivsim.training.privileged import TEACHER_SETTING
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
-PAPER_SOURCES = ("main.tex", "references.bib", "Makefile")
+ONE_THREAD_FLAGS = ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
+PAPER_SOURCES = ("main.tex", "findings.tex", "references.bib", "Makefile")
 
 
 @dataclass(frozen=True)
@@ -72,8 +82,10 @@ PROFILES: dict[str, PipelineProfile] = {
     "smoke": PipelineProfile("smoke", train_scenarios=16, val_scenarios=8, seeds=2,
                              eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
     "laptop": _LAPTOP,
-    # the laptop's data and seeds; the training profile of the same name trains 10x the updates
-    "gpu": replace(_LAPTOP, name="gpu"),
+    # the laptop's sizes; the training profile of the same name trains 300 updates
+    "quick": replace(_LAPTOP, name="quick"),
+    # the laptop's training data and updates; 4x the seeds and validation scenarios, for power
+    "gpu": replace(_LAPTOP, name="gpu", val_scenarios=2048, seeds=12, eval_batch=128),
     "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
                              eval_max_scenarios=0, maze_profile="default"),
 }
@@ -97,6 +109,8 @@ class Pipeline:
     settings: tuple[str, ...] | None = None
     methods: tuple[str, ...] = METHODS
     overrides: tuple[str, ...] = ()  # ``section.field=value`` for every training run
+    workers: int = 0  # worker processes (0: one per CPU core; two on an accelerator)
+    samples: str | None = None  # real scenarios (igdrivsim samples): Fig. 1, real_logs stage
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
@@ -107,6 +121,8 @@ class Pipeline:
                                   "cannot train together with the others; train it on its own "
                                   "with igdrivsim train")
         self.ran: set[str] = set()  # stages that ran in this invocation
+        self.started = time.time()
+        self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
 
     # ----------------------------------------------------------------------- bookkeeping
@@ -185,6 +201,8 @@ class Pipeline:
         # most of it up front (JAX's default), so the second one does not run out.
         env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
         env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
+        if self.one_thread:  # one worker per core: XLA's threads would only compete
+            env["XLA_FLAGS"] = " ".join([env.get("XLA_FLAGS", ""), *ONE_THREAD_FLAGS]).strip()
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 cwd=REPO_ROOT, env=env)
         assert proc.stdout is not None
@@ -271,19 +289,20 @@ class Pipeline:
         return outs[0], outs[1]
 
     def run_train(self, method: str, train_manifest: Path, val_manifest: Path,
-                  echo: bool = True) -> None:
-        """One run per method: every setting and seed in one compiled program (settings as
-        data); the teacher-forced observations are computed once and cached in WORK/cache.
-        A method with a privileged teacher trains the settings other than ``full`` with the
-        teacher the ``teacher`` stage chose."""
-        run = self.work / "runs" / method
-        settings, sets, depends = self.settings, list(self.overrides), []
+                  echo: bool = True, part: planning.Part | None = None) -> None:
+        """One run per part of the grid (default: the method on every setting): its settings
+        and seeds in one compiled program (settings as data); the teacher-forced observations
+        are computed once and cached in WORK/cache. A method with a privileged teacher trains
+        the settings other than ``full`` with the teacher the ``teacher`` stage chose."""
+        part = part or planning.Part(method, tuple(self.settings), method)
+        run = self.work / "runs" / part.name
+        settings, sets, depends = part.settings, list(self.overrides), []
         if get_method(method).teacher:
             choice = json.loads(self.teacher_choice.read_text(encoding="utf-8"))
-            settings = tuple(s for s in self.settings if s != TEACHER_SETTING)
+            settings = tuple(s for s in settings if s != TEACHER_SETTING)
             sets.append(f"training.teacher={choice['run']}")
             depends = ["teacher"]
-        self.stage(f"train_{method}", [[
+        self.stage(f"train_{part.name}", [[
             "igdrivsim", "train", "--profile", self.profile.name,
             "--obs", ",".join(settings), "--method", method,
             "--seeds", self.profile.seeds, "--data", train_manifest,
@@ -337,32 +356,174 @@ class Pipeline:
                              self.profile.maze_profile, "--out", out, "--work", out / "work"]],
                    outputs=[out / "figures" / "fig2_maze.png"], echo=echo)
         for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv",
-                                        "fig2b_maze_baselines.pdf", "fig2b_maze_baselines.png")),
-                           ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv"))):
+                                        "fig2b_maze_baselines.pdf", "fig2b_maze_baselines.png",
+                                        "maze_frames.png")),
+                           ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv")),
+                           (".", ("maze_config.json",))):
             for fname in names:
                 src = out / sub / fname
                 if src.exists():
-                    (self.paper / sub).mkdir(parents=True, exist_ok=True)
-                    atomic_copy(src, self.paper / sub / fname)
+                    (self.staged / sub).mkdir(parents=True, exist_ok=True)
+                    atomic_copy(src, self.staged / sub / fname)
 
     def run_render(self, val: str, echo: bool = True) -> None:
         from igdrivsim.data import expand_paths
         from igdrivsim.observation.commands import DEFAULT_DATA
 
-        # Fig. 1 shows a real WOMD scenario: the user's data, else the bundled real sample.
+        # Fig. 1 shows a real scenario when one is at hand: the user's data, else the public
+        # samples (--samples), else the shared one; else a synthetic one (the figure says which)
         files = expand_paths(val)
-        if self.train_data is None and DEFAULT_DATA.is_file():
+        if self.train_data is None and self.samples is not None:
+            files = expand_paths(self.samples)[:1]
+        elif self.train_data is None and DEFAULT_DATA.is_file():
             files = [str(DEFAULT_DATA)]
         if not files:
             raise StageError(f"stage 'render': no validation file in {val}")
-        figures = self.paper / "figures"
+        figures = self.staged / "figures"
         self.stage("render", [["igdrivsim", "render", "--data", files[0], "--out", figures]],
                    depends=["data"], outputs=[figures / "fig1_observations.png"], echo=echo)
 
+    @property
+    def samples_label(self) -> str:
+        from igdrivsim.data import samples
+
+        if self.samples is not None and samples.find_samples(Path(self.samples).parent) == Path(
+                self.samples):
+            return (f"{len(samples.FILES)} public WOMD logs ({samples.PACKAGE}'s wheel, igdrivsim "
+                    "samples) in 91-step windows")
+        return f"real scenarios in {self.samples}"
+
+    def run_real_logs(self) -> None:
+        """Beyond the paper: every trained run and the reference actors on the real scenarios
+        of ``--samples``, beside their validation numbers (tables/real_logs.{md,tex})."""
+        runs = sorted(p.name for p in (self.work / "runs").glob("*")
+                      if (p / "DONE").is_file() and (self.work / "evals" / p.name).is_dir())
+        if self.samples is None or not runs:
+            why = "no evaluated run" if self.samples else (
+                "no real samples (igdrivsim samples fetches them; then --samples DIR)")
+            self._say(f"real_logs: {why}, skipped")
+            return
+        out = self.work / "evals_real"
+        common = ["--data", self.samples, "--batch-size", self.profile.eval_batch,
+                  "--limit", self.profile.eval_max_scenarios]  # as on validation (0: all)
+        commands = [["igdrivsim", "evaluate", self.work / "runs" / r, "--out", out / r, *common]
+                    for r in runs]
+        commands += [["igdrivsim", "evaluate", "--references", "--like",
+                      self.work / "runs" / runs[-1], "--out", out / "references", *common],
+                     ["python", "-m", "igdrivsim.evaluation.real_logs", "--real", out,
+                      "--synthetic", self.work / "evals", "--out", self.staged / "tables",
+                      "--real-label", self.samples_label, "--synthetic-label", self.data_label]]
+        self.stage("real_logs", commands,
+                   depends=[*[f"evaluate_{r}" for r in runs], "evaluate_references"],
+                   outputs=[self.staged / "tables" / "real_logs.md"])
+
+    @property
+    def default_paper(self) -> bool:
+        """The report goes to the repository's paper/ (no --out)."""
+        return self.paper.resolve() == (REPO_ROOT / "paper").resolve()
+
     def run_report(self, evals: Path, upstream: Sequence[str]) -> None:
-        self.stage("report", [["igdrivsim", "report", "--evals", evals, "--out", self.paper,
-                               "--profile", self.profile.name, "--data-label", self.data_label]],
-                   depends=upstream, outputs=[self.paper / "tables" / "table1.tex"])
+        # results.md: published with the tables (PAPER/results.md); the default run's goes to
+        # docs/results.md instead, rewritten from paper/ once published (write_results)
+        page = ["--results", self.work / "results.md"] if self.default_paper else []
+        self.stage("report", [["igdrivsim", "report", "--evals", evals, "--out", self.staged,
+                               "--profile", self.profile.name, "--data-label", self.data_label,
+                               "--work", self.work, *page]],
+                   depends=upstream, outputs=[self.staged / "tables" / "table1.tex"])
+
+    def write_results(self) -> None:
+        """The default run (report in the repository's paper/): docs/results.md and the
+        README's results block, from the published tables and their provenance."""
+        from igdrivsim.evaluation.results_doc import write_markdown
+
+        if self.default_paper and (self.paper / "tables" / "summary.csv").is_file():
+            write_markdown(self.paper, REPO_ROOT / "docs" / "results.md", REPO_ROOT / "README.md")
+
+    @property
+    def staged(self) -> Path:
+        """Where the report stages write; :meth:`publish` copies it into ``PAPER``."""
+        return self.work / "report"
+
+    @property
+    def kind(self) -> str:
+        """``methods`` for a run with taught methods (it owns Table II), else ``default``."""
+        return "methods" if any(get_method(m).teacher for m in self.methods) else "default"
+
+    def command_text(self) -> str:
+        """The ``reproduce.sh`` command line that gives this pipeline (canonical order)."""
+        args: list[str] = []
+        if self.profile.name != "laptop":
+            args += ["--profile", self.profile.name]
+        if self.train_data is not None:
+            args += ["--data", str(self.train_data), str(self.val_data)]
+        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
+            args += ["--out", str(self.work)]
+        if tuple(self.settings) != tuple(self.profile.settings):
+            args += ["--obs", ",".join(self.settings)]
+        if tuple(self.methods) != tuple(METHODS):
+            args += ["--methods", ",".join(self.methods)]
+        for override in self.overrides:
+            args += ["--set", override]
+        if getattr(self, "samples", None) is not None:
+            args += ["--samples", str(self.samples)]
+        return provenance.command_line(args)
+
+    def training_config(self):
+        from igdrivsim.training.config import get_profile, with_overrides
+
+        return with_overrides(get_profile(self.profile.name), list(self.overrides))
+
+    def publish(self) -> list[str]:
+        """Copy the report into ``PAPER`` with its provenance (when the report ran or a file
+        is missing there): this run's files, and another run's only where they are missing."""
+        missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
+        if not {"report", "real_logs"} & self.ran and not missing:
+            return []
+        from igdrivsim.evaluation.report import git_commit
+
+        updates = self.training_config().training.num_updates
+        entry = provenance.Entry(
+            command=self.command_text(), run=self.kind, profile=self.profile.name,
+            updates=updates, commit=git_commit(),
+            device=f"{self.machine.label()}, {self.lanes} worker process(es)",
+            wall_s=round(self.wall_seconds()), date=provenance.today(),
+            note=provenance.competence_note(self.profile.name, updates))
+        published = provenance.publish(self.staged, self.paper, entry)
+        self._say(f"publish: {len(published)} files in {self.paper} (provenance: "
+                  f"{self.paper / provenance.FILE})")
+        return published
+
+    def wall_seconds(self) -> float:
+        """This run's wall time: this invocation's and those of the interrupted ones before."""
+        path = self.work / "wall.json"
+        try:
+            before = float(json.loads(path.read_text(encoding="utf-8"))["seconds"])
+        except (OSError, ValueError, KeyError, TypeError):
+            before = 0.0
+        return before + time.time() - self.started
+
+    def _record_wall(self) -> None:
+        path = self.work / "wall.json"
+        atomic_write_json(path, {"seconds": round(self.wall_seconds(), 1)})
+
+    @property
+    def machine(self) -> planning.Machine:
+        if self._machine is None:
+            self._machine = planning.detect_machine()
+        return self._machine
+
+    @property
+    def lanes(self) -> int:
+        """Worker processes: ``--workers``, else one per core (two on an accelerator); one
+        when the stages run in this process."""
+        if self.in_process:
+            return 1
+        return self.workers or planning.default_workers(self.machine)
+
+    @property
+    def one_thread(self) -> bool:
+        """Workers get one XLA thread each: several of them on a CPU."""
+        return self.lanes > 1 and self.machine.accelerator is None
 
     def run_pdf(self) -> None:
         """Build the PDF with latexmk (or pdflatex + bibtex). A LaTeX failure is reported with
@@ -429,60 +590,122 @@ class Pipeline:
         finally:
             fh.close()
 
-    def side_by_side(self, first, second, serial: bool = False) -> None:
-        """Run two lanes (``lane(echo)``) in two threads, each driving its own processes; a
-        failing lane stops the other. ``serial`` (or in-process): one after the other."""
-        if self.in_process or serial:
-            first(True)
-            second(True)
-            return
-        with ThreadPoolExecutor(2) as pool:
-            jobs = [pool.submit(first, False), pool.submit(second, False)]
-            wait(jobs, return_when=FIRST_EXCEPTION)
-            if any(j.done() and j.exception() for j in jobs):
-                self.stopping.set()
-            for job in jobs:
-                job.result()
+    def parts(self) -> tuple[list[planning.Part], list[planning.Part]]:
+        """The grid's parts: the methods without a teacher on every setting, then the taught
+        methods on the settings other than ``full`` (:func:`planning.split_grid`)."""
+        taught = [m for m in self.methods if get_method(m).teacher]
+        plain = [m for m in self.methods if m not in taught]
+        updates = self.training_config().training.num_updates
+        seconds = planning.part_seconds(self.profile.name, self.profile.seeds, updates,
+                                        self.machine.accelerator is not None)
+        first = planning.split_grid(plain, self.settings, self.lanes, seconds,
+                                    [self.maze_seconds])
+        rest = [s for s in self.settings if s != TEACHER_SETTING]
+        second = planning.split_grid(taught, rest, self.lanes, seconds) if taught else []
+        return first, second
+
+    @property
+    def maze_seconds(self) -> float:
+        """The maze stage's measured CPU-s (0: a profile whose costs were not measured)."""
+        from igdrivsim.training.cost import MAZE_CPU_S
+
+        return MAZE_CPU_S if self.profile.name in planning.PRICED_PROFILES else 0.0
+
+    def plan(self) -> list[str]:
+        """What this run will do and how long it should take (printed before any stage)."""
+        first, second = self.parts()
+        t = self.training_config().training
+        taught = [m for m in self.methods if get_method(m).teacher]
+        wall = planning.estimate_seconds(
+            self.profile.name, [m for m in self.methods if m not in taught], taught,
+            self.settings, self.profile.seeds, t.num_updates, self.lanes,
+            self.machine.accelerator is not None)
+        grid = ", ".join(f"{p.name} ({len(p.settings)} setting{'s' * (len(p.settings) > 1)})"
+                         for p in (*first, *second))
+        lines = [
+            f"plan: profile {self.profile.name}: {t.num_updates:,} updates x "
+            f"{self.profile.seeds} seeds x {len(self.settings)} settings x "
+            f"{', '.join(self.methods)}; data {self.data_label}",
+            f"plan: machine {self.machine.label()}; {self.lanes} worker process(es)"
+            + (", one XLA thread each" if self.one_thread else "")
+            + (f" (fewer than the cores: {planning.WORKER_MEMORY_GB} GB of memory each)"
+               if not self.workers and self.lanes < self.machine.cores
+               and not self.machine.accelerator and not self.in_process else ""),
+            f"plan: stages data -> filter -> train + evaluate {len(first) + len(second)} parts "
+            f"[{grid}]" + (" (taught methods after the teacher stage)" if second else "")
+            + ", references, speed walk, maze, Fig. 1 -> report -> publish -> PDF",
+        ]
+        if wall is None:
+            lines.append(f"plan: no measured per-update cost for profile {self.profile.name}; "
+                         "no time estimate")
+        else:
+            where = ("training at the measured H200 rates, the other stages at their measured "
+                     "CPU costs" if self.machine.accelerator else "measured per-update costs")
+            lines.append(f"plan: estimated wall time ~{planning.hours_text(wall)} ({where}: "
+                         "igdrivsim/training/cost.py; stages already complete are skipped)")
+        note = provenance.competence_note(self.profile.name, t.num_updates)
+        if note:
+            lines.append(f"plan: {note}")
+        elif self.profile.name == "laptop" and wall is not None and not self.machine.accelerator:
+            from igdrivsim.training.config import QUICK_UPDATES
+
+            quick = planning.estimate_seconds(
+                "quick", [m for m in self.methods if m not in taught], taught, self.settings,
+                self.profile.seeds, QUICK_UPDATES, self.lanes, self.machine.accelerator is not None)
+            lines.append(f"plan: for a first look in ~{planning.hours_text(quick or 0.0)} "
+                         "(300 updates, below the competence targets): bash scripts/reproduce.sh "
+                         "--profile quick")
+        if self.machine.accelerator and self.profile.name != "gpu":
+            lines.append(f"plan: accelerator found ({self.machine.accelerator}): the gpu "
+                         "profile is recommended (bash scripts/reproduce.sh --profile gpu)")
+        return lines
 
     def run(self) -> None:
         """Every stage in order, holding the work folder's lock."""
         with self.work_lock():
-            self._run_stages()
+            try:
+                self._run_stages()
+            finally:
+                self._record_wall()
 
     def _run_stages(self) -> None:
         self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
                   f"{self.paper}")
         self.check_work_folder()
+        for line in self.plan():
+            self._say(line)
+        first, second = self.parts()
         train, val = self.run_data()
-        train_manifest, val_manifest = self.run_filter(train, val)
-        taught = [m for m in self.methods if get_method(m).teacher]
-        names = [m for m in self.methods if m not in taught]
-
-        def lane(methods: Sequence[str], rest: bool, echo: bool) -> None:
-            """Train and evaluate ``methods``; with ``rest`` also the reference actors, the
-            maze study and Fig. 1."""
-            for method in methods:
-                self.run_train(method, train_manifest, val_manifest, echo)
-                self.run_evaluate(method, val_manifest, echo)
-            if rest:
-                self.run_references(names[-1], val_manifest, echo)
-                self.run_speed_walk(val_manifest, echo)
-                self.run_maze(echo)
-                self.run_render(val, echo)
-
-        # two lanes side by side (each process keeps about one core busy): the first method
-        # alone, the others followed by the references, the maze and Fig. 1
-        self.side_by_side(lambda echo: lane(names[:1], False, echo),
-                          lambda echo: lane(names[1:], True, echo), serial=len(names) == 1)
-        if taught:  # then the methods taught by the better full-setting policy
-            self.run_teacher(names)
-            self.side_by_side(lambda echo: lane(taught[:1], False, echo),
-                              lambda echo: lane(taught[1:], False, echo),
-                              serial=len(taught) == 1)
-        evals = self.work / "evals"
+        tm, vm = self.run_filter(train, val)
+        like = first[-1]  # the references take its capacities and simulator settings
+        jobs: list[lanes.Job] = []
+        costly = sorted([*[(p.seconds, p) for p in first], (self.maze_seconds, None)],
+                        key=lambda x: -x[0])
+        for _, part in costly:  # the longest first; the maze among them by its cost
+            if part is None:
+                jobs.append(lanes.Job("maze", lambda e: self.run_maze(e)))
+            else:
+                jobs.append(lanes.Job(f"train_{part.name}", lambda e, p=part: self.run_train(
+                    p.method, tm, vm, e, p)))
+        if second:  # the methods taught by the better full-setting policy
+            jobs.append(lanes.Job("teacher", lambda e: self.run_teacher([p.name for p in first]),
+                                  after=tuple(f"train_{p.name}" for p in first)))
+            jobs += [lanes.Job(f"train_{p.name}", lambda e, p=p: self.run_train(
+                p.method, tm, vm, e, p), after=("teacher",)) for p in second]
+        jobs += [lanes.Job(f"evaluate_{p.name}", lambda e, p=p: self.run_evaluate(p.name, vm, e),
+                           after=(f"train_{p.name}",)) for p in (*first, *second)]
+        jobs += [lanes.Job("evaluate_references",
+                           lambda e: self.run_references(like.name, vm, e),
+                           after=(f"train_{like.name}",)),
+                 lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
+                 lanes.Job("render", lambda e: self.run_render(val, e))]
+        lanes.run_jobs(jobs, self.lanes, self.stopping, echo_alone=self.in_process)
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
-                    *[f"evaluate_{n}" for n in (*names, *taught)]]
-        self.run_report(evals, upstream)
+                    *[f"evaluate_{p.name}" for p in (*first, *second)]]
+        self.run_report(self.work / "evals", upstream)
+        self.run_real_logs()
+        self.publish()
+        self.write_results()
         self.run_pdf()
         self._say(f"finished: tables in {self.paper / 'tables'}, figures in "
                   f"{self.paper / 'figures'}")
@@ -511,12 +734,17 @@ class _Tee:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", formatter_class=DefaultsFormatter,
                                      description=(
-        "Regenerate every table and figure: data -> filter -> train -> evaluate -> maze -> "
-        "render -> report -> PDF. Resumable: rerun the same command after an interruption."))
+        "Regenerate the report's tables and figures (Table II and Fig. 6: the --methods "
+        "bc,bc_rl,dagger,advisor run): data -> filter -> train -> evaluate -> maze -> render -> "
+        "report -> publish -> PDF, over one worker process per core. Prints its plan and "
+        "estimated wall time first. Resumable: rerun the same command after an interruption."))
     parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
-                        help="smoke (minutes, CI), laptop (about an hour on 2 cores, default), "
-                             "gpu (the laptop network at 10x the updates; one GPU), "
-                             "paper (the paper's sizes; GPUs)")
+                        help="smoke (minutes, CI), laptop (the default: trained to the "
+                             "competence targets, about 2.5 h on 2 cores; the plan printed first "
+                             "gives the estimate for this machine), quick (the laptop network "
+                             "at 300 updates, about 50 min on 2 cores, below the competence "
+                             "targets), gpu (the laptop's updates with 4x the seeds and "
+                             "validation scenarios; one GPU), paper (the paper's sizes; GPUs)")
     parser.add_argument("--data", nargs="+", metavar="DIR", default=None,
                         help="real data instead of synthetic: one folder holding training/ and "
                              "validation/, or two locations TRAIN VAL (files, folders, globs, "
@@ -538,13 +766,39 @@ def build_parser() -> argparse.ArgumentParser:
                         help="override a config field for every training run (repeatable; "
                              "not observation.setting or training.method), e.g. "
                              "--set training.num_updates=400; use a fresh --out for it")
+    parser.add_argument("--workers", type=int, default=0, metavar="N",
+                        help="worker processes for the (setting, method) grid, the maze and "
+                             "the evaluations (0: one per CPU core, one XLA thread each; two "
+                             "on an accelerator); the numbers do not depend on it")
     parser.add_argument("--in-process", action="store_true",
                         help="run the commands in this Python process (faster for smoke)")
     parser.add_argument("--no-progress", dest="quiet", action="store_true",
                         help="do not echo stage output and progress bars on the terminal (the "
                              "logs in WORK/logs/ are complete either way)")
     deprecated_alias(parser, "--quiet", "quiet", action="store_true")
+    parser.add_argument("--samples", default=None, metavar="DIR",
+                        help="real scenarios for Fig. 1 and the real-log table: the folder of "
+                             "igdrivsim samples, or any WOMD / ScenarioNet location (default: "
+                             "the samples cache when fetched, else none: synthetic Fig. 1, "
+                             "no real-log table)")
     return parser
+
+
+def resolve_samples(where: str | None) -> str | None:
+    """The real-scenario location of ``--samples`` (``igdrivsim samples``' folder, or any data
+    location), else the verified samples cache, else None."""
+    from igdrivsim.data import expand_paths, samples
+
+    if where is None:
+        found = samples.find_samples()
+        return None if found is None else str(found)
+    if (found := samples.find_samples(where)) is not None:
+        return str(found)
+    if Path(where).is_dir() and not any(Path(where).iterdir()):
+        raise ConfigError(f"--samples {where}: empty; fetch the public samples there with: "
+                          f"igdrivsim samples --out {where}")
+    expand_paths(where)  # names files, else a one-line error (before any stage)
+    return where
 
 
 def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
@@ -594,9 +848,12 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                               "setting to pick the teacher from")
 
     with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
+    if args.workers < 0:
+        raise ConfigError(f"--workers must be >= 0, got {args.workers}")
     return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
                     quiet=args.quiet, settings=settings, methods=methods,
-                    overrides=tuple(args.overrides))
+                    overrides=tuple(args.overrides), workers=args.workers,
+                    samples=resolve_samples(args.samples))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,8 +5,9 @@ supplementary table and figure, its direction, its source, and how it is compute
 ``episode`` (``(final_state, params) -> f32[]``, run once per episode inside the jitted rollout)
 or ``derive`` (from the other per-scenario columns of a row, Table I's included). The rollout
 (:func:`episode_values`), the CSV columns (:data:`COLUMNS`), the supplementary table and the
-figure all iterate over :data:`REGISTRY`; adding a metric is one :func:`register` call (or one
-entry below). Definitions and sources: ``docs/metrics.md``.
+figure all iterate over :data:`REGISTRY`; adding a metric is one entry below (its function in
+:mod:`igdrivsim.simulator.episode_metrics`; docs/EXTENDING.md). :func:`register` adds one at run
+time, in the calling process only. Definitions and sources: ``docs/metrics.md``.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``t
 ``curves.jsonl`` are found), the metric registry's supplementary table and figure
 (``tables/supplementary_metrics.{md,tex}``, ``tables/supplementary_summary.csv``,
 ``figures/fig5_supplementary.{pdf,png}``; see :mod:`igdrivsim.evaluation.registry`),
+``tables/curves_summary.csv`` (the learning curves' last validation updates),
 ``generated/provenance.tex`` (profile, data, seeds, date, commit: macros the report uses)
 and ``generated/verdicts.tex`` (is BC-RL safer, per setting). Table I, the power tables, the
 verdicts and ``tests.csv`` compare BC-RL with BC only (Holm over Table I's cells). When the
@@ -17,7 +18,9 @@ BC, Holm over its own cells; :mod:`igdrivsim.evaluation.methods_table`):
 ``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``
 (without them, those files of an earlier report in ``OUT`` are removed). Every file but the
 provenance (which records the date) is a pure function of the inputs, so reruns give
-identical tables.
+identical tables. The prose's result macros (``generated/results.tex``, ``generated/maze.tex``)
+are read from these tables by :mod:`igdrivsim.evaluation.results_tex` when the markdown is
+written (``igdrivsim report``, also with ``--from-tables``).
 """
 
 from __future__ import annotations
@@ -34,9 +37,11 @@ from igdrivsim.evaluation.figures import (
     fig3_metrics,
     fig6_methods,
     learning_curves_figure,
+    load_curves,
     save_figure,
     supplementary_figure,
 )
+from igdrivsim.evaluation.results_doc import write_curves_summary
 from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
 from igdrivsim.evaluation.tables import (
     power_latex,
@@ -212,4 +217,5 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]
     written += learning_curves_figure(runs, figures, references if len(references) else None)
+    written += write_curves_summary(load_curves(runs), tables)
     return written

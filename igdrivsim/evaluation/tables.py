@@ -373,9 +373,12 @@ def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
     cols = table_settings(summary)
     rows = []
     references = _has_references(summary)
+    learned = [m for m in (BC_RL, BC) if m in set(summary.method)] or [BC_RL, BC]
+    learned += [m for m in METHOD_LABELS if m in set(summary.method)
+                and m not in learned and m not in REFERENCES]
     for metric in metrics:
         groups = []
-        for method in (BC_RL, BC):
+        for method in learned:  # the paper's two, then every other learned method present
             groups.append((method, False, [_lookup(summary, metric.key, s, method)
                                            for s in cols]))
         for method in references:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 from pathlib import Path
 
 from igdrivsim.cli import deprecated_alias
@@ -19,8 +20,9 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data_file", nargs="?", default=None, metavar="FILE",
                         help=argparse.SUPPRESS)  # deprecated spelling of --data
     parser.add_argument("--data", default=None,
-                        help=f"WOMD file, tf.Example or Scenario proto (default: {DEFAULT_DATA} "
-                             "when present)")
+                        help=f"WOMD file (tf.Example or Scenario proto) or ScenarioNet / "
+                             f"MetaDrive pickle (default: {DEFAULT_DATA} when present, else the "
+                             "first of igdrivsim samples' cache)")
     parser.add_argument("--record", type=int, default=0, help="record index in the file")
     parser.add_argument("--out", default=str(REPO_ROOT / "paper" / "figures"),
                         help="output directory (default: paper/figures)")
@@ -44,12 +46,32 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
 def _data_path(args) -> str:
     path = args.data or getattr(args, "data_file", None)
     if path is None:
-        if not DEFAULT_DATA.exists():
-            raise DataError(f"no --data given and the default sample {DEFAULT_DATA} is missing")
-        return str(DEFAULT_DATA)
+        if DEFAULT_DATA.exists():
+            return str(DEFAULT_DATA)
+        from igdrivsim.data.samples import find_samples
+
+        if (samples := find_samples()) is not None:  # fetched by igdrivsim samples
+            return str(sorted(samples.glob("*.pkl"))[0])
+        raise DataError(f"no --data given, the default sample {DEFAULT_DATA} is missing and no "
+                        "public samples are fetched (igdrivsim samples)")
     if not os.path.exists(path):
         raise DataError("file not found", file=path)
     return path
+
+
+SYNTHETIC_ID = re.compile(r"syn[0-9a-f]+[a-z]\d{8}")  # the generator's scenario names
+
+
+def scene_source(path: str, scenario) -> str:
+    """What the figure shows, said in it: a synthetic scenario or a real one (and its dataset)."""
+    from igdrivsim.data import decode_scenario_id
+    from igdrivsim.data import scenarionet as sn
+
+    sid = decode_scenario_id(scenario.scenario_id)
+    if SYNTHETIC_ID.fullmatch(sid):
+        return f"synthetic scenario {sid} (igdrivsim's generator, not a real log)"
+    dataset = sn.source_dataset(path) if sn.is_scenarionet_file(path) else "WOMD"
+    return f"real {dataset or 'logged'} scenario {sid} ({os.path.basename(path)})"
 
 
 def render_command(args) -> int:
@@ -84,13 +106,14 @@ def render_command(args) -> int:
     key = jax.random.PRNGKey(args.seed)
     need = 80 if args.gif is not None else args.step - 10
     states = render.expert_states(state, need)
+    source = scene_source(path, scenario)
     written = render.write_observation_figure(states[args.step - 10], args.out, panels,
-                                              key, args.view)
+                                              key, args.view, source=source)
     if args.gif is not None:
         gif = args.gif or os.path.join(args.out, f"rollout_{setting.name.replace('+', '_')}.gif")
         written.append(render.write_rollout_animation(
             states, setting, gif, key, args.view, every=args.every,
             progress=not args.no_progress))
     print(json.dumps({"data": path, "record": args.record, "step": args.step,
-                      "written": written}))
+                      "source": source, "written": written}))
     return 0

@@ -237,8 +237,10 @@ def legend_handles() -> list:
 
 
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
-                       config: ObservationConfig = DEFAULT_CONFIG):
-    """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure."""
+                       config: ObservationConfig = DEFAULT_CONFIG, source: str | None = None):
+    """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure.
+    ``source`` (e.g. "real WOMD scenario ..." or "synthetic scenario ...") is said under the
+    title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -254,8 +256,9 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
         draw_panel(ax, snap, setting, PRESET_TITLES.get(setting.name, setting.name), view)
     for ax in list(axes.flat)[len(settings):]:
         ax.axis("off")
-    fig.suptitle("What the imitator observes, in the ego's frame (colour: in the observation; "
-                 "grey: the true scene)", fontsize=11)
+    title = ("What the imitator observes, in the ego's frame (colour: in the observation; "
+             "grey: the true scene)")
+    fig.suptitle(f"{title}\n{source}" if source else title, fontsize=11)
     handles = legend_handles()
     legend_cols = 5 if ncols >= 3 else 2 * ncols  # about 0.8 inch of width per entry
     legend_rows = math.ceil(len(handles) / legend_cols)
@@ -266,11 +269,12 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
 
 
 def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: list[str],
-                             key: jax.Array, view: float = 30.0) -> list[str]:
+                             key: jax.Array, view: float = 30.0,
+                             source: str | None = None) -> list[str]:
     """Write ``out_dir/fig1_observations.{pdf,png}``; returns the paths."""
     import matplotlib.pyplot as plt
 
-    fig = observation_figure(state, settings, key, view)
+    fig = observation_figure(state, settings, key, view, source=source)
     try:
         return [os.fspath(atomic_savefig(fig, os.path.join(out_dir, f"fig1_observations.{ext}"),
                                          dpi=200)) for ext in ("pdf", "png")]

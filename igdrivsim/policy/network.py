@@ -55,7 +55,7 @@ class PolicyConfig:
     # the policy keeps its last H observed speeds in its recurrent carry and sees the last H
     # speed changes, in dx levels (0.47 m/s), next to the speed: the expert's next level
     # depends on them (it corrects its quantisation error), which a GRU fed the speed alone
-    # does not pick up (docs/training.md, "the speed walk"); 0: off (the paper's network)
+    # does not pick up (paper/findings.tex, "The speed walk"); 0: off (the paper's network)
     speed_history: int = 0
     # the policy sees its last H observed yaw rates (the current one, and H - 1 kept in its
     # carry) in dyaw levels (2 pi / 256 rad per step): the expert's steering labels are a

@@ -6,21 +6,19 @@ Two implementations of the same episode are timed in the same run, on the same b
   top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the distance
   from the SDC box corners to every roadgraph point (non-edges masked).
 * **fast** (closed-loop rollouts in training and evaluation share its road-edge array but take
-  the naive top-k observation; see docs/simulator-speed.md): road edges near the logged path in
-  their own small array (1,024), and the observation from 3,000 cached candidate points
+  the naive top-k observation; see docs/simulator-speed.md): every road edge of the map in its
+  own array (at most 8,192), and the observation from 3,000 cached candidate points
   stored nearest-first; a step re-ranks only the 512 around the N-th and checks that the result
   is exact, repairing the stored order (or re-selecting from the whole roadgraph) when not
   (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
   (roadgraph slots in the stored, roughly nearest-first, order).
 
-Where the time goes (CPU, batch 64, per scenario-step, wall clock on the README's machine (B)):
-naive ~650 us (top-k over 20,000 points and offroad over 20,000 points); fast ~90 us: ~48 us
-every step (the 1,500 x 25 features, objects, step, expert, metrics, a 512-key sort) and the
-rest amortised re-sorts and re-selections (16 and 5 per episode on the real scenario).
-Measured speedups: 5.0-7.1x over naive on the real scenario tiled (6.8x at batch 256), 3.0-4.4x
-on batches of different synthetic scenarios (see the README).
+Where the time goes per scenario-step: naive, the top-k and the offroad test over all of a
+WOMD map's points; fast, the 1,500 x 25 features, objects, step, expert, metrics and a 512-key
+sort every step, with re-sorts and re-selections amortised (docs/simulator-speed.md). Results
+kept in the repository: docs/bench/.
 
-All three run the discretised expert with the observation of ``--setting`` computed at every step (a
+Both run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
 log divergence). The scenario is a real one tiled to the batch size (``--distinct``: different
 scenarios of ``--data``, so that examples need the fast path's repairs at different steps).
@@ -32,7 +30,7 @@ This is the one episode loop not on the simulator's runner
 paths themselves, so its scan carries only what changes (the simulated SDC, the timestep, the
 candidate cache) and keeps the log and the roadgraph as loop constants, and the naive path
 needs its own reset; through the runner (the whole state carried, the cache in an actor's
-carry) it would measure something else than the numbers quoted above.
+carry) it would measure something else than the observation paths.
 """
 
 from __future__ import annotations
@@ -51,6 +49,7 @@ from tqdm import tqdm
 from igdrivsim.cli import deprecated_alias
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json
+from igdrivsim.machine import machine_record
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.candidates import (
     CandidateConfig,
@@ -250,7 +249,7 @@ def bench_sim_command(args) -> int:
     if args.out:
         atomic_write_json(args.out, {"data": path, "distinct": args.distinct, "rows": rows,
                                      "jax": jax.__version__, "steps_per_episode": steps,
-                                     "setting": args.setting})
+                                     "setting": args.setting, "machine": machine_record()})
     return 0
 
 

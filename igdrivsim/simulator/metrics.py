@@ -12,7 +12,9 @@ current timestep, every other object at its logged state):
   on the left of ``dir``, so a corner on the left gets a negative distance. The ``"segment"``
   rule measures the distance to the nearest edge *segment* and, when the nearest point of that
   segment is a vertex, takes the sign from the bisector of the two segment directions there;
-  it avoids the point rule's false offroad next to convex corners of closed edge loops.
+  it avoids the point rule's false offroad next to convex corners of closed edge loops. Both
+  read every road edge of the map (``state.road_edges``), never a selection along the logged
+  path, so the verdict (and the reward) is exact at any drift and blind to the logged future.
 - **log divergence**: L2 distance (m) between the simulated and the logged SDC position.
 
 All functions take a :class:`~igdrivsim.simulator.state.SimState` with any leading batch
@@ -20,8 +22,8 @@ dimensions ``...`` and return ``[...]``. Invalid steps (SDC invalid in the log o
 report no overlap, no offroad and zero divergence, and ``StepMetrics.valid`` is False.
 The geometry is written as explicit multiply-adds over small fixed axes (4 corners, 4 axes):
 tiny ``jnp.sum``/``jnp.max`` reductions over axes of size 2-4 are 10-40x slower under ``vmap``
-at batch >= 32 on XLA:CPU; likewise the nearest road-edge point is found with plain ``min`` /
-masked ``max`` reductions instead of ``argmin`` plus gathers (20-40x faster at batch 256).
+at batch >= 32 on XLA:CPU; likewise the nearest road-edge point and its sign come from one
+``min`` over packed int32 keys instead of ``argmin`` plus gathers (20-40x faster at batch 256).
 """
 
 from __future__ import annotations
@@ -95,13 +97,15 @@ def _signed_at_nearest(d2, cross):
     """Signed distance ``[..., K]`` from squared distances and crosses ``[..., K, E]``: the
     distance to the nearest candidate, positive when the cross product there is positive.
 
-    The sign is read with a masked ``max`` (ties: outside wins) rather than ``argmin`` plus
-    gathers: on XLA:CPU the variadic argmin reduction and the gathers were 20-40x slower.
+    One fused ``min`` over int32 keys: the bits of ``d2`` (>= 0, so ordered as integers) with
+    the last one replaced by "inside", so the nearest wins and, on a tie (to float32's last
+    bit), outside wins. On XLA:CPU this is 1.8x faster than a ``min`` then a masked ``max``
+    over every road edge of a map, and 20-40x faster than ``argmin`` plus gathers.
     """
-    m2 = jnp.min(d2, axis=-1)
-    c = jnp.max(jnp.where(d2 <= m2[..., None], cross, -jnp.inf), axis=-1)
-    d = jnp.sqrt(m2)
-    return jnp.where(c > 0, d, -d)
+    key = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
+    k = jnp.min((key & ~1) | (cross <= 0).astype(jnp.int32), axis=-1)
+    d = jnp.sqrt(jax.lax.bitcast_convert_type(k & ~1, jnp.float32))
+    return jnp.where((k & 1) == 0, d, -d)
 
 
 def signed_distance_point(px, py, edges: RoadEdges):
@@ -162,8 +166,9 @@ def _sdc_log_attr(a, i, t):
 def offroad(state: SimState, method: str = "point"):
     """``bool[...]``: some SDC box corner is outside the road (see the module docstring).
 
-    Uses the cropped ``state.road_edges``. A scenario without any valid road-edge point is never
-    offroad.
+    Measured against ``state.road_edges``, every road edge of the map (exact nearest at any
+    pose, nothing from the logged future). A scenario without any valid road-edge point is
+    never offroad.
     """
     cx, cy = sdc_corners(state)
     sd = SIGNED_DISTANCE[method](cx, cy, state.road_edges)

@@ -5,6 +5,10 @@ passes backward. ``igdrivsim bench train --profiles paper --method bc`` measures
 network's seconds per update on 1 seed x 1 scenario x ``settings``; dividing by ``settings``
 gives seconds per episode on one device. A run then costs ``updates x settings x seeds x
 batch x seconds per episode / devices`` (data parallel over devices, ignoring communication).
+
+The laptop network (profiles laptop, quick, gpu) is priced per (setting x update) of one
+training process from whole measured runs (:func:`laptop_train_seconds`); the pipeline's plan
+(:mod:`igdrivsim.evaluation.planning`) spreads those over its worker processes.
 """
 
 from __future__ import annotations
@@ -26,9 +30,44 @@ CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger
 GPU_SECONDS_PER_EPISODE = 15.0 / 768
 GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
-# The laptop profile's default pipeline run takes about 52 minutes on a 2-core CPU (README,
-# Table I); the `gpu` profile runs ten times its updates.
-LAPTOP_RUN_CPU_HOURS = 52 / 60
+# Laptop network, 3 seeds, 16 scenarios per update: CPU-seconds per update of ONE setting in one
+# process, everything of a training stage included (loading, teacher records, compile, the
+# learning-curve validation every 250 updates). Measured: four settings x 3 seeds x 1,000
+# updates per method, the two runs side by side on the 2-core CPU under `/usr/bin/time -v`:
+# BC 3,078 CPU-s, BC-RL 7,529 CPU-s (README at 6ae8db5, speed table, "four settings x 3 seeds x
+# 1,000 updates"; docs/training.md at 6ae8db5, "The budget"). Measured with two XLA threads per
+# process, which cost more CPU-s per update than one (3.90-3.97 against 5.20-5.45; README at
+# 6ae8db5, "taskset -c 0"; paper/findings.tex), so estimates for one-thread workers from these
+# rates err on the long side.
+LAPTOP_CPU_S_PER_SETTING_UPDATE = 3078 / (4 * 1000)  # teacher-forced methods (BC)
+LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT = 7529 / (4 * 1000)  # methods that drive (BC-RL, ...)
+LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
+# Everything of the default pipeline but training, in CPU-s: the 300-update run at 7f262a6 took
+# 5,985 CPU-s end to end (README at 6ae8db5, Table I section, `/usr/bin/time`), of which its
+# training at the rates above is 300 x 6 x (0.770 + 1.882) = 4,774 CPU-s; the remaining 1,211
+# CPU-s are the data, filter, evaluations, Fig. 1, report and PDF, and the maze study: 524-534
+# CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
+MAZE_CPU_S = 534.0
+LAPTOP_OTHER_CPU_S = 5985 - 300 * 6 * (LAPTOP_CPU_S_PER_SETTING_UPDATE
+                                       + LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT) - MAZE_CPU_S
+# One H200, laptop network (the 244k-parameter one before 7f262a6), 6 settings x 3 seeds per
+# update (README at 6ae8db5, speed table, `igdrivsim bench train --profiles laptop`): BC
+# 0.0255 s, BC-RL 0.0492 s; compile 16.6 s / 24.2 s.
+GPU_S_PER_SETTING_UPDATE = 0.0255 / 6
+GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.0492 / 6
+GPU_COMPILE_S = 24.2
+
+
+def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
+                         gpu: bool = False) -> float:
+    """Seconds of one training process of the laptop network: CPU-s on one core (``gpu``
+    False), or seconds on one H200 (compile included; seeds scale linearly, an upper bound
+    on a GPU)."""
+    if gpu:
+        per = GPU_S_PER_SETTING_UPDATE_ROLLOUT if rollout else GPU_S_PER_SETTING_UPDATE
+        return GPU_COMPILE_S + updates * settings * per * seeds / LAPTOP_SEEDS
+    per = LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT if rollout else LAPTOP_CPU_S_PER_SETTING_UPDATE
+    return updates * settings * per * seeds / LAPTOP_SEEDS
 
 
 def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
@@ -70,18 +109,16 @@ def _paper_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str:
             f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
             f"scenarios x {config.training.seeds} seed(s) at ~{per} s per episode (paper "
             f"network, bench train) is ~{hours:,.1f} hours ({hours / 8766:,.1f} years); use GPUs "
-            f"(~{gpu:,.0f} h on one H200; README: Running at paper scale) or --profile laptop")
+            f"(~{gpu:,.0f} h on one H200; docs/scaling.md) or --profile laptop")
 
 
 def _gpu_profile_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str | None:
-    """None when the updates were overridden down to the laptop's budget or less."""
-    from igdrivsim.training.config import laptop
-
-    n, base = config.training.num_updates, laptop().training.num_updates
-    if n <= base:
+    """None when the seeds were overridden down to the laptop's or fewer."""
+    seeds, n = config.training.seeds, config.training.num_updates
+    if seeds <= LAPTOP_SEEDS:
         return None
-    return (f"igdrivsim train: warning: --profile gpu on CPU: {n:,} updates, {n / base:.3g}x "
-            f"the laptop profile's {base}, whose whole pipeline takes "
-            f"~{LAPTOP_RUN_CPU_HOURS:.1f} h on 2 cores; expect "
-            f"~{n / base * LAPTOP_RUN_CPU_HOURS:.0f} h for the pipeline; use a GPU or "
+    hours = sum(laptop_train_seconds(n, 6, seeds, r) for r in (False, True)) / 2 / 3600
+    return (f"igdrivsim train: warning: --profile gpu on CPU: {seeds} seeds, "
+            f"{seeds / LAPTOP_SEEDS:.3g}x the laptop profile's {LAPTOP_SEEDS}; its BC and BC-RL "
+            f"training alone would take ~{hours:.0f} h on 2 cores; use a GPU or "
             "--profile laptop")

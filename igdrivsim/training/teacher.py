@@ -173,19 +173,27 @@ def cache_key(identity: str, **shape) -> str:
 
 def load_or_compute(cache_dir: str | None, key: str, compute) -> TeacherSteps:
     """The cached records under ``cache_dir/teacher-<key>.npz``, computed and saved if absent
-    (no ``cache_dir``: computed, not saved)."""
+    (no ``cache_dir``: computed, not saved). Processes sharing the cache (the pipeline's
+    parallel training parts) compute each record file once: the others wait on its lock."""
+    import contextlib
+    import fcntl
+
     from igdrivsim.io import atomic_path
 
     path = os.path.join(cache_dir, f"teacher-{key}.npz") if cache_dir else None
-    if path and os.path.isfile(path):
-        with np.load(path) as z:
-            return TeacherSteps(**{k: z[k] for k in z.files})
-    records = compute()
-    if path:
-        os.makedirs(cache_dir, exist_ok=True)
-        with atomic_path(path, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in asdict(records).items()})
-    return records
+    with contextlib.ExitStack() as stack:
+        if path:
+            os.makedirs(cache_dir, exist_ok=True)
+            lock = stack.enter_context(open(path + ".lock", "a"))
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes (or we die)
+        if path and os.path.isfile(path):
+            with np.load(path) as z:
+                return TeacherSteps(**{k: z[k] for k in z.files})
+        records = compute()
+        if path:
+            with atomic_path(path, "wb") as f:
+                np.savez(f, **{k: np.asarray(v) for k, v in asdict(records).items()})
+        return records
 
 
 def teacher_observation(rec: TeacherSteps, t, setting, episode_key: jax.Array,

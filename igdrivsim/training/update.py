@@ -81,10 +81,15 @@ class UpdateSpec:
     advisor_alpha: float = 1.0
     aggregate_batches: int = 4  # DAgger: updates' worth of labelled episodes kept
     teacher_policy: PolicyConfig | None = None  # the privileged teacher's network (static)
+    method_params: tuple[tuple[str, float], ...] = ()  # the method's params, defaults filled
 
     @property
     def learner(self) -> Method:
         return get_method(self.method)
+
+    def param(self, name: str) -> float:
+        """The value of one of the method's own hyper-parameters (``Method.params``)."""
+        return dict(self.method_params)[name]
 
 
 def sim_params(config: RunConfig) -> SimParams:
@@ -123,7 +128,9 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
         record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
                                config.data.max_objects),
         advisor_alpha=t.advisor_alpha, aggregate_batches=t.aggregate_batches,
-        teacher_policy=teacher_policy or teacher_policy_config(config))
+        teacher_policy=teacher_policy or teacher_policy_config(config),
+        method_params=tuple((name, dict(t.method_params).get(name, default))
+                            for name, default in get_method(t.method).params))
 
 
 def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:

@@ -5,23 +5,26 @@ before it: a vehicle ahead on its route (car following, with that vehicle's spee
 traffic that will occupy a point of its route before it could clear that point (yielding: the
 point acts as a stopped obstacle). Curves are anticipated through a speed profile limited by
 lateral acceleration and comfortable braking, so the expert slows early for what is far ahead.
+Stop signs and traffic lights (stop at red, at yellow when comfortable) act as stop lines.
 """
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
 
 from igdrivsim.data.scenario import DT, NUM_STEPS, TYPE_VEHICLE
-from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.maps import Route
+from igdrivsim.data.synthetic.maps import LIGHT_CAUTION, LIGHT_GO, Route
 
 T = NUM_STEPS
 LOOKAHEAD = 120.0  # m of route an agent watches ahead
 A_LAT = 2.2  # m/s^2 comfortable lateral acceleration in curves
 B_MAX = 7.0  # m/s^2 hardest braking
 STOP_WAIT = 8  # steps an agent stands at a stop sign
+PARALLEL = ("lane", "bike")  # road-map route kinds that never cover each other's lanes
+ON_ROAD = (*PARALLEL, "change", "merge")  # road-map routes >= 3 m from the sidewalks
 
 
 @dataclass
@@ -61,9 +64,7 @@ class Agent:
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
     """Desired speed at each route point: the limit, the curve limit sqrt(A_LAT / |kappa|), and
     braking early enough (at ``brake``) for every slower point ahead."""
-    kappa = np.abs(geo.curvature(route.points))
-    kappa = np.convolve(np.pad(kappa, 3, mode="edge"), np.ones(7) / 7, "valid")
-    v = np.minimum(v_des, np.sqrt(A_LAT / np.maximum(kappa, 1e-6)))
+    v = np.minimum(v_des, np.sqrt(A_LAT / np.maximum(route.smooth_curvature, 1e-6)))
     s = route.s
     # v[k]^2 <= v[j]^2 + 2 b (s_j - s_k) for all j >= k: a reversed running minimum.
     reach = np.minimum.accumulate((v**2 + 2 * brake * s)[::-1])[::-1]
@@ -104,6 +105,44 @@ def _occupancy(agent: Agent, s_route: np.ndarray, yaw_route: np.ndarray, other: 
     return rows, occ, along
 
 
+def _may_cover(agent: Agent, xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
+    """Whether boxes at ``xy [N, 2]`` (heading ``yaw``) may cover a point of ``agent``'s route
+    (conservative: a box whose grown rectangle the locally straight route misses is out)."""
+    route = agent.route
+    _, k = route.tree.query(xy)
+    rel, t = xy - route.points[k], route.tangents[k]
+    lateral = np.abs(t[:, 0] * rel[:, 1] - t[:, 1] * rel[:, 0])
+    dyaw = yaw - route.yaw[k]
+    grow = agent.width / 2 + 0.4
+    bound = ((length / 2 + grow) * np.abs(np.sin(dyaw)) + (width / 2 + grow) * np.abs(np.cos(dyaw))
+             + 0.7)
+    end = (k == 0) | (k == len(route.points) - 1)
+    return (lateral < bound) | (end & (np.hypot(*rel.T) < np.hypot(length / 2 + grow,
+                                                                     width / 2 + grow) + 0.7))
+
+
+def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
+    """Route points covered by standing objects: ``(rows, aligned)`` per (point, object) hit."""
+    pts = agent.route.points
+    lo, hi = agent.route.bounds
+    xy = np.array([o.xy[0] for o in fixed])
+    yaw = np.array([o.yaw[0] for o in fixed])
+    size = np.array([(o.length, o.width) for o in fixed])
+    reach = np.array([o.reach for o in fixed]) + agent.width / 2 + 1.0
+    near = ((xy >= lo - reach[:, None]) & (xy <= hi + reach[:, None])).all(1)
+    if near.any():
+        near[near] = _may_cover(agent, xy[near], yaw[near], size[near, 0], size[near, 1])
+    if not near.any():
+        return np.zeros(0, int), np.zeros(0, bool)
+    xy, yaw, size = xy[near], yaw[near], size[near]
+    d = pts[:, None, :] - xy[None]
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx = np.abs(d[..., 0] * c + d[..., 1] * s) - size[:, 0] / 2
+    dy = np.abs(-d[..., 0] * s + d[..., 1] * c) - size[:, 1] / 2
+    k, j = np.nonzero(np.maximum(dx, dy) < agent.width / 2 + 0.4)
+    return k, np.cos(yaw[j] - yaw_route[k]) > 0.75
+
+
 def plan(agent: Agent, planned: list[Agent]) -> None:
     """Fill ``agent.s/valid/xy/yaw`` by simulating IDM against the already ``planned`` agents."""
     route = agent.route
@@ -120,10 +159,26 @@ def plan(agent: Agent, planned: list[Agent]) -> None:
 
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
     yaw_route = agent.route.yaw
-    v_prof = speed_profile(agent.route, agent.v_des, agent.brake)
+    v_prof = speed_profile(agent.route, agent.v_des, agent.brake).tolist()
     follow_rows, follow_t, follow_v = [], [], []
     cross_rows, cross_occ = [], []
+    fixed = [o for o in planned if o.static and o.valid.all()]
+    if fixed:  # standing objects, all at once: aligned ones are followed, others crossed
+        rows, aligned = _standing_hits(agent, yaw_route, fixed)
+        k = rows[aligned]
+        follow_rows.append(np.repeat(k, T)), follow_t.append(np.tile(np.arange(T), len(k)))
+        follow_v.append(np.zeros(len(k) * T))
+        if (~aligned).any():
+            k = np.unique(rows[~aligned])
+            cross_rows.append(k), cross_occ.append(np.ones((len(k), T), bool))
+    parallel = agent.route.kind in PARALLEL
     for other in planned:
+        if other.static and other.valid.all():
+            continue
+        if parallel and other.route.kind in PARALLEL and other.route.group != agent.route.group:
+            continue  # another lane of the road: at least a lane's width away
+        if other.role == "stroller" and agent.route.kind in ON_ROAD:
+            continue  # a pedestrian on the sidewalk, 2 m outside the road edge
         rows, occ, along = _occupancy(agent, s_route, yaw_route, other)
         if len(rows) == 0:
             continue
@@ -134,20 +189,22 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             keep = cross.any(1)
             cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
     # Follow obstacles per step: sorted route distances and leader speeds.
-    follow = [(np.empty(0), np.empty(0))] * T
+    follow = [([], [])] * T
     if follow_rows:
         k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
         order = np.lexsort((k, t))
         k, t, v = k[order], t[order], v[order]
         bounds = np.searchsorted(t, np.arange(T + 1))
-        follow = [(s_route[k[bounds[i]:bounds[i + 1]]], v[bounds[i]:bounds[i + 1]])
-                  for i in range(T)]
+        ks, v = s_route[k].tolist(), v.tolist()
+        follow = [(ks[bounds[i]:bounds[i + 1]], v[bounds[i]:bounds[i + 1]]) for i in range(T)]
     if cross_rows:
         c_rows = np.concatenate(cross_rows)
         occ = np.concatenate(cross_occ, 0)
         times = np.where(occ, np.arange(T)[None], 10 * T).astype(float)
         next_occ = np.minimum.accumulate(times[:, ::-1], axis=1)[:, ::-1]  # first step >= t
         c_s = s_route[c_rows]
+        order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
+        c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
     half = agent.length / 2
     sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
     pos, v = agent.s0, agent.v0
@@ -155,6 +212,10 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     stop_line, waited = agent.route.stop_at, 0
     if stop_line is not None and agent.s0 + half > stop_line - 0.5:
         stop_line = None  # already past it
+    signal, signal_at, on_yellow = agent.route.signal, agent.route.signal_at, False
+    if signal is not None and agent.s0 + half > signal_at - 0.5:
+        signal = None
+    signal = signal.tolist() if signal is not None else None
     inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
     out = np.empty(T)
     for t in range(T):
@@ -162,19 +223,19 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         front = pos + half
         gap, v_lead = LOOKAHEAD, v
         ks, vs = follow[t]
-        if len(ks):  # sorted: the first occupied point ahead of our front bumper
-            i = int(np.searchsorted(ks, front - 0.5, side="right"))
+        if ks:  # sorted: the first occupied point ahead of our front bumper
+            i = bisect_right(ks, front - 0.5)
             if i < len(ks) and ks[i] < front + LOOKAHEAD:
                 gap, v_lead = ks[i] - front, max(vs[i], 0.0)
         if cross_rows:
-            dist = c_s - front
             commit = v * v / (2 * B_MAX * 0.6)
-            cand = (dist > commit) & (dist < LOOKAHEAD)
-            if cand.any():
-                d = dist[cand]
+            i0 = int(np.searchsorted(c_s, front + commit, side="right"))
+            i1 = int(np.searchsorted(c_s, front + LOOKAHEAD, side="left"))
+            if i1 > i0:
+                d = c_s[i0:i1] - front
                 eta = d / np.maximum(v, np.sqrt(agent.accel * d))
                 clear = (agent.length + 4.0) / max(v, 3.0) + 1.0
-                hit = next_occ[cand, t] <= t + (eta + clear) / DT
+                hit = next_occ[t, i0:i1] <= t + (eta + clear) / DT
                 if hit.any():
                     g = d[hit].min() - 1.5
                     if g < gap:
@@ -188,6 +249,17 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                 g += agent.min_gap - 0.5  # stand just behind the line, not min_gap before it
                 if g < gap:
                     gap, v_lead = max(g, 0.05), 0.0
+        if signal is not None:  # traffic light: stop at red, and at yellow when comfortable
+            g = signal_at - front
+            if g < -1.0:
+                signal = None
+            elif signal[t] != LIGHT_GO and not on_yellow:
+                if signal[t] == LIGHT_CAUTION and v * v > 2 * 1.3 * agent.brake * max(g, 0.1):
+                    on_yellow = True  # too close to stop comfortably: it clears on yellow
+                else:
+                    g += agent.min_gap - 0.5
+                    if g < gap:
+                        gap, v_lead = max(g, 0.05), 0.0
         if agent.stop_window is not None and agent.stop_window[0] <= t < agent.stop_window[1]:
             if t == agent.stop_window[0]:
                 stop_at = pos + max(v * v / (2 * agent.brake * 1.3), 3.0) + half
@@ -237,6 +309,20 @@ def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> flo
 
 def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
     """Positions and headings along the route, with a smooth lateral wander (human-like)."""
+    if agent.static:  # one pose, repeated
+        _pose_at(agent, s[:1], s_route)
+        agent.s, agent.valid = s, np.repeat(agent.valid, T)
+        agent.xy, agent.yaw = np.repeat(agent.xy, T, 0), np.repeat(agent.yaw, T)
+        agent.speed = np.zeros(T)
+        return
+    _pose_at(agent, s, s_route)
+    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
+    where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
+    agent.lo, agent.hi = where.min(0), where.max(0)
+
+
+def _pose_at(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
+    """Fill ``s, valid, xy, yaw, reach`` at arc lengths ``s``."""
     pts = agent.route.points
     valid = (s >= 0) & (s <= s_route[-1] - 0.5)
     sc = np.clip(s, 0, s_route[-1])
@@ -250,9 +336,7 @@ def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
     agent.s, agent.valid = s, valid
     agent.xy = np.stack([x + off * nx, y + off * ny], 1)
     agent.yaw = yaw_r + np.arctan(slope)
-    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
-    where = agent.xy[valid] if valid.any() else agent.xy[:1]
-    agent.lo, agent.hi = where.min(0), where.max(0)
+    agent.lo = agent.hi = agent.xy[0]
     agent.reach = float(np.hypot(agent.length, agent.width) / 2)
 
 
@@ -279,6 +363,9 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def collides(a: Agent, b: Agent) -> bool:
     """Whether two planned agents' boxes overlap at some step where both are valid."""
+    if (a.route.kind in PARALLEL and b.route.kind in PARALLEL
+            and a.route.group != b.route.group):
+        return False  # two lanes of a road: a lane's width apart
     both = a.valid & b.valid
     if not both.any():
         return False
@@ -286,7 +373,8 @@ def collides(a: Agent, b: Agent) -> bool:
     if (a.lo[0] - reach > b.hi[0] or a.hi[0] + reach < b.lo[0]
             or a.lo[1] - reach > b.hi[1] or a.hi[1] + reach < b.lo[1]):
         return False
-    near = both & (np.linalg.norm(a.xy - b.xy, axis=1) < reach)
+    d = a.xy - b.xy
+    near = both & (np.einsum("ij,ij->i", d, d) < reach * reach)
     if not near.any():
         return False
     ca = box_corners(a.xy[near], a.yaw[near], a.length, a.width)

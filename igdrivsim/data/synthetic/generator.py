@@ -1,10 +1,12 @@
 """Synthetic WOMD-format scenarios: a map, a cast of agents with interactions, planned logs.
 
 ``generate_scenario(seed, index, split)`` is deterministic: it draws everything from a NumPy
-Generator seeded with ``(seed, split, index)``. Each scenario is a curved multi-lane road or an
-intersection; the SDC meets at least one situation that needs anticipation (a stalled car around a
-bend, a braking leader, a cut-in, cross traffic, pedestrians on a crosswalk). The SDC log is
-checked: no overlap with any object and all four box corners inside the road edges.
+Generator seeded with ``(seed, split, index)``. Each scenario is a curved multi-lane road (with
+side streets, parking, bike lanes, maybe a signalised crosswalk) or an intersection (stop signs
+or traffic lights); the SDC meets at least one situation that needs anticipation (a stalled car
+around a bend, a braking leader, a cut-in, cross traffic, pedestrians on a crosswalk, a light),
+in scenes as crowded as WOMD's (parked cars, queues at red, neighbours; docs/synthetic.md). The
+SDC log is checked: no overlap with any object and all four box corners inside the road edges.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from igdrivsim.data.scenario import (
 from igdrivsim.data.synthetic import geometry as geo
 from igdrivsim.data.synthetic.agents import Agent, box_corners, collides, plan
 from igdrivsim.data.synthetic.maps import (
+    LIGHT_GO,
+    LIGHT_STOP,
     MapData,
     Route,
     intersection_map,
@@ -44,7 +48,7 @@ class GeneratorConfig:
     """Generator settings (paper-independent; the defaults give WOMD-like scenarios)."""
 
     seed: int = 0
-    p_intersection: float = 0.5  # else a curved road
+    p_intersection: float = 0.6  # else a curved road
     roadgraph_spacing: float = 0.5  # m between roadgraph samples, as in WOMD
     origin_range: float = 2000.0  # maps are placed at a random global offset (m)
     max_attempts: int = 8  # re-draws when the SDC log would collide or leave the road
@@ -72,10 +76,72 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
               role=role)
     for key, value in kw.items():
         setattr(a, key, value)
-    if route.stop_at is not None and s0 < route.stop_at:  # able to stop comfortably in time
-        room = max(route.stop_at - s0 - length / 2 - 1.0, 0.0)
-        a.v0 = min(a.v0, float(np.sqrt(2 * 1.5 * room)))
+    lines = [route.stop_at]
+    if route.signal is not None and route.signal[0] != LIGHT_GO:
+        lines.append(route.signal_at)
+    for line in lines:  # able to stop comfortably in time
+        if line is not None and s0 < line:
+            room = max(line - s0 - length / 2 - 1.0, 0.0)
+            a.v0 = min(a.v0, float(np.sqrt(2 * 1.5 * room)))
     return a
+
+
+def _parked(rng, strips: list[Route], walks: list[np.ndarray], fill: float = 0.8) -> list[Agent]:
+    """Cars parked along kerbside strips (about one per 6-9 m), clear of the crosswalks."""
+    out = []
+    for strip in strips:
+        at = rng.uniform(0, 6)
+        while at < strip.s[-1] - 4:
+            xy = strip.points[min(int(at), len(strip.points) - 1)]
+            clear = all(_segment_distance(xy, w[0], w[1]) > 6.0 for w in walks)
+            if clear and rng.random() < fill:
+                out.append(_vehicle(rng, strip, at, "parked", static=True, v0=0.0))
+            at += rng.uniform(6.3, 9.0)
+    return out
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    ab = b - a
+    u = float(np.clip((p - a) @ ab / max(ab @ ab, 1e-9), 0, 1))
+    return float(np.linalg.norm(p - a - u * ab))
+
+
+def _queue(rng, route: Route, behind: float, count: int, role: str = "queued") -> list[Agent]:
+    """Vehicles standing one behind the other, the first with its front ``behind`` (arc length);
+    static if their light stays red for the whole log."""
+    out, front = [], behind
+    stays = route.signal is not None and (route.signal == LIGHT_STOP).all()
+    for _ in range(count):
+        a = _vehicle(rng, route, 0.0, role, v0=0.0)
+        a.s0 = front - a.length / 2
+        if a.s0 < 5:
+            break
+        a.static = stays
+        out.append(a)
+        front = a.s0 - a.length / 2 - rng.uniform(1.8, 3.2)
+    return out
+
+
+def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, int]
+             ) -> list[Agent]:
+    """Pedestrians on the crosswalks (signalised ones start while the cars have red) and
+    walking or standing on the sidewalks."""
+    out = []
+    for walk, steps in zip(m.walk_paths, m.walk_steps, strict=True):
+        for _ in range(int(rng.integers(*crossing))):
+            p = _walker(rng, walk)
+            if steps is not None:
+                if not len(steps):
+                    continue
+                p.start_step = int(rng.choice(steps[: max(len(steps) // 2, 1)]))
+            out.append(p)
+    for walk in m.sidewalks:
+        for _ in range(int(rng.integers(*strolling))):
+            stroll = _walker(rng, walk, static=rng.random() < 0.4)
+            stroll.s0 = rng.uniform(0, max(stroll.route.s[-1] - 20, 1.0))
+            stroll.start_step, stroll.role = 0, "stroller"
+            out.append(stroll)
+    return out
 
 
 def _sdc(rng, route: Route, s0: float) -> Agent:
@@ -99,11 +165,17 @@ def _walker(rng, path: np.ndarray, static: bool = False) -> Agent:
 
 def _cast_road(rng, m: MapData) -> list[Agent]:
     groups = sorted(m.lanes)
-    g = int(rng.choice(groups))
+    kerb = min((h for h in groups if m.lanes[h][1] > 0 and h not in m.dropped),
+               key=lambda h: m.lanes[h][0])  # rightmost forward lane
+    g = kerb if rng.random() < 0.6 else int(rng.choice(groups))
     if m.dropped and rng.random() < 0.5:  # the SDC's lane ends ahead: it has to merge
         g = min(m.dropped)
     lane = next(r for r in m.routes if r.group == g)
     s0 = rng.uniform(50, 110)  # with road behind the SDC too
+    if m.no_parking and rng.random() < 0.9:  # near the side street
+        mouth = m.no_parking[int(rng.integers(len(m.no_parking)))].mean(0)
+        at = lane.s[np.argmin(np.linalg.norm(lane.points - mouth, axis=1))]
+        s0 = float(np.clip(at - rng.uniform(-20, 45), 30, lane.s[-1] - 150))
     neighbours = [h for h in groups if m.lanes[h][1] == m.lanes[g][1]
                   and abs(m.lanes[h][0] - m.lanes[g][0]) < 5]
     neighbours = [h for h in neighbours if h != g and h not in m.dropped]
@@ -113,15 +185,14 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
     if neighbours and rng.random() < 0.15:
         route = lane_change_route(m, g, int(rng.choice(neighbours)), s0 + rng.uniform(20, 60),
                                   rng.uniform(30, 50))
-    agents = [_sdc(rng, route, s0)]
-    for strip in m.parking:  # parked cars along the kerb
-        at = rng.uniform(0, 12)
-        while at < strip.s[-1] - 6:
-            if rng.random() < 0.6:
-                agents.append(_vehicle(rng, strip, at, "parked", static=True, v0=0.0))
-            at += rng.uniform(6.5, 14)
+    sdc = _sdc(rng, route, s0)
+    agents = [sdc]
+    agents += _parked(rng, m.parking, m.walk_paths + m.no_parking)
+    for r in m.routes:  # traffic turning into and out of the side street
+        if r.group >= 100 and rng.random() < 0.5:
+            agents.append(_vehicle(rng, r, rng.uniform(0, max(r.s[-1] - 80, 1.0)), "side"))
     if rng.random() < 0.08:  # the SDC waits in a queue (filtered out by the speed criterion)
-        agents[0].v0 = 0.0
+        sdc.v0 = 0.0
         agents.append(_vehicle(rng, route, s0 + rng.uniform(7.0, 8.0), "stalled", static=True,
                                v0=0.0))
     elif rng.random() < 0.3:  # a stalled car around the next bend
@@ -138,26 +209,35 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
         h = int(rng.choice(neighbours))
         at = s0 + rng.uniform(8, 30)
         cut = lane_change_route(m, h, g, at + rng.uniform(5, 25), rng.uniform(25, 45))
-        v = agents[0].v0 * rng.uniform(0.95, 1.15)
+        v = sdc.v0 * rng.uniform(0.95, 1.15)
         agents.append(_vehicle(rng, cut, at, "cut_in", v0=v, v_des=max(v, cut.speed_limit)))
-    for walk in m.walk_paths:
-        for _ in range(int(rng.integers(1, 4))):
-            agents.append(_walker(rng, walk))
-    for walk in m.sidewalks:  # pedestrians strolling or standing beside the road
-        for _ in range(int(rng.integers(0, 3))):
-            stroll = _walker(rng, walk, static=rng.random() < 0.3)
-            stroll.s0 = rng.uniform(0, stroll.route.s[-1] - 20)
-            stroll.start_step = 0
-            agents.append(stroll)
-    for h in groups:  # background traffic on every lane
-        routes = [r for r in m.routes if r.group == h]
-        for _ in range(int(rng.integers(0, 5))):
-            agents.append(_vehicle(rng, routes[0], rng.uniform(0, routes[0].s[-1] - 40),
-                                   "background"))
+    if neighbours and rng.random() < 0.85:  # a car alongside in the next lane
+        h = int(rng.choice(neighbours))
+        r = next(r for r in m.routes if r.group == h)
+        agents.append(_vehicle(rng, r, s0 + rng.uniform(-6, 6), "alongside",
+                               v0=sdc.v0 * rng.uniform(0.9, 1.1)))
+    agents += _walkers(rng, m, (1, 4), (1, 6))
+    start = route.points[min(int(s0), len(route.points) - 1)]
+    for h in groups:  # traffic on every lane near the SDC, queued at a red light
+        r = next(r for r in m.routes if r.group == h)
+        near = np.flatnonzero(np.linalg.norm(r.points - start, axis=1) < 80)
+        if not len(near):
+            continue
+        lo, hi = r.s[near[0]], r.s[near[-1]]
+        if r.signal is not None and r.signal[0] != LIGHT_GO:
+            queue = _queue(rng, r, r.signal_at - rng.uniform(0.6, 1.2),
+                           int(rng.integers(0, 5)))
+            agents += [a for a in queue if h != g or a.s0 > s0 + 10]
+        at = lo + rng.uniform(0, 30)
+        while at < min(hi, r.s[-1] - 40):
+            agents.append(_vehicle(rng, r, at, "background"))
+            at += rng.uniform(35, 90)
+    cycles = [r for r in m.bike_routes if rng.random() < 0.5]
     if rng.random() < 0.15:
         right = min(groups, key=lambda h: (m.lanes[h][1] != m.lanes[g][1], m.lanes[h][0]))
-        bike = _vehicle(rng, next(r for r in m.routes if r.group == right), rng.uniform(20, 120),
-                        "cyclist", obj_type=TYPE_CYCLIST)
+        cycles.append(next(r for r in m.routes if r.group == right))
+    for r in cycles:
+        bike = _vehicle(rng, r, rng.uniform(20, 120), "cyclist", obj_type=TYPE_CYCLIST)
         bike.length, bike.width, bike.height = 1.8, 0.7, 1.7
         bike.v_des = bike.v0 = rng.uniform(4, 6)
         agents.append(bike)
@@ -165,23 +245,42 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
 
 
 def _cast_intersection(rng, m: MapData) -> list[Agent]:
-    route = m.routes[int(rng.integers(len(m.routes)))]
+    kerb = [r for r in m.routes if r.lane == 0] if rng.random() < 0.65 else m.routes
+    if rng.random() < 0.7:  # mostly through a green light (a red one: often a standing SDC)
+        kerb = [r for r in kerb if r.signal is None or r.signal[0] == LIGHT_GO] or kerb
+    route = kerb[int(rng.integers(len(kerb)))]
     # Closer to a stop sign, so that the stop, the wait and the crossing fit in the 9 s log.
-    s0 = route.entry - (rng.uniform(10, 40) if route.stop_at is not None else rng.uniform(12, 70))
+    s0 = route.entry - (rng.uniform(10, 40) if route.stop_at is not None else rng.uniform(8, 40))
     sdc = _sdc(rng, route, s0)
     agents = [sdc]
+    agents += _parked(rng, m.parking, m.walk_paths, fill=0.85)
+    agents += _walkers(rng, m, (0, 3), (1, 4))
     eta = (route.entry - s0) / max(sdc.v0, 3.0)
     groups = sorted({r.group for r in m.routes})
     for g in groups:
         routes = [r for r in m.routes if r.group == g]
         pick = lambda rs=routes: rs[int(rng.integers(len(rs)))]  # noqa: E731
-        if g == route.group:
-            if rng.random() < 0.45:
-                agents.append(_vehicle(rng, pick(), s0 + rng.uniform(12, 40), "leader"))
-            if rng.random() < 0.5:
-                agents.append(_vehicle(rng, pick(), s0 - rng.uniform(12, 35), "follower"))
+        red = routes[0].signal is not None and routes[0].signal[0] != LIGHT_GO
+        if red:  # a queue at the red light (behind it the SDC, on its own lane)
+            queue = _queue(rng, pick(), routes[0].signal_at - rng.uniform(0.6, 1.2),
+                           int(rng.integers(1, 6)))
+            if g == route.group:
+                queue = [a for a in queue if a.s0 > s0 + 12]
+            for a in queue:
+                a.route = pick() if not a.static else a.route
+            agents += queue
+        if g != route.group and np.linalg.norm(routes[0].points[0] - route.points[0]) < 4.5:
+            if rng.random() < 0.85:  # alongside the SDC in the next approach lane
+                agents.append(_vehicle(rng, pick(), s0 + rng.uniform(-6, 6), "alongside",
+                                       v0=sdc.v0 * rng.uniform(0.9, 1.1)))
             continue
-        if rng.random() < 0.75:  # cross traffic timed to meet the SDC at the junction
+        if g == route.group:
+            if not red and rng.random() < 0.6:
+                agents.append(_vehicle(rng, pick(), s0 + rng.uniform(12, 40), "leader"))
+            if rng.random() < 0.6:
+                agents.append(_vehicle(rng, pick(), s0 - rng.uniform(10, 30), "follower"))
+            continue
+        if not red and rng.random() < 0.75:  # cross traffic timed to meet the SDC at the junction
             r = pick()
             v = r.speed_limit * rng.uniform(0.6, 1.0)
             d = float(np.clip(v * (eta + rng.uniform(-2.5, 2.5)), 3, r.entry - 1))
@@ -191,14 +290,9 @@ def _cast_intersection(rng, m: MapData) -> list[Agent]:
         if rng.random() < 0.5:  # already through the junction, driving away
             r = pick()
             agents.append(_vehicle(rng, r, r.entry + rng.uniform(25, 60), "leaving"))
-        if rng.random() < 0.4:  # further back on the approach
+        if rng.random() < 0.3:  # further back on the approach
             r = pick()
             agents.append(_vehicle(rng, r, rng.uniform(0, r.entry - 60), "background"))
-    for walk in m.walk_paths:
-        if rng.random() < 0.4:
-            agents.append(_walker(rng, walk))
-        if rng.random() < 0.2:
-            agents.append(_walker(rng, walk, static=True))
     return agents
 
 
@@ -209,7 +303,9 @@ def _priority(rng, agents: list[Agent]) -> list[Agent]:
 
     def key(a: Agent):
         first = 0 if (a.walker or a.static) else 1 if a.role == "cut_in" else 2
-        stop = a.route.stop_at is not None  # stop-sign approaches give way to the others
+        # stop-sign approaches and approaches at red give way to the others
+        stop = a.route.stop_at is not None or (a.route.signal is not None
+                                               and a.route.signal[0] != LIGHT_GO)
         return (first, stop, rank[a.route.group], -a.s0)
 
     return sorted(agents, key=key)
@@ -238,14 +334,19 @@ def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray
 
 def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
     planned: list[Agent] = []
+    boxes = np.empty((len(cast), 4))  # planned agents' path boxes grown by their reach
     for agent in _priority(rng, cast):
         plan(agent, planned)
         if not agent.valid.any():
             continue
-        if any(collides(agent, other) for other in planned):
+        b, r = boxes[: len(planned)], agent.reach
+        near = np.flatnonzero((b[:, 0] - r <= agent.hi[0]) & (b[:, 2] + r >= agent.lo[0])
+                              & (b[:, 1] - r <= agent.hi[1]) & (b[:, 3] + r >= agent.lo[1]))
+        if any(collides(agent, planned[k]) for k in near):
             if agent.is_sdc:
                 return None
             continue
+        boxes[len(planned)] = [*(agent.lo - r), *(agent.hi + r)]
         planned.append(agent)
     sdc = next((a for a in planned if a.is_sdc), None)
     if sdc is None or not sdc.valid.all() or offroad_steps(edges, sdc).any():
@@ -320,7 +421,8 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     place = lambda xy: xy @ rot.T + origin  # noqa: E731
 
     out = empty_scenario(Capacities(max_objects=n, max_roadgraph_points=1,
-                                    max_traffic_lights=caps.max_traffic_lights))
+                                    max_traffic_lights=min(len(m.lights),
+                                                           caps.max_traffic_lights)))
     tr = out.trajectory
     xy = np.stack([place(a.xy) for a in agents])  # [n, T, 2]
     valid = np.stack(seen)
@@ -336,7 +438,10 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
                     vel_y=f32(vel[..., 1]), length=f32(size("length")), width=f32(size("width")),
                     height=f32(size("height")), valid=valid)
     sdc = int(np.flatnonzero([a.is_sdc for a in agents])[0])
-    interacting = [i for i in range(n) if i != sdc and paths_intersect(
+    lo = np.where(valid[..., None], xy, np.inf).min(1)  # path boxes: disjoint ones never cross
+    hi = np.where(valid[..., None], xy, -np.inf).max(1)
+    meets = np.all((lo <= hi[sdc]) & (hi >= lo[sdc]), axis=1)
+    interacting = [i for i in np.flatnonzero(meets) if i != sdc and paths_intersect(
         xy[sdc], valid[sdc], xy[i], valid[i])]
     at_now = np.linalg.norm(xy[:, CURRENT_INDEX] - xy[sdc, CURRENT_INDEX], axis=1)
     at_now = np.where(valid[:, CURRENT_INDEX] & (valid.sum(1) > 20), at_now, np.inf)
@@ -365,7 +470,19 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
         dir=np.concatenate([dirs, np.zeros((r, 1))], 1).astype(np.float32),
         type=np.concatenate(types).astype(np.int32), id=np.concatenate(ids).astype(np.int32),
         valid=np.ones(r, bool))
-    scenario = out.replace(trajectory=tr, metadata=md, roadgraph=rg,
+    tl = out.traffic_lights
+    if m.lights:  # WOMD traffic_light_state: the lane (polyline id), its stop point, states
+        lights = m.lights[: caps.max_traffic_lights]
+        stop_xy = place(np.stack([at for _, at, _ in lights]))
+        shape = (len(lights), NUM_STEPS)
+        tl = tl.replace(
+            state=np.stack([states for _, _, states in lights]).astype(np.int32),
+            valid=np.ones(shape, bool),
+            lane_id=np.repeat([[base + k] for k, _, _ in lights], NUM_STEPS, 1).astype(np.int32),
+            x=np.repeat(stop_xy[:, :1], NUM_STEPS, 1).astype(np.float32),
+            y=np.repeat(stop_xy[:, 1:], NUM_STEPS, 1).astype(np.float32),
+            z=np.full(shape, z0, np.float32))
+    scenario = out.replace(trajectory=tr, metadata=md, roadgraph=rg, traffic_lights=tl,
                            scenario_id=encode_scenario_id(scenario_id))
     return fit_to_capacities(scenario, caps)
 

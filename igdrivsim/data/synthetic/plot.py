@@ -51,6 +51,12 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
             box = box @ np.array([[c, s], [-s, c]]) + [x[i, now], y[i, now]]
             ax.add_patch(Polygon(box, closed=True, fc=color, ec="black", lw=0.5,
                                  alpha=1.0 if i == sdc else 0.6))
+    tl = scenario.traffic_lights  # stop points, coloured by the state at the current step
+    lit = np.asarray(tl.valid)[:, now] if np.asarray(tl.valid).size else np.zeros(0, bool)
+    colours = {4: "red", 5: "orange", 6: "limegreen"}
+    for k in np.flatnonzero(lit):
+        ax.plot(tl.x[k, now], tl.y[k, now], "o", ms=3.5, mec="black", mew=0.4,
+                color=colours.get(int(tl.state[k, now]), "0.5"))
     mid = np.flatnonzero(valid[sdc])  # centre the view on the middle of the SDC's log
     mid = mid[len(mid) // 2] if len(mid) else now
     cx, cy = x[sdc, mid], y[sdc, mid]
@@ -68,8 +74,10 @@ def add_legend(ax) -> None:
 
     items = [("SDC (box at t=1 s, log)", "tab:red", "-"), ("vehicles", "tab:blue", "-"),
              ("pedestrians", "tab:green", "-"), ("road edges", "black", "-"),
-             ("lane centres", "0.75", "--"), ("road lines", "goldenrod", "-")]
-    handles = [Line2D([], [], color=c, ls=ls, lw=1.5) for _, c, ls in items]
+             ("lane centres", "0.75", "--"), ("road lines", "goldenrod", "-"),
+             ("traffic light (stop point)", "red", "o")]
+    handles = [Line2D([], [], color=c, ls="" if ls == "o" else ls, marker="o" if ls == "o" else
+                      None, ms=3.5, lw=1.5) for _, c, ls in items]
     ax.legend(handles, [n for n, _, _ in items], loc="lower left", fontsize=6, framealpha=0.85)
 
 

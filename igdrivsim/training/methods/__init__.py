@@ -62,8 +62,13 @@ class Method:
     teacher: bool = False  # a privileged teacher labels the rollout's states
     aux_head: bool = False  # the network gets an auxiliary imitation head (ADVISOR)
     baseline: str | None = "bc"  # the method it is compared with (Tables I-II: BC)
+    # the method's own hyper-parameters and their defaults ({name: value}); set with
+    # ``--set method.NAME=VALUE``, read in the loss as ``spec.param(NAME)``
+    params: Any = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "params", tuple(sorted(
+            (str(k), float(v)) for k, v in dict(self.params).items())))
         unknown = set(self.episodes) - set(EPISODES)
         if unknown or not self.episodes:
             raise ConfigError(f"method {self.name!r}: episodes must be among {EPISODES}")
@@ -85,6 +90,11 @@ def register_method(method: Method) -> Method:
         raise ConfigError(f"learning method {method.name!r} is already registered")
     METHODS[method.name] = method
     return method
+
+
+def method_param_names() -> set[str]:
+    """Every hyper-parameter a registered method declares (``--set method.NAME=VALUE``)."""
+    return {name for m in METHODS.values() for name, _ in m.params}
 
 
 def get_method(name: str) -> Method:

@@ -1,0 +1,82 @@
+"""A local pool of lanes for the pipeline's stages: each lane is a thread driving one stage's
+processes at a time; a stage starts once the stages it needs are done, the first ready one in
+the given order. One machine only (several machines: ``jax.distributed``, igdrivsim train)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Job:
+    """``run(echo)`` once every job named in ``after`` has finished."""
+
+    name: str
+    run: Callable[[bool], None]
+    after: tuple[str, ...] = field(default_factory=tuple)
+
+
+def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event,
+             echo_alone: bool = False) -> None:
+    """Run ``jobs`` on ``lanes`` threads in dependency order. The first failure sets
+    ``stopping`` (the stages running beside it stop) and is raised once every lane is idle.
+    ``lanes`` 1 (or ``echo_alone``): one job at a time, in this thread, echoing its output."""
+    names = {j.name for j in jobs}
+    unknown = {a for j in jobs for a in j.after} - names
+    if unknown:
+        raise ValueError(f"jobs wait for unknown jobs: {sorted(unknown)}")
+    if lanes <= 1 or echo_alone:
+        done: set[str] = set()
+        pending = list(jobs)
+        while pending:
+            job = next((j for j in pending if set(j.after) <= done), None)
+            if job is None:
+                raise ValueError("jobs wait for each other in a cycle")
+            job.run(True)
+            done.add(job.name)
+            pending.remove(job)
+        return
+    cond = threading.Condition()
+    pending, finished, running = list(jobs), set(), 0
+    errors: list[BaseException] = []
+
+    def lane() -> None:
+        nonlocal running
+        while True:
+            with cond:
+                while True:
+                    if errors or not pending:
+                        return
+                    job = next((j for j in pending if set(j.after) <= finished), None)
+                    if job is not None:
+                        pending.remove(job)
+                        running += 1
+                        break
+                    if running == 0:  # nothing runs, nothing is ready: a cycle
+                        errors.append(ValueError("jobs wait for each other in a cycle"))
+                        cond.notify_all()
+                        return
+                    cond.wait()
+            try:
+                job.run(False)
+            except BaseException as err:  # noqa: BLE001 - re-raised in the caller's thread
+                with cond:
+                    errors.append(err)
+                    stopping.set()
+                    running -= 1
+                    cond.notify_all()
+                return
+            with cond:
+                finished.add(job.name)
+                running -= 1
+                cond.notify_all()
+
+    threads = [threading.Thread(target=lane, daemon=True) for _ in range(min(lanes, len(jobs)))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]

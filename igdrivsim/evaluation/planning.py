@@ -1,0 +1,238 @@
+"""What a reproduction will run, over how many worker processes, and how long it should take.
+
+The (setting, method) grid is split into *parts*: one training process each, with its settings
+in one compiled program (settings as data) and one XLA thread on a CPU. :func:`split_grid`
+chooses as few parts as keep every worker busy (longest-first over the workers within 5% of
+the ideal); :func:`estimate_seconds` prices the run from the measured per-update costs of
+:mod:`igdrivsim.training.cost`. A run's numbers do not depend on the split (every setting's
+parameters are a function of its seed and the data order only), so a run may be resumed on
+another machine.
+
+``python -m igdrivsim.evaluation.planning [--profile P] [--cores 1,2,4,8,16]`` prints the
+estimated wall time of the default run for each core count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import os
+import platform
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from igdrivsim.training import cost
+
+TOLERANCE = 1.05  # a split within 5% of the ideal wall time is not split further
+# Memory of one CPU worker: the peak RSS of the default run at 6ae8db5 (two training processes
+# side by side, `/usr/bin/time`: 5.2 GB; issue 32), taken whole for one worker (an upper bound:
+# each process holds the training records whatever its settings).
+WORKER_MEMORY_GB = 5.2
+# profiles whose network is the laptop's: the measured per-update costs apply
+PRICED_PROFILES = ("laptop", "quick", "gpu")
+
+
+@dataclass(frozen=True)
+class Machine:
+    """Where the run goes: CPU cores this process may use, CPU model, accelerator."""
+
+    cores: int
+    cpu: str
+    accelerator: str | None = None  # e.g. "NVIDIA H200 x1"; None: CPU only
+    memory_gb: float | None = None  # available memory (None: unknown)
+
+    def label(self) -> str:
+        base = f"{self.cpu}, {self.cores} core{'s' if self.cores != 1 else ''}"
+        return f"{base}, {self.accelerator}" if self.accelerator else base
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; the platform's name elsewhere)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+def accelerator_name() -> str | None:
+    """``"<device kind> xN"`` of JAX's default devices when they are not the CPU, asked in a
+    child process so that this one does not take GPU memory the workers need."""
+    code = ("import jax; d = jax.devices(); "
+            "print('' if d[0].platform == 'cpu' else f'{d[0].device_kind} x{len(d)}')")
+    env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env=env, timeout=300, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.splitlines()[-1] if out else None
+
+
+def detect_machine() -> Machine:
+    """Cores from the CPU affinity (``taskset`` counts), the accelerator from ``jax.devices()``."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return Machine(cores, cpu_model(), accelerator_name(), available_memory_gb())
+
+
+def available_memory_gb() -> float | None:
+    """``MemAvailable`` of ``/proc/meminfo`` in GB (None elsewhere)."""
+    try:
+        with open("/proc/meminfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1e6
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def default_workers(machine: Machine) -> int:
+    """One worker per core on a CPU, as many as the memory holds (``WORKER_MEMORY_GB`` each);
+    on an accelerator two (methods side by side share it)."""
+    if machine.accelerator:
+        return 2
+    by_memory = machine.cores if machine.memory_gb is None else int(
+        machine.memory_gb // WORKER_MEMORY_GB)
+    return max(1, min(machine.cores, by_memory))
+
+
+@dataclass(frozen=True)
+class Part:
+    """One training process of the grid: ``method`` on ``settings``; ``name`` is its run and
+    evaluation folder (the method itself when the method is not split)."""
+
+    method: str
+    settings: tuple[str, ...]
+    name: str
+    seconds: float = 0.0  # estimated, on one worker
+
+
+def makespan(seconds: Sequence[float], workers: int) -> float:
+    """Wall time of jobs taken longest first by ``workers`` workers (LPT)."""
+    lanes = [0.0] * max(1, workers)
+    for s in sorted(seconds, reverse=True):
+        heapq.heapreplace(lanes, lanes[0] + s)
+    return max(lanes)
+
+
+def chunks(settings: Sequence[str], parts: int) -> list[tuple[str, ...]]:
+    """``settings`` in ``parts`` contiguous groups whose sizes differ by at most one."""
+    size, extra = divmod(len(settings), parts)
+    out, start = [], 0
+    for k in range(parts):
+        end = start + size + (k < extra)
+        out.append(tuple(settings[start:end]))
+        start = end
+    return out
+
+
+def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
+               seconds: Callable[[str, int], float], extra: Sequence[float] = ()
+               ) -> list[Part]:
+    """Split each method's settings into parts for ``workers`` workers: start with one part
+    per method and split the method of the most expensive part further until the estimated
+    wall time is within ``TOLERANCE`` of the ideal; the shortest split seen wins (the fewest
+    parts among equals). ``seconds(method,
+    n_settings)``: one part's cost; ``extra``: other jobs sharing the workers (the maze)."""
+    counts = dict.fromkeys(methods, 1)
+
+    def parts() -> list[Part]:
+        out = []
+        for method, n in counts.items():
+            for k, group in enumerate(chunks(settings, n)):
+                name = method if n == 1 else f"{method}-{k + 1}of{n}"
+                out.append(Part(method, group, name, seconds(method, len(group))))
+        return out
+
+    def wall(ps: list[Part]) -> float:
+        return makespan([p.seconds for p in ps] + list(extra), workers)
+
+    current = parts()
+    best, best_wall = current, wall(current)
+    floor = max([seconds(m, 1) for m in methods] + list(extra))  # a part has one setting at least
+    ideal = max(floor, (sum(p.seconds for p in current) + sum(extra)) / max(1, workers))
+    while best_wall > TOLERANCE * ideal:
+        splittable = [p for p in current if counts[p.method] < len(settings)]
+        if not splittable:
+            break
+        counts[max(splittable, key=lambda p: p.seconds).method] += 1
+        current = parts()
+        if wall(current) < best_wall:  # fewer parts win a tie: they were found first
+            best, best_wall = current, wall(current)
+    return best
+
+
+def part_seconds(profile: str, seeds: int, updates: int, gpu: bool
+                 ) -> Callable[[str, int], float]:
+    """``seconds(method, n_settings)`` of one part from the measured per-update costs
+    (:func:`igdrivsim.training.cost.laptop_train_seconds`); equal weights for profiles the
+    costs were not measured for (the split then balances settings)."""
+    from igdrivsim.training.methods import get_method
+
+    def seconds(method: str, n: int) -> float:
+        rollout = get_method(method).rollout
+        if profile not in PRICED_PROFILES:
+            return float(n * (2 if rollout else 1))
+        return cost.laptop_train_seconds(updates, n, seeds, rollout, gpu)
+
+    return seconds
+
+
+def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
+                     settings: Sequence[str], seeds: int, updates: int, workers: int,
+                     gpu: bool = False) -> float | None:
+    """Estimated wall seconds of the pipeline (None for a profile whose costs were not
+    measured): the training parts and the maze over the workers (then the taught methods'
+    parts), plus the other stages' measured CPU-s taken as serial (an upper bound)."""
+    if profile not in PRICED_PROFILES:
+        return None
+    seconds = part_seconds(profile, seeds, updates, gpu)
+    first = split_grid(plain, settings, workers, seconds, [cost.MAZE_CPU_S])
+    total = makespan([p.seconds for p in first] + [cost.MAZE_CPU_S], workers)
+    if taught:
+        rest = [s for s in settings if s != "full"]
+        second = split_grid(taught, rest, workers, seconds)
+        total += makespan([p.seconds for p in second], workers)
+    return total + cost.LAPTOP_OTHER_CPU_S
+
+
+def hours_text(seconds: float) -> str:
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 90 else f"{seconds / 3600:.1f} h"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the estimated wall time of a profile's default run per core count."""
+    from igdrivsim.evaluation.schema import METHODS, SETTINGS
+    from igdrivsim.training.config import get_profile
+
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.planning",
+                                     description=main.__doc__)
+    parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES)
+    parser.add_argument("--cores", default="1,2,4,8,16", help="comma-separated core counts")
+    args = parser.parse_args(argv)
+    config = get_profile(args.profile)
+    t = config.training
+    print(f"profile {args.profile}: {t.num_updates} updates, {t.seeds} seeds, "
+          f"{len(SETTINGS)} settings x {', '.join(METHODS)}; one XLA thread per worker")
+    print("| cores | parts | estimated wall time |\n|---|---|---|")
+    for cores in (int(c) for c in args.cores.split(",")):
+        seconds = part_seconds(args.profile, t.seeds, t.num_updates, False)
+        parts = split_grid(METHODS, SETTINGS, cores, seconds, [cost.MAZE_CPU_S])
+        wall = estimate_seconds(args.profile, METHODS, (), SETTINGS, t.seeds, t.num_updates,
+                                cores)
+        print(f"| {cores} | {len(parts)} | {hours_text(wall or 0.0)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

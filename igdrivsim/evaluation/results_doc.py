@@ -1,0 +1,377 @@
+"""The report's markdown: ``results.md`` (the whole run) and the README's headline block.
+
+Both are read from the report's own files only (``PAPER/tables/*.csv`` and
+``PAPER/generated/provenance.tex``), so ``igdrivsim report --from-tables PAPER`` rewrites them
+without the evaluations, and no number in them is typed by hand. The README block lies between
+:data:`BEGIN` and :data:`END`; :func:`fill_block` replaces only what is between them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from pathlib import Path
+
+import pandas as pd
+
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.evaluation import methods_table
+from igdrivsim.evaluation.schema import (
+    BC,
+    BC_RL,
+    CONSTANT_VELOCITY,
+    EXPERT,
+    METHOD_LABELS,
+    PAPER_TABLE1,
+    REFERENCE_SETTING,
+    setting_short,
+    table_settings,
+)
+from igdrivsim.evaluation.tables import table1_markdown
+from igdrivsim.io import atomic_write_csv, atomic_write_text
+
+BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+CURVES_SUMMARY = "curves_summary.csv"
+RUN_TIMES = "run_times.csv"
+# Competence targets of a learned driver against constant velocity on the same scenarios
+# (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
+COMPETENCE: dict[str, tuple[float, str, str]] = {
+    "log_divergence": (0.5, "log divergence", "m"),
+    "offroad": (0.25, "offroad", "% steps"),
+    "overlap": (1.0, "overlap", "% steps"),
+}
+_HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
+             ("overlap", "overlap (%)"))
+
+
+def _read_csv(path: Path) -> pd.DataFrame | None:
+    if not path.is_file():
+        return None
+    try:
+        return pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        raise DataError(f"unreadable table ({err})", file=str(path)) from err
+
+
+def provenance(paper: Path) -> dict[str, str]:
+    """The ``\\ProvX`` macros of ``generated/provenance.tex`` as ``{"Profile": ..., ...}``."""
+    path = paper / "generated" / "provenance.tex"
+    if not path.is_file():
+        return {}
+    found = re.findall(r"\\newcommand\{\\Prov(\w+)\}\{(.*)\}", path.read_text(encoding="utf-8"))
+    return {key: value.replace("\\_", "_").replace("\\%", "%") for key, value in found}
+
+
+def run_line(paper: Path, commit: bool = True) -> str:
+    """How the run behind Table I was made, from ``paper/provenance.json`` (the pipeline's
+    record: command, profile, updates, device, wall time, date); empty without it."""
+    import json
+
+    path = Path(paper) / "provenance.json"
+    if not path.is_file():
+        return ""
+    try:
+        files = json.loads(path.read_text(encoding="utf-8")).get("files", {})
+    except (OSError, ValueError, AttributeError) as err:
+        raise DataError(f"not readable JSON ({err})", file=str(path)) from err
+    entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
+    if not isinstance(entry, dict):
+        return ""
+    updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
+    wall = entry.get("wall_s")
+    parts = [f"`{entry.get('command', '?')}` (profile {entry.get('profile', '?')}{updates})"]
+    if commit:
+        parts.append(f"commit {entry.get('commit', '?')}")
+    parts += [str(entry.get("device", "device not recorded")),
+              f"{_duration(float(wall))} wall" if wall else "wall time not recorded",
+              str(entry.get("date", ""))]
+    note = f"; {entry['note']}" if entry.get("note") else ""
+    if not commit:  # no commit hash at all (the README)
+        note = re.sub(r"\s*(?:as of |at |commit )?\b[0-9a-f]{7,40}\b", "", note)
+    return "Run: " + ", ".join(parts) + note + "."
+
+
+def _mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
+    row = summary[(summary.metric == metric) & (summary.setting == setting)
+                  & (summary.method == method)]
+    return float(row["mean"].iloc[0]) if len(row) else math.nan
+
+
+def _f(value: float) -> str:
+    return f"{value:.2f}" if math.isfinite(value) else "--"
+
+
+def _signed(value: float) -> str:
+    return ("+0.00" if round(value, 2) == 0 else f"{value:+.2f}") if math.isfinite(value) else "--"
+
+
+def _test(tests: pd.DataFrame | None, metric: str, setting: str) -> pd.Series | None:
+    if tests is None:
+        return None
+    row = tests[(tests.method == BC_RL) & (tests.metric == metric) & (tests.setting == setting)]
+    return row.iloc[0] if len(row) else None
+
+
+def _interval(row: pd.Series | None) -> str:
+    if row is None:
+        return "--"
+    text = f"{_signed(row['diff'])} [{_signed(row.ci_low)}, {_signed(row.ci_high)}]"
+    return f"**{text}**" if bool(row.significant) else text
+
+
+def _scope(prov: dict[str, str], summary: pd.DataFrame) -> str:
+    learned = summary[summary.method.isin([BC, BC_RL])]
+    seeds = int(learned.n_seeds.max()) if len(learned) else 0
+    scenarios = int(summary.n_scenarios.max()) if len(summary) else 0
+    return (f"profile `{prov.get('Profile', 'unknown')}`, data: {prov.get('Data', 'unknown')}, "
+            f"{seeds} seeds, {scenarios} validation scenarios, sampled actions")
+
+
+def _significant(tests: pd.DataFrame | None) -> tuple[int, int]:
+    if tests is None:
+        return 0, 0
+    cells = tests[tests.method == BC_RL]
+    return int(cells.significant.astype(bool).sum()), len(cells)
+
+
+def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
+    """The README's short results table (BC and BC-RL per setting, the offroad effect)."""
+    paper = Path(paper)
+    summary = _read_csv(paper / "tables" / "summary.csv")
+    if summary is None:
+        return "No results yet: run the reproduction (`bash scripts/reproduce.sh`).\n"
+    tests = _read_csv(paper / "tables" / "tests.csv")
+    prov = provenance(paper)
+    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
+    out = [f"Written by `igdrivsim report` from the run of {prov.get('Date', 'unknown date')} "
+           f"({_scope(prov, summary)}). Mean over seeds; BC-RL − BC with its 95% two-level "
+           "bootstrap interval, **bold** if significant after Holm.", "",
+           "| setting | " + " | ".join(f"BC {label}" for _, label in _HEADLINE)
+           + " | BC-RL − BC offroad (points) | paper's BC-RL − BC offroad |",
+           "|---|" + "---|" * (len(_HEADLINE) + 2)]
+    for setting in settings:
+        cells = [_f(_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        paper_effect = PAPER_TABLE1["offroad"].get(setting)
+        paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
+        out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
+                   + f" | {_interval(_test(tests, 'offroad', setting))} | {paper_text} |")
+    out.append("| constant velocity | " + " | ".join(_f(cv[m]) for m, _ in _HEADLINE)
+               + " | | |")
+    k, n = _significant(tests)
+    out += ["", f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."]
+    wall = wall_seconds(_read_csv(paper / "tables" / RUN_TIMES))
+    line = run_line(paper, commit=False)
+    if line:
+        out[-1] += " " + line
+    elif math.isfinite(wall):
+        out[-1] += (f" The run took {_duration(wall)} from its first stage's start to the "
+                    "report (`tables/run_times.csv`).")
+    out[-1] += f" Full results: [{results_link}]({results_link})."
+    return "\n".join(out) + "\n"
+
+
+def _competence(summary: pd.DataFrame) -> list[str]:
+    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
+    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
+        return ["No constant-velocity reference in this run.", ""]
+    bars = ", ".join(f"{label} at most {ratio:g}x constant velocity's"
+                     for ratio, label, _ in COMPETENCE.values())
+    out = [f"Targets (this project's, not the paper's): {bars}. Each cell: the value, its ratio "
+           "to constant velocity, and whether the target is met.", "",
+           "| setting | method | " + " | ".join(f"{label} ({unit})" for _, label, unit in
+                                               COMPETENCE.values()) + " | targets met |",
+           "|---|---|" + "---|" * (len(COMPETENCE) + 1),
+           "| target | | " + " | ".join(f"<= {_f(ratio * cv[m])}" for m, (ratio, _, _) in
+                                       COMPETENCE.items()) + " | |"]
+    for setting in settings:
+        for method in methods:
+            cells, met = [], 0
+            for metric, (ratio, _, _) in COMPETENCE.items():
+                value = _mean(summary, metric, setting, method)
+                ok = math.isfinite(value) and value <= ratio * cv[metric]
+                met += ok
+                ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
+                cells.append(f"{_f(value)}{ratio_text}{' ✓' if ok else ''}")
+            out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
+                       + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
+    expert = [f"{label} {_f(_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+              for m, (_, label, unit) in COMPETENCE.items()]
+    return out + ["", "The discretised expert's replay on the same scenarios: "
+                  + ", ".join(expert) + ".", ""]
+
+
+def curves_summary(curves: pd.DataFrame) -> pd.DataFrame:
+    """Per (setting, method): the last two validation updates of the learning curves, mean
+    over seeds (what ``results.md`` says about convergence)."""
+    cols = ["val_bc_loss", "log_divergence", "offroad", "overlap"]
+    val = curves.dropna(subset=["val_bc_loss"]) if len(curves) else curves
+    rows = []
+    for (setting, method), part in val.groupby(["setting", "method"], sort=True):
+        means = part.groupby("update")[cols].mean().sort_index()
+        last = means.iloc[-1]
+        prev = means.iloc[-2] if len(means) > 1 else last * math.nan
+        rows.append(dict(setting=setting, method=method, update=int(means.index[-1]),
+                         previous_update=int(means.index[-2]) if len(means) > 1 else -1,
+                         **{c: float(last[c]) for c in cols},
+                         **{f"{c}_previous": float(prev[c]) for c in cols}))
+    return pd.DataFrame(rows, columns=["setting", "method", "update", "previous_update", *cols,
+                                       *[f"{c}_previous" for c in cols]])
+
+
+def _curves(curves: pd.DataFrame | None) -> list[str]:
+    if curves is None or not len(curves):
+        return ["Not in these tables (`tables/curves_summary.csv` is written when the report "
+                "finds the runs' `curves.jsonl`).", ""]
+    out = ["Mean over seeds on the fixed validation subset of the learning curves, at the last "
+           "validation update and the one before it (Fig. 4).", "",
+           "| setting | method | updates | validation BC loss (nats) | log divergence (m) | "
+           "offroad (% steps) | overlap (% steps) |", "|---|---|---|---|---|---|---|"]
+    def pair(row, col: str, scale: float = 1.0, digits: int = 2) -> str:
+        a, b = getattr(row, f"{col}_previous") * scale, getattr(row, col) * scale
+        return f"{a:.{digits}f} -> {b:.{digits}f}" if math.isfinite(a) else f"{b:.{digits}f}"
+
+    order = {s: i for i, s in enumerate(table_settings(curves))}
+    curves = curves.sort_values(["setting", "method"], key=lambda c: c.map(order).fillna(
+        len(order)) if c.name == "setting" else c)
+    for row in curves.itertuples():
+        updates = f"{row.previous_update} -> {row.update}" if row.previous_update >= 0 else (
+            str(row.update))
+        out.append(f"| {setting_short(row.setting)} | {METHOD_LABELS.get(row.method, row.method)}"
+                   f" | {updates} | {pair(row, 'val_bc_loss', digits=3)} | "
+                   f"{pair(row, 'log_divergence')} | {pair(row, 'offroad', 100)} | "
+                   f"{pair(row, 'overlap', 100)} |")
+    return out + [""]
+
+
+def wall_seconds(times: pd.DataFrame | None) -> float:
+    """From the first stage's start to the last stage's end (NaN without stage times)."""
+    if times is None or not len(times):
+        return math.nan
+    end = pd.to_datetime(times.finished, errors="coerce")
+    start = end - pd.to_timedelta(times.seconds, unit="s")
+    return float((end.max() - start.min()).total_seconds())
+
+
+def _duration(seconds: float) -> str:
+    minutes = round(seconds / 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
+
+
+def _run_times(times: pd.DataFrame | None) -> list[str]:
+    if times is None or not len(times):
+        return ["Not in these tables (`tables/run_times.csv` is written when the report runs "
+                "inside `scripts/reproduce.sh`).", ""]
+    wall = wall_seconds(times)
+    out = [f"{_duration(wall)} from the first stage's start to the last stage's end."
+           if math.isfinite(wall) else "", "",
+           "Seconds per stage (`WORK/stages/<stage>.json`; stages in two lanes overlap, so the "
+           "wall time is below their sum).", "", "| stage | seconds | finished |", "|---|---|---|"]
+    out += [f"| {r.stage} | {r.seconds:.0f} | {r.finished} |" for r in times.itertuples()]
+    return out + [""]
+
+
+def _maze(maze: pd.DataFrame | None) -> list[str]:
+    if maze is None or not len(maze):
+        return ["Not in these tables.", ""]
+    out = ["Final return, mean ± 95% CI over seeds ([tables/maze_summary.md]"
+           "(PAPER/tables/maze_summary.md)).", "", "| curve | return | episode length | seeds |",
+           "|---|---|---|---|"]
+    out += [f"| {r.curve} | {r.final_return_mean:.2f} ± {r.final_return_ci95:.2f} | "
+            f"{r.final_length_mean:.1f} | {int(r.seeds)} |" for r in maze.itertuples()]
+    return out + [""]
+
+
+def _demote(markdown: str) -> list[str]:
+    return [("#" + line if line.startswith("#") else line) for line in markdown.splitlines()]
+
+
+def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
+    """The whole run as one markdown page; ``paper_link``: the paper folder relative to the
+    page (for its links)."""
+    paper = Path(paper)
+    tables = paper / "tables"
+    summary = _read_csv(tables / "summary.csv")
+    if summary is None:
+        raise ConfigError(f"{tables / 'summary.csv'}: no report tables here (run `igdrivsim "
+                          "report --evals ...` first)")
+    tests = _read_csv(tables / "tests.csv")
+    prov = provenance(paper)
+    header = f"Profile `{prov.get('Profile', 'unknown')}`, data `{prov.get('Data', 'unknown')}`."
+    out = ["# Results", "",
+           "<!-- Generated by `igdrivsim report`; do not edit: rerun the report instead. -->", "",
+           f"Run of {prov.get('Date', 'unknown date')}, commit {prov.get('Commit', 'unknown')}: "
+           f"{_scope(prov, summary)}.", "", "## Run time", "",
+           *([run_line(paper), ""] if run_line(paper) else []),
+           *_run_times(_read_csv(tables / RUN_TIMES)),
+           "## Competence against the reference actors", "", *_competence(summary),
+           *_demote(table1_markdown(summary, tests if tests is not None else
+                                    pd.DataFrame(columns=["method"]), header)), "",
+           "Cell by cell next to the paper: [vs_paper.md](PAPER/tables/vs_paper.md); the power "
+           "table alone: [power.md](PAPER/tables/power.md); metrics beyond Table I: "
+           "[supplementary_metrics.md](PAPER/tables/supplementary_metrics.md).", "",
+           "## Learning curves", "", *_curves(_read_csv(tables / CURVES_SUMMARY))]
+    tests_all = _read_csv(tables / "tests_all.csv")
+    if tests_all is not None:
+        out += _demote(methods_table.table2_markdown(summary, tests_all, header)) + [""]
+    out += ["## Maze (paper Fig. 2)", "", *_maze(_read_csv(tables / "maze_summary.csv"))]
+    text = "\n".join(out).rstrip() + "\n"
+    return text.replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
+
+
+def fill_block(text: str, content: str, source: str = "README") -> str:
+    """``text`` with what lies between :data:`BEGIN` and :data:`END` replaced by ``content``."""
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        raise ConfigError(f"{source}: no {BEGIN} ... {END} block to fill")
+    return text[:start + len(BEGIN)] + "\n" + content.rstrip() + "\n" + text[end:]
+
+
+def write_curves_summary(curves: pd.DataFrame, tables: Path) -> list[Path]:
+    """``tables/curves_summary.csv`` (nothing when there are no curves)."""
+    if curves is None or not len(curves):
+        (tables / CURVES_SUMMARY).unlink(missing_ok=True)
+        return []
+    return [atomic_write_csv(tables / CURVES_SUMMARY, curves_summary(curves).round(6))]
+
+
+def write_run_times(work: str | Path, tables: Path) -> list[Path]:
+    """``tables/run_times.csv`` from the pipeline's ``WORK/stages/*.json``."""
+    import json
+
+    rows = []
+    for path in sorted(Path(work).glob("stages/*.json")):
+        try:
+            info = json.loads(path.read_text(encoding="utf-8"))
+            rows.append(dict(stage=info["stage"], seconds=float(info["seconds"]),
+                             finished=str(info.get("finished", ""))))
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise DataError(f"not a stage record ({err!r})", file=str(path)) from err
+    if not rows:
+        return []
+    frame = pd.DataFrame(rows).sort_values(["finished", "stage"])
+    return [atomic_write_csv(tables / RUN_TIMES, frame)]
+
+
+def write_markdown(paper: str | Path, results: str | Path | None,
+                   readme: str | Path | None = None) -> list[Path]:
+    """Write ``results`` (default ``PAPER/results.md``), fill ``readme``'s block and rewrite
+    the PDF's result macros (:func:`igdrivsim.evaluation.results_tex.write_macros`)."""
+    from igdrivsim.evaluation.results_tex import write_macros
+
+    paper = Path(paper)
+    results = Path(results) if results else paper / "results.md"
+    link = os.path.relpath(paper.resolve(), results.resolve().parent)
+    written = [atomic_write_text(results, results_markdown(paper, link))]
+    if readme:
+        readme = Path(readme)
+        if not readme.is_file():
+            raise ConfigError(f"--readme {readme}: no such file")
+        res_link = os.path.relpath(results.resolve(), readme.resolve().parent)
+        text = readme.read_text(encoding="utf-8")
+        written.append(atomic_write_text(readme, fill_block(
+            text, headline_markdown(paper, res_link), str(readme))))
+    return written + write_macros(paper)

@@ -1,0 +1,149 @@
+"""The README as a newcomer uses it: every command it shows answers ``--help``, ``reproduce.sh
+--help`` installs nothing, ``python -m maze`` leaves ``paper/`` alone, and every number in the
+results block (and ``docs/results.md``) is the report's, not typed by hand."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from igdrivsim import cli
+from igdrivsim.evaluation import results_doc
+from igdrivsim.evaluation.report import Provenance, build_report
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+OWN_MODULES = ("igdrivsim", "maze")
+
+
+def _code(text: str) -> str:
+    """Every shell block and inline code span of a markdown text, joined."""
+    blocks = re.findall(r"```(?:bash|sh|console)\n(.*?)```", text, flags=re.S)
+    rest = re.sub(r"```.*?```", "", text, flags=re.S)
+    return "\n".join(blocks + re.findall(r"`([^`\n]+)`", rest))
+
+
+def readme_commands() -> list[tuple[str, ...]]:
+    """The commands the README shows: ``igdrivsim SUB [SUBSUB]``, ``python -m MODULE`` (ours),
+    ``bash scripts/reproduce.sh``; derived from the README, so a new one is checked too."""
+    code = _code(README.read_text(encoding="utf-8"))
+    found: dict[tuple[str, ...], None] = {}
+    for sub, rest in re.findall(r"(?<![\w/.-])igdrivsim ([a-z][a-z-]*)(?: ([a-z][a-z-]*))?",
+                                code):
+        found[("igdrivsim", sub, rest) if sub == "bench" and rest else ("igdrivsim", sub)] = None
+    for module in re.findall(r"python -m ([\w.]+)", code):
+        if module.split(".")[0] in OWN_MODULES:
+            found[("python", module)] = None
+    if "scripts/reproduce.sh" in code:
+        found[("reproduce",)] = None
+    return list(found)
+
+
+def test_the_readme_shows_commands():
+    commands = readme_commands()
+    assert ("reproduce",) in commands and ("igdrivsim", "report") in commands
+    assert len(commands) >= 8
+
+
+@pytest.mark.parametrize("command", readme_commands(), ids=" ".join)
+def test_every_readme_command_answers_help(command, capsys):
+    if command[0] == "igdrivsim":
+        main, argv = cli.main, list(command[1:])
+    elif command[0] == "python":
+        module = importlib.import_module(command[1])
+        if not hasattr(module, "main"):
+            module = importlib.import_module(command[1] + ".__main__")
+        main, argv = module.main, []
+    else:
+        main, argv = importlib.import_module("igdrivsim.evaluation.pipeline").main, []
+    with pytest.raises(SystemExit) as exc:
+        main(argv + ["--help"])
+    assert exc.value.code == 0, command
+    assert "usage:" in capsys.readouterr().out
+
+
+def test_reproduce_help_installs_nothing(tmp_path):
+    """``--help`` with a Python that cannot import igdrivsim: help printed, pip never run."""
+    calls = tmp_path / "calls"
+    fake = tmp_path / "python"
+    fake.write_text(f'#!/bin/sh\necho "$@" >> {calls}\nexit 1\n')
+    fake.chmod(0o755)
+    env = {**os.environ, "PYTHON": str(fake)}
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "reproduce.sh"), "--profile", "smoke",
+                           "--help"], env=env, capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    assert "reproduce.sh" in done.stdout and "--profile" in done.stdout
+    assert "-m pip" not in (calls.read_text() if calls.exists() else "")
+
+
+def test_maze_writes_outside_paper_by_default():
+    from maze import study
+
+    parser = __import__("argparse").ArgumentParser()
+    study.study_arguments(parser)
+    out = parser.parse_args([]).out
+    assert Path(out).parts[0] != "paper" and "paper" not in Path(out).parts
+
+
+def test_report_fills_the_results_block_from_its_own_tables(tmp_path):
+    """The report's markdown comes from the report's tables: the README block and results.md
+    are rewritten between the markers only, and every number in the block is one the report
+    wrote (``summary.csv`` / ``tests.csv``)."""
+    from test_evaluation_report import fabricate  # the fabricated evaluations of that test
+
+    paper = tmp_path / "paper"
+    build_report([fabricate(tmp_path)], paper, Provenance(profile="smoke", data="synthetic"))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{results_doc.BEGIN}\nstale 99.99\n{results_doc.END}\n\nrest\n")
+    results = tmp_path / "docs" / "results.md"
+    results_doc.write_markdown(paper, results, readme)
+    text = readme.read_text()
+    assert text.startswith("# x\n") and text.endswith(f"{results_doc.END}\n\nrest\n")
+    block = text.split(results_doc.BEGIN)[1].split(results_doc.END)[0]
+    assert "99.99" not in block and "[docs/results.md](docs/results.md)" in block
+    assert block.strip() == results_doc.headline_markdown(paper).strip()
+    import pandas as pd
+
+    summary = pd.read_csv(paper / "tables" / "summary.csv")
+    tests = pd.read_csv(paper / "tables" / "tests.csv")
+    written = {f"{v:.2f}" for v in summary["mean"]} | {
+        f"{abs(v):.2f}" for col in ("diff", "ci_low", "ci_high") for v in tests[col]}
+    table = [line for line in block.splitlines() if line.startswith("| ")][1:]
+    numbers = {n.lstrip("+-") for line in table for n in re.findall(r"[+-]?\d+\.\d\d", line)}
+    paper_effects = {f"{abs(a - b):.2f}" for row in
+                     results_doc.PAPER_TABLE1["offroad"].values() for a, b in [row]}
+    assert numbers and numbers <= written | paper_effects
+    page = results.read_text()
+    assert "## Competence against the reference actors" in page and "Table I" in page
+    assert "](../paper/tables/vs_paper.md)" in page  # links relative to docs/
+    # from the tables alone (no evaluations): the same page
+    again = tmp_path / "again.md"
+    results_doc.write_markdown(paper, again)
+    assert again.read_text().replace("](../paper/", "](paper/") == page.replace(
+        "](../paper/", "](paper/")
+
+
+def test_committed_results_are_the_reports():
+    """README's block and docs/results.md are what the report writes from paper/'s tables
+    (`igdrivsim report --from-tables --out paper --results docs/results.md --readme README.md`)."""
+    paper = ROOT / "paper"
+    if not (paper / "tables" / "summary.csv").is_file():
+        pytest.skip("no committed tables")
+    block = README.read_text(encoding="utf-8").split(results_doc.BEGIN)[1].split(
+        results_doc.END)[0]
+    assert block.strip() == results_doc.headline_markdown(paper).strip()
+    assert (ROOT / "docs" / "results.md").read_text(encoding="utf-8") == \
+        results_doc.results_markdown(paper, "../paper")
+
+
+def test_readme_is_a_guide_not_a_diary():
+    text = README.read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 250
+    assert not re.search(r"[0-9a-f]{7,}", text), "a commit hash"
+    for phrase in ("previous profile", "earlier profile", "not kept", "test suite took"):
+        assert phrase not in text.lower()
