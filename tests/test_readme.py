@@ -147,3 +147,37 @@ def test_readme_is_a_guide_not_a_diary():
     assert not re.search(r"[0-9a-f]{7,}", text), "a commit hash"
     for phrase in ("previous profile", "earlier profile", "not kept", "test suite took"):
         assert phrase not in text.lower()
+
+
+def test_report_writes_the_prose_macros_from_its_tables(tmp_path):
+    """``generated/results.tex`` holds each Table I cell as the report's tables have it, and
+    counts over the BC-RL - BC cells (``igdrivsim.evaluation.results_tex``)."""
+    import pandas as pd
+    from test_evaluation_report import fabricate
+
+    paper = tmp_path / "paper"
+    build_report([fabricate(tmp_path)], paper, Provenance(profile="smoke", data="synthetic"))
+    results_doc.write_markdown(paper, tmp_path / "results.md")
+    macros = dict(re.findall(r"\\newcommand\{\\(\w+)\}\{(.*)\}",
+                             (paper / "generated" / "results.tex").read_text()))
+    summary = pd.read_csv(paper / "tables" / "summary.csv")
+    tests = pd.read_csv(paper / "tables" / "tests.csv")
+    bc_full = summary[(summary.metric == "offroad") & (summary.setting == "full")
+                      & (summary.method == "bc")]["mean"].iloc[0]
+    assert macros["ResBCFullOffroad"] == f"{bc_full:.2f}"
+    assert macros["ResCells"] == str(int((tests.method == "bc_rl").sum()))
+    assert macros["ResSigHolm"] == str(int(tests.significant.astype(bool).sum()))
+
+
+def test_every_result_macro_of_the_paper_is_generated_or_has_a_fallback():
+    """The prose quotes results only through generated macros: each one it uses is written by
+    the committed generated files and has a ``--`` fallback for a PDF built before a run."""
+    paper = ROOT / "paper"
+    main = (paper / "main.tex").read_text(encoding="utf-8")
+    text = main + (paper / "findings.tex").read_text(encoding="utf-8")
+    used = set(re.findall(r"\\((?:Res|Maze)[A-Za-z]+)", re.sub(r"(?<!\\)%.*", "", text)))
+    fallback = set(re.findall(r"\\resultdefault\{\\(\w+)\}", main))
+    assert used and used <= fallback
+    generated = "".join(p.read_text(encoding="utf-8") for p in (paper / "generated").glob("*.tex"))
+    if (paper / "generated" / "results.tex").is_file():
+        assert used <= set(re.findall(r"\\newcommand\{\\(\w+)\}", generated))
