@@ -17,9 +17,11 @@ import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation import methods_table
+from igdrivsim.evaluation.results_tex import read_table, write_macros
 from igdrivsim.evaluation.schema import (
     BC,
     BC_RL,
+    COMPETENCE,
     CONSTANT_VELOCITY,
     EXPERT,
     METHOD_LABELS,
@@ -34,24 +36,8 @@ from igdrivsim.io import atomic_write_csv, atomic_write_text
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 CURVES_SUMMARY = "curves_summary.csv"
 RUN_TIMES = "run_times.csv"
-# Competence targets of a learned driver against constant velocity on the same scenarios
-# (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
-COMPETENCE: dict[str, tuple[float, str, str]] = {
-    "log_divergence": (0.5, "log divergence", "m"),
-    "offroad": (0.25, "offroad", "% steps"),
-    "overlap": (1.0, "overlap", "% steps"),
-}
 _HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
              ("overlap", "overlap (%)"))
-
-
-def _read_csv(path: Path) -> pd.DataFrame | None:
-    if not path.is_file():
-        return None
-    try:
-        return pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
-        raise DataError(f"unreadable table ({err})", file=str(path)) from err
 
 
 def provenance(paper: Path) -> dict[str, str]:
@@ -138,10 +124,10 @@ def _significant(tests: pd.DataFrame | None) -> tuple[int, int]:
 def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
     """The README's short results table (BC and BC-RL per setting, the offroad effect)."""
     paper = Path(paper)
-    summary = _read_csv(paper / "tables" / "summary.csv")
+    summary = read_table(paper / "tables" / "summary.csv")
     if summary is None:
         return "No results yet: run the reproduction (`bash scripts/reproduce.sh`).\n"
-    tests = _read_csv(paper / "tables" / "tests.csv")
+    tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
@@ -161,7 +147,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
                + " | | |")
     k, n = _significant(tests)
     out += ["", f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."]
-    wall = wall_seconds(_read_csv(paper / "tables" / RUN_TIMES))
+    wall = wall_seconds(read_table(paper / "tables" / RUN_TIMES))
     line = run_line(paper, commit=False)
     if line:
         out[-1] += " " + line
@@ -294,11 +280,11 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
     page (for its links)."""
     paper = Path(paper)
     tables = paper / "tables"
-    summary = _read_csv(tables / "summary.csv")
+    summary = read_table(tables / "summary.csv")
     if summary is None:
         raise ConfigError(f"{tables / 'summary.csv'}: no report tables here (run `igdrivsim "
                           "report --evals ...` first)")
-    tests = _read_csv(tables / "tests.csv")
+    tests = read_table(tables / "tests.csv")
     prov = provenance(paper)
     header = f"Profile `{prov.get('Profile', 'unknown')}`, data `{prov.get('Data', 'unknown')}`."
     out = ["# Results", "",
@@ -306,18 +292,18 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            f"Run of {prov.get('Date', 'unknown date')}, commit {prov.get('Commit', 'unknown')}: "
            f"{_scope(prov, summary)}.", "", "## Run time", "",
            *([run_line(paper), ""] if run_line(paper) else []),
-           *_run_times(_read_csv(tables / RUN_TIMES)),
+           *_run_times(read_table(tables / RUN_TIMES)),
            "## Competence against the reference actors", "", *_competence(summary),
            *_demote(table1_markdown(summary, tests if tests is not None else
                                     pd.DataFrame(columns=["method"]), header)), "",
            "Cell by cell next to the paper: [vs_paper.md](PAPER/tables/vs_paper.md); the power "
            "table alone: [power.md](PAPER/tables/power.md); metrics beyond Table I: "
            "[supplementary_metrics.md](PAPER/tables/supplementary_metrics.md).", "",
-           "## Learning curves", "", *_curves(_read_csv(tables / CURVES_SUMMARY))]
-    tests_all = _read_csv(tables / "tests_all.csv")
+           "## Learning curves", "", *_curves(read_table(tables / CURVES_SUMMARY))]
+    tests_all = read_table(tables / "tests_all.csv")
     if tests_all is not None:
         out += _demote(methods_table.table2_markdown(summary, tests_all, header)) + [""]
-    out += ["## Maze (paper Fig. 2)", "", *_maze(_read_csv(tables / "maze_summary.csv"))]
+    out += ["## Maze (paper Fig. 2)", "", *_maze(read_table(tables / "maze_summary.csv"))]
     text = "\n".join(out).rstrip() + "\n"
     return text.replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
 
@@ -360,7 +346,6 @@ def write_markdown(paper: str | Path, results: str | Path | None,
                    readme: str | Path | None = None) -> list[Path]:
     """Write ``results`` (default ``PAPER/results.md``), fill ``readme``'s block and rewrite
     the PDF's result macros (:func:`igdrivsim.evaluation.results_tex.write_macros`)."""
-    from igdrivsim.evaluation.results_tex import write_macros
 
     paper = Path(paper)
     results = Path(results) if results else paper / "results.md"

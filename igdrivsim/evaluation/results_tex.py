@@ -26,9 +26,11 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import DataError
+from igdrivsim.evaluation import provenance
 from igdrivsim.evaluation.schema import (
     BC,
     BC_RL,
+    COMPETENCE,
     CONSTANT_VELOCITY,
     EXPERT,
     METRICS,
@@ -73,7 +75,8 @@ def _signed(value: float) -> str:
     return "$+0.00$" if round(value, 2) == 0 else f"${value:+.2f}$"
 
 
-def _read(path: Path) -> pd.DataFrame | None:
+def read_table(path: Path) -> pd.DataFrame | None:
+    """A committed CSV table, None when absent; DataError names an unreadable one."""
     if not path.is_file():
         return None
     try:
@@ -136,8 +139,6 @@ def _counts(summary: pd.DataFrame, tests: pd.DataFrame) -> list[str]:
 
 def _competence(summary: pd.DataFrame) -> list[str]:
     """``\\ResFullBCTargetsMet``: how many of the competence targets Full BC meets."""
-    from igdrivsim.evaluation.results_doc import COMPETENCE
-
     def mean(metric: str, setting: str, method: str) -> float:
         row = summary[(summary.metric == metric) & (summary.setting == setting)
                       & (summary.method == method)]
@@ -152,24 +153,24 @@ def _competence(summary: pd.DataFrame) -> list[str]:
 def results_tex(paper: str | Path) -> str | None:
     """``generated/results.tex`` from ``PAPER/tables`` (None without ``summary.csv``)."""
     tables = Path(paper) / "tables"
-    summary = _read(tables / "summary.csv")
+    summary = read_table(tables / "summary.csv")
     if summary is None:
         return None
     summary = summary[summary.metric.isin([m.key for m in METRICS])]
     lines = ["% Table I's cells (mean over seeds), from tables/summary.csv"]
     lines += _means(summary, METRIC_CODES, {"full", *SETTING_CODES})
-    tests = _read(tables / "tests.csv")
+    tests = read_table(tables / "tests.csv")
     if tests is not None and len(tests):
         lines += ["% Table I's BC-RL - BC cells, from tables/tests.csv", *_counts(summary, tests)]
     lines += _competence(summary)
-    tests_all = _read(tables / "tests_all.csv")
+    tests_all = read_table(tables / "tests_all.csv")
     if tests_all is not None and len(tests_all):
         taught = tests_all[tests_all.method != BC_RL]
         lines += ["% Table II (every learned method vs BC), from tables/tests_all.csv",
                   _macro("ResMethodsCells", str(len(tests_all))),
                   _macro("ResMethodsSigHolm", str(int(tests_all.significant.astype(bool).sum()))),
                   _macro("ResTaughtSigHolm", str(int(taught.significant.astype(bool).sum())))]
-    extra = _read(tables / "supplementary_summary.csv")
+    extra = read_table(tables / "supplementary_summary.csv")
     if extra is not None:
         lines.append("% metrics beyond Table I under Full and for the references, from "
                      "tables/supplementary_summary.csv")
@@ -181,7 +182,7 @@ def maze_tex(paper: str | Path) -> str | None:
     """``generated/maze.tex`` from ``maze_summary.csv`` and ``maze_config.json`` (None without
     the summary)."""
     paper = Path(paper)
-    maze = _read(paper / "tables" / "maze_summary.csv")
+    maze = read_table(paper / "tables" / "maze_summary.csv")
     if maze is None:
         return None
     lines = ["% final return, mean and 95% CI half-width over seeds (tables/maze_summary.csv)"]
@@ -216,8 +217,6 @@ def maze_tex(paper: str | Path) -> str | None:
 def write_macros(paper: str | Path) -> list[Path]:
     """Write ``generated/results.tex`` and ``generated/maze.tex`` (each only when its tables
     are there) and, with a ``provenance.json``, give each the entry of its source table."""
-    from igdrivsim.evaluation import provenance
-
     paper = Path(paper)
     written = []
     files = provenance.load(paper) if (paper / provenance.FILE).is_file() else None

@@ -25,6 +25,14 @@ SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the pa
 }
 SETTING_SHORT: dict[str, str] = PRESET_SHORT  # the observation registry's short names
 
+# Competence targets of a learned driver against constant velocity on the same scenarios
+# (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
+COMPETENCE: dict[str, tuple[float, str, str]] = {
+    "log_divergence": (0.5, "log divergence", "m"),
+    "offroad": (0.25, "offroad", "% steps"),
+    "overlap": (1.0, "overlap", "% steps"),
+}
+
 
 
 def table_settings(*frames) -> tuple[str, ...]:
