@@ -13,31 +13,11 @@ import os
 import sys
 import warnings
 
+from igdrivsim.cli_args import FORMATTER, DefaultsFormatter, deprecated_alias
 from igdrivsim.errors import REPORTED, error_line
 
-
-class DefaultsFormatter(argparse.HelpFormatter):
-    """Append "(default: X)" to an option's help unless it already names its default."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        help_ = action.help or ""
-        if ("default" in help_ or action.default is argparse.SUPPRESS or not action.option_strings
-                or action.nargs == 0):
-            return help_
-        if action.default is None:
-            return f"{help_} (default: none)".strip()
-        if action.default == []:
-            return help_  # a repeatable option, empty unless given
-        return f"{help_} (default: %(default)s)".strip()
-
-
-FORMATTER = DefaultsFormatter  # every option's help shows its default
-
-
-def deprecated_alias(parser: argparse.ArgumentParser, name: str, dest: str, **kwargs) -> None:
-    """Accept an old option spelling (hidden from ``--help``) that sets ``dest`` like the new."""
-    parser.add_argument(name, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS,
-                        **kwargs)
+# re-exported for callers of the old place
+__all__ = ["FORMATTER", "DefaultsFormatter", "deprecated_alias", "main"]
 
 # name -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -46,7 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "samples": ("igdrivsim.data.samples", "fetch and verify public real WOMD samples (pip)"),
     "filter": ("igdrivsim.data.commands", "apply the paper's scenario filter, write a manifest"),
     "stats": ("igdrivsim.data.stats_command", "scene statistics of any data, beside each other"),
-    "replay": ("igdrivsim.simulator.commands", "replay the discretised expert, report metrics"),
+    "replay": ("igdrivsim.observation.replay", "replay the discretised expert, report metrics"),
     "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
     "train": ("igdrivsim.training.commands", "train BC / BC-RL policies"),
     "evaluate": ("igdrivsim.evaluation.commands", "evaluate a trained run on validation data"),
@@ -55,7 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 # `igdrivsim bench NAME`
 BENCHES: dict[str, tuple[str, str]] = {
     "data": ("igdrivsim.data.bench", "scenarios/s read and decoded"),
-    "sim": ("igdrivsim.simulator.bench", "scenario-steps/s of reset + 80 steps"),
+    "sim": ("igdrivsim.observation.bench", "scenario-steps/s of reset + 80 steps"),
     "train": ("igdrivsim.training.bench", "training updates/s and scenario-steps/s"),
 }
 

@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
+
+from igdrivsim.errors import ConfigError
 
 __all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes",
            "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode"]
@@ -25,8 +28,6 @@ __all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes"
 def require_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
     """``path`` as a folder to write into, refused up front (before any work) when a file is
     there: ``ConfigError`` naming the option."""
-    from igdrivsim.errors import ConfigError
-
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{option} {path}: a file is there, not a folder")
@@ -35,8 +36,6 @@ def require_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
 
 def require_file_target(path: str | os.PathLike[str], option: str = "--out") -> Path:
     """``path`` as a file to write, refused up front when a folder is there."""
-    from igdrivsim.errors import ConfigError
-
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{option} {path}: a folder is there, not a file")
@@ -119,8 +118,6 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
 
 def atomic_copy(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Path:
     """Copy the file ``src`` to ``dst`` through a temp file (never half a copy at ``dst``)."""
-    import shutil
-
     return atomic_write(dst, lambda tmp: shutil.copyfile(src, tmp))
 
 
@@ -155,7 +152,7 @@ def atomic_savefig(fig: Any, path: str | os.PathLike[str], **kwargs: Any) -> Pat
     """
     fmt = kwargs.pop("format", None) or Path(path).suffix.lstrip(".")
     if not fmt:
-        import matplotlib
+        import matplotlib  # heavy, and only for a figure saved without a suffix
 
         fmt = matplotlib.rcParams["savefig.format"]
     return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, **kwargs))

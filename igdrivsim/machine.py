@@ -11,7 +11,7 @@ import sys
 
 def machine_record() -> dict:
     """CPU count, load average, OS, Python, JAX and its devices, date (UTC) and command line."""
-    import jax
+    import jax  # lazy: JAX only when a record is taken
 
     try:
         load = [round(x, 2) for x in os.getloadavg()]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from igdrivsim.cli import DefaultsFormatter
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.errors import REPORTED, error_line
 from igdrivsim.io import atomic_write_csv
 from maze import study

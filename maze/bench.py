@@ -15,7 +15,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.cli import DefaultsFormatter
+from igdrivsim.cli_args import DefaultsFormatter
 from maze import env as maze_env
 from maze.network import init_stacked, make_policy
 from maze.ppo import PPOConfig, make_ppo

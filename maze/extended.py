@@ -19,6 +19,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.io import atomic_savefig
+from maze.report import CURVES, ci95
 
 MIXED_CURVES = {"bc_rl_partial_from_full": False, "advisor_partial_from_full": True}
 EXTENDED = ("dagger_partial_from_full", *MIXED_CURVES)
@@ -122,12 +123,10 @@ def run_mixed(study, experts: dict, bar: tqdm,
 def plot_baselines(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, converged: dict,
                    stem: Path) -> None:
     """Fig. 2b: return vs environment steps per seed for the partial student (mean, 95% CI)."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from maze.report import CURVES, ci95
+    import matplotlib.pyplot as plt  # heavy: only when drawing
 
     fig, ax = plt.subplots(figsize=(8.6, 4.0))
     for name in ("rl_partial", *EXTENDED):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from igdrivsim.cli import DefaultsFormatter
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.io import atomic_savefig
 from maze.env import MOVES
 from maze.gym_env import MazeGymEnv
@@ -42,10 +42,10 @@ def planner_actions(env: MazeGymEnv, seed: int) -> list[int]:
 def save_frames(path: Path, seed: int | None = None, num_frames: int = 6) -> Path:
     """Evenly spaced frames of a planner episode side by side (by default the first seed whose
     episode takes more than 25 steps, so the exploration shows)."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: only when drawing
 
     env = MazeGymEnv(render_mode="rgb_array", tile_size=16)
     if seed is None:

@@ -30,7 +30,7 @@ PLAIN = {"rl_full": "RL full obs. (PPO)", "rl_partial": "RL partial obs. (PPO)",
 
 def ci95(values) -> float:
     """Half-width of the Student-t 95% confidence interval of the mean (0 for one value)."""
-    from scipy import stats
+    from scipy import stats  # heavy: scipy is needed only here
 
     values = np.asarray(values, dtype=float)
     if values.size < 2:
@@ -97,11 +97,11 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path,
     """Fig. 2 (the paper's five curves): mean return vs training progress, t-based 95% CI bands,
     dashed final RL returns marked "converged" or "not converged" (``converged``: curve -> the
     plateau test of :func:`maze.extended.plateau`), dotted exact references."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import seaborn as sns
+    import matplotlib.pyplot as plt  # heavy: only when drawing
+    import seaborn as sns  # heavy: only when drawing
 
     sns.set_theme(style="whitegrid", context="paper")
     fig, ax = plt.subplots(figsize=(8.6, 4.0))

@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from igdrivsim.cli import DefaultsFormatter
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.io import (
     atomic_write_bytes,

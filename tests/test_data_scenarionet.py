@@ -153,7 +153,7 @@ def test_samples_read_as_windows(sample_records):
 
 
 def test_samples_logged_sdc_on_road_and_expert_replays_the_log(sample_records):
-    from igdrivsim.simulator.commands import replay_fn
+    from igdrivsim.observation.replay import replay_fn
 
     run = replay_fn("expert")
     offroad_steps = 0

@@ -67,7 +67,7 @@ def test_count_scenarios(shard, filtered, tmp_path):
 
 
 def test_replay_total(shard, tmp_path):
-    from igdrivsim.simulator.commands import _replay_total
+    from igdrivsim.observation.replay import _replay_total
 
     assert _replay_total([str(shard)], None) == 3
     assert _replay_total([str(shard)], 2) == 2 and _replay_total([str(shard)], 9) == 3
@@ -193,10 +193,10 @@ def test_speed_walk_bar_over_batches(monkeypatch, capsys):
 
 @pytest.mark.parametrize("flag, progress", [([], True), (["--no-progress"], False)])
 def test_speed_walk_cli_wires_no_progress(flag, progress, monkeypatch, capsys):
-    from igdrivsim.evaluation import commands, speed_walk
+    from igdrivsim.evaluation import speed_walk
 
     seen = []
-    monkeypatch.setattr(commands, "load_validation",
+    monkeypatch.setattr(speed_walk, "load_validation",
                         lambda data, caps, limit, progress=False: seen.append(progress))
     monkeypatch.setattr(speed_walk, "measure",
                         lambda sc, seed, progress=False: seen.append(progress) or {})

@@ -23,7 +23,7 @@ def test_fast_equals_naive_on_a_real_scenario():
     """Same metrics and the same observation at every step (objects slot for slot, roadgraph
     points as a set); small capacities so that the candidates are re-selected several times."""
     from igdrivsim.data import load_scenario
-    from igdrivsim.simulator.bench import _batch, episode
+    from igdrivsim.observation.bench import _batch, episode
 
     sc = _batch([load_scenario(EXAMPLE)], 2)  # different noise: repairs for one or both examples
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=128)
@@ -54,7 +54,7 @@ def test_fast_falls_back_to_the_exact_top_k_on_duplicate_points():
     """Every road point repeated 40 times: piles of equal distances at the boundary defeat the
     integer sort, so every repair runs down to the exact top-k; the points seen still match."""
     from igdrivsim.data import load_scenario
-    from igdrivsim.simulator.bench import _batch, episode
+    from igdrivsim.observation.bench import _batch, episode
 
     sc = load_scenario(EXAMPLE)
     rg = sc.roadgraph

@@ -9,7 +9,7 @@ import pytest
 
 from igdrivsim.cli import main
 from igdrivsim.data import load_scenario
-from igdrivsim.simulator.commands import replay_fn
+from igdrivsim.observation.replay import replay_fn
 from igdrivsim.simulator.metrics import mean_log_divergence
 
 WOMD = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd"

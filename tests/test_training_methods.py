@@ -150,8 +150,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     from igdrivsim.policy.act import example_observation
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
     from igdrivsim.training import env
-    from igdrivsim.training.loop import init_buffer
-    from igdrivsim.training.privileged import load_teacher
+    from igdrivsim.training.loop import init_buffer, load_teacher
     from igdrivsim.training.update import (
         WARMUP_STEPS,
         collect,

@@ -16,10 +16,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from igdrivsim.cli import deprecated_alias
-from igdrivsim.data.reader import available_cpus
+from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.data import tfrecord
+from igdrivsim.data.filter import run_filter
+from igdrivsim.data.manifest import write_json
+from igdrivsim.data.reader import available_cpus, iter_scenarios
 from igdrivsim.errors import DataError, check_min
 from igdrivsim.io import require_file_target
+from igdrivsim.machine import machine_record
 
 DEFAULT_SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "womd"
 
@@ -40,8 +44,6 @@ def bench_data_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, list[str]]:
     """Write the real samples repeated into ``folder``: ``{format: [shard paths]}``."""
-    from igdrivsim.data import tfrecord
-
     out = {}
     for fmt, name, n in (("tf_example", "motion_data_one_example.tfrecord", records),
                          ("scenario_proto", "motion_data_one_scenario.tfrecord",
@@ -60,15 +62,13 @@ def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, li
 
 def _cpu_s() -> float:
     """CPU seconds of this process and its finished (joined) worker processes."""
-    import resource
+    import resource  # optional: Unix only (peak memory)
 
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def _time_read(paths, workers: int) -> dict:
-    from igdrivsim.data.reader import iter_scenarios
-
     start = time.perf_counter()
     first = None
     n = 0
@@ -84,8 +84,6 @@ def _time_read(paths, workers: int) -> dict:
 
 
 def _time_filter(paths, workers: int, folder: str) -> dict:
-    from igdrivsim.data.filter import run_filter
-
     out = tempfile.mkdtemp(prefix="filter-", dir=folder)
     start = time.perf_counter()
     counts = run_filter(paths, out, workers=workers, progress=False)
@@ -95,8 +93,6 @@ def _time_filter(paths, workers: int, folder: str) -> dict:
 
 
 def bench_data_command(args: argparse.Namespace) -> int:
-    from igdrivsim.data.manifest import write_json
-
     for option, value in (("--limit", args.records), ("--shards", args.shards),
                           ("--workers", args.workers)):
         check_min(option, value, 1)
@@ -121,7 +117,5 @@ def bench_data_command(args: argparse.Namespace) -> int:
                     results["runs"].append(row)
                     print(json.dumps(row), flush=True)
     if args.out:
-        from igdrivsim.machine import machine_record
-
         write_json(args.out, {**results, "machine": machine_record()})
     return 0

@@ -9,8 +9,15 @@ import sys
 
 import numpy as np
 
-from igdrivsim.data.filter import FilterConfig, intersecting_objects, sdc_mean_speed
-from igdrivsim.data.reader import available_cpus
+from igdrivsim.data.filter import (
+    FilterConfig,
+    intersecting_objects,
+    merge,
+    parse_part,
+    run_filter,
+    sdc_mean_speed,
+)
+from igdrivsim.data.reader import ReadStats, available_cpus, iter_scenarios
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     RG_ROAD_EDGE_TYPES,
@@ -60,8 +67,6 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
 
 def inspect_command(args: argparse.Namespace) -> int:
     """Print one JSON line per scenario: where it is, its format and :func:`describe`."""
-    from igdrivsim.data.reader import ReadStats, iter_scenarios
-
     if args.limit is not None and args.limit < 0:
         raise ConfigError(f"--limit must be >= 0, got {args.limit}")
     check_min("--workers", args.workers, 1)
@@ -107,8 +112,6 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def filter_command(args: argparse.Namespace) -> int:
-    from igdrivsim.data.filter import merge, parse_part, run_filter
-
     require_folder(args.out)
     explicit = args.criterion is not None or args.min_speed is not None
     config = FilterConfig(criterion=args.criterion or "paper",

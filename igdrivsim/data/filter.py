@@ -19,13 +19,18 @@ Definitions (thresholds are parameters of :class:`FilterConfig`):
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import warnings
 from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
+from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
 from igdrivsim.data.scenario import Scenario, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path
@@ -191,8 +196,6 @@ def parse_part(text: str | None) -> tuple[int, int] | None:
 
 def shard_result_path(out: str, file: str) -> str:
     """Where the partial result of input ``file`` goes (name + hash of its absolute path)."""
-    import hashlib
-
     digest = hashlib.sha1(os.path.abspath(file).encode()).hexdigest()[:10]
     return os.path.join(out, SHARDS_DIR, f"{os.path.basename(file)}.{digest}.json")
 
@@ -200,11 +203,6 @@ def shard_result_path(out: str, file: str) -> str:
 def filter_shard(file: str, result_path: str, skip_bad: bool = False) -> tuple[int, int]:
     """Compute :func:`scenario_stats` for every record of ``file`` and write them atomically to
     ``result_path``; returns ``(scenarios, bad_records)``."""
-    import warnings
-
-    from igdrivsim.data.manifest import write_json
-    from igdrivsim.data.reader import ReadStats, iter_file
-
     file = os.path.abspath(file)
     signature = _signature(file)  # before reading: a file changed meanwhile is redone next time
     stats = ReadStats()
@@ -254,9 +252,6 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     (returned); with ``part=(i, n)`` only slice ``i`` of ``n`` is processed and :func:`merge`
     joins the slices later (returns None).
     """
-    from igdrivsim.data.manifest import write_json
-    from igdrivsim.data.reader import expand_paths, process_pool
-
     files = expand_paths(inputs)
     if part is not None:
         files = files[part[0]::part[1]]
@@ -270,8 +265,6 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f) is None]
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
     scenarios = 0
     try:
@@ -304,8 +297,6 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
 
 
 def _write_outputs(out: str, result_paths: list[str], config: FilterConfig) -> dict:
-    from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
-
     entries, bad, seen = [], [], set()
     for path in result_paths:
         result = _read_shard_result(path)
@@ -377,7 +368,5 @@ def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
         files.setdefault(result["file"], p)
     os.makedirs(out, exist_ok=True)
     write_json_config = {**config.to_dict(), "merged": dirs}
-    from igdrivsim.data.manifest import write_json
-
     write_json(os.path.join(out, CONFIG_FILE), write_json_config)
     return _write_outputs(out, [files[f] for f in sorted(files)], config)

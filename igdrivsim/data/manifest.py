@@ -13,7 +13,10 @@ import json
 import os
 from collections.abc import Iterable, Iterator
 
-from igdrivsim.data.reader import iter_file
+from tqdm.auto import tqdm
+
+from igdrivsim.data import scenarionet
+from igdrivsim.data.reader import count_records, expand_paths, iter_file, process_pool
 from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
 from igdrivsim.errors import DataError
 from igdrivsim.io import atomic_path, atomic_write_json
@@ -78,9 +81,6 @@ def count_scenarios(data, max_scenarios: int = 0) -> int | None:
     TFRecord files (their framing only; files past the cap are not opened). None where that is
     not cheap or not known: ScenarioNet pickles (a count decodes the whole file) and paths that
     do not read (the read itself reports them)."""
-    from igdrivsim.data import scenarionet
-    from igdrivsim.data.reader import count_records, expand_paths
-
     def cap(n: int) -> int:
         return min(n, max_scenarios) if max_scenarios else n
 
@@ -137,8 +137,6 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
         tasks += [(file, records[i:i + chunk]) for i in range(0, len(records), chunk)]
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn")
     try:
         for file, loaded in _run_tasks(tasks, caps, workers):
@@ -162,8 +160,6 @@ def _run_tasks(tasks, caps, workers: int):
         for file, records in tasks:
             yield file, _load_records(file, records, caps)
         return
-    from igdrivsim.data.reader import process_pool
-
     with process_pool(workers) as pool:
         pending = []
         todo = iter(tasks)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from google.protobuf.message import DecodeError
+from tqdm.auto import tqdm
 
 from igdrivsim.data import scenarionet, tfrecord
 from igdrivsim.data.protos import example_class
@@ -200,8 +201,6 @@ def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
     stats = stats if stats is not None else ReadStats()
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(desc="reading", unit="scn")
     try:
         if workers <= 1:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import numpy as np
 from flax import struct
 
@@ -176,22 +177,16 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
 
 def stack_scenarios(scenarios: list[Scenario]) -> Scenario:
     """Stack unbatched scenarios (same capacities) into one batch along a new leading axis."""
-    import jax
-
     return jax.tree.map(lambda *xs: np.stack(xs), *scenarios)
 
 
 def index_scenario(batch: Scenario, i) -> Scenario:
     """The ``i``-th scenario of a batch (any index NumPy accepts)."""
-    import jax
-
     return jax.tree.map(lambda x: x[i], batch)
 
 
 def _select(tree, index: np.ndarray, axis: int, size: int, template):
     """Take ``index`` along ``axis`` of every leaf; pad with the ``template`` leaves to ``size``."""
-    import jax
-
     def one(x, pad):
         x = np.take(np.asarray(x), index, axis=axis)
         missing = size - x.shape[axis]
@@ -291,8 +286,6 @@ def trim_padding(scenario: Scenario) -> Scenario:
     """Drop trailing padding (invalid slots after the last valid object, SDC, roadgraph point
     and traffic light) of one unbatched scenario; :func:`fit_to_capacities` pads it back.
     Slot positions of everything kept are unchanged. Used to write compact files."""
-    import jax
-
     if scenario.batch_shape:
         raise ValueError(f"trim_padding takes one scenario, got batch {scenario.batch_shape}")
 

@@ -310,7 +310,7 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
 
 def _inside(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """Even-odd point-in-polygon of ``points [N, 2]`` in the closed ring ``[V, 2]``."""
-    from matplotlib.path import Path
+    from matplotlib.path import Path  # heavy: only when drawing
 
     return Path(ring).contains_points(points)
 

@@ -191,7 +191,7 @@ def _feature_histograms(xy: np.ndarray, valid: np.ndarray, edges) -> dict[str, n
 
 def js_divergence(p: np.ndarray, q: np.ndarray) -> float:
     """Jensen-Shannon divergence (base 2, in [0, 1]) of two histograms; NaN if one is empty."""
-    from scipy.spatial.distance import jensenshannon
+    from scipy.spatial.distance import jensenshannon  # heavy: scipy is needed only here
 
     if p.sum() == 0 or q.sum() == 0:
         return float("nan")

@@ -14,7 +14,9 @@ from collections import defaultdict
 from itertools import islice
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from igdrivsim.data.reader import iter_scenarios
 from igdrivsim.data.stats import FEATURES, STATISTICS, js_divergence, scene_statistics, summary
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_savefig, atomic_write_csv, atomic_write_text, require_folder
@@ -52,10 +54,6 @@ def stats_arguments(parser: argparse.ArgumentParser) -> None:
 
 def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: bool = True):
     """Rows (one per scenario, with ``dataset, file, record``) and pooled histograms per set."""
-    from tqdm.auto import tqdm
-
-    from igdrivsim.data.reader import iter_scenarios
-
     rows, hists = [], {}
     for name, paths in datasets.items():
         pooled = {k: np.zeros(len(e) - 1, np.int64) for k, e in FEATURES.items()}
@@ -94,7 +92,7 @@ def summary_table(frame, kept_only=()) -> str:
 
 def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
     """Jensen-Shannon divergence of each data set's pooled feature histograms from ``reference``."""
-    import pandas as pd
+    import pandas as pd  # heavy: pandas is needed only here
 
     rows = [{"dataset": name, "reference": reference,
              **{k: round(js_divergence(h[k], hists[reference][k]), 4) for k in FEATURES}}
@@ -104,11 +102,11 @@ def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
 
 def plot(frame, path: str, kept_only=()) -> None:
     """One panel per statistic, one box-and-points distribution per data set."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import seaborn as sns
+    import matplotlib.pyplot as plt  # heavy: only when drawing
+    import seaborn as sns  # heavy: only when drawing
 
     keep = ~frame["dataset"].isin(list(kept_only)) | frame["kept"]
     frame = frame[keep]
@@ -132,7 +130,7 @@ def plot(frame, path: str, kept_only=()) -> None:
 
 def stats_command(args: argparse.Namespace) -> int:
     """Compute, print and (with ``--out``) write the statistics of the given data sets."""
-    import pandas as pd
+    import pandas as pd  # heavy: pandas is needed only here
 
     check_min("--limit", args.limit, 1)
     datasets = parse_datasets(args.files)

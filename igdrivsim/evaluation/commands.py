@@ -23,52 +23,34 @@ import os
 import sys
 from pathlib import Path
 
-from igdrivsim.cli import deprecated_alias
+import jax
+from tqdm import tqdm
+
+from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.data import Capacities
+from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.evaluation.results_doc import write_markdown, write_run_times
+from igdrivsim.evaluation.rollout import (
+    evaluate_policy,
+    reference_frames,
+    scenario_ids_of,
+    tidy_frames,
+)
 from igdrivsim.io import atomic_write_csv, atomic_write_json, require_folder
+from igdrivsim.observation import ObservationConfig
+from igdrivsim.policy.act import ACTION_MODES
+from igdrivsim.simulator import SimParams
+from igdrivsim.training.config import from_dict
+from igdrivsim.training.update import run_settings, sim_params
 
 EVAL_CONFIG = "eval_config.json"
 
 
 # ------------------------------------------------------------------------------ data, runs
-def load_validation(data: str, caps, max_scenarios: int = 0, progress: bool = False):
-    """Stacked validation scenarios ``[N]`` from a filter output folder (``manifest.jsonl``:
-    the kept scenarios) or from WOMD files (file, folder, glob, ``name@N``). ``progress``: a
-    "loading" bar on stderr with the number of scenarios as its total (when it is cheap to
-    know)."""
-    from igdrivsim.data import read_scenarios, stack_scenarios
-
-    path = Path(data)
-    if (path / "manifest.jsonl").is_file():
-        from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
-
-        entries = read_manifest(path / "manifest.jsonl", kept_only=True)
-        if max_scenarios:
-            entries = entries[:max_scenarios]
-        scenarios = load_manifest_scenarios(entries, caps, progress=progress)
-    else:
-        if not path.exists() and not any(ch in data for ch in "*?@"):
-            raise DataError("validation data not found", file=data)
-        from tqdm import tqdm
-
-        from igdrivsim.data.manifest import count_scenarios
-
-        total = count_scenarios(data, max_scenarios) if progress else None
-        scenarios = []
-        with tqdm(total=total, desc="loading", unit="scn", file=sys.stderr,
-                  disable=not progress, dynamic_ncols=True) as bar:
-            for sc in read_scenarios(data, caps):
-                scenarios.append(sc)
-                bar.update()
-                if max_scenarios and len(scenarios) >= max_scenarios:
-                    break
-    if not scenarios:
-        raise DataError("no validation scenarios (empty manifest or no records)", file=data)
-    return stack_scenarios(scenarios)
-
-
 def load_trained(run_dir: str):
     """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
+    # lazy: the training loop pulls in orbax and grain; `report` needs neither
     from igdrivsim.training.loop import load_run
 
     config, params = load_run(run_dir)
@@ -78,15 +60,11 @@ def load_trained(run_dir: str):
 
 
 def data_capacities(config):
-    from igdrivsim.data import Capacities
-
     return Capacities(max_objects=config.data.max_objects,
                       max_roadgraph_points=config.data.max_roadgraph_points)
 
 
 def _bar(total: int, desc: str, enabled: bool):
-    from tqdm import tqdm
-
     return tqdm(total=total, desc=desc, unit="scenario", disable=not enabled,
                 file=sys.stderr, dynamic_ncols=True)
 
@@ -100,8 +78,6 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="validation data: a filter output folder (manifest.jsonl) or WOMD "
                              "files (file, folder, glob, name@N)")
     parser.add_argument("--out", required=True, help="output folder for the tidy CSVs")
-    from igdrivsim.policy.act import ACTION_MODES
-
     parser.add_argument("--actions", choices=ACTION_MODES, default="sample",
                         help="how the policy picks its action level: sample (the paper's "
                              "protocol), greedy (most likely), mean (expected level, a "
@@ -136,15 +112,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
 
     ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``.
     """
-    import pandas as pd
-
-    from igdrivsim.evaluation.rollout import (
-        evaluate_policy,
-        scenario_ids_of,
-        tidy_frames,
-    )
-    from igdrivsim.observation import ObservationConfig
-    from igdrivsim.training.update import run_settings, sim_params
+    import pandas as pd  # heavy: pandas is needed only here
 
     _check_sizes(max_scenarios, batch_size)
     config, params, seeds = load_trained(run_dir)
@@ -175,10 +143,6 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
                         scenarios=None) -> Path:
     """Evaluate the discretised expert and constant velocity; write their tidy CSVs."""
-    from igdrivsim.data import Capacities
-    from igdrivsim.evaluation.rollout import reference_frames
-    from igdrivsim.simulator import SimParams
-
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = sim or SimParams()
@@ -203,8 +167,6 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
     """Write the tidy CSVs and the evaluation record (process 0 only when several processes
     evaluate together: they all hold the same gathered outputs)."""
     out = Path(out)
-    import jax
-
     if jax.process_index() != 0:
         return out
     atomic_write_csv(out / "per_step.csv", per_step.round(6))
@@ -217,6 +179,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if not args.runs and not args.references:
         raise ConfigError("give at least one RUN_DIR, or --references")
     require_folder(args.out)
+    # lazy: with the training loop (orbax, grain), which `report` does not need
     from igdrivsim.training.commands import maybe_init_distributed
 
     maybe_init_distributed()  # several hosts: the scenarios are spread over all their devices
@@ -233,9 +196,6 @@ def evaluate_command(args: argparse.Namespace) -> int:
         sim = caps = None
         like = args.runs[0] if args.runs else args.like
         if like:  # the same capacities and simulator settings as that run
-            from igdrivsim.training.config import from_dict
-            from igdrivsim.training.update import sim_params
-
             record = _read_json(Path(like) / "config.json")
             config = from_dict(record.get("config", record))
             caps, sim = data_capacities(config), sim_params(config)
@@ -292,15 +252,15 @@ def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
 
 
 def report_command(args: argparse.Namespace) -> int:
-    from igdrivsim.evaluation.report import Provenance, build_report
-    from igdrivsim.evaluation.results_doc import write_markdown, write_run_times
-
     require_folder(args.out)
     written = []
     if not args.from_tables:
         if not args.evals:
             raise ConfigError("report: give --evals DIR... (or --from-tables to rewrite only "
                               "the markdown from OUT's tables)")
+        # lazy: the report's figures module sets matplotlib's backend when imported
+        from igdrivsim.evaluation.report import Provenance, build_report
+
         profile, data = _provenance_from(args.evals)
         prov = Provenance(profile=args.profile or profile, data=args.data_label or data)
         written = build_report(args.evals, args.out, prov, run_dirs=args.runs)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import json
 import os
 import shutil
@@ -42,16 +43,21 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from igdrivsim.cli import DefaultsFormatter, deprecated_alias
+from igdrivsim.cli_args import DefaultsFormatter, deprecated_alias
+from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import REPORTED, ConfigError, IGDrivSimError, error_line
 from igdrivsim.evaluation import lanes, planning, provenance
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, require_folder
 from igdrivsim.observation import get_setting, setting_params
+from igdrivsim.observation.commands import DEFAULT_DATA
+from igdrivsim.training.config import QUICK_UPDATES, get_profile, with_overrides
+from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 
@@ -233,15 +239,14 @@ class Pipeline:
 
     def _run_in_process(self, argv: list[str], fh) -> int:
         """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
-        import importlib
-
         out = fh if self.quiet else _Tee(fh, sys.stderr)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
             try:
                 if argv[0] == "igdrivsim":
-                    from igdrivsim.cli import main
-
-                    return int(main(argv[1:]) or 0)
+                    # By name, like ``python -m`` below: a stage is a command line, and the CLI
+                    # is the layer above the pipeline (no import of igdrivsim.cli here).
+                    cli = importlib.import_module("igdrivsim.cli")
+                    return int(cli.main(argv[1:]) or 0)
                 if argv[:2] == ["python", "-m"]:
                     module = importlib.import_module(argv[2])
                     if not hasattr(module, "main"):  # a package: python -m runs __main__
@@ -250,8 +255,6 @@ class Pipeline:
             except SystemExit as err:  # argparse errors
                 return int(err.code or 0) if isinstance(err.code, int) else 1
             except Exception as err:  # noqa: BLE001 - reported through the stage's log
-                import traceback
-
                 traceback.print_exc()
                 print(f"error: {err}")
                 return 1
@@ -367,9 +370,6 @@ class Pipeline:
                     atomic_copy(src, self.staged / sub / fname)
 
     def run_render(self, val: str, echo: bool = True) -> None:
-        from igdrivsim.data import expand_paths
-        from igdrivsim.observation.commands import DEFAULT_DATA
-
         # Fig. 1 shows a real scenario when one is at hand: the user's data, else the public
         # samples (--samples), else the shared one; else a synthetic one (the figure says which)
         files = expand_paths(val)
@@ -385,8 +385,6 @@ class Pipeline:
 
     @property
     def samples_label(self) -> str:
-        from igdrivsim.data import samples
-
         if self.samples is not None and samples.find_samples(Path(self.samples).parent) == Path(
                 self.samples):
             return (f"{len(samples.FILES)} public WOMD logs ({samples.PACKAGE}'s wheel, igdrivsim "
@@ -434,9 +432,9 @@ class Pipeline:
     def write_results(self) -> None:
         """The default run (report in the repository's paper/): docs/results.md and the
         README's results block, from the published tables and their provenance."""
-        from igdrivsim.evaluation.results_doc import write_markdown
-
         if self.default_paper and (self.paper / "tables" / "summary.csv").is_file():
+            from igdrivsim.evaluation.results_doc import write_markdown  # lazy: pandas
+
             write_markdown(self.paper, REPO_ROOT / "docs" / "results.md", REPO_ROOT / "README.md")
 
     @property
@@ -469,8 +467,6 @@ class Pipeline:
         return provenance.command_line(args)
 
     def training_config(self):
-        from igdrivsim.training.config import get_profile, with_overrides
-
         return with_overrides(get_profile(self.profile.name), list(self.overrides))
 
     def publish(self) -> list[str]:
@@ -479,6 +475,7 @@ class Pipeline:
         missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
         if not {"report", "real_logs"} & self.ran and not missing:
             return []
+        # lazy: the report's figures module sets matplotlib's backend when imported
         from igdrivsim.evaluation.report import git_commit
 
         updates = self.training_config().training.num_updates
@@ -568,7 +565,7 @@ class Pipeline:
     def work_lock(self):
         """Hold ``WORK/pipeline.lock`` (``flock``) so that a second run on the same work folder
         is refused; the kernel drops the lock when the holder exits, even when killed."""
-        import fcntl
+        import fcntl  # optional: Unix only (file locks)
 
         self.work.mkdir(parents=True, exist_ok=True)
         path = self.work / "pipeline.lock"
@@ -607,8 +604,6 @@ class Pipeline:
     @property
     def maze_seconds(self) -> float:
         """The maze stage's measured CPU-s (0: a profile whose costs were not measured)."""
-        from igdrivsim.training.cost import MAZE_CPU_S
-
         return MAZE_CPU_S if self.profile.name in planning.PRICED_PROFILES else 0.0
 
     def plan(self) -> list[str]:
@@ -647,8 +642,6 @@ class Pipeline:
         if note:
             lines.append(f"plan: {note}")
         elif self.profile.name == "laptop" and wall is not None and not self.machine.accelerator:
-            from igdrivsim.training.config import QUICK_UPDATES
-
             quick = planning.estimate_seconds(
                 "quick", [m for m in self.methods if m not in taught], taught, self.settings,
                 self.profile.seeds, QUICK_UPDATES, self.lanes, self.machine.accelerator is not None)
@@ -787,8 +780,6 @@ def build_parser() -> argparse.ArgumentParser:
 def resolve_samples(where: str | None) -> str | None:
     """The real-scenario location of ``--samples`` (``igdrivsim samples``' folder, or any data
     location), else the verified samples cache, else None."""
-    from igdrivsim.data import expand_paths, samples
-
     if where is None:
         found = samples.find_samples()
         return None if found is None else str(found)
@@ -813,8 +804,6 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                                   "(or give two locations: --data TRAIN VAL)")
         elif len(args.data) == 2:
             train, val = args.data
-            from igdrivsim.data import expand_paths
-
             for where in (train, val):
                 expand_paths(where)  # names files, else a one-line error (before any stage)
         else:
@@ -832,8 +821,6 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
         if key in ("observation.setting", "training.method"):
             raise ConfigError(f"--set {override}: the pipeline sets {key} itself (use --obs / "
                               "--methods)")
-    from igdrivsim.training.config import get_profile, with_overrides
-
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not methods or len(set(methods)) != len(methods):
         raise ConfigError(f"--methods must name distinct methods, got {args.methods!r}")

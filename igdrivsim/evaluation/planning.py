@@ -23,7 +23,10 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.training import cost
+from igdrivsim.training.config import get_profile
+from igdrivsim.training.methods import get_method
 
 TOLERANCE = 1.05  # a split within 5% of the ideal wall time is not split further
 # Memory of one CPU worker: the peak RSS of the default run at 6ae8db5 (two training processes
@@ -176,8 +179,6 @@ def part_seconds(profile: str, seeds: int, updates: int, gpu: bool
     """``seconds(method, n_settings)`` of one part from the measured per-update costs
     (:func:`igdrivsim.training.cost.laptop_train_seconds`); equal weights for profiles the
     costs were not measured for (the split then balances settings)."""
-    from igdrivsim.training.methods import get_method
-
     def seconds(method: str, n: int) -> float:
         rollout = get_method(method).rollout
         if profile not in PRICED_PROFILES:
@@ -212,9 +213,6 @@ def hours_text(seconds: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the estimated wall time of a profile's default run per core count."""
-    from igdrivsim.evaluation.schema import METHODS, SETTINGS
-    from igdrivsim.training.config import get_profile
-
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.planning",
                                      description=main.__doc__)
     parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES)

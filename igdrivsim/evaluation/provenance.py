@@ -74,6 +74,7 @@ def wall_text(seconds: float) -> str:
 
 def competence_note(profile: str, updates: int | None) -> str:
     """The quick profile's (and any budget below the laptop's) warning; empty otherwise."""
+    # lazy: the training config pulls in JAX; provenance is read without it
     from igdrivsim.training.config import COMPETENT_UPDATES
 
     if profile in ("laptop", "quick", "gpu") and updates and updates < COMPETENT_UPDATES:

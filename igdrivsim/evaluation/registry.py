@@ -12,6 +12,7 @@ time, in the calling process only. Definitions and sources: ``docs/metrics.md``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -113,8 +114,6 @@ def episode_values(state, params) -> dict:
 def derive_row(row: dict[str, float]) -> dict[str, float]:
     """Add the ``derive`` metrics to a per-scenario row, in registry order (NaN if an input is
     NaN, e.g. a rollout run without episode metrics)."""
-    import math
-
     for m in REGISTRY:
         if m.derive is not None:
             value = m.derive(row)

@@ -26,12 +26,13 @@ written (``igdrivsim report``, also with ``--from-tables``).
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation import methods_table, registry
+from igdrivsim.evaluation import methods_table, registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.evaluation.figures import (
     fig3_metrics,
@@ -112,10 +113,6 @@ def verdicts_tex(tests) -> str:
 def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path) -> list[Path]:
     """``tables/speed_walk.md`` and ``generated/speed_walk.tex`` from the first
     ``speed_walk.json`` among the evaluation folders (none: nothing written)."""
-    import json
-
-    from igdrivsim.evaluation import speed_walk
-
     for root in map(Path, eval_dirs):
         path = root / speed_walk.RESULT_FILE
         if path.is_file():

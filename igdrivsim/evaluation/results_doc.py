@@ -8,6 +8,7 @@ without the evaluations, and no number in them is typed by hand. The README bloc
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -52,8 +53,6 @@ def provenance(paper: Path) -> dict[str, str]:
 def run_line(paper: Path, commit: bool = True) -> str:
     """How the run behind Table I was made, from ``paper/provenance.json`` (the pipeline's
     record: command, profile, updates, device, wall time, date); empty without it."""
-    import json
-
     path = Path(paper) / "provenance.json"
     if not path.is_file():
         return ""
@@ -326,8 +325,6 @@ def write_curves_summary(curves: pd.DataFrame, tables: Path) -> list[Path]:
 
 def write_run_times(work: str | Path, tables: Path) -> list[Path]:
     """``tables/run_times.csv`` from the pipeline's ``WORK/stages/*.json``."""
-    import json
-
     rows = []
     for path in sorted(Path(work).glob("stages/*.json")):
         try:

@@ -26,231 +26,43 @@ and the registry's derived ones, follow Table I's in the per-scenario frame.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
-from jax.sharding import NamedSharding, PartitionSpec
 
 from igdrivsim.data.scenario import decode_scenario_id
 from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.schema import (
-    CONSTANT_VELOCITY,
-    EXPERT,
     PER_SCENARIO_COLUMNS,
     PER_STEP_COLUMNS,
     REFERENCE_SETTING,
     scenario_columns,
 )
-from igdrivsim.observation import (
-    ObservationConfig,
-    get_setting,
-    setting_params,
-    stack_params,
-)
-from igdrivsim.policy.act import policy_actor
+from igdrivsim.observation import ObservationConfig
 from igdrivsim.policy.network import PolicyConfig
-from igdrivsim.simulator import SimParams, reset
-from igdrivsim.simulator.rollout import ACTORS, run_episode
-from igdrivsim.training import inputs
-
-EVAL_SEED = 0  # fixed evaluation key: rerunning gives the same CSVs
-DEFAULT_SIM_PARAMS = SimParams()
-DEFAULT_OBS_CONFIG = ObservationConfig()
-
-
-@dataclass(frozen=True)
-class StepOutputs:
-    """Per-step metrics of a batch of episodes, each ``[..., steps]`` (host NumPy), and, when
-    requested, the registry's per-episode metrics ``scenario`` (``{key: [...]}``)."""
-
-    log_divergence: np.ndarray
-    overlap: np.ndarray
-    offroad: np.ndarray
-    valid: np.ndarray
-    scenario: dict[str, np.ndarray] | None = None
-
-    FIELDS = ("log_divergence", "overlap", "offroad", "valid")
-
-    def map(self, fn: Callable[[np.ndarray], np.ndarray]) -> StepOutputs:
-        """Apply ``fn`` to every array (leading axes are shared by steps and scenario)."""
-        scenario = None if self.scenario is None else {k: fn(v) for k, v in
-                                                       self.scenario.items()}
-        return StepOutputs(*(fn(getattr(self, f)) for f in self.FIELDS), scenario)
+from igdrivsim.simulator import SimParams
+from igdrivsim.training import closed_loop
+from igdrivsim.training.closed_loop import (
+    DEFAULT_OBS_CONFIG,
+    DEFAULT_SIM_PARAMS,
+    EVAL_SEED,
+    REFERENCE_ACTORS,
+    StepOutputs,
+)
 
 
-def default_metrics_fn() -> Callable:
-    """The simulator's ``step_metrics(state, params)`` (overlap, offroad, log divergence,
-    valid) of the current step."""
-    from igdrivsim.simulator.metrics import step_metrics
-
-    return step_metrics
-
-
-def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
-    m = metrics_fn(state, params)
-    valid = getattr(m, "valid", None)
-    if valid is None:  # a metrics function without validity: the logged SDC's, at this step
-        valid = jnp.take_along_axis(state.sdc.valid, state.timestep[..., None], axis=-1)[..., 0]
-    return (jnp.asarray(m.log_divergence, jnp.float32), jnp.asarray(m.overlap, jnp.float32),
-            jnp.asarray(m.offroad, jnp.float32), jnp.asarray(valid, bool))
-
-
-# ----------------------------------------------------------------------------------- actors
-def _reference_actor(name: str, params: SimParams):
-    """The simulator's reference actor (:data:`igdrivsim.simulator.rollout.ACTORS`)."""
-    return ACTORS[name](params)
-
-
-REFERENCE_ACTORS: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
-
-
-# --------------------------------------------------------------------------------- rollouts
-def _episode_values(final, params: SimParams, episode: bool) -> dict:
-    """The registry's per-episode metrics of the final state (``{}`` when not requested)."""
-    return registry.episode_values(final, params) if episode else {}
-
-
-def _run(state, actor, key, params: SimParams, metrics_fn, episode: bool):
-    """One episode through the simulator's runner: per-step metrics ``[steps]`` each and the
-    registry's episode metrics (``{}`` unless ``episode``)."""
-    final, tr = run_episode(state, actor, key, params,
-                            metrics_fn=lambda s, p: _metrics(s, p, metrics_fn))
-    return tr.metrics, _episode_values(final, params, episode)
-
-
-def _reference_episode(state, actor, params: SimParams, metrics_fn, episode: bool = False):
-    # reference actors draw nothing: the key is a placeholder
-    return _run(state, actor, jax.random.key(0), params, metrics_fn, episode)
-
-
-def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
-                    obs_config: ObservationConfig, params: SimParams, actions: str, metrics_fn,
-                    episode: bool = False):
-    """One scenario, one seed: per-step metrics ``[steps]`` each and the registry's episode
-    metrics (``{}`` unless ``episode``).
-
-    As in training: the GRU is reset at t = 0 and warmed on the logged observations of
-    t = 0..9, then the policy drives from t = 10 (:func:`igdrivsim.policy.act.policy_actor`).
-    The episode key is fixed over the episode (position-noise offset), the step key is
-    ``fold_in(episode_key, t)`` (masking draws).
-    """
-    actor = policy_actor(policy_config, policy_params, setting, obs_config, actions)
-    return _run(state, actor, key, params, metrics_fn, episode)
-
-
-@partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn", "episode"))
-def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn,
-                     episode: bool = False):
-    state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
-    return jax.vmap(lambda s: _reference_episode(s, _reference_actor(actor_name, params), params,
-                                                 metrics_fn, episode))(state)
-
-
-@partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "actions",
-                                   "metrics_fn", "episode"))
-def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
-                  obs_config, params, actions, metrics_fn, episode: bool = False):
-    """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
-    ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
-    :class:`~igdrivsim.observation.ObservationParams` ``[G]`` (settings as data), or ``None``
-    with the static ``setting`` (``G = 1``). Outputs ``[G, S, B, steps]``."""
-    state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
-
-    def per_setting(policy_params, setting_value):
-        one = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
-                      obs_config=obs_config, params=params, actions=actions,
-                      metrics_fn=metrics_fn, episode=episode)
-        over_scenarios = jax.vmap(one, in_axes=(None, 0, 0))
-        return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
-
-    if settings is None:
-        out = per_setting(jax.tree.map(lambda x: x[0], policy_params), setting)
-        return jax.tree.map(lambda x: x[None], out)
-    return jax.vmap(per_setting)(policy_params, settings)
-
-
-def _to_host(outs) -> StepOutputs:
-    """Device outputs -> numpy; with several processes, every process gets the whole batch."""
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        outs = multihost_utils.process_allgather(outs, tiled=True)
-    per_step, episode = outs
-    ld, ov, off, valid = (np.asarray(x) for x in per_step)
-    scenario = {k: np.asarray(v) for k, v in episode.items()} if episode else None
-    return StepOutputs(ld, ov, off, valid.astype(bool), scenario)
-
-
-def _spread(tree, axis: int | None):
-    """Place arrays with ``axis`` (the scenario axis) split over every device of every process
-    (each process builds the same host batch and keeps its own part), or replicated when
-    ``axis`` is None (parameters); one device: unchanged."""
-    if jax.device_count() == 1 or tree is None:
-        return tree
-    spec = PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), "data")
-    return inputs.place(tree, NamedSharding(inputs.make_mesh(), spec))
-
-
-def _device_multiple(size: int) -> int:
-    """``size`` rounded up to a multiple of the global device count."""
-    count = jax.device_count()
-    return -(-size // count) * count
-
-
-def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
-    scenario = None if parts[0].scenario is None else {
-        k: np.concatenate([p.scenario[k] for p in parts], axis=axis) for k in parts[0].scenario}
-    return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis=axis)
-                         for f in StepOutputs.FIELDS), scenario)
-
-
-def _pad_batch(batch, size: int):
-    """Pad a scenario batch ``[n]`` to ``[size]`` by repeating the first one (fixed shapes)."""
-    n = jax.tree.leaves(batch)[0].shape[0]
-    if n == size:
-        return batch
-    return jax.tree.map(lambda x: np.concatenate([x, np.repeat(x[:1], size - n, 0)]), batch)
-
-
-def _batches(scenarios, batch_size: int):
-    """``(start, stop, batch)``: fixed-size batches (padded; a multiple of the device count),
-    the scenario axis spread over all devices."""
-    n = jax.tree.leaves(scenarios)[0].shape[0]
-    for start in range(0, n, batch_size):
-        stop = min(start + batch_size, n)
-        part = jax.tree.map(lambda x, a=start, b=stop: np.asarray(x)[a:b], scenarios)
-        yield start, stop, _spread(_pad_batch(part, _device_multiple(min(batch_size, n))), 0)
-
-
+# The engine (batches, devices, keys, the jitted episodes) is the training layer's
+# :mod:`igdrivsim.training.closed_loop`; evaluation adds the registry's per-episode metrics.
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
                        batch_size: int = 32, metrics_fn: Callable | None = None,
                        progress: Callable[[int], Any] | None = None,
                        episode_metrics: bool = True) -> StepOutputs:
     """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
     registry's episode metrics ``[N]`` unless ``episode_metrics=False``)."""
-    if actor_name not in REFERENCE_ACTORS:
-        raise KeyError(actor_name)
-    metrics_fn = metrics_fn or default_metrics_fn()
-    parts = []
-    for start, stop, batch in _batches(scenarios, batch_size):
-        outs = _to_host(_reference_batch(batch, params=params, actor_name=actor_name,
-                                         metrics_fn=metrics_fn, episode=episode_metrics))
-        parts.append(outs.map(lambda a, n=stop - start: a[:n]))
-        if progress:
-            progress(stop - start)
-    return _concat(parts, axis=0)
-
-
-def _episode_keys(base, num_seeds: int, index: np.ndarray):
-    """Keys ``[S, B]``: ``fold_in(fold_in(base, seed), scenario_index)``."""
-    per_seed = jax.vmap(lambda s: jax.random.fold_in(base, s))(jnp.arange(num_seeds))
-    return jax.vmap(lambda k: jax.vmap(lambda i: jax.random.fold_in(k, i))(jnp.asarray(index)))(
-        per_seed)
+    return closed_loop.evaluate_reference(
+        scenarios, actor_name, params, batch_size, metrics_fn, progress,
+        episode_metrics=registry.episode_values if episode_metrics else None)
 
 
 def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
@@ -271,44 +83,11 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     ``episode_metrics=True`` adds the registry's per-episode metrics (``scenario``, ``[S, N]``
     or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
     """
-    metrics_fn = metrics_fn or default_metrics_fn()
-    single = isinstance(setting, str)
-    names = [setting] if single else list(setting)
-    if single:
-        policy_params = jax.tree.map(lambda x: x[None], policy_params)
-    found = [setting_params(n) for n in names]
-    settings = None if any(p is None for p in found) else stack_params(found)
-    if settings is None and len(names) > 1:
-        groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
-                                  policy_config=policy_config, setting=n,
-                                  obs_config=obs_config, params=params, actions=actions,
-                                  batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
-                                  progress=progress, episode_metrics=episode_metrics)
-                  for g, n in enumerate(names)]
-        scenario = None if groups[0].scenario is None else {
-            k: np.stack([o.scenario[k] for o in groups]) for k in groups[0].scenario}
-        return StepOutputs(*(np.stack([getattr(o, f) for o in groups]) for f in
-                             StepOutputs.FIELDS), scenario)
-    static = get_setting(names[0]) if settings is None else None
-    num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
-    base = jax.random.key(seed)
-    policy_params, settings = _spread(policy_params, None), _spread(settings, None)
-    parts = []
-    for start, stop, batch in _batches(scenarios, batch_size):
-        size = jax.tree.leaves(batch)[0].shape[0]  # padded
-        index = np.minimum(np.arange(start, start + size), stop - 1)
-        keys = _spread(_episode_keys(base, num_seeds, index), 1)
-        outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
-                                      policy_config=policy_config, setting=static,
-                                      obs_config=obs_config, params=params, actions=actions,
-                                      metrics_fn=metrics_fn, episode=episode_metrics))
-        parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
-        if progress:
-            progress(stop - start)
-    out = _concat(parts, axis=2)
-    if single:
-        out = out.map(lambda a: a[0])
-    return out
+    return closed_loop.evaluate_policy(
+        policy_params, scenarios, policy_config=policy_config, setting=setting,
+        obs_config=obs_config, params=params, actions=actions, batch_size=batch_size, seed=seed,
+        metrics_fn=metrics_fn, progress=progress,
+        episode_metrics=registry.episode_values if episode_metrics else None)
 
 
 # ----------------------------------------------------------------------------- tidy frames

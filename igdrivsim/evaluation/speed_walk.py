@@ -31,8 +31,13 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
+from igdrivsim.cli_args import DefaultsFormatter
+from igdrivsim.data import Capacities
+from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import IGDrivSimError
+from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.expert import expert_action
 from igdrivsim.simulator.rollout import Actor, run_episode
@@ -123,8 +128,6 @@ def measure(scenarios, seed: int = 0, batch_size: int = 64, progress: bool = Fal
     (in batches of ``batch_size``; the i.i.d. offsets follow the whole set's label
     distribution, so the labels are measured in a first pass). ``progress``: a bar on stderr
     over the batches of all four actors."""
-    from tqdm import tqdm
-
     n = int(np.shape(scenarios.scenario_id)[0])
     run = jax.jit(episode, static_argnames="actor")
     start = jax.jit(jax.vmap(reset))
@@ -204,11 +207,6 @@ def report_markdown(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from igdrivsim.cli import DefaultsFormatter
-    from igdrivsim.data import Capacities
-    from igdrivsim.evaluation.commands import load_validation
-    from igdrivsim.io import atomic_write_json
-
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.speed_walk",
                                      description=__doc__.split("\n")[0],
                                      formatter_class=DefaultsFormatter)

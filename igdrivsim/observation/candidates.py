@@ -65,6 +65,8 @@ from igdrivsim.observation.models import (
     perceive_pose,
 )
 from igdrivsim.observation.observe import sdc_pose
+from igdrivsim.simulator import current_objects, sdc_yaw_rate
+from igdrivsim.simulator.roadgraph import select_nearest
 
 
 @dataclass(frozen=True)
@@ -137,8 +139,6 @@ def _packed_order(e: jax.Array, valid: jax.Array, scale: float, nearly_sorted: b
 def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
     """Candidates of ONE example around ``center``, nearest first (invalid last):
     ``(index, points, radius)``."""
-    from igdrivsim.simulator.roadgraph import select_nearest
-
     xy = jnp.asarray(roadgraph.xyz, jnp.float32)[..., :2]
     d2 = (xy[:, 0] - center[0]) ** 2 + (xy[:, 1] - center[1]) ** 2
     ok = jnp.asarray(roadgraph.valid, bool)
@@ -157,8 +157,6 @@ def _select(roadgraph: Any, center: jax.Array, config: CandidateConfig):
 
 
 def _believed(states: Any, setting: Setting, episode_keys, step_keys):
-    from igdrivsim.simulator import current_objects, sdc_yaw_rate
-
     objects = current_objects(states)
     xy, yaw, speed = jax.vmap(sdc_pose)(objects, states.sdc_index)
     if isinstance(setting, ObservationParams):

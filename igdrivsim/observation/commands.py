@@ -8,9 +8,17 @@ import os
 import re
 from pathlib import Path
 
-from igdrivsim.cli import deprecated_alias
+import jax
+
+import igdrivsim.simulator as sim
+from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.data import decode_scenario_id, load_scenario
+from igdrivsim.data import scenarionet as sn
+from igdrivsim.data.samples import find_samples
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import require_folder
+from igdrivsim.observation import render
+from igdrivsim.observation.models import PAPER_SETTINGS, get_setting
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data" / "womd" / "motion_data_one_example.tfrecord"
@@ -48,8 +56,6 @@ def _data_path(args) -> str:
     if path is None:
         if DEFAULT_DATA.exists():
             return str(DEFAULT_DATA)
-        from igdrivsim.data.samples import find_samples
-
         if (samples := find_samples()) is not None:  # fetched by igdrivsim samples
             return str(sorted(samples.glob("*.pkl"))[0])
         raise DataError(f"no --data given, the default sample {DEFAULT_DATA} is missing and no "
@@ -64,9 +70,6 @@ SYNTHETIC_ID = re.compile(r"syn[0-9a-f]+[a-z]\d{8}")  # the generator's scenario
 
 def scene_source(path: str, scenario) -> str:
     """What the figure shows, said in it: a synthetic scenario or a real one (and its dataset)."""
-    from igdrivsim.data import decode_scenario_id
-    from igdrivsim.data import scenarionet as sn
-
     sid = decode_scenario_id(scenario.scenario_id)
     if SYNTHETIC_ID.fullmatch(sid):
         return f"synthetic scenario {sid} (igdrivsim's generator, not a real log)"
@@ -75,8 +78,6 @@ def scene_source(path: str, scenario) -> str:
 
 
 def render_command(args) -> int:
-    from igdrivsim.observation.models import PAPER_SETTINGS, get_setting
-
     require_folder(args.out)
     if not 10 <= args.step <= 90:
         raise ConfigError(f"--step must be in 10..90, got {args.step}")
@@ -93,12 +94,6 @@ def render_command(args) -> int:
         raise ConfigError(f"--panels names no setting, got {args.panels!r}")
     for name in panels:
         get_setting(name)
-
-    import jax
-
-    import igdrivsim.simulator as sim
-    from igdrivsim.data import load_scenario
-    from igdrivsim.observation import render
 
     path = _data_path(args)
     scenario = load_scenario(path, args.record)

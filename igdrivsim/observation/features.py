@@ -31,6 +31,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from igdrivsim.data.scenario import RG_NUM_TYPES
+from igdrivsim.errors import ConfigError
 
 POSITION_SCALE = 100.0  # metres -> feature units
 SPEED_SCALE = 50.0  # m/s -> feature units
@@ -48,8 +49,6 @@ class ObservationConfig:
 
     def __post_init__(self) -> None:
         if self.num_objects < 1 or self.num_roadgraph_points < 1:
-            from igdrivsim.errors import ConfigError
-
             raise ConfigError(
                 f"observation capacities must be >= 1, got num_objects={self.num_objects}, "
                 f"num_roadgraph_points={self.num_roadgraph_points}")

@@ -52,6 +52,7 @@ from igdrivsim.observation.features import (
     object_positions,
     roadgraph_positions,
 )
+from igdrivsim.observation.sight import line_of_sight
 
 
 @dataclass(frozen=True)
@@ -273,8 +274,6 @@ def _params_pose(p: ObservationParams, sdc_xy, sdc_yaw, episode_key, step_key):
 
 def _params_apply(p: ObservationParams, obs: Observation, episode_key, step_key) -> Observation:
     if p.occluder_length is not None:  # first, so that every object occludes
-        from igdrivsim.observation.occlusion import line_of_sight
-
         keep_objects, keep_roadgraph = line_of_sight(obs, p.occluder_length, p.occluder_width)
         off = p.occluder_length <= 0
         obs = hide_roadgraph(hide_objects(obs, keep_objects | off), keep_roadgraph | off)

@@ -20,6 +20,7 @@ from igdrivsim.observation.features import (
     observe_arrays,
 )
 from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
+from igdrivsim.simulator import current_objects, sdc_yaw_rate
 
 
 def observe_setting_arrays(
@@ -62,8 +63,6 @@ def observe_with_selection(
     config: ObservationConfig = DEFAULT_CONFIG,
 ) -> tuple[Observation, Selection]:
     """:func:`observe` that also returns which object / roadgraph slots were selected."""
-    from igdrivsim.simulator import current_objects, sdc_yaw_rate
-
     objects = current_objects(state)
     xy, yaw, speed = sdc_pose(objects, state.sdc_index)
     return observe_setting_arrays(xy, yaw, speed, objects, state.sdc_index, state.roadgraph,

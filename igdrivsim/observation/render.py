@@ -22,7 +22,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
+import igdrivsim.simulator as sim
 from igdrivsim.io import atomic_savefig, atomic_write
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
@@ -38,6 +40,8 @@ from igdrivsim.observation.models import (
     get_setting,
 )
 from igdrivsim.observation.observe import observe_with_selection
+from igdrivsim.simulator import current_objects
+from igdrivsim.simulator.state import log_sdc_at, sdc_pose
 
 # Roadgraph categories for colouring (WOMD tf.Example type codes).
 ROAD_CATEGORIES: dict[str, tuple[tuple[int, ...], str]] = {
@@ -84,8 +88,6 @@ _observe_jit = jax.jit(observe_with_selection, static_argnums=(1, 4))
 def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Array,
              step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG) -> Snapshot:
     """Observe ONE (unbatched) simulator state under ``setting`` and collect what to draw."""
-    from igdrivsim.simulator import current_objects
-
     setting = get_setting(setting)
     obs, sel = _observe_jit(state, setting, episode_key, step_key, config)
     obs, sel = jax.tree.map(np.asarray, (obs, sel))
@@ -126,7 +128,7 @@ def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Arr
 
 
 def _box(ax, xy, yaw, size, **kw) -> None:
-    from matplotlib.patches import Polygon
+    from matplotlib.patches import Polygon  # heavy: only when drawing
 
     length, width = size
     c, s = math.cos(yaw), math.sin(yaw)
@@ -136,7 +138,7 @@ def _box(ax, xy, yaw, size, **kw) -> None:
 
 
 def _draw_fov(ax, setting: ObservationSetting) -> None:
-    from matplotlib.patches import Circle, Wedge
+    from matplotlib.patches import Circle, Wedge  # heavy: only when drawing
 
     for m in setting.models:
         for fill in (True, False):  # translucent area under everything, outline on top
@@ -222,8 +224,8 @@ def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | Non
 
 def legend_handles() -> list:
     """Legend entries shared by every panel."""
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
+    from matplotlib.lines import Line2D  # heavy: only when drawing
+    from matplotlib.patches import Patch  # heavy: only when drawing
 
     dots = [Line2D([], [], ls="", marker="o", ms=4, color=c, label=f"observed {n}")
             for n, (_, c) in ROAD_CATEGORIES.items()]
@@ -241,10 +243,10 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
     """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure.
     ``source`` (e.g. "real WOMD scenario ..." or "synthetic scenario ...") is said under the
     title."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: only when drawing
 
     ncols = 3 if len(settings) > 2 else len(settings)
     nrows = math.ceil(len(settings) / ncols)
@@ -272,7 +274,7 @@ def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: l
                              key: jax.Array, view: float = 30.0,
                              source: str | None = None) -> list[str]:
     """Write ``out_dir/fig1_observations.{pdf,png}``; returns the paths."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: only when drawing
 
     fig = observation_figure(state, settings, key, view, source=source)
     try:
@@ -288,9 +290,6 @@ def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[A
     Uses the simulator's ``expert_action`` when available; otherwise the inverse dynamics to the
     next logged pose, discretised (257 levels) and undiscretised, as the paper's expert.
     """
-    import igdrivsim.simulator as sim
-    from igdrivsim.simulator.state import log_sdc_at, sdc_pose
-
     params = sim.SimParams() if params is None else params
     expert = getattr(sim, "expert_action", None)
 
@@ -318,13 +317,11 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
                             fps: int = 10, every: int = 1, progress: bool = True) -> str:
     """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically.
     ``progress``: a frame bar on stderr (False: none, for ``--no-progress``)."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.animation import PillowWriter
-    from tqdm import tqdm
-
+    import matplotlib.pyplot as plt  # heavy: only when drawing
+    from matplotlib.animation import PillowWriter  # heavy: only when drawing
     setting = get_setting(setting)
     episode_key, step_root = jax.random.split(key)
     title = PRESET_TITLES.get(setting.name, setting.name)

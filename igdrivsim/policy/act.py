@@ -29,11 +29,11 @@ from flax import struct
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ROADGRAPH_FEATURES, Observation, ObservationConfig, observe
 from igdrivsim.observation.features import DEFAULT_CONFIG
+from igdrivsim.policy.distribution import action_log_prob
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator.dynamics import undiscretize
 from igdrivsim.simulator.rollout import Actor, StepInfo
 from igdrivsim.simulator.state import vmap_batch
-from igdrivsim.training.losses import action_log_prob
 
 
 def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Observation:

@@ -17,8 +17,10 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.observation.features import OBJECT_SPEED
+from igdrivsim.data.scenario import DT
+from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE
 from igdrivsim.policy.gru import fused_gru_cell, gru_scan
+from igdrivsim.simulator.dynamics import DX_LEVEL, DYAW_LEVEL, constant_speed_offset
 
 NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
 NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
@@ -244,10 +246,6 @@ def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax
     """The last ``H`` speed changes in dx levels, ``[now - previous, previous - the one
     before, ...]``, from the observed ``sdc_speed [..., 1]`` and the ``H`` previous ones
     ``past [..., H]`` (most recent first), and the updated ``past``."""
-    from igdrivsim.data.scenario import DT
-    from igdrivsim.observation.features import SPEED_SCALE
-    from igdrivsim.simulator.dynamics import DX_LEVEL
-
     level = DX_LEVEL / DT / SPEED_SCALE  # one dx level in the feature's units
     seq = jnp.concatenate([sdc_speed, past], -1)
     return (seq[..., :-1] - seq[..., 1:]) / level, seq[..., :-1]
@@ -257,9 +255,6 @@ def yaw_rate_levels(sdc_yaw_rate: jax.Array, past: jax.Array) -> tuple[jax.Array
     """The last ``H`` observed yaw rates in dyaw levels per step, ``[now, previous, ...]``,
     from ``sdc_yaw_rate [..., 1]`` (rad/s) and the ``H - 1`` previous ones ``past [..., H-1]``
     (most recent first), and the updated ``past``."""
-    from igdrivsim.data.scenario import DT
-    from igdrivsim.simulator.dynamics import DYAW_LEVEL
-
     seq = jnp.concatenate([sdc_yaw_rate, past], -1)
     return seq * (DT / DYAW_LEVEL), seq[..., :-1]
 
@@ -269,9 +264,6 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
     index ``b - shift``, where ``shift`` is the constant-velocity displacement (``speed x
     0.1 s``, ``sdc_speed`` being the observation's ``speed / 50``) in levels; so the middle
     index scores the constant-velocity level. Levels with no offset index get -1e9."""
-    from igdrivsim.observation.features import SPEED_SCALE
-    from igdrivsim.simulator.dynamics import constant_speed_offset
-
     bins = offset_logits.shape[-1]
     lead = offset_logits.shape[:-1]
     shift = jnp.broadcast_to(constant_speed_offset(sdc_speed * SPEED_SCALE), lead).reshape(-1)

@@ -22,11 +22,19 @@ import time
 import jax
 import numpy as np
 
-from igdrivsim.cli import deprecated_alias
-from igdrivsim.evaluation.schema import SETTINGS as PAPER_SETTINGS
+from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_file_target
 from igdrivsim.machine import machine_record
+from igdrivsim.observation.models import PAPER_SETTINGS
+from igdrivsim.policy.act import example_observation
+from igdrivsim.policy.network import init_params_per_seed
+from igdrivsim.simulator import toy
+from igdrivsim.training import inputs
+from igdrivsim.training.commands import refuse_contradictions
+from igdrivsim.training.config import PROFILES, get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
+from igdrivsim.training.update import run_settings, settings_as_data, update_spec
 
 
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,15 +63,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
                   updates: int = 3, overrides: tuple[str, ...] = (),
                   obs: str = ",".join(PAPER_SETTINGS)) -> dict:
     """Measure one profile; returns the JSON record."""
-    from igdrivsim.errors import ConfigError
-    from igdrivsim.policy.act import example_observation
-    from igdrivsim.policy.network import init_params_per_seed
-    from igdrivsim.simulator import toy
-    from igdrivsim.training import inputs
-    from igdrivsim.training.commands import refuse_contradictions
-    from igdrivsim.training.config import get_profile, with_overrides
+    # lazy: keeps `igdrivsim bench train --help` fast (the loop pulls in orbax, grain)
     from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
-    from igdrivsim.training.update import run_settings, settings_as_data, update_spec
 
     cpu = jax.default_backend() == "cpu"
     sets = [f"training.method={method}", f"observation.setting={obs}"]
@@ -132,9 +133,6 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
 
 
 def bench_train_command(args: argparse.Namespace) -> int:
-    from igdrivsim.errors import ConfigError, check_min
-    from igdrivsim.training.config import PROFILES
-
     names = [p.strip() for p in args.profiles.split(",") if p.strip()]
     if not names:
         raise ConfigError(f"--profiles names no profile, got {args.profiles!r}")

@@ -12,16 +12,18 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
-from igdrivsim.errors import ConfigError, check_min
+import jax
+
+from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
+from igdrivsim.observation import PRESETS, get_setting
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
 
 
 def train_arguments(parser: argparse.ArgumentParser) -> None:
-    from igdrivsim.observation import PRESETS
-
     parser.add_argument("--profile", choices=list(PROFILES), default="laptop",
                         help="named configuration (default: laptop)")
     parser.add_argument("--obs", default=None, metavar="SETTING",
@@ -82,8 +84,6 @@ def resolve_config(args: argparse.Namespace):
         shortcuts.append(f"training.seeds={args.seeds}")
     refuse_contradictions(shortcuts, args.overrides)
     config = with_overrides(config, shortcuts + list(args.overrides))
-    from igdrivsim.observation import get_setting
-
     for name in config.observation.setting.split(","):
         get_setting(name)  # fail early on an unknown setting
     return config.validate()
@@ -92,8 +92,6 @@ def resolve_config(args: argparse.Namespace):
 def maybe_init_distributed() -> None:
     """``jax.distributed.initialize()`` when the multi-host environment variables are set."""
     if os.environ.get("JAX_COORDINATOR_ADDRESS") and os.environ.get("JAX_NUM_PROCESSES"):
-        import jax
-
         jax.distributed.initialize(
             coordinator_address=os.environ["JAX_COORDINATOR_ADDRESS"],
             num_processes=int(os.environ["JAX_NUM_PROCESSES"]),
@@ -102,10 +100,6 @@ def maybe_init_distributed() -> None:
 
 def resolve_data(data: str) -> str:
     """``DATA/training`` when DATA is a generated folder (``training/`` and ``validation/``)."""
-    import sys
-
-    from igdrivsim.errors import DataError
-
     if not os.path.exists(data) and not any(ch in data for ch in "*?@"):  # globs, name@N
         raise DataError("training data not found", file=data)
     split = os.path.join(data, "training")
@@ -118,8 +112,6 @@ def resolve_data(data: str) -> str:
 
 
 def train_command(args: argparse.Namespace) -> int:
-    import sys
-
     config = resolve_config(args)
     check_min("--stop-after", args.stop_after, 0)
     require_folder(args.out)
@@ -133,11 +125,12 @@ def train_command(args: argparse.Namespace) -> int:
               file=sys.stderr)
     args.data = resolve_data(args.data)
     maybe_init_distributed()
-    from igdrivsim.training.loop import train
-
     cache = args.cache_dir
     if cache is None and os.path.isdir(args.data):
         cache = os.path.join(os.path.dirname(os.path.abspath(args.data)), "cache")
+    # lazy: keeps `igdrivsim train --help` fast (the loop pulls in orbax and grain)
+    from igdrivsim.training.loop import train
+
     result = train(config, args.data, args.out, resume=args.resume, stop_after=args.stop_after,
                    progress=not args.no_progress, val_data=args.val_data, cache_dir=cache)
     if result.complete and result.updates_done >= 0:

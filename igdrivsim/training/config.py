@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.policy.network import PolicyConfig
-from igdrivsim.training.methods import DEFAULT_METHOD, get_method
+from igdrivsim.observation import get_setting, setting_params
+from igdrivsim.policy.network import NUM_BINS, PolicyConfig
+from igdrivsim.training.methods import DEFAULT_METHOD, get_method, method_param_names
 
 
 @dataclass(frozen=True)
@@ -112,10 +114,6 @@ class RunConfig:
 
     def _check_ranges(self) -> None:
         """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
-        import math
-
-        from igdrivsim.policy.network import NUM_BINS
-
         for (section, name), (low, high) in RANGES.items():
             value = getattr(getattr(self, section), name)
             for v in value if isinstance(value, tuple) else (value,):
@@ -153,8 +151,6 @@ class RunConfig:
         self._check_ranges()
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
             raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
-        from igdrivsim.observation import get_setting, setting_params
-
         names = [s.strip() for s in self.observation.setting.split(",") if s.strip()]
         if not names or len(set(names)) != len(names):
             raise ConfigError("observation.setting must name distinct settings, got "
@@ -323,10 +319,6 @@ def with_overrides(config: RunConfig, overrides: list[str]) -> RunConfig:
 
 
 def _with_method_param(config: RunConfig, name: str, text: str, item: str) -> RunConfig:
-    import math
-
-    from igdrivsim.training.methods import method_param_names
-
     if name not in method_param_names():
         raise ConfigError(f"unknown method parameter {name!r} in {item!r}; the registered "
                           f"methods declare {', '.join(sorted(method_param_names())) or 'none'}")

@@ -27,13 +27,23 @@ from collections.abc import Iterator, Sequence
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from tqdm.auto import tqdm
 
+from igdrivsim.data import read_scenarios
+from igdrivsim.data.manifest import count_scenarios, load_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationConfig
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
-from igdrivsim.training.teacher import TeacherSteps
+from igdrivsim.training.teacher import (
+    TeacherSteps,
+    cache_key,
+    compute_teacher,
+    data_identity,
+    load_or_compute,
+    superset_config,
+)
 
 MANIFEST = "manifest.jsonl"
 
@@ -47,13 +57,9 @@ def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int
                    chunk: int = 64) -> Iterator[list[Scenario]]:
     """Chunks of the training scenarios of ``data``: the kept rows of ``DIR/manifest.jsonl``
     when there is one, else every record of the folder's (or path's) TFRecord files."""
-    from igdrivsim.data import read_scenarios
-
     path = os.fspath(data)
     manifest = os.path.join(path, MANIFEST) if os.path.isdir(path) else None
     if manifest and os.path.isfile(manifest):
-        from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
-
         entries = read_manifest(manifest)[: max_scenarios or None]
         for start in range(0, len(entries), chunk):
             yield load_manifest_scenarios(entries[start:start + chunk], caps)
@@ -91,8 +97,6 @@ def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False
     ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True)
     parts = []
     for scenarios in chunks:
@@ -166,14 +170,6 @@ class Dataset:
         the teacher-forced records come from ``cache_dir`` when they were computed before.
         ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
         update records each batch itself."""
-        from igdrivsim.training.teacher import (
-            cache_key,
-            compute_teacher,
-            data_identity,
-            load_or_compute,
-            superset_config,
-        )
-
         d, t = config.data, config.training
         limit = d.max_scenarios if max_scenarios is None else max_scenarios
 
@@ -188,8 +184,6 @@ class Dataset:
         def load() -> SimState:
             total = None  # the bar's: the manifest's kept rows, the records, the list
             if progress and isinstance(data, (str, os.PathLike)):
-                from igdrivsim.data.manifest import count_scenarios
-
                 total = count_scenarios(data, limit)
             elif progress and isinstance(data, Sequence):
                 total = min(len(data), limit or len(data))

@@ -34,14 +34,19 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
+from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import count_params, init_params_per_seed
 from igdrivsim.training import inputs
 from igdrivsim.training.checkpoint import Checkpoints
+from igdrivsim.training.closed_loop import evaluate_policy
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
+from igdrivsim.training.cost import warn_if_cpu
+from igdrivsim.training.privileged import TEACHER_SETTING, teacher_config
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
@@ -167,8 +172,6 @@ class Validation:
     and closed-loop metrics of every (setting, seed)."""
 
     def __init__(self, config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None):
-        from igdrivsim.evaluation.commands import load_validation
-
         n = config.training.val_scenarios
         self.config, self.spec = config, spec
         self.teacher = inputs.Dataset.from_config(
@@ -178,8 +181,6 @@ class Validation:
         self.settings = settings_as_data(config)
 
     def __call__(self, params) -> dict:
-        from igdrivsim.evaluation.rollout import evaluate_policy
-
         c = self.config
         val_bc = self.loss(params, jax.tree.map(jnp.asarray, self.teacher), self.settings,
                            jax.random.key(0))
@@ -198,9 +199,21 @@ def barrier(name: str, timeout_s: int = 3600) -> None:
     up after 30 s, so processes meet here before work whose duration differs between them
     (compiling, loading) is followed by a collective."""
     if jax.process_count() > 1:
-        from jax._src import distributed
+        from jax._src import distributed  # private JAX API: only for several processes
 
         distributed.global_state.client.wait_at_barrier(f"igdrivsim-{name}", timeout_s * 1000)
+
+
+def load_teacher(run_dir: str, student: RunConfig):
+    """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
+    teacher_config(run_dir, student)
+    if not is_complete(run_dir):
+        raise ConfigError(f"training.teacher: {run_dir} has not finished training")
+    config, params = load_run(run_dir)
+    g = run_settings(config).index(TEACHER_SETTING)
+    seeds = config.training.seeds
+    pick = np.arange(student.training.seeds) % seeds
+    return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
 
 
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
@@ -232,7 +245,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     inputs.check_batch(config.data.batch_size, mesh)
     main = jax.process_index() == 0
     if config.data.stream:  # paper scale: per-process shards decoded on demand
-        from igdrivsim.training.stream import StreamDataset
+        from igdrivsim.training.stream import StreamDataset  # lazy: grain, only for data.stream
 
         dataset = StreamDataset.from_config(config, data, spec.sim)
     else:
@@ -241,8 +254,6 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                                              need_states=config.collects_rollout)
     num_updates = total_updates(config, dataset.num)
     if main:  # the paper profile without an accelerator: say how long it would take
-        from igdrivsim.training.cost import warn_if_cpu
-
         warn_if_cpu(config, dataset.num, jax.default_backend(), mesh.size)
     record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
                "settings": settings_list, "devices": mesh.size,
@@ -258,8 +269,6 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     buffer = init_buffer(config, spec)
     teacher_params = None
     if spec.learner.teacher:
-        from igdrivsim.training.privileged import load_teacher
-
         teacher_params = load_teacher(t.teacher, config)
         log(f"privileged teacher: the full setting of {t.teacher}")
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], params))
@@ -278,7 +287,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         start = ckpt.latest_step()
         params, opt_state, buffer = ckpt.restore(start, params, opt_state, buffer)
         if config.data.stream:
-            from igdrivsim.training.stream import load_state
+            from igdrivsim.training.stream import load_state  # lazy: grain, only for data.stream
 
             data_state = load_state(out_dir, start)
         log(f"resuming from update {start}")
@@ -296,8 +305,6 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     grads_per_update = runs * t.ppo_epochs * t.ppo_minibatches
     bar = None
     if progress and main:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train", dynamic_ncols=True)
     batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
                               config.data.prefetch, data_state)
@@ -345,6 +352,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 last_time = time.perf_counter()  # rates measure training only
             if done % t.checkpoint_every == 0 or done == end:
                 if data_state is not None:  # the input iterator's state, saved first
+                    # lazy: grain, only for data.stream
                     from igdrivsim.training.stream import save_state
 
                     save_state(out_dir, done, data_state, ckpt.manager.all_steps())

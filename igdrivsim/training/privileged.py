@@ -1,23 +1,24 @@
 """The privileged teacher of DAgger and ADVISOR: a policy trained with the ``full`` setting.
 
-The teacher is an earlier run (``training.teacher``): its ``full`` setting's parameters label
-the student's states, seed ``s`` of the student by seed ``s`` of the teacher (cycling when the
-teacher has fewer seeds). It must observe with the same capacities as the student (the
-student's rollout records the full observation at those capacities). :func:`choose_teacher`
-picks, among finished runs, the one that drives better on the validation subset of its
-learning curves (the paper's failure rate, overlap + offroad, at the last update).
+The teacher is an earlier run (``training.teacher``): its ``full`` setting's parameters
+(:func:`igdrivsim.training.loop.load_teacher`) label the student's states, seed ``s`` of the
+student by seed ``s`` of the teacher (cycling when the teacher has fewer seeds). It must observe
+with the same capacities as the student (the student's rollout records the full observation at
+those capacities). :func:`choose_teacher` picks, among finished runs, the one that drives better
+on the validation subset of its learning curves (the paper's failure rate, overlap + offroad, at
+the last update).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.errors import ConfigError
+from igdrivsim.io import atomic_write_json
 from igdrivsim.training.config import RunConfig, from_dict
 
 TEACHER_SETTING = "full"
@@ -41,21 +42,6 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
         raise ConfigError(f"training.teacher: {run_dir} observes (objects, road points, "
                           f"stride) = {theirs}, the student {mine}; they must match")
     return config
-
-
-def load_teacher(run_dir: str, student: RunConfig):
-    """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
-    from igdrivsim.training.loop import is_complete, load_run
-    from igdrivsim.training.update import run_settings
-
-    teacher_config(run_dir, student)
-    if not is_complete(run_dir):
-        raise ConfigError(f"training.teacher: {run_dir} has not finished training")
-    config, params = load_run(run_dir)
-    g = run_settings(config).index(TEACHER_SETTING)
-    seeds = config.training.seeds
-    pick = np.arange(student.training.seeds) % seeds
-    return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
 
 
 def teacher_score(run_dir: str) -> dict | None:
@@ -91,10 +77,6 @@ def choose_teacher(run_dirs: list[str]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """``python -m igdrivsim.training.privileged --runs RUN... --out teacher.json``: pick the
     teacher among finished runs and record the choice (the pipeline's ``teacher`` stage)."""
-    import argparse
-
-    from igdrivsim.io import atomic_write_json
-
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.training.privileged",
                                      description=main.__doc__)
     parser.add_argument("--runs", nargs="+", required=True, help="candidate run folders")

@@ -25,10 +25,15 @@ import jax
 import numpy as np
 from jax.sharding import NamedSharding
 
+from igdrivsim.data.manifest import _load_records
+from igdrivsim.data.reader import count_records, expand_paths
 from igdrivsim.data.scenario import Capacities, Scenario
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, SimState
+from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
+from igdrivsim.training.inputs import capacities
 
 MANIFEST = "manifest.jsonl"
 
@@ -62,8 +67,6 @@ class ScenarioIndex:
                     if limit and len(refs) >= limit:
                         break
         else:
-            from igdrivsim.data.reader import count_records, expand_paths
-
             for name in expand_paths(path):
                 fid = files.setdefault(name, len(files))
                 for r in range(count_records(name)):
@@ -80,8 +83,6 @@ class ScenarioIndex:
         return len(self.refs)
 
     def __getitem__(self, i: int) -> Scenario:
-        from igdrivsim.data.manifest import _load_records
-
         fid, record = self.refs[int(i)]
         return _load_records(self.files[fid], [int(record)], self.caps)[0][1]
 
@@ -134,8 +135,6 @@ class StreamDataset:
 
     @classmethod
     def from_config(cls, config: RunConfig, data, params: SimParams) -> StreamDataset:
-        from igdrivsim.training.inputs import capacities
-
         d, t = config.data, config.training
         if isinstance(data, (str, os.PathLike)):
             if not os.path.exists(data):
@@ -161,11 +160,9 @@ class StreamDataset:
 
     def host_batch(self, update: int) -> tuple[None, SimState]:
         """Decode and reset the scenarios of ``update`` on the host: ``(None, states [S, b])``."""
-        from igdrivsim.training.inputs import reset_chunk
-
         idx = self.indices(update)
         flat = [self.source[int(i)] for i in idx.reshape(-1)]
-        states = reset_chunk(flat, self.params, len(flat))
+        states = inputs.reset_chunk(flat, self.params, len(flat))  # late-bound: tests patch it
         return None, jax.tree.map(lambda x: x.reshape(idx.shape + x.shape[1:]), states)
 
     def iterator(self, start: int, state: dict | None = None, stop: int = 2**62):
@@ -208,8 +205,6 @@ def state_path(run_dir: str, step: int, process: int) -> str:
 def save_state(run_dir: str, step: int, state: dict, keep: Sequence[int]) -> None:
     """Save this process's iterator state for checkpoint ``step`` (atomic); prune the states
     of checkpoints no longer kept."""
-    from igdrivsim.io import atomic_write_json
-
     process = jax.process_index()
     path = state_path(run_dir, step, process)
     os.makedirs(os.path.dirname(path), exist_ok=True)

@@ -27,6 +27,7 @@ recomputed. Files are written atomically.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -37,9 +38,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from tqdm.auto import tqdm
 
+from igdrivsim.data import expand_paths
+from igdrivsim.data.manifest import read_manifest
 from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS, RG_NUM_TYPES
 from igdrivsim.errors import DataError
+from igdrivsim.io import atomic_path
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -126,8 +131,6 @@ def compute_teacher(states: SimState, sim: SimParams, rec: ObservationConfig,
     fn = _jit_episodes(sim, rec)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=n, desc="teacher-forced observations", unit="scn", dynamic_ncols=True)
     parts = []
     for start in range(0, n, chunk):
@@ -144,9 +147,6 @@ def compute_teacher(states: SimState, sim: SimParams, rec: ObservationConfig,
 
 def data_identity(data) -> str:
     """A string that changes when the data changes: the manifest's bytes or the files' stats."""
-    from igdrivsim.data import expand_paths
-    from igdrivsim.data.manifest import read_manifest
-
     path = os.fspath(data)
     manifest = os.path.join(path, "manifest.jsonl") if os.path.isdir(path) else None
     h = hashlib.sha256()
@@ -175,10 +175,7 @@ def load_or_compute(cache_dir: str | None, key: str, compute) -> TeacherSteps:
     """The cached records under ``cache_dir/teacher-<key>.npz``, computed and saved if absent
     (no ``cache_dir``: computed, not saved). Processes sharing the cache (the pipeline's
     parallel training parts) compute each record file once: the others wait on its lock."""
-    import contextlib
-    import fcntl
-
-    from igdrivsim.io import atomic_path
+    import fcntl  # optional: Unix only (file locks)
 
     path = os.path.join(cache_dir, f"teacher-{key}.npz") if cache_dir else None
     with contextlib.ExitStack() as stack:

@@ -24,6 +24,7 @@ update serves any run length.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import partial
 
@@ -41,6 +42,7 @@ from igdrivsim.observation import (
     setting_params,
     stack_params,
 )
+from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training import env
@@ -48,6 +50,7 @@ from igdrivsim.training.config import RunConfig
 from igdrivsim.training.env import WARMUP_STEPS
 from igdrivsim.training.losses import bc_loss, gae, normalize
 from igdrivsim.training.methods import Method, Outputs, get_method
+from igdrivsim.training.privileged import teacher_config
 from igdrivsim.training.teacher import (
     EPISODE_STEPS,
     TeacherSteps,
@@ -137,8 +140,6 @@ def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
     """The privileged teacher's network config (``None`` when the method has no teacher)."""
     if not get_method(config.training.method).teacher:
         return None
-    from igdrivsim.training.privileged import teacher_config
-
     return teacher_config(config.training.teacher, config).policy
 
 
@@ -150,8 +151,6 @@ def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
 
 def cosine_lr(update: int, num_updates: int, lr: float, lr_end: float) -> float:
     """Cosine decay from ``lr`` (update 0) to ``lr_end`` (after the last update)."""
-    import math
-
     frac = min(max(update / max(num_updates, 1), 0.0), 1.0)
     return lr_end + 0.5 * (lr - lr_end) * (1.0 + math.cos(math.pi * frac))
 
@@ -202,8 +201,6 @@ def empty_aggregate(spec: UpdateSpec, batch: int) -> Aggregate | None:
     """The empty buffer of one (setting, seed) (``None`` unless the method aggregates)."""
     if "aggregate" not in spec.learner.episodes:
         return None
-    from igdrivsim.policy.act import example_observation
-
     n = spec.aggregate_batches * batch
     obs = jax.tree.map(lambda x: jnp.zeros((n, EPISODE_STEPS, *x.shape), x.dtype),
                        example_observation(spec.obs))

@@ -15,8 +15,14 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from tqdm.auto import tqdm
+
 from igdrivsim.data.reader import available_cpus
+from igdrivsim.data.scenario import trim_padding
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
+from igdrivsim.data.synthetic.plot import save_pictures
+from igdrivsim.data.tfexample import encode_tfexample
+from igdrivsim.data.tfrecord import write_records
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_folder
 
@@ -36,9 +42,6 @@ def shard_ranges(count: int, shards: int) -> list[range]:
 
 def _encode_chunk(seed: int, split: str, start: int, stop: int, config: GeneratorConfig,
                   compact: bool = False):
-    from igdrivsim.data.scenario import trim_padding
-    from igdrivsim.data.tfexample import encode_tfexample
-
     prepare = trim_padding if compact else (lambda s: s)
     return [encode_tfexample(prepare(generate_scenario(seed, i, split, config)))
             for i in range(start, stop)]
@@ -81,10 +84,6 @@ def _check(args: argparse.Namespace) -> None:
 
 def generate_command(args: argparse.Namespace) -> int:
     """Generate the requested splits; print one JSON summary line."""
-    from tqdm.auto import tqdm
-
-    from igdrivsim.data.tfrecord import write_records
-
     _check(args)
     require_folder(args.out)
     config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection)
@@ -140,8 +139,6 @@ def generate_command(args: argparse.Namespace) -> int:
             pool.shutdown(cancel_futures=True)
     seconds = time.perf_counter() - start
     if args.plot:
-        from igdrivsim.data.synthetic.plot import save_pictures
-
         scenarios = [generate_scenario(args.seed, i, "training", config)
                      for i in range(min(args.plot, args.train))]
         save_pictures(scenarios, os.path.join(args.out, "pictures"))

@@ -77,7 +77,7 @@ class Route:
     @cached_property
     def tree(self):
         """A k-d tree of the points (nearest route point of a position)."""
-        from scipy.spatial import cKDTree
+        from scipy.spatial import cKDTree  # heavy: scipy is needed only here
 
         return cKDTree(self.points)
 

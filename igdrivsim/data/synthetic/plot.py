@@ -22,7 +22,7 @@ _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
 def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
     """Draw one (unbatched) scenario on a matplotlib axis: boxes at step 10, the whole logged
     trajectories, the view centred on the middle of the SDC's log."""
-    from matplotlib.patches import Polygon
+    from matplotlib.patches import Polygon  # heavy: only when drawing
 
     rg, tr, md = scenario.roadgraph, scenario.trajectory, scenario.metadata
     xy, t, ids = np.asarray(rg.xyz)[:, :2], np.asarray(rg.type), np.asarray(rg.id)
@@ -70,7 +70,7 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
 
 def add_legend(ax) -> None:
     """Explain the colours of :func:`draw_scenario` (small, lower left)."""
-    from matplotlib.lines import Line2D
+    from matplotlib.lines import Line2D  # heavy: only when drawing
 
     items = [("SDC (box at t=1 s, log)", "tab:red", "-"), ("vehicles", "tab:blue", "-"),
              ("pedestrians", "tab:green", "-"), ("road edges", "black", "-"),
@@ -83,10 +83,10 @@ def add_legend(ax) -> None:
 
 def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
     """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` (k from 1), written atomically."""
-    import matplotlib
+    import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: only when drawing
 
     os.makedirs(out_dir, exist_ok=True)
     paths = []

@@ -46,7 +46,8 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from igdrivsim.cli import deprecated_alias
+from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.data import load_scenario, read_scenarios
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json
 from igdrivsim.machine import machine_record
@@ -56,6 +57,7 @@ from igdrivsim.observation.candidates import (
     init_candidates,
     observe_batch_with_candidates,
 )
+from igdrivsim.observation.commands import _data_path
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.expert import expert_discrete_action
 from igdrivsim.simulator.metrics import step_metrics
@@ -189,9 +191,6 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def bench_sim_command(args) -> int:
-    from igdrivsim.data import load_scenario, read_scenarios
-    from igdrivsim.observation.commands import _data_path
-
     try:
         batches = [int(b) for b in args.batches.split(",") if b.strip()]
     except ValueError as err:

@@ -20,9 +20,13 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
+from igdrivsim.data import decode_scenario_id, iter_scenarios
+from igdrivsim.data.manifest import count_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, atomic_write_json, require_folder
+from igdrivsim.observation import render
 from igdrivsim.simulator.metrics import StepMetrics, mean_log_divergence
 from igdrivsim.simulator.rollout import ACTORS, log_metrics, run_episode
 from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
@@ -118,28 +122,20 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
-    from igdrivsim.observation.render import write_rollout_animation
-
     states = [final.replace(timestep=jnp.int32(t)) for t in range(10, int(final.timestep) + 1)]
-    write_rollout_animation(states, "full", path, jax.random.key(0), progress=progress)
+    render.write_rollout_animation(states, "full", path, jax.random.key(0), progress=progress)
 
 
 def _replay_total(files: list[str], limit: int | None) -> int | None:
     """The replay bar's total: the scenarios of ``files`` (their record count), capped by
     ``limit``; where counting is not cheap (ScenarioNet) or fails, ``limit`` (None: no total)."""
-    from igdrivsim.data.manifest import count_scenarios
-
     total = count_scenarios(files, limit or 0)
     return limit if total is None else total
 
 
 def replay_command(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     if args.out:
         require_folder(args.out)
-    from igdrivsim.data import decode_scenario_id, iter_scenarios
-
     if args.limit is not None and args.limit < 1:
         raise ConfigError(f"--limit must be positive, got {args.limit}")
     params = SimParams(offroad_method=args.offroad)

@@ -1,0 +1,32 @@
+"""Argument-parser helpers shared by every command module (and ``maze``): the help formatter
+and hidden old option spellings. A low layer, so that command modules need not import
+:mod:`igdrivsim.cli` (the top layer, which maps command names to those modules).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Append "(default: X)" to an option's help unless it already names its default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_ = action.help or ""
+        if ("default" in help_ or action.default is argparse.SUPPRESS or not action.option_strings
+                or action.nargs == 0):
+            return help_
+        if action.default is None:
+            return f"{help_} (default: none)".strip()
+        if action.default == []:
+            return help_  # a repeatable option, empty unless given
+        return f"{help_} (default: %(default)s)".strip()
+
+
+FORMATTER = DefaultsFormatter  # every option's help shows its default
+
+
+def deprecated_alias(parser: argparse.ArgumentParser, name: str, dest: str, **kwargs) -> None:
+    """Accept an old option spelling (hidden from ``--help``) that sets ``dest`` like the new."""
+    parser.add_argument(name, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                        **kwargs)

@@ -1,0 +1,1 @@
+"""Training: BC / BC-RL / DAgger / ADVISOR updates, the training loop and its commands."""
