@@ -5,6 +5,7 @@ split over the workers and the plan printed before any stage."""
 from __future__ import annotations
 
 import json
+import threading
 import time
 from pathlib import Path
 
@@ -155,3 +156,22 @@ def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, m
     err = capsys.readouterr().err
     assert "plan: estimated wall time ~" in err and "below the competence targets" in err
     assert "test CPU, 2 cores; 2 worker process(es), one XLA thread each" in err
+
+
+def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):
+    """An interrupted run (Ctrl-C, or SIGTERM, which main turns into the same) leaves no stage
+    process behind: ``stop`` terminates every running one and no later stage starts."""
+    pipe = _pipeline(tmp_path, monkeypatch)
+    lane = threading.Thread(target=lambda: pytest.raises(
+        pl.StageError, pipe.stage, "sleeper", [["python", "-c", "import time; time.sleep(60)"]],
+        echo=False))
+    lane.start()
+    deadline = time.time() + 30
+    while not pipe.children and time.time() < deadline:
+        time.sleep(0.05)
+    (proc,) = pipe.children
+    pipe.stop()
+    lane.join(timeout=30)
+    assert not lane.is_alive() and proc.poll() is not None and not pipe.children
+    with pytest.raises(pl.StageError, match="not started"):
+        pipe.stage("later", [["python", "-c", "pass"]])

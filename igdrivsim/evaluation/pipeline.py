@@ -39,6 +39,7 @@ import importlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -130,6 +131,7 @@ class Pipeline:
         self.started = time.time()
         self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
+        self.children: set[subprocess.Popen] = set()  # stage processes now running
 
     # ----------------------------------------------------------------------- bookkeeping
     def log_path(self, stage: str) -> Path:
@@ -212,6 +214,7 @@ class Pipeline:
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 cwd=REPO_ROOT, env=env)
         assert proc.stdout is not None
+        self.children.add(proc)
         latest, next_beat = "", time.time() + HEARTBEAT_S
         try:
             while chunk := os.read(proc.stdout.fileno(), 4096):
@@ -235,7 +238,15 @@ class Pipeline:
             proc.terminate()
             proc.wait()
             raise
+        finally:
+            self.children.discard(proc)
         return proc.wait()
+
+    def stop(self) -> None:
+        """Stop every running stage process (an interrupted run; rerunning resumes)."""
+        self.stopping.set()
+        for proc in list(self.children):
+            proc.terminate()
 
     def _run_in_process(self, argv: list[str], fh) -> int:
         """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
@@ -843,14 +854,24 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                     samples=resolve_samples(args.samples))
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the stages as Ctrl-C does
+    pipeline = None
     try:
-        pipeline_from_args(args).run()
+        pipeline = pipeline_from_args(args)
+        pipeline.run()
     except REPORTED as err:
         print(f"reproduce: error: {error_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if pipeline is not None:
+            pipeline.stop()
         print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
     return 0
