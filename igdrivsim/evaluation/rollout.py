@@ -25,7 +25,7 @@ and the registry's derived ones, follow Table I's in the per-scenario frame.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -39,12 +39,9 @@ from igdrivsim.evaluation.schema import (
     REFERENCE_SETTING,
     scenario_columns,
 )
-from igdrivsim.observation import ObservationConfig
-from igdrivsim.policy.network import PolicyConfig
 from igdrivsim.simulator import SimParams
 from igdrivsim.training import closed_loop
 from igdrivsim.training.closed_loop import (
-    DEFAULT_OBS_CONFIG,
     DEFAULT_SIM_PARAMS,
     EVAL_SEED,
     REFERENCE_ACTORS,
@@ -65,14 +62,8 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
         episode_metrics=registry.episode_values if episode_metrics else None)
 
 
-def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
-                    setting: str | Sequence[str],
-                    obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
-                    params: SimParams = DEFAULT_SIM_PARAMS, actions: str = "sample",
-                    batch_size: int = 32,
-                    seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
-                    progress: Callable[[int], Any] | None = None,
-                    episode_metrics: bool = False) -> StepOutputs:
+def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
+                    **options: Any) -> StepOutputs:
     """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
 
     One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
@@ -82,12 +73,13 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     setting), so results do not depend on the batch size or on which settings run together.
     ``episode_metrics=True`` adds the registry's per-episode metrics (``scenario``, ``[S, N]``
     or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
+    The other keyword ``options`` are :func:`igdrivsim.training.closed_loop.evaluate_policy`'s
+    (``policy_config``, ``setting``, ``obs_config``, ``params``, ``actions``, ``batch_size``,
+    ``seed``, ``metrics_fn``, ``progress``).
     """
     return closed_loop.evaluate_policy(
-        policy_params, scenarios, policy_config=policy_config, setting=setting,
-        obs_config=obs_config, params=params, actions=actions, batch_size=batch_size, seed=seed,
-        metrics_fn=metrics_fn, progress=progress,
-        episode_metrics=registry.episode_values if episode_metrics else None)
+        policy_params, scenarios,
+        episode_metrics=registry.episode_values if episode_metrics else None, **options)
 
 
 # ----------------------------------------------------------------------------- tidy frames
