@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
     "train": ("igdrivsim.training.commands", "train BC / BC-RL policies"),
     "evaluate": ("igdrivsim.evaluation.commands", "evaluate a trained run on validation data"),
-    "report": ("igdrivsim.evaluation.commands", "aggregate evaluations into tables and figures"),
+    "report": ("igdrivsim.report.commands", "aggregate evaluations into tables and figures"),
 }
 # `igdrivsim bench NAME`
 BENCHES: dict[str, tuple[str, str]] = {

@@ -24,12 +24,12 @@ fi
 PYTHON="${PYTHON:-python3}"
 command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python
 
-importable() { "$PYTHON" -c "import igdrivsim.evaluation.pipeline" >/dev/null 2>&1; }
+importable() { "$PYTHON" -c "import igdrivsim.pipeline.cli" >/dev/null 2>&1; }
 
 for arg in "$@"; do
     if [ "$arg" = "--help" ] || [ "$arg" = "-h" ]; then
         if importable; then
-            exec "$PYTHON" -m igdrivsim.evaluation.pipeline --help
+            exec "$PYTHON" -m igdrivsim.pipeline --help
         fi
         sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
         echo "(igdrivsim is not installed for $PYTHON; the first run installs it)"
@@ -49,4 +49,4 @@ if ! importable; then
 fi
 
 export PYTHONUNBUFFERED=1
-exec "$PYTHON" -m igdrivsim.evaluation.pipeline "$@"
+exec "$PYTHON" -m igdrivsim.pipeline "$@"

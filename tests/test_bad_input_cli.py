@@ -10,7 +10,7 @@ import pytest
 
 from igdrivsim.cli import main
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.pipeline import build_parser, pipeline_from_args
+from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.teacher import data_identity
 

@@ -11,7 +11,7 @@ from igdrivsim import cli
 
 COMMANDS = [[name] for name in cli.COMMANDS] + [["bench"]] + [["bench", n] for n in cli.BENCHES]
 MAZE = ["maze.__main__", "maze.bench", "maze.render", "maze.study",
-        "igdrivsim.evaluation.pipeline"]  # the last: scripts/reproduce.sh
+        "igdrivsim.pipeline.cli"]  # the last: scripts/reproduce.sh
 
 
 def _run_help(main, argv: list[str], monkeypatch, capsys) -> list[argparse.ArgumentParser]:

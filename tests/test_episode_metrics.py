@@ -14,8 +14,9 @@ import pytest
 from flax import struct
 
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, NUM_STEPS, Trajectory
-from igdrivsim.evaluation import aggregate, figures, registry, rollout, tables
+from igdrivsim.evaluation import aggregate, registry, rollout
 from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, SCENARIO_COLUMNS
+from igdrivsim.report import figures, tables
 from igdrivsim.simulator import episode_metrics as em
 from igdrivsim.simulator.state import SdcTrajectory
 
@@ -209,7 +210,7 @@ def test_a_registered_metric_reaches_csv_table_and_figure(monkeypatch, tmp_path)
 
 
 def test_report_writes_supplementary_outputs_also_for_old_csvs(tmp_path):
-    from igdrivsim.evaluation.report import build_report
+    from igdrivsim.report.build import build_report
 
     rows = []
     for method in ("bc", "bc_rl"):

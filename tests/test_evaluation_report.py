@@ -7,14 +7,15 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import DataError
-from igdrivsim.evaluation import aggregate, tables
-from igdrivsim.evaluation.report import Provenance, build_report
+from igdrivsim.evaluation import aggregate
 from igdrivsim.evaluation.schema import (
     PER_SCENARIO_COLUMNS,
     PER_STEP_COLUMNS,
     REFERENCE_SETTING,
     SETTINGS,
 )
+from igdrivsim.report import tables
+from igdrivsim.report.build import Provenance, build_report
 
 N_SCENARIOS, SEEDS = 40, (0, 1, 2)
 

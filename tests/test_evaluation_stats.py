@@ -10,10 +10,11 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import DataError
-from igdrivsim.evaluation import aggregate, tables
-from igdrivsim.evaluation.figures import learning_curves_figure, load_curves
-from igdrivsim.evaluation.report import Provenance, build_report
+from igdrivsim.evaluation import aggregate
 from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, REFERENCE_SETTING
+from igdrivsim.report import tables
+from igdrivsim.report.build import Provenance, build_report
+from igdrivsim.report.figures import learning_curves_figure, load_curves
 
 Z_SUM = 1.959963984540054 + 0.8416212335729143  # z_{0.975} + z_{0.8}
 

@@ -57,7 +57,8 @@ def test_the_metric_recipe_reaches_the_rollout_and_every_methods_table(monkeypat
     import pandas as pd
     from test_episode_metrics import _poses_from_speed, make_state
 
-    from igdrivsim.evaluation import aggregate, registry, tables
+    from igdrivsim.evaluation import aggregate, registry
+    from igdrivsim.report import tables
     from igdrivsim.simulator import episode_metrics as em
 
     namespace = dict(vars(em))  # step 1: a function in episode_metrics.py

@@ -6,9 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from igdrivsim.evaluation import aggregate, methods_table
-from igdrivsim.evaluation.report import Provenance, build_report
+from igdrivsim.evaluation import aggregate
 from igdrivsim.evaluation.schema import METRICS, PER_SCENARIO_COLUMNS, REFERENCE_SETTING
+from igdrivsim.report import methods_table
+from igdrivsim.report.build import Provenance, build_report
 
 N_SCENARIOS, SEEDS = 20, (0, 1, 2)
 PARTIAL = "circular_r6"

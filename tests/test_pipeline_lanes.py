@@ -11,13 +11,16 @@ from pathlib import Path
 
 import pytest
 
-from igdrivsim.evaluation import pipeline as pl
-from igdrivsim.evaluation import planning
+from igdrivsim.pipeline import planning, runner
+from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
+from igdrivsim.pipeline.profiles import PROFILES
+from igdrivsim.pipeline.runner import StageError
+from igdrivsim.pipeline.stages import Pipeline
 
 
 def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
-              methods: tuple[str, ...] = ("bc_rl", "bc")) -> pl.Pipeline:
-    pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "paper", quiet=False,
+              methods: tuple[str, ...] = ("bc_rl", "bc")) -> Pipeline:
+    pipe = Pipeline(PROFILES["smoke"], tmp / "work", tmp / "paper", quiet=False,
                        settings=("full",), methods=methods, workers=2)
     times = tmp / "times.jsonl"
 
@@ -29,7 +32,7 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
                 f"raise SystemExit(3 if {name == fail} else 0)")
         pipe.stage(name, [["python", "-c", code]], echo=echo)
 
-    monkeypatch.setattr(pl, "HEARTBEAT_S", 0.0)
+    monkeypatch.setattr(runner, "HEARTBEAT_S", 0.0)
     monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))  # not probed
     monkeypatch.setattr(pipe, "check_work_folder", lambda: None)
     monkeypatch.setattr(pipe, "run_data", lambda: ("train", "val"))
@@ -72,7 +75,7 @@ def test_methods_train_side_by_side_and_report_progress(tmp_path, monkeypatch, c
 def test_a_failing_lane_stops_the_other(tmp_path, monkeypatch):
     pipe = _pipeline(tmp_path, monkeypatch, fail="train_bc_rl")
     start = time.time()
-    with pytest.raises(pl.StageError, match="train_bc_rl"):
+    with pytest.raises(StageError, match="train_bc_rl"):
         pipe.run()
     spans = _spans(pipe.times)
     assert "report" not in spans and "render" not in spans
@@ -82,16 +85,16 @@ def test_a_failing_lane_stops_the_other(tmp_path, monkeypatch):
 def test_methods_option_reads_the_registry():
     from igdrivsim.errors import ConfigError
 
-    args = pl.build_parser().parse_args(["--profile", "smoke", "--methods", "bc"])
-    assert pl.pipeline_from_args(args).methods == ("bc",)
-    default = pl.pipeline_from_args(pl.build_parser().parse_args(["--profile", "smoke"]))
+    args = build_parser().parse_args(["--profile", "smoke", "--methods", "bc"])
+    assert pipeline_from_args(args).methods == ("bc",)
+    default = pipeline_from_args(build_parser().parse_args(["--profile", "smoke"]))
     assert default.methods == ("bc_rl", "bc")
     with pytest.raises(ConfigError, match="unknown learning method 'nope'"):
-        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "bc,nope"]))
+        pipeline_from_args(build_parser().parse_args(["--methods", "bc,nope"]))
     with pytest.raises(ConfigError, match="privileged teacher needs a method without one"):
-        pl.pipeline_from_args(pl.build_parser().parse_args(["--methods", "dagger"]))
+        pipeline_from_args(build_parser().parse_args(["--methods", "dagger"]))
     with pytest.raises(ConfigError, match="privileged teacher needs"):
-        pl.pipeline_from_args(pl.build_parser().parse_args(
+        pipeline_from_args(build_parser().parse_args(
             ["--methods", "bc,dagger", "--obs", "circular_r4"]))
 
 
@@ -108,7 +111,7 @@ def test_taught_methods_train_after_the_teacher_is_chosen(tmp_path, monkeypatch)
 def test_stage_processes_take_gpu_memory_as_needed(tmp_path, monkeypatch):
     """Two lanes on one GPU: neither process may take most of its memory up front."""
     monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE", raising=False)
-    pipe = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True)
+    pipe = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True)
     seen = tmp_path / "env.txt"
     code = (f"import os; open({str(seen)!r}, 'w').write("
             "os.environ.get('XLA_PYTHON_CLIENT_PREALLOCATE', 'unset'))")
@@ -126,7 +129,7 @@ def test_gpu_profile_trains_the_laptop_updates_with_more_seeds():
     assert quick.training.num_updates == 300 and gpu.training.seeds > laptop.training.seeds
     same = dataclasses.replace(gpu, profile="laptop", training=laptop.training)
     assert same == laptop  # network, data, observation: the laptop's
-    g, lap = pl.PROFILES["gpu"], pl.PROFILES["laptop"]
+    g, lap = PROFILES["gpu"], PROFILES["laptop"]
     assert g.train_scenarios == lap.train_scenarios and g.seeds == gpu.training.seeds
     assert g.val_scenarios > lap.val_scenarios
 
@@ -144,7 +147,7 @@ def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, m
     one = planning.estimate_seconds("laptop", METHODS, (), SETTINGS, 3, 1000, 1)
     two = planning.estimate_seconds("laptop", METHODS, (), SETTINGS, 3, 1000, 2)
     assert one and two and 1.6 < one / two < 2.0 and two < 3 * 3600
-    pipe = pl.Pipeline(pl.PROFILES["quick"], tmp_path / "work", tmp_path / "paper", workers=0)
+    pipe = Pipeline(PROFILES["quick"], tmp_path / "work", tmp_path / "paper", workers=0)
     monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))
 
     def first_stage():
@@ -163,7 +166,7 @@ def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):
     process behind: ``stop`` terminates every running one and no later stage starts."""
     pipe = _pipeline(tmp_path, monkeypatch)
     lane = threading.Thread(target=lambda: pytest.raises(
-        pl.StageError, pipe.stage, "sleeper", [["python", "-c", "import time; time.sleep(60)"]],
+        StageError, pipe.stage, "sleeper", [["python", "-c", "import time; time.sleep(60)"]],
         echo=False))
     lane.start()
     deadline = time.time() + 30
@@ -173,5 +176,5 @@ def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):
     pipe.stop()
     lane.join(timeout=30)
     assert not lane.is_alive() and proc.poll() is not None and not pipe.children
-    with pytest.raises(pl.StageError, match="not started"):
+    with pytest.raises(StageError, match="not started"):
         pipe.stage("later", [["python", "-c", "pass"]])

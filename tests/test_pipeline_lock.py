@@ -9,7 +9,8 @@ import time
 import pytest
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.pipeline import PROFILES, Pipeline
+from igdrivsim.pipeline.profiles import PROFILES
+from igdrivsim.pipeline.stages import Pipeline
 
 
 def _pipeline(work) -> Pipeline:

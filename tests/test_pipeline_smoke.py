@@ -17,15 +17,18 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation import pipeline as pl
 from igdrivsim.evaluation.schema import PER_STEP_COLUMNS, SCENARIO_COLUMNS
+from igdrivsim.pipeline.cli import main as pipeline_main
+from igdrivsim.pipeline.profiles import PROFILES
+from igdrivsim.pipeline.runner import REPO_ROOT, StageError
+from igdrivsim.pipeline.stages import Pipeline
 
 SETTING = "circular_r4"
 SETTINGS = ("full", SETTING, "occlusion")
 
 
-def make(tmp: Path) -> pl.Pipeline:
-    return pl.Pipeline(pl.PROFILES["smoke"], tmp / "work", tmp / "work" / "paper",
+def make(tmp: Path) -> Pipeline:
+    return Pipeline(PROFILES["smoke"], tmp / "work", tmp / "work" / "paper",
                        in_process=True, quiet=True, settings=SETTINGS)
 
 
@@ -70,7 +73,7 @@ def test_every_output_exists_and_parses(done):
         scen = pd.read_csv(work / "evals" / run / "per_scenario.csv")
         assert list(steps.columns) == list(PER_STEP_COLUMNS)
         assert list(scen.columns) == list(SCENARIO_COLUMNS)
-        assert set(scen.method) == {method} and scen.seed.nunique() == pl.PROFILES["smoke"].seeds
+        assert set(scen.method) == {method} and scen.seed.nunique() == PROFILES["smoke"].seeds
         assert set(scen.setting) == set(SETTINGS)
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()
         info = json.loads((work / "evals" / run / "eval_config.json").read_text())
@@ -100,18 +103,18 @@ def test_rerun_skips_and_reevaluation_gives_same_tables(done, capsys):
 
 def _without_provenance(table) -> list[str]:
     """A markdown table's lines but its provenance line (which has the date and wall time)."""
-    from igdrivsim.evaluation.provenance import LINE_PREFIX
+    from igdrivsim.report.provenance import LINE_PREFIX
 
     text = table.decode() if isinstance(table, bytes) else table.read_text()
     return [ln for ln in text.splitlines() if not ln.startswith(LINE_PREFIX)]
 
 
 def test_every_output_has_the_provenance_entry_the_committed_report_has(done):
-    from igdrivsim.evaluation import provenance
+    from igdrivsim.report import provenance
 
     assert provenance.missing(done.paper) == []
     produced = provenance.load(done.paper)
-    committed = provenance.load(pl.REPO_ROOT / "paper")
+    committed = provenance.load(REPO_ROOT / "paper")
     assert "tables/table1.md" in produced and "figures/fig1_observations.png" in produced
     for rel, entry in produced.items():
         assert entry["command"].startswith("bash scripts/reproduce.sh --profile smoke --out ")
@@ -125,7 +128,7 @@ def test_every_output_has_the_provenance_entry_the_committed_report_has(done):
 
 def test_failing_stage_names_stage_and_log(tmp_path):
     pipe = make(tmp_path)
-    with pytest.raises(pl.StageError, match=r"stage 'evaluate_x' failed .*evaluate_x\.log"):
+    with pytest.raises(StageError, match=r"stage 'evaluate_x' failed .*evaluate_x\.log"):
         pipe.stage("evaluate_x", [["igdrivsim", "evaluate", tmp_path / "no_run", "--data",
                                    tmp_path, "--out", tmp_path / "o"]])
     assert "not a training run" in (tmp_path / "work" / "logs" / "evaluate_x.log").read_text()
@@ -135,7 +138,7 @@ def test_failing_stage_names_stage_and_log(tmp_path):
 def test_work_folder_refuses_other_data(tmp_path):
     make(tmp_path).check_work_folder()
     make(tmp_path).check_work_folder()  # same options: fine
-    other = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "paper",
+    other = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper",
                         train_data="womd/training", val_data="womd/validation")
     with pytest.raises(ConfigError, match="another train_data"):
         other.check_work_folder()
@@ -143,7 +146,7 @@ def test_work_folder_refuses_other_data(tmp_path):
 
 def test_changed_command_reruns_stage_and_overrides_are_checked(tmp_path, capsys):
     def sub():
-        return pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
+        return Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
                            quiet=True)
 
     ok = [["python", "-c", "print('one')"]]
@@ -151,11 +154,11 @@ def test_changed_command_reruns_stage_and_overrides_are_checked(tmp_path, capsys
     assert sub().stage("tiny", ok) is False  # same command: skipped
     assert sub().stage("tiny", [["python", "-c", "print('two')"]]) is True
     make(tmp_path).check_work_folder()
-    changed = pl.Pipeline(pl.PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
+    changed = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "work" / "paper",
                           overrides=("training.num_updates=7",))
     with pytest.raises(ConfigError, match="another overrides"):
         changed.check_work_folder()
-    assert pl.main(["--profile", "smoke", "--out", str(tmp_path / "x"),
+    assert pipeline_main(["--profile", "smoke", "--out", str(tmp_path / "x"),
                     "--set", "training.no_such_field=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("reproduce: error:") and "no_such_field" in err[-1]

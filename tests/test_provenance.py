@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from igdrivsim.evaluation import provenance
-from igdrivsim.evaluation.pipeline import REPO_ROOT
+from igdrivsim.pipeline.runner import REPO_ROOT
+from igdrivsim.report import provenance
 
 
 def test_every_committed_table_and_figure_has_an_entry():
@@ -26,7 +26,7 @@ def test_every_committed_table_and_figure_has_an_entry():
 
 
 def test_the_methods_run_owns_what_the_report_writes_for_it():
-    from igdrivsim.evaluation.report import METHODS_OUTPUTS
+    from igdrivsim.report.build import METHODS_OUTPUTS
 
     assert set(provenance.METHODS_FILES) == set(METHODS_OUTPUTS)
 

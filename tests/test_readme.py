@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from igdrivsim import cli
-from igdrivsim.evaluation import results_doc
-from igdrivsim.evaluation.report import Provenance, build_report
+from igdrivsim.report import results_doc
+from igdrivsim.report.build import Provenance, build_report
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -60,7 +60,7 @@ def test_every_readme_command_answers_help(command, capsys):
             module = importlib.import_module(command[1] + ".__main__")
         main, argv = module.main, []
     else:
-        main, argv = importlib.import_module("igdrivsim.evaluation.pipeline").main, []
+        main, argv = importlib.import_module("igdrivsim.pipeline.cli").main, []
     with pytest.raises(SystemExit) as exc:
         main(argv + ["--help"])
     assert exc.value.code == 0, command
@@ -151,7 +151,7 @@ def test_readme_is_a_guide_not_a_diary():
 
 def test_report_writes_the_prose_macros_from_its_tables(tmp_path):
     """``generated/results.tex`` holds each Table I cell as the report's tables have it, and
-    counts over the BC-RL - BC cells (``igdrivsim.evaluation.results_tex``)."""
+    counts over the BC-RL - BC cells (``igdrivsim.report.results_tex``)."""
     import pandas as pd
     from test_evaluation_report import fabricate
 

@@ -186,7 +186,7 @@ def test_default_cache_follows_xdg(monkeypatch, tmp_path):
 
 
 def test_real_log_table_states_n_beside_every_number():
-    from igdrivsim.evaluation.real_logs import real_log_table, real_logs_latex, real_logs_markdown
+    from igdrivsim.report.real_logs import real_log_table, real_logs_latex, real_logs_markdown
 
     def frame(n: int, methods) -> pd.DataFrame:
         rows = [dict(setting=s, method=m, seed=seed, scenario_id=f"s{i}", log_divergence=1.0 + i,
@@ -207,7 +207,8 @@ def test_real_log_table_states_n_beside_every_number():
 
 
 def test_pipeline_skips_real_logs_without_samples(tmp_path, capsys):
-    from igdrivsim.evaluation.pipeline import PROFILES, Pipeline
+    from igdrivsim.pipeline.profiles import PROFILES
+    from igdrivsim.pipeline.stages import Pipeline
 
     pipe = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper")
     pipe.run_real_logs()
@@ -217,7 +218,7 @@ def test_pipeline_skips_real_logs_without_samples(tmp_path, capsys):
 
 def test_reproduce_checks_samples_before_any_stage(tmp_path, monkeypatch):
     from igdrivsim.errors import ConfigError
-    from igdrivsim.evaluation.pipeline import resolve_samples
+    from igdrivsim.pipeline.cli import resolve_samples
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     assert resolve_samples(None) is None

@@ -8,8 +8,9 @@ import pytest
 
 from igdrivsim.cli import main
 from igdrivsim.errors import IGDrivSimError
-from igdrivsim.evaluation.figures import load_curves
-from igdrivsim.evaluation.pipeline import PROFILES, Pipeline
+from igdrivsim.pipeline.profiles import PROFILES
+from igdrivsim.pipeline.stages import Pipeline
+from igdrivsim.report.figures import load_curves
 from igdrivsim.training.loop import _truncate_jsonl
 
 

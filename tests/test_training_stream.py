@@ -99,7 +99,7 @@ ids = [ds.indices(u).tolist() for u in range(config.training.num_updates)]
 result = train(config, data, out, progress=False, log=lambda *_: None)
 leaves = [np.asarray(x.addressable_data(0)) for x in jax.tree.leaves(result.params)]
 np.savez(dump + ".npz", *leaves)
-from igdrivsim.evaluation.commands import evaluate_run
+from igdrivsim.evaluation.evaluate import evaluate_run
 evaluate_run(out, data, out + "_eval", max_scenarios=6, batch_size=4, progress=False)
 json.dump({"process": jax.process_index(), "processes": jax.process_count(),
            "devices": jax.device_count(), "indices": ids}, open(dump + ".json", "w"))
@@ -153,7 +153,7 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
                                                           strict=True)) < 1e-4
     assert json.loads((tmp_path / "two" / "config.json").read_text())["processes"] == 2
     # evaluation spread over both processes' devices = one process evaluating the same run
-    from igdrivsim.evaluation.commands import evaluate_run
+    from igdrivsim.evaluation.evaluate import evaluate_run
 
     evaluate_run(str(tmp_path / "two"), data_dir, tmp_path / "one_eval", max_scenarios=6,
                  batch_size=4, progress=False)

@@ -5,16 +5,9 @@ ego's believed pose (Gaussian position noise, one offset per episode) -> the nea
 roadgraph points in that frame as features (:mod:`.features`) -> the setting's hiding models
 (fields of view, random masking; :mod:`.models`). ``PRESETS`` holds the paper's six settings
 and those registered beyond them (line-of-sight occlusion, :mod:`.occlusion`).
-:mod:`.candidates` computes the same observation for a batch from cached candidate points;
 :mod:`.render` draws the settings (paper Fig. 1) and rollout animations.
 """
 
-from igdrivsim.observation.candidates import (
-    CandidateConfig,
-    RoadCandidates,
-    init_candidates,
-    observe_batch_with_candidates,
-)
 from igdrivsim.observation.features import (
     OBJECT_FEATURES,
     POSITION_SCALE,
@@ -69,5 +62,4 @@ __all__ = [
     "PAPER_SETTINGS",
     "LineOfSightOcclusion", "line_of_sight",
     "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
-    "CandidateConfig", "RoadCandidates", "init_candidates", "observe_batch_with_candidates",
 ]

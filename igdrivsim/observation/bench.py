@@ -2,35 +2,26 @@
 
 Two implementations of the same episode are timed in the same run, on the same batch:
 
-* **naive** (a port of Waymax's approach): every step selects the 1,500 nearest points with a
-  top-k over ALL roadgraph points (20,000 on WOMD) and the offroad metric measures the distance
-  from the SDC box corners to every roadgraph point (non-edges masked).
-* **fast** (closed-loop rollouts in training and evaluation share its road-edge array but take
-  the naive top-k observation; see docs/simulator-speed.md): every road edge of the map in its
-  own array (at most 8,192), and the observation from 3,000 cached candidate points
-  stored nearest-first; a step re-ranks only the 512 around the N-th and checks that the result
-  is exact, repairing the stored order (or re-selecting from the whole roadgraph) when not
-  (:mod:`igdrivsim.observation.candidates`); the same metrics and observed points as naive
-  (roadgraph slots in the stored, roughly nearest-first, order).
+* **naive** (a port of Waymax's approach): the offroad metric measures the distance from the SDC
+  box corners to every roadgraph point (non-edges masked);
+* **igdrivsim** (what every rollout of this package runs): every road edge of the map in its own
+  array, compacted once at reset (at most ``SimParams.edge_capacity``), for the offroad metric.
 
-Where the time goes per scenario-step: naive, the top-k and the offroad test over all of a
-WOMD map's points; fast, the 1,500 x 25 features, objects, step, expert, metrics and a 512-key
-sort every step, with re-sorts and re-selections amortised (docs/simulator-speed.md). Results
-kept in the repository: docs/bench/.
+Both take the observation's nearest points with the same top-k over the whole roadgraph, so
+they give the same metrics and the same observations (tested); the difference is the offroad
+metric's cost. Results kept in the repository: docs/bench/.
 
 Both run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
 log divergence). The scenario is a real one tiled to the batch size (``--distinct``: different
-scenarios of ``--data``, so that examples need the fast path's repairs at different steps).
-Results: one JSON line per (batch, implementation) and a table; ``--out FILE`` also writes them
-as JSON (atomically).
+scenarios of ``--data``). Results: one JSON line per (batch, implementation) and a table;
+``--out FILE`` also writes them as JSON (atomically).
 
 This is the one episode loop not on the simulator's runner
 (:func:`igdrivsim.simulator.rollout.run_episode`), on purpose: it times the observation
-paths themselves, so its scan carries only what changes (the simulated SDC, the timestep, the
-candidate cache) and keeps the log and the roadgraph as loop constants, and the naive path
-needs its own reset; through the runner (the whole state carried, the cache in an actor's
-carry) it would measure something else than the observation paths.
+paths themselves, so its scan carries only what changes (the simulated SDC and the timestep)
+and keeps the log and the roadgraph as loop constants, and the naive path needs its own reset;
+through the runner (the whole state carried) it would measure something else.
 """
 
 from __future__ import annotations
@@ -52,11 +43,6 @@ from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json
 from igdrivsim.machine import machine_record
 from igdrivsim.observation import ObservationConfig, get_setting, observe
-from igdrivsim.observation.candidates import (
-    CandidateConfig,
-    init_candidates,
-    observe_batch_with_candidates,
-)
 from igdrivsim.observation.commands import _data_path
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.expert import expert_discrete_action
@@ -85,60 +71,41 @@ def _checksum(obs) -> jax.Array:
             + obs.sdc_speed[..., 0])
 
 
-IMPLS = ("naive", "fast")
+IMPLS = ("naive", "igdrivsim")
 
 
-def episode(scenario: Any, key: jax.Array, *, impl: str = "fast", setting_name: str = "full",
-            params: SimParams = DEFAULT_PARAMS, obs_config: ObservationConfig | None = None,
-            cand_config: CandidateConfig | None = None, collect: bool = False):
+def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
+            setting_name: str = "full", params: SimParams = DEFAULT_PARAMS,
+            obs_config: ObservationConfig | None = None, collect: bool = False):
     """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
 
-    ``impl``: ``"naive"`` (per-step top-k over the whole roadgraph, offroad against every
-    point) or ``"fast"`` (road-edge array + cached candidates).
-
-    Returns ``(per-step metrics [B, T], observation checksum [B, T], candidate selections [B],
-    candidate re-sorts [B])`` (both 0 unless ``"fast"``); with ``collect`` also the per-step
-    observations ``[B, T, ...]`` (for the equivalence test; memory heavy).
+    ``impl``: ``"naive"`` (offroad against every roadgraph point) or ``"igdrivsim"`` (the
+    road-edge array). Returns ``(per-step metrics [B, T], observation checksum [B, T])``; with
+    ``collect`` also the per-step observations ``[B, T, ...]`` (for the equivalence test).
     """
     setting = get_setting(setting_name)
     obs_config = obs_config or ObservationConfig()
-    cand_config = cand_config or CandidateConfig()
     if impl not in IMPLS:
         raise ConfigError(f"unknown implementation {impl!r}; choose from {', '.join(IMPLS)}")
-    fast = impl == "fast"
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
-    batch = state.timestep.shape[0]
-    episode_keys = jax.random.split(key, batch)
+    episode_keys = jax.random.split(key, state.timestep.shape[0])
 
-    def observe_all(st, cands):
+    # Only what changes is carried through the scan (the SDC's simulated trajectory and the
+    # timestep); the log and the roadgraph are loop constants, so XLA never copies them.
+    def body(carry, _):
+        sdc, t = carry
+        st = state.replace(sdc=sdc, timestep=t)
         step_keys = jax.vmap(jax.random.fold_in)(episode_keys, st.timestep)
-        if fast:
-            return observe_batch_with_candidates(st, setting, episode_keys, step_keys, cands,
-                                                 obs_config, cand_config)
         obs = jax.vmap(lambda s, e, k: observe(s, setting, e, k, obs_config))(
             st, episode_keys, step_keys)
-        return obs, cands
-
-    cands = init_candidates(state, setting, episode_keys, cand_config) if fast else None
-
-    # Only what changes is carried through the scan (the SDC's simulated trajectory, the
-    # timestep, the candidates); the log and the roadgraph are loop constants, so XLA never
-    # copies them between iterations.
-    def body(carry, _):
-        sdc, t, cands = carry
-        st = state.replace(sdc=sdc, timestep=t)
-        obs, cands = observe_all(st, cands)
         action = dynamics.undiscretize(expert_discrete_action(st, params))
         st = step(st, action, params)
         out = (step_metrics(st, params), _checksum(obs))
-        return (st.sdc, st.timestep, cands), (out + (obs,) if collect else out)
+        return (st.sdc, st.timestep), (out + (obs,) if collect else out)
 
-    (_, _, cands), outs = jax.lax.scan(body, (state.sdc, state.timestep, cands), None,
-                                       length=params.num_controlled_steps)
-    outs = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), outs)
-    zero = jnp.zeros((batch,), jnp.int32)
-    counts = (cands.reselections, cands.resorts) if fast else (zero, zero)
-    return outs[:2] + counts + outs[2:]
+    _, outs = jax.lax.scan(body, (state.sdc, state.timestep), None,
+                           length=params.num_controlled_steps)
+    return jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), outs)
 
 
 def _batch(pool: list[Any], size: int) -> Any:
@@ -179,11 +146,6 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--impls", default=",".join(IMPLS),
                         help=f"implementations to time (default {','.join(IMPLS)})")
-    parser.add_argument("--candidates", type=int, default=CandidateConfig().num_candidates,
-                        help="candidate points cached per scenario by the fast path")
-    parser.add_argument("--band", type=int, default=CandidateConfig().band,
-                        help="fast path: stored candidates re-ranked per step on each side of "
-                             "the N-th")
     parser.add_argument("--repeats", type=int, default=2, help="timed calls per cell (best)")
     parser.add_argument("--skip-naive-above", type=int, default=10**9,
                         help="do not time the naive path above this batch size")
@@ -211,12 +173,8 @@ def bench_sim_command(args) -> int:
     impls = [i.strip() for i in args.impls.split(",") if i.strip()]
     if not impls or any(i not in IMPLS for i in impls):
         raise ConfigError(f"--impls must be a comma-separated subset of {','.join(IMPLS)}")
-    if args.candidates < 1500:
-        raise ConfigError(f"--candidates must be >= 1500 (the observed points), got "
-                          f"{args.candidates}")
-    cand = CandidateConfig(num_candidates=args.candidates, band=args.band)
     fns = {name: jax.jit(lambda sc, k, impl=name: episode(
-        sc, k, impl=impl, setting_name=args.setting, cand_config=cand)[:4]) for name in impls}
+        sc, k, impl=impl, setting_name=args.setting)) for name in impls}
     steps = DEFAULT_PARAMS.num_controlled_steps
     rows: list[dict] = []
     bar = tqdm(total=len(batches) * len(impls), desc="bench sim", unit="cell")
@@ -232,8 +190,6 @@ def bench_sim_command(args) -> int:
                    "scenario_steps_per_cpu_s": round(b * steps / cpu, 1),
                    "seconds_per_call": round(sec, 4), "cpu_seconds_per_call": round(cpu, 4),
                    "first_call_s": round(compile_s, 2),
-                   "candidate_selections": int(np.max(out[2])),
-                   "candidate_resorts": int(np.max(out[3])),
                    "overlap_steps": int(np.sum(metrics.overlap[0])),
                    "offroad_steps": int(np.sum(metrics.offroad[0])),
                    "device": jax.devices()[0].platform, "setting": args.setting}

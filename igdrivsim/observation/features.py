@@ -16,9 +16,7 @@ Feature layout (the contract with :mod:`igdrivsim.policy`):
 * ``sdc_yaw_rate f32[1]``: the ego's heading change over the last step, in rad/s (its own
   turning, known from odometry like its speed; 0 at an episode's first step).
 
-Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first (the
-batched fast path of :mod:`.candidates` observes the same points with the roadgraph slots in its
-stored, roughly nearest-first, order).
+Invalid (padding or hidden) slots have all-zero features. Slots are ordered nearest first.
 """
 
 from __future__ import annotations

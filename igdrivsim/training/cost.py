@@ -8,7 +8,7 @@ batch x seconds per episode / devices`` (data parallel over devices, ignoring co
 
 The laptop network (profiles laptop, quick, gpu) is priced per (setting x update) of one
 training process from whole measured runs (:func:`laptop_train_seconds`); the pipeline's plan
-(:mod:`igdrivsim.evaluation.planning`) spreads those over its worker processes.
+(:mod:`igdrivsim.pipeline.planning`) spreads those over its worker processes.
 """
 
 from __future__ import annotations

@@ -14,12 +14,12 @@ effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``t
 and ``generated/verdicts.tex`` (is BC-RL safer, per setting). Table I, the power tables, the
 verdicts and ``tests.csv`` compare BC-RL with BC only (Holm over Table I's cells). When the
 evaluations hold learned methods beyond BC and BC-RL, also Table II (every learned method vs
-BC, Holm over its own cells; :mod:`igdrivsim.evaluation.methods_table`):
+BC, Holm over its own cells; :mod:`igdrivsim.report.methods_table`):
 ``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``
 (without them, those files of an earlier report in ``OUT`` are removed). Every file but the
 provenance (which records the date) is a pure function of the inputs, so reruns give
 identical tables. The prose's result macros (``generated/results.tex``, ``generated/maze.tex``)
-are read from these tables by :mod:`igdrivsim.evaluation.results_tex` when the markdown is
+are read from these tables by :mod:`igdrivsim.report.results_tex` when the markdown is
 written (``igdrivsim report``, also with ``--from-tables``).
 """
 
@@ -32,9 +32,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation import methods_table, registry, speed_walk
+from igdrivsim.evaluation import registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
-from igdrivsim.evaluation.figures import (
+from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
+from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.report import methods_table
+from igdrivsim.report.figures import (
     fig3_metrics,
     fig6_methods,
     learning_curves_figure,
@@ -42,9 +45,8 @@ from igdrivsim.evaluation.figures import (
     save_figure,
     supplementary_figure,
 )
-from igdrivsim.evaluation.results_doc import write_curves_summary
-from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
-from igdrivsim.evaluation.tables import (
+from igdrivsim.report.results_doc import write_curves_summary
+from igdrivsim.report.tables import (
     power_latex,
     power_markdown,
     safety_verdicts,
@@ -54,7 +56,6 @@ from igdrivsim.evaluation.tables import (
     table1_markdown,
     vs_paper_markdown,
 )
-from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
 
 

@@ -30,11 +30,6 @@ import seaborn as sns  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
 from igdrivsim.evaluation.aggregate import CONFIDENCE, t_interval  # noqa: E402
-from igdrivsim.evaluation.methods_table import (  # noqa: E402
-    learned_methods,
-    method_colours,
-    method_label,
-)
 from igdrivsim.evaluation.schema import (  # noqa: E402
     BC,
     BC_RL,
@@ -46,6 +41,11 @@ from igdrivsim.evaluation.schema import (  # noqa: E402
     table_settings,
 )
 from igdrivsim.io import atomic_savefig  # noqa: E402
+from igdrivsim.report.methods_table import (  # noqa: E402
+    learned_methods,
+    method_colours,
+    method_label,
+)
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 
 PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange

@@ -8,7 +8,7 @@ the ideal); :func:`estimate_seconds` prices the run from the measured per-update
 parameters are a function of its seed and the data order only), so a run may be resumed on
 another machine.
 
-``python -m igdrivsim.evaluation.planning [--profile P] [--cores 1,2,4,8,16]`` prints the
+``python -m igdrivsim.pipeline.planning [--profile P] [--cores 1,2,4,8,16]`` prints the
 estimated wall time of the default run for each core count.
 """
 
@@ -213,7 +213,7 @@ def hours_text(seconds: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the estimated wall time of a profile's default run per core count."""
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.planning",
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.pipeline.planning",
                                      description=main.__doc__)
     parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES)
     parser.add_argument("--cores", default="1,2,4,8,16", help="comma-separated core counts")

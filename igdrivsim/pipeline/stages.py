@@ -2,12 +2,12 @@
 
 Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``filter``
 (training and validation manifests), ``train`` (6 settings x {BC, BC-RL}, the grid split into
-parts over one worker process per CPU core, :mod:`igdrivsim.evaluation.planning`; each part's
+parts over one worker process per CPU core, :mod:`igdrivsim.pipeline.planning`; each part's
 settings and seeds in one program), ``evaluate`` (each part, plus the reference actors),
 ``maze``
 (paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance),
 ``real_logs`` (beyond the paper: the runs and references on the real scenarios of ``--samples``
-or of ``igdrivsim samples``' cache, :mod:`igdrivsim.evaluation.real_logs`; skipped without
+or of ``igdrivsim samples``' cache, :mod:`igdrivsim.report.real_logs`; skipped without
 them) and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
 bc,bc_rl,dagger,advisor``) come after the others: a ``teacher`` stage picks the run whose
 full setting drives better on validation, and they train the other settings with it
@@ -26,84 +26,42 @@ Before any stage the run prints its plan: the machine, the parts, the estimated 
 Layout: work files (data, filtered manifests, runs, evaluations, logs, the report as written,
 ``WORK/report``) under ``WORK`` (``outputs/<profile>`` by default, ``--out`` when given); the
 report files under ``PAPER`` (the repository's ``paper/`` by default, ``OUT/paper`` with
-``--out``), published there with their provenance (:mod:`igdrivsim.evaluation.provenance`):
+``--out``), published there with their provenance (:mod:`igdrivsim.report.provenance`):
 a run never deletes or overwrites the files of another kind of run (Table II and Fig. 6 of the
 ``--methods`` run survive the default run, and the other way round).
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import importlib
 import json
-import os
 import shutil
-import signal
 import subprocess
-import sys
 import threading
 import time
-import traceback
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from igdrivsim.cli_args import DefaultsFormatter, deprecated_alias
 from igdrivsim.data import expand_paths, samples
-from igdrivsim.errors import REPORTED, ConfigError, IGDrivSimError, error_line
-from igdrivsim.evaluation import lanes, planning, provenance
-from igdrivsim.evaluation.schema import METHODS, SETTINGS
-from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, require_folder
+from igdrivsim.errors import ConfigError
+from igdrivsim.evaluation.schema import METHODS
+from igdrivsim.io import atomic_copy, atomic_write_json
 from igdrivsim.observation import get_setting, setting_params
 from igdrivsim.observation.commands import DEFAULT_DATA
+from igdrivsim.pipeline import lanes, planning
+from igdrivsim.pipeline.profiles import PipelineProfile
+from igdrivsim.pipeline.runner import REPO_ROOT, StageError, StageRunner
+from igdrivsim.report import provenance
 from igdrivsim.training.config import QUICK_UPDATES, get_profile, with_overrides
 from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
-ONE_THREAD_FLAGS = ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
 PAPER_SOURCES = ("main.tex", "findings.tex", "references.bib", "Makefile")
 
 
-@dataclass(frozen=True)
-class PipelineProfile:
-    """Sizes of one reproduction profile (training hyper-parameters live in the training
-    profile of the same name)."""
-
-    name: str
-    train_scenarios: int  # synthetic training scenarios generated
-    val_scenarios: int  # synthetic validation scenarios generated
-    seeds: int  # seeds per (setting, method)
-    eval_max_scenarios: int  # 0: every kept validation scenario
-    maze_profile: str  # maze.study profile
-    settings: tuple[str, ...] = SETTINGS
-    eval_batch: int = 32
-
-
-_LAPTOP = PipelineProfile("laptop", train_scenarios=3072, val_scenarios=512, seeds=3,
-                          eval_max_scenarios=0, maze_profile="default")
-PROFILES: dict[str, PipelineProfile] = {
-    "smoke": PipelineProfile("smoke", train_scenarios=16, val_scenarios=8, seeds=2,
-                             eval_max_scenarios=8, maze_profile="smoke", eval_batch=8),
-    "laptop": _LAPTOP,
-    # the laptop's sizes; the training profile of the same name trains 300 updates
-    "quick": replace(_LAPTOP, name="quick"),
-    # the laptop's training data and updates; 4x the seeds and validation scenarios, for power
-    "gpu": replace(_LAPTOP, name="gpu", val_scenarios=2048, seeds=12, eval_batch=128),
-    "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
-                             eval_max_scenarios=0, maze_profile="default"),
-}
-
-
-class StageError(IGDrivSimError):
-    """A stage failed: the message names the stage and its log."""
-
-
 @dataclass
-class Pipeline:
+class Pipeline(StageRunner):
     """One reproduction: profile, locations, and how commands run."""
 
     profile: PipelineProfile
@@ -132,144 +90,6 @@ class Pipeline:
         self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
         self.children: set[subprocess.Popen] = set()  # stage processes now running
-
-    # ----------------------------------------------------------------------- bookkeeping
-    def log_path(self, stage: str) -> Path:
-        return self.work / "logs" / f"{stage}.log"
-
-    def stamp_path(self, stage: str) -> Path:
-        return self.work / "stages" / f"{stage}.json"
-
-    def done(self, stage: str, depends: Sequence[str] = (),
-             commands: Sequence[Sequence[str]] | None = None) -> bool:
-        """Complete: stamped (with the same ``commands``, when given), and none of ``depends``
-        ran again in this invocation."""
-        path = self.stamp_path(stage)
-        if not path.is_file() or set(depends) & self.ran:
-            return False
-        if commands is None:
-            return True
-        try:
-            stamped = json.loads(path.read_text(encoding="utf-8")).get("commands")
-        except (OSError, ValueError):
-            return False
-        return stamped == [list(map(str, c)) for c in commands]
-
-    def _say(self, text: str) -> None:
-        print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
-
-    def stage(self, name: str, commands: Sequence[Sequence[str]], depends: Sequence[str] = (),
-              outputs: Sequence[Path] = (), echo: bool = True) -> bool:
-        """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
-        ``name`` unless it is complete. Returns True when it ran. ``echo=False`` (stages running
-        side by side): the output goes to the log only, and the terminal gets the stage's latest
-        progress line every minute."""
-        if self.stopping.is_set():
-            raise StageError(f"stage '{name}' not started: a stage beside it failed")
-        if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):
-            self._say(f"{name}: complete, skipped")
-            return False
-        log = self.log_path(name)
-        log.parent.mkdir(parents=True, exist_ok=True)
-        # an old stamp must not survive a rerun that is killed: the next invocation would take
-        # the half-rewritten stage (and so its dependents) for complete
-        self.stamp_path(name).unlink(missing_ok=True)
-        self._say(f"{name}: running (log: {log})")
-        start = time.time()
-        with open(log, "a", encoding="utf-8") as fh:
-            fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
-            for argv in commands:
-                fh.write("$ " + " ".join(map(str, argv)) + "\n")
-                fh.flush()
-                rc = self._run(list(map(str, argv)), fh, name if not echo else None)
-                if rc != 0:
-                    raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
-        missing = [str(p) for p in outputs if not Path(p).exists()]
-        if missing:
-            raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
-        atomic_write_text(self.stamp_path(name), json.dumps(dict(
-            stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
-                                                                         for c in commands],
-            finished=time.strftime("%Y-%m-%d %H:%M:%S")), indent=2) + "\n")
-        self.ran.add(name)
-        self._say(f"{name}: done in {time.time() - start:.0f} s")
-        return True
-
-    def _run(self, argv: list[str], fh, beat: str | None = None) -> int:
-        if self.in_process and argv[0] in ("igdrivsim", "python"):
-            return self._run_in_process(argv, fh)
-        if argv[0] == "igdrivsim":
-            argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
-        elif argv[0] == "python":
-            argv = [sys.executable, *argv[1:]]
-        # Programs compiled by one stage are reused by later ones with the same shapes (the
-        # evaluation of BC and BC-RL of a setting) and by a resumed pipeline.
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        # Two lanes share one GPU: each process takes GPU memory as it needs it rather than
-        # most of it up front (JAX's default), so the second one does not run out.
-        env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-        env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
-        if self.one_thread:  # one worker per core: XLA's threads would only compete
-            env["XLA_FLAGS"] = " ".join([env.get("XLA_FLAGS", ""), *ONE_THREAD_FLAGS]).strip()
-        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                cwd=REPO_ROOT, env=env)
-        assert proc.stdout is not None
-        self.children.add(proc)
-        latest, next_beat = "", time.time() + HEARTBEAT_S
-        try:
-            while chunk := os.read(proc.stdout.fileno(), 4096):
-                if self.stopping.is_set():
-                    proc.terminate()
-                text = chunk.decode("utf-8", "replace")
-                fh.write(text)
-                fh.flush()
-                if self.quiet:
-                    continue
-                if beat is None:
-                    sys.stderr.write(text)
-                    sys.stderr.flush()
-                    continue
-                lines = [ln.strip() for ln in text.replace("\r", "\n").splitlines()]
-                latest = next((ln for ln in reversed(lines) if ln), latest)
-                if time.time() >= next_beat and latest:
-                    self._say(f"{beat}: {latest}")
-                    next_beat = time.time() + HEARTBEAT_S
-        except KeyboardInterrupt:
-            proc.terminate()
-            proc.wait()
-            raise
-        finally:
-            self.children.discard(proc)
-        return proc.wait()
-
-    def stop(self) -> None:
-        """Stop every running stage process (an interrupted run; rerunning resumes)."""
-        self.stopping.set()
-        for proc in list(self.children):
-            proc.terminate()
-
-    def _run_in_process(self, argv: list[str], fh) -> int:
-        """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
-        out = fh if self.quiet else _Tee(fh, sys.stderr)
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-            try:
-                if argv[0] == "igdrivsim":
-                    # By name, like ``python -m`` below: a stage is a command line, and the CLI
-                    # is the layer above the pipeline (no import of igdrivsim.cli here).
-                    cli = importlib.import_module("igdrivsim.cli")
-                    return int(cli.main(argv[1:]) or 0)
-                if argv[:2] == ["python", "-m"]:
-                    module = importlib.import_module(argv[2])
-                    if not hasattr(module, "main"):  # a package: python -m runs __main__
-                        module = importlib.import_module(f"{argv[2]}.__main__")
-                    return int(module.main(argv[3:]) or 0)
-            except SystemExit as err:  # argparse errors
-                return int(err.code or 0) if isinstance(err.code, int) else 1
-            except Exception as err:  # noqa: BLE001 - reported through the stage's log
-                traceback.print_exc()
-                print(f"error: {err}")
-                return 1
-        raise ConfigError(f"cannot run {argv[0]!r} in process")
 
     # --------------------------------------------------------------------------- stages
     @property
@@ -419,7 +239,7 @@ class Pipeline:
                     for r in runs]
         commands += [["igdrivsim", "evaluate", "--references", "--like",
                       self.work / "runs" / runs[-1], "--out", out / "references", *common],
-                     ["python", "-m", "igdrivsim.evaluation.real_logs", "--real", out,
+                     ["python", "-m", "igdrivsim.report.real_logs", "--real", out,
                       "--synthetic", self.work / "evals", "--out", self.staged / "tables",
                       "--real-label", self.samples_label, "--synthetic-label", self.data_label]]
         self.stage("real_logs", commands,
@@ -444,7 +264,7 @@ class Pipeline:
         """The default run (report in the repository's paper/): docs/results.md and the
         README's results block, from the published tables and their provenance."""
         if self.default_paper and (self.paper / "tables" / "summary.csv").is_file():
-            from igdrivsim.evaluation.results_doc import write_markdown  # lazy: pandas
+            from igdrivsim.report.results_doc import write_markdown  # lazy: pandas
 
             write_markdown(self.paper, REPO_ROOT / "docs" / "results.md", REPO_ROOT / "README.md")
 
@@ -487,7 +307,7 @@ class Pipeline:
         if not {"report", "real_logs"} & self.ran and not missing:
             return []
         # lazy: the report's figures module sets matplotlib's backend when imported
-        from igdrivsim.evaluation.report import git_commit
+        from igdrivsim.report.build import git_commit
 
         updates = self.training_config().training.num_updates
         entry = provenance.Entry(
@@ -571,32 +391,6 @@ class Pipeline:
                     raise ConfigError(f"{path}: this work folder was made with another {key} "
                                       f"({old[key]!r}); use another --out or the same options")
         atomic_write_json(path, record, indent=2)
-
-    @contextlib.contextmanager
-    def work_lock(self):
-        """Hold ``WORK/pipeline.lock`` (``flock``) so that a second run on the same work folder
-        is refused; the kernel drops the lock when the holder exits, even when killed."""
-        import fcntl  # optional: Unix only (file locks)
-
-        self.work.mkdir(parents=True, exist_ok=True)
-        path = self.work / "pipeline.lock"
-        fh = open(path, "a+")  # noqa: SIM115 - held open for the whole run
-        try:
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                fh.seek(0)
-                holder = fh.read().strip() or "another process"
-                raise ConfigError(f"another reproduction is running on {self.work} (pid "
-                                  f"{holder}); wait for it to finish or use another --out"
-                                  ) from None
-            fh.seek(0)
-            fh.truncate()
-            fh.write(str(os.getpid()))
-            fh.flush()
-            yield
-        finally:
-            fh.close()
 
     def parts(self) -> tuple[list[planning.Part], list[planning.Part]]:
         """The grid's parts: the methods without a teacher on every setting, then the taught
@@ -713,169 +507,3 @@ class Pipeline:
         self.run_pdf()
         self._say(f"finished: tables in {self.paper / 'tables'}, figures in "
                   f"{self.paper / 'figures'}")
-
-
-class _Tee:
-    """A text stream writing to a log file and to the terminal (in-process stages)."""
-
-    def __init__(self, *streams):
-        self.streams = streams
-
-    def write(self, text: str) -> int:
-        for stream in self.streams:
-            stream.write(text)
-        return len(text)
-
-    def flush(self) -> None:
-        for stream in self.streams:
-            stream.flush()
-
-    def isatty(self) -> bool:
-        return False
-
-
-# ------------------------------------------------------------------------------------ CLI
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", formatter_class=DefaultsFormatter,
-                                     description=(
-        "Regenerate the report's tables and figures (Table II and Fig. 6: the --methods "
-        "bc,bc_rl,dagger,advisor run): data -> filter -> train -> evaluate -> maze -> render -> "
-        "report -> publish -> PDF, over one worker process per core. Prints its plan and "
-        "estimated wall time first. Resumable: rerun the same command after an interruption."))
-    parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
-                        help="smoke (minutes, CI), laptop (the default: trained to the "
-                             "competence targets, about 2.5 h on 2 cores; the plan printed first "
-                             "gives the estimate for this machine), quick (the laptop network "
-                             "at 300 updates, about 50 min on 2 cores, below the competence "
-                             "targets), gpu (the laptop's updates with 4x the seeds and "
-                             "validation scenarios; one GPU), paper (the paper's sizes; GPUs)")
-    parser.add_argument("--data", nargs="+", metavar="DIR", default=None,
-                        help="real data instead of synthetic: one folder holding training/ and "
-                             "validation/, or two locations TRAIN VAL (files, folders, globs, "
-                             "name@N)")
-    parser.add_argument("--out", default=None,
-                        help="put everything under OUT (work files, and the report in "
-                             "OUT/paper); default: outputs/<profile>/ and paper/")
-    parser.add_argument("--obs", dest="settings", default=None, metavar="SETTINGS",
-                        help="comma-separated observation settings: any of the paper's six, "
-                             "a registered one (occlusion) or a '+' composition "
-                             "(default: the paper's six)")
-    deprecated_alias(parser, "--settings", "settings")
-    parser.add_argument("--methods", default=",".join(METHODS), metavar="METHODS",
-                        help="comma-separated registered learning methods to train and "
-                             "compare (igdrivsim/training/methods/); dagger and advisor are taught "
-                             "by the better full-setting run of the others")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="SECTION.FIELD=VALUE",
-                        help="override a config field for every training run (repeatable; "
-                             "not observation.setting or training.method), e.g. "
-                             "--set training.num_updates=400; use a fresh --out for it")
-    parser.add_argument("--workers", type=int, default=0, metavar="N",
-                        help="worker processes for the (setting, method) grid, the maze and "
-                             "the evaluations (0: one per CPU core, one XLA thread each; two "
-                             "on an accelerator); the numbers do not depend on it")
-    parser.add_argument("--in-process", action="store_true",
-                        help="run the commands in this Python process (faster for smoke)")
-    parser.add_argument("--no-progress", dest="quiet", action="store_true",
-                        help="do not echo stage output and progress bars on the terminal (the "
-                             "logs in WORK/logs/ are complete either way)")
-    deprecated_alias(parser, "--quiet", "quiet", action="store_true")
-    parser.add_argument("--samples", default=None, metavar="DIR",
-                        help="real scenarios for Fig. 1 and the real-log table: the folder of "
-                             "igdrivsim samples, or any WOMD / ScenarioNet location (default: "
-                             "the samples cache when fetched, else none: synthetic Fig. 1, "
-                             "no real-log table)")
-    return parser
-
-
-def resolve_samples(where: str | None) -> str | None:
-    """The real-scenario location of ``--samples`` (``igdrivsim samples``' folder, or any data
-    location), else the verified samples cache, else None."""
-    if where is None:
-        found = samples.find_samples()
-        return None if found is None else str(found)
-    if (found := samples.find_samples(where)) is not None:
-        return str(found)
-    if Path(where).is_dir() and not any(Path(where).iterdir()):
-        raise ConfigError(f"--samples {where}: empty; fetch the public samples there with: "
-                          f"igdrivsim samples --out {where}")
-    expand_paths(where)  # names files, else a one-line error (before any stage)
-    return where
-
-
-def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
-    profile = PROFILES[args.profile]
-    train = val = None
-    if args.data:
-        if len(args.data) == 1:
-            root = Path(args.data[0])
-            train, val = str(root / "training"), str(root / "validation")
-            if not (root / "training").exists() or not (root / "validation").exists():
-                raise ConfigError(f"--data {root}: expected training/ and validation/ inside "
-                                  "(or give two locations: --data TRAIN VAL)")
-        elif len(args.data) == 2:
-            train, val = args.data
-            for where in (train, val):
-                expand_paths(where)  # names files, else a one-line error (before any stage)
-        else:
-            raise ConfigError("--data takes one folder or two locations (TRAIN VAL)")
-    if args.out:
-        work, paper = Path(args.out), Path(args.out) / "paper"
-    else:
-        work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
-    require_folder(work)
-    settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
-    if settings is not None and (not all(settings) or len(set(settings)) != len(settings)):
-        raise ConfigError(f"--obs must name distinct settings, got {args.settings!r}")
-    for override in args.overrides:
-        key = override.partition("=")[0].strip()
-        if key in ("observation.setting", "training.method"):
-            raise ConfigError(f"--set {override}: the pipeline sets {key} itself (use --obs / "
-                              "--methods)")
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    if not methods or len(set(methods)) != len(methods):
-        raise ConfigError(f"--methods must name distinct methods, got {args.methods!r}")
-    for name in methods:
-        get_method(name)  # a registered method, else a one-line error naming the choices
-    if any(get_method(m).teacher for m in methods):
-        plain = [m for m in methods if not get_method(m).teacher]
-        chosen = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
-        if not plain or (chosen is not None and TEACHER_SETTING not in chosen):
-            raise ConfigError("--methods: a method with a privileged teacher needs a method "
-                              f"without one (bc, bc_rl) trained on the {TEACHER_SETTING!r} "
-                              "setting to pick the teacher from")
-
-    with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
-    if args.workers < 0:
-        raise ConfigError(f"--workers must be >= 0, got {args.workers}")
-    return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
-                    quiet=args.quiet, settings=settings, methods=methods,
-                    overrides=tuple(args.overrides), workers=args.workers,
-                    samples=resolve_samples(args.samples))
-
-
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the stages as Ctrl-C does
-    pipeline = None
-    try:
-        pipeline = pipeline_from_args(args)
-        pipeline.run()
-    except REPORTED as err:
-        print(f"reproduce: error: {error_line(err)}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        if pipeline is not None:
-            pipeline.stop()
-        print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

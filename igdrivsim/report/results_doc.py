@@ -17,8 +17,6 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation import methods_table
-from igdrivsim.evaluation.results_tex import read_table, write_macros
 from igdrivsim.evaluation.schema import (
     BC,
     BC_RL,
@@ -31,8 +29,10 @@ from igdrivsim.evaluation.schema import (
     setting_short,
     table_settings,
 )
-from igdrivsim.evaluation.tables import table1_markdown
 from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.report import methods_table
+from igdrivsim.report.results_tex import read_table, write_macros
+from igdrivsim.report.tables import table1_markdown
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 CURVES_SUMMARY = "curves_summary.csv"
@@ -342,7 +342,7 @@ def write_run_times(work: str | Path, tables: Path) -> list[Path]:
 def write_markdown(paper: str | Path, results: str | Path | None,
                    readme: str | Path | None = None) -> list[Path]:
     """Write ``results`` (default ``PAPER/results.md``), fill ``readme``'s block and rewrite
-    the PDF's result macros (:func:`igdrivsim.evaluation.results_tex.write_macros`)."""
+    the PDF's result macros (:func:`igdrivsim.report.results_tex.write_macros`)."""
 
     paper = Path(paper)
     results = Path(results) if results else paper / "results.md"

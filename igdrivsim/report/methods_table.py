@@ -29,7 +29,7 @@ from igdrivsim.evaluation.schema import (
     setting_short,
     table_settings,
 )
-from igdrivsim.evaluation.tables import (
+from igdrivsim.report.tables import (
     MISSING,
     _ci_text,
     _fmt,

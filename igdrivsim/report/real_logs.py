@@ -7,7 +7,7 @@ Each cell is the mean over seeds of each seed's mean over scenarios (Table I's p
 log divergence, offroad and overlap as percent of steps), with the number of scenarios beside
 it. No confidence interval or test is given: on a handful of real scenarios none would mean much.
 
-``python -m igdrivsim.evaluation.real_logs --real DIR --synthetic DIR --out TABLES`` writes
+``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
 ``real_logs.md`` and ``real_logs.tex`` (the pipeline's ``real_logs`` stage).
 """
 
@@ -138,7 +138,7 @@ def write_tables(real: str | Path, validation: str | Path | None, out: str | Pat
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.real_logs",
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.real_logs",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--real", required=True, help="evaluations on real logs (folder)")
     parser.add_argument("--synthetic", dest="validation", default=None,

@@ -1,0 +1,129 @@
+"""Evaluate a trained run (every seed) or the reference actors on validation scenarios and
+write the tidy ``per_step.csv``, ``per_scenario.csv`` and ``eval_config.json``."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import jax
+from tqdm import tqdm
+
+from igdrivsim.data import Capacities
+from igdrivsim.data.validation import load_validation
+from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.evaluation.rollout import (
+    evaluate_policy,
+    reference_frames,
+    scenario_ids_of,
+    tidy_frames,
+)
+from igdrivsim.io import atomic_write_csv, atomic_write_json
+from igdrivsim.observation import ObservationConfig
+from igdrivsim.simulator import SimParams
+from igdrivsim.training.update import run_settings, sim_params
+
+EVAL_CONFIG = "eval_config.json"
+
+
+def load_trained(run_dir: str):
+    """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
+    # lazy: the training loop pulls in orbax and grain; `report` needs neither
+    from igdrivsim.training.loop import load_run
+
+    config, params = load_run(run_dir)
+    seeds = list(range(config.training.seed_offset,
+                       config.training.seed_offset + config.training.seeds))
+    return config, params, seeds
+
+
+def data_capacities(config):
+    return Capacities(max_objects=config.data.max_objects,
+                      max_roadgraph_points=config.data.max_roadgraph_points)
+
+
+def _bar(total: int, desc: str, enabled: bool):
+    return tqdm(total=total, desc=desc, unit="scenario", disable=not enabled,
+                file=sys.stderr, dynamic_ncols=True)
+
+
+def _check_sizes(max_scenarios: int, batch_size: int) -> None:
+    """``--limit`` (0: every scenario) and ``--batch-size`` before anything is read."""
+    if max_scenarios < 0:
+        raise ConfigError(f"--limit must be >= 1 (or 0 for every scenario), got {max_scenarios}")
+    if batch_size < 1:
+        raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
+
+
+def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
+                 max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
+                 progress: bool = True, scenarios=None) -> Path:
+    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
+
+    ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``.
+    """
+    import pandas as pd  # heavy: pandas is needed only here
+
+    _check_sizes(max_scenarios, batch_size)
+    config, params, seeds = load_trained(run_dir)
+    if scenarios is None:
+        scenarios = load_validation(data, data_capacities(config), max_scenarios, progress)
+    ids = scenario_ids_of(scenarios)
+    settings, method = run_settings(config), config.training.method
+    obs_config = ObservationConfig(config.observation.num_objects,
+                                   config.observation.num_roadgraph_points)
+    label = ",".join(settings)
+    with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
+        outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
+                                  setting=settings, obs_config=obs_config,
+                                  params=sim_params(config), actions=actions,
+                                  batch_size=batch_size, seed=seed, progress=bar.update,
+                                  episode_metrics=True)
+    frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
+              for g, name in enumerate(settings)]
+    per_step = pd.concat([f[0] for f in frames], ignore_index=True)
+    per_scenario = pd.concat([f[1] for f in frames], ignore_index=True)
+    return _write(out, per_step, per_scenario, dict(
+        run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
+        seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
+        num_scenarios=len(ids), sim=dataclasses.asdict(sim_params(config))))
+
+
+def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
+                        max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
+                        scenarios=None) -> Path:
+    """Evaluate the discretised expert and constant velocity; write their tidy CSVs."""
+    _check_sizes(max_scenarios, batch_size)
+    caps = caps or Capacities()
+    sim = sim or SimParams()
+    if scenarios is None:
+        scenarios = load_validation(data, caps, max_scenarios, progress)
+    n = int(scenarios.scenario_id.shape[0])
+    with _bar(2 * n, "evaluate references", progress) as bar:
+        per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
+                                                  progress=bar.update)
+    return _write(out, per_step, per_scenario, dict(
+        references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim)))
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise DataError(f"cannot read JSON ({err})", file=str(path)) from err
+
+
+def _write(out, per_step, per_scenario, info: dict) -> Path:
+    """Write the tidy CSVs and the evaluation record (process 0 only when several processes
+    evaluate together: they all hold the same gathered outputs)."""
+    out = Path(out)
+    if jax.process_index() != 0:
+        return out
+    atomic_write_csv(out / "per_step.csv", per_step.round(6))
+    atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
+    atomic_write_json(out / EVAL_CONFIG, info, indent=2, sort_keys=True)
+    return out
+
+

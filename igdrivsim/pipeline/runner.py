@@ -1,0 +1,215 @@
+"""Resumable stages: run a command line as a named stage, stamp it when complete, skip it
+when stamped, log it, and stop every running stage on an interrupt."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import os
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Sequence
+from pathlib import Path
+
+from igdrivsim.errors import ConfigError, IGDrivSimError
+from igdrivsim.io import atomic_write_text
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
+ONE_THREAD_FLAGS = ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
+
+
+class StageError(IGDrivSimError):
+    """A stage failed: the message names the stage and its log."""
+
+
+class StageRunner:
+    """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps). The dataclass that
+    inherits it provides ``work``, ``quiet``, ``in_process``, ``one_thread``, ``ran``,
+    ``stopping`` and ``children``."""
+
+    # ----------------------------------------------------------------------- bookkeeping
+    def log_path(self, stage: str) -> Path:
+        return self.work / "logs" / f"{stage}.log"
+
+    def stamp_path(self, stage: str) -> Path:
+        return self.work / "stages" / f"{stage}.json"
+
+    def done(self, stage: str, depends: Sequence[str] = (),
+             commands: Sequence[Sequence[str]] | None = None) -> bool:
+        """Complete: stamped (with the same ``commands``, when given), and none of ``depends``
+        ran again in this invocation."""
+        path = self.stamp_path(stage)
+        if not path.is_file() or set(depends) & self.ran:
+            return False
+        if commands is None:
+            return True
+        try:
+            stamped = json.loads(path.read_text(encoding="utf-8")).get("commands")
+        except (OSError, ValueError):
+            return False
+        return stamped == [list(map(str, c)) for c in commands]
+
+    def _say(self, text: str) -> None:
+        print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+    def stage(self, name: str, commands: Sequence[Sequence[str]], depends: Sequence[str] = (),
+              outputs: Sequence[Path] = (), echo: bool = True) -> bool:
+        """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
+        ``name`` unless it is complete. Returns True when it ran. ``echo=False`` (stages running
+        side by side): the output goes to the log only, and the terminal gets the stage's latest
+        progress line every minute."""
+        if self.stopping.is_set():
+            raise StageError(f"stage '{name}' not started: a stage beside it failed")
+        if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):
+            self._say(f"{name}: complete, skipped")
+            return False
+        log = self.log_path(name)
+        log.parent.mkdir(parents=True, exist_ok=True)
+        # an old stamp must not survive a rerun that is killed: the next invocation would take
+        # the half-rewritten stage (and so its dependents) for complete
+        self.stamp_path(name).unlink(missing_ok=True)
+        self._say(f"{name}: running (log: {log})")
+        start = time.time()
+        with open(log, "a", encoding="utf-8") as fh:
+            fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
+            for argv in commands:
+                fh.write("$ " + " ".join(map(str, argv)) + "\n")
+                fh.flush()
+                rc = self._run(list(map(str, argv)), fh, name if not echo else None)
+                if rc != 0:
+                    raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
+        missing = [str(p) for p in outputs if not Path(p).exists()]
+        if missing:
+            raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
+        atomic_write_text(self.stamp_path(name), json.dumps(dict(
+            stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
+                                                                         for c in commands],
+            finished=time.strftime("%Y-%m-%d %H:%M:%S")), indent=2) + "\n")
+        self.ran.add(name)
+        self._say(f"{name}: done in {time.time() - start:.0f} s")
+        return True
+
+    def _run(self, argv: list[str], fh, beat: str | None = None) -> int:
+        if self.in_process and argv[0] in ("igdrivsim", "python"):
+            return self._run_in_process(argv, fh)
+        if argv[0] == "igdrivsim":
+            argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
+        elif argv[0] == "python":
+            argv = [sys.executable, *argv[1:]]
+        # Programs compiled by one stage are reused by later ones with the same shapes (the
+        # evaluation of BC and BC-RL of a setting) and by a resumed pipeline.
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # Two lanes share one GPU: each process takes GPU memory as it needs it rather than
+        # most of it up front (JAX's default), so the second one does not run out.
+        env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+        env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
+        if self.one_thread:  # one worker per core: XLA's threads would only compete
+            env["XLA_FLAGS"] = " ".join([env.get("XLA_FLAGS", ""), *ONE_THREAD_FLAGS]).strip()
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                cwd=REPO_ROOT, env=env)
+        assert proc.stdout is not None
+        self.children.add(proc)
+        latest, next_beat = "", time.time() + HEARTBEAT_S
+        try:
+            while chunk := os.read(proc.stdout.fileno(), 4096):
+                if self.stopping.is_set():
+                    proc.terminate()
+                text = chunk.decode("utf-8", "replace")
+                fh.write(text)
+                fh.flush()
+                if self.quiet:
+                    continue
+                if beat is None:
+                    sys.stderr.write(text)
+                    sys.stderr.flush()
+                    continue
+                lines = [ln.strip() for ln in text.replace("\r", "\n").splitlines()]
+                latest = next((ln for ln in reversed(lines) if ln), latest)
+                if time.time() >= next_beat and latest:
+                    self._say(f"{beat}: {latest}")
+                    next_beat = time.time() + HEARTBEAT_S
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            raise
+        finally:
+            self.children.discard(proc)
+        return proc.wait()
+
+    def stop(self) -> None:
+        """Stop every running stage process (an interrupted run; rerunning resumes)."""
+        self.stopping.set()
+        for proc in list(self.children):
+            proc.terminate()
+
+    def _run_in_process(self, argv: list[str], fh) -> int:
+        """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
+        out = fh if self.quiet else _Tee(fh, sys.stderr)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            try:
+                if argv[0] == "igdrivsim":
+                    # By name, like ``python -m`` below: a stage is a command line, and the CLI
+                    # is the layer above the pipeline (no import of igdrivsim.cli here).
+                    cli = importlib.import_module("igdrivsim.cli")
+                    return int(cli.main(argv[1:]) or 0)
+                if argv[:2] == ["python", "-m"]:
+                    module = importlib.import_module(argv[2])
+                    if not hasattr(module, "main"):  # a package: python -m runs __main__
+                        module = importlib.import_module(f"{argv[2]}.__main__")
+                    return int(module.main(argv[3:]) or 0)
+            except SystemExit as err:  # argparse errors
+                return int(err.code or 0) if isinstance(err.code, int) else 1
+            except Exception as err:  # noqa: BLE001 - reported through the stage's log
+                traceback.print_exc()
+                print(f"error: {err}")
+                return 1
+        raise ConfigError(f"cannot run {argv[0]!r} in process")
+
+    @contextlib.contextmanager
+    def work_lock(self):
+        """Hold ``WORK/pipeline.lock`` (``flock``) so that a second run on the same work folder
+        is refused; the kernel drops the lock when the holder exits, even when killed."""
+        import fcntl  # optional: Unix only (file locks)
+
+        self.work.mkdir(parents=True, exist_ok=True)
+        path = self.work / "pipeline.lock"
+        fh = open(path, "a+")  # noqa: SIM115 - held open for the whole run
+        try:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                fh.seek(0)
+                holder = fh.read().strip() or "another process"
+                raise ConfigError(f"another reproduction is running on {self.work} (pid "
+                                  f"{holder}); wait for it to finish or use another --out"
+                                  ) from None
+            fh.seek(0)
+            fh.truncate()
+            fh.write(str(os.getpid()))
+            fh.flush()
+            yield
+        finally:
+            fh.close()
+
+
+class _Tee:
+    """A text stream writing to a log file and to the terminal (in-process stages)."""
+
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, text: str) -> int:
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        for stream in self.streams:
+            stream.flush()
+
+    def isatty(self) -> bool:
+        return False
