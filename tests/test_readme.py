@@ -107,6 +107,9 @@ def test_report_fills_the_results_block_from_its_own_tables(tmp_path):
     block = text.split(results_doc.BEGIN)[1].split(results_doc.END)[0]
     assert "99.99" not in block and "[docs/results.md](docs/results.md)" in block
     assert block.strip() == results_doc.headline_markdown(paper).strip()
+    runtime = README.read_text(encoding="utf-8").split(results_doc.RUNTIME_BEGIN)[1].split(
+        results_doc.RUNTIME_END)[0]
+    assert runtime.strip() == results_doc.runtime_markdown(paper).strip()
     import pandas as pd
 
     summary = pd.read_csv(paper / "tables" / "summary.csv")
@@ -137,6 +140,9 @@ def test_committed_results_are_the_reports():
     block = README.read_text(encoding="utf-8").split(results_doc.BEGIN)[1].split(
         results_doc.END)[0]
     assert block.strip() == results_doc.headline_markdown(paper).strip()
+    runtime = README.read_text(encoding="utf-8").split(results_doc.RUNTIME_BEGIN)[1].split(
+        results_doc.RUNTIME_END)[0]
+    assert runtime.strip() == results_doc.runtime_markdown(paper).strip()
     assert (ROOT / "docs" / "results.md").read_text(encoding="utf-8") == \
         results_doc.results_markdown(paper, "../paper")
 
@@ -181,3 +187,25 @@ def test_every_result_macro_of_the_paper_is_generated_or_has_a_fallback():
     generated = "".join(p.read_text(encoding="utf-8") for p in (paper / "generated").glob("*.tex"))
     if (paper / "generated" / "results.tex").is_file():
         assert used <= set(re.findall(r"\\newcommand\{\\(\w+)\}", generated))
+
+
+def test_runtime_lines_state_each_runs_measured_time(tmp_path):
+    """The README's two run-time lines come from ``provenance.json``: the default run's wall
+    time and machine, no GPU claimed without a gpu-profile entry, and the profiles' updates."""
+    import json
+
+    entry = dict(command="bash scripts/reproduce.sh", run="default", profile="laptop",
+                 updates=1000, commit="x", device="AMD EPYC, 2 cores", wall_s=9300.0,
+                 date="2026-11-27")
+    (tmp_path / "provenance.json").write_text(json.dumps({"files": {"tables/table1.md": entry}}))
+    first, second = results_doc.runtime_markdown(tmp_path).splitlines()
+    assert "2 h 35 min on AMD EPYC, 2 cores" in first and "1,000 updates" in first
+    assert "no GPU run is recorded" in first and "Table II" not in first
+    assert "`quick` (300 updates" in second
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n{results_doc.RUNTIME_BEGIN}\nold\n{results_doc.RUNTIME_END}\n"
+                      f"{results_doc.BEGIN}\n{results_doc.END}\n")
+    text = results_doc.fill_block(readme.read_text(), first, "README", results_doc.RUNTIME_BEGIN,
+                                  results_doc.RUNTIME_END)
+    assert "old" not in text and first in text
+

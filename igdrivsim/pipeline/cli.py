@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
         "estimated wall time first. Resumable: rerun the same command after an interruption."))
     parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
                         help="smoke (minutes, CI), laptop (the default: trained to the "
-                             "competence targets, about 2.5 h on 2 cores; the plan printed first "
+                             "competence targets, about 2.8 h on 2 cores; the plan printed first "
                              "gives the estimate for this machine), quick (the laptop network "
                              "at 300 updates, about 50 min on 2 cores, below the competence "
                              "targets), gpu (the laptop's updates with 4x the seeds and "

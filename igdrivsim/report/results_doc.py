@@ -3,7 +3,8 @@
 Both are read from the report's own files only (``PAPER/tables/*.csv`` and
 ``PAPER/generated/provenance.tex``), so ``igdrivsim report --from-tables PAPER`` rewrites them
 without the evaluations, and no number in them is typed by hand. The README block lies between
-:data:`BEGIN` and :data:`END`; :func:`fill_block` replaces only what is between them.
+:data:`BEGIN` and :data:`END`, its run-time lines (when the README has them) between
+:data:`RUNTIME_BEGIN` and :data:`RUNTIME_END`; :func:`fill_block` replaces only what is between.
 """
 
 from __future__ import annotations
@@ -31,10 +32,14 @@ from igdrivsim.evaluation.schema import (
 )
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.report import methods_table
+from igdrivsim.report.provenance import load as load_provenance
+from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import table1_markdown
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+# the README's two lines near the top: measured run times and the choice of profile (optional)
+RUNTIME_BEGIN, RUNTIME_END = "<!-- runtime:begin -->", "<!-- runtime:end -->"
 CURVES_SUMMARY = "curves_summary.csv"
 RUN_TIMES = "run_times.csv"
 _HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
@@ -307,12 +312,49 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
     return text.replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
 
 
-def fill_block(text: str, content: str, source: str = "README") -> str:
-    """``text`` with what lies between :data:`BEGIN` and :data:`END` replaced by ``content``."""
-    start, end = text.find(BEGIN), text.find(END)
-    if start < 0 or end < start:
-        raise ConfigError(f"{source}: no {BEGIN} ... {END} block to fill")
-    return text[:start + len(BEGIN)] + "\n" + content.rstrip() + "\n" + text[end:]
+def fill_block(text: str, content: str, source: str = "README", begin: str = BEGIN,
+               end: str = END) -> str:
+    """``text`` with what lies between ``begin`` and ``end`` replaced by ``content``."""
+    start, stop = text.find(begin), text.find(end)
+    if start < 0 or stop < start:
+        raise ConfigError(f"{source}: no {begin} ... {end} block to fill")
+    return text[:start + len(begin)] + "\n" + content.rstrip() + "\n" + text[stop:]
+
+
+_RUNS = (("tables/table1.md", "default run (Table I)"),
+         ("tables/table2.md", "methods run (Table II)"))
+
+
+def runtime_markdown(paper: str | Path) -> str:
+    """Two lines: each published run's measured wall time and machine (from
+    ``paper/provenance.json``), and what each profile is for (from the training profiles)."""
+    # lazy: the training profiles pull in JAX; the rest of this module does not need it
+    from igdrivsim.training.config import get_profile
+
+    files = load_provenance(Path(paper))
+    runs, gpu = [], False
+    for rel, label in _RUNS:
+        entry = files.get(rel)
+        if not isinstance(entry, dict) or not entry.get("wall_s"):
+            continue
+        updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
+        device = str(entry.get("device") or "")
+        where = (f"on {device}" if device and "not recorded" not in device
+                 else "(device not recorded)")
+        runs.append(f"the {label}, `{entry.get('command', '?')}` (profile "
+                    f"{entry.get('profile', '?')}{updates}): {wall_text(float(entry['wall_s']))} "
+                    f"{where}, {entry.get('date', '')}")
+        gpu |= entry.get("profile") == "gpu"
+    measured = ("Measured (written by the report from `paper/provenance.json`): "
+                + ("; ".join(runs) if runs else "no run with a recorded wall time")
+                + ("." if gpu else "; no GPU run is recorded."))
+    n = {name: get_profile(name).training.num_updates for name in ("laptop", "quick", "gpu")}
+    choice = (f"Profiles: `laptop` (the default, {n['laptop']:,} updates), `quick` "
+              f"({n['quick']:,} updates, a first look below the competence targets), `gpu` "
+              f"({n['gpu']:,} updates, more seeds and scenarios, one GPU), `smoke` (minutes: "
+              "everything runs, the numbers mean nothing); the plan printed first estimates the "
+              "time on your machine.")
+    return measured + "\n" + choice
 
 
 def write_curves_summary(curves: pd.DataFrame, tables: Path) -> list[Path]:
@@ -354,6 +396,9 @@ def write_markdown(paper: str | Path, results: str | Path | None,
             raise ConfigError(f"--readme {readme}: no such file")
         res_link = os.path.relpath(results.resolve(), readme.resolve().parent)
         text = readme.read_text(encoding="utf-8")
-        written.append(atomic_write_text(readme, fill_block(
-            text, headline_markdown(paper, res_link), str(readme))))
+        text = fill_block(text, headline_markdown(paper, res_link), str(readme))
+        if RUNTIME_BEGIN in text:
+            text = fill_block(text, runtime_markdown(paper), str(readme), RUNTIME_BEGIN,
+                              RUNTIME_END)
+        written.append(atomic_write_text(readme, text))
     return written + write_macros(paper)

@@ -3,7 +3,7 @@
 A run is described by :class:`RunConfig` = policy widths + data/input settings + observation
 setting + training hyper-parameters. ``PROFILES`` holds ``smoke`` (seconds, tests/CI),
 ``laptop`` (the default: small network, 1,000 updates, the budget at which Full BC meets the
-competence targets; 6 settings x 2 methods x 3 seeds in about 2.5 hours on a 2-core CPU),
+competence targets; 6 settings x 2 methods x 3 seeds in about 2.8 hours on a 2-core CPU),
 ``quick`` (the laptop network at 300 updates, about 50 minutes on 2 cores: a first look, below
 the competence targets), ``gpu`` (the laptop's updates with more seeds, for power; one GPU) and
 ``paper`` (the paper's sizes and schedule). Any field can be overridden with

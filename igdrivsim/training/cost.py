@@ -30,26 +30,22 @@ CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger
 GPU_SECONDS_PER_EPISODE = 15.0 / 768
 GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
-# Laptop network, 3 seeds, 16 scenarios per update: CPU-seconds per update of ONE setting in one
-# process, everything of a training stage included (loading, teacher records, compile, the
-# learning-curve validation every 250 updates). Measured: four settings x 3 seeds x 1,000
-# updates per method, the two runs side by side on the 2-core CPU under `/usr/bin/time -v`:
-# BC 3,078 CPU-s, BC-RL 7,529 CPU-s (README at 6ae8db5, speed table, "four settings x 3 seeds x
-# 1,000 updates"; docs/training.md at 6ae8db5, "The budget"). Measured with two XLA threads per
-# process, which cost more CPU-s per update than one (3.90-3.97 against 5.20-5.45; README at
-# 6ae8db5, "taskset -c 0"; paper/findings.tex), so estimates for one-thread workers from these
-# rates err on the long side.
-LAPTOP_CPU_S_PER_SETTING_UPDATE = 3078 / (4 * 1000)  # teacher-forced methods (BC)
-LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT = 7529 / (4 * 1000)  # methods that drive (BC-RL, ...)
+# Laptop network, 3 seeds, 16 scenarios per update: seconds per update of ONE setting in one
+# one-XLA-thread worker process while another worker keeps the second core busy (the default
+# pipeline on 2 cores), everything of a training stage included (loading, teacher records,
+# compile, the learning-curve validation every 250 updates). Measured by the default run of
+# `bash scripts/reproduce.sh` on the 2-core AMD EPYC (its stage stamps, 2026-11-27): BC, 6
+# settings x 1,000 updates in one worker, 5,135 s; BC-RL, 2 settings x 1,000 updates, 4,290 s.
+LAPTOP_CPU_S_PER_SETTING_UPDATE = 5135 / (6 * 1000)  # teacher-forced methods (BC)
+LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT = 4290 / (2 * 1000)  # methods that drive (BC-RL, ...)
 LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # Everything of the default pipeline but training, in CPU-s: the 300-update run at 7f262a6 took
 # 5,985 CPU-s end to end (README at 6ae8db5, Table I section, `/usr/bin/time`), of which its
-# training at the rates above is 300 x 6 x (0.770 + 1.882) = 4,774 CPU-s; the remaining 1,211
-# CPU-s are the data, filter, evaluations, Fig. 1, report and PDF, and the maze study: 524-534
+# training at the rates measured then was 300 x 6 x (0.770 + 1.882) = 4,774 CPU-s; the remaining
+# 1,211 CPU-s are the data, filter, evaluations, Fig. 1, report and PDF, and the maze study: 524-534
 # CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
 MAZE_CPU_S = 534.0
-LAPTOP_OTHER_CPU_S = 5985 - 300 * 6 * (LAPTOP_CPU_S_PER_SETTING_UPDATE
-                                       + LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT) - MAZE_CPU_S
+LAPTOP_OTHER_CPU_S = 1211.0 - MAZE_CPU_S
 # One H200, laptop network (the 244k-parameter one before 7f262a6), 6 settings x 3 seeds per
 # update (README at 6ae8db5, speed table, `igdrivsim bench train --profiles laptop`): BC
 # 0.0255 s, BC-RL 0.0492 s; compile 16.6 s / 24.2 s.
