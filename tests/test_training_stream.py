@@ -179,7 +179,7 @@ def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
     gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1, io.StringIO())
-    assert gpu and "12 seeds, 4x the laptop" in gpu and "~9 h" in gpu
+    assert gpu and "12 seeds, 4x the laptop" in gpu and "~10 h" in gpu  # 1,000 x 6 x 4 x 3.0 s / 2
     assert warn_if_cpu(get_profile("gpu"), 1000, "gpu", 1) is None
     short = with_overrides(get_profile("gpu"), ["training.seeds=3"])
     assert warn_if_cpu(short, 1000, "cpu", 1) is None
