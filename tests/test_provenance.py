@@ -66,3 +66,18 @@ def test_runs_publish_what_they_own_and_keep_the_rest(tmp_path):
     assert provenance.publish(again, paper, _entry("methods")) == ["tables/table2.md"]
     assert "default run" in (paper / "tables/table1.md").read_text()
     assert r"\newcommand{\ProvRun}" in (paper / "generated/run.tex").read_text()
+
+
+def test_the_recorded_command_is_the_one_typed(tmp_path):
+    """A samples cache found on the machine is not written into the command as ``--samples``;
+    a ``--samples`` that was typed is."""
+    from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
+
+    found = tmp_path / "real.tfrecord"
+    found.write_bytes(b"")
+    args = build_parser().parse_args([])
+    plain = pipeline_from_args(args)
+    plain.samples = str(found)  # as if the cache had been found
+    assert plain.command_text() == "bash scripts/reproduce.sh"
+    typed = pipeline_from_args(build_parser().parse_args(["--samples", str(found)]))
+    assert typed.command_text() == f"bash scripts/reproduce.sh --samples {found}"

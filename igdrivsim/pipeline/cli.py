@@ -140,7 +140,8 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
     return Pipeline(profile, work, paper, train, val, in_process=args.in_process,
                     quiet=args.quiet, settings=settings, methods=methods,
                     overrides=tuple(args.overrides), workers=args.workers,
-                    samples=resolve_samples(args.samples))
+                    samples=resolve_samples(args.samples),
+                    samples_given=args.samples is not None)
 
 
 def _interrupt(signum, frame) -> None:

@@ -76,6 +76,7 @@ class Pipeline(StageRunner):
     overrides: tuple[str, ...] = ()  # ``section.field=value`` for every training run
     workers: int = 0  # worker processes (0: one per CPU core; two on an accelerator)
     samples: str | None = None  # real scenarios (igdrivsim samples): Fig. 1, real_logs stage
+    samples_given: bool = False  # --samples on the command line (else found in the cache)
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
@@ -293,7 +294,7 @@ class Pipeline(StageRunner):
             args += ["--methods", ",".join(self.methods)]
         for override in self.overrides:
             args += ["--set", override]
-        if getattr(self, "samples", None) is not None:
+        if self.samples_given and self.samples is not None:
             args += ["--samples", str(self.samples)]
         return provenance.command_line(args)
 

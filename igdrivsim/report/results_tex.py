@@ -8,7 +8,9 @@ so no result in it is typed by hand. Both files are read from the report's own f
 ``results.tex`` (from ``summary.csv``, ``tests.csv``, ``tests_all.csv``,
 ``supplementary_summary.csv``): ``\\Res<Method><Setting><Metric>``, the mean over seeds of every
 Table I cell (methods ``BC``, ``BCRL``, ``DAgger``, ``ADVISOR``; references ``\\ResCV<Metric>``
-and ``\\ResExpert<Metric>``; settings ``Full``, ``Gauss``, ``CircFour``, ``CircSix``, ``Conic``,
+and ``\\ResExpert<Metric>``; Table II's taught methods and its BC,
+``\\ResMethodsBC<Setting><Metric>``, from ``tests_all.csv``, its own run; settings ``Full``,
+``Gauss``, ``CircFour``, ``CircSix``, ``Conic``,
 ``Mask``; metrics ``LogDiv``, ``MaxLogDiv``, ``Overlap``, ``OverlapRate``, ``Offroad``,
 ``OffroadRate``), the same for the supplementary metrics under Full and for the references
 (``\\ResBCFullMaxAbsLonJerk``), and counts over Table I (``\\ResCells``, ``\\ResSigHolm``, ...;
@@ -101,6 +103,25 @@ def _means(summary: pd.DataFrame, metric_codes: dict[str, str], settings) -> lis
     return lines
 
 
+def _methods_means(tests_all: pd.DataFrame) -> list[str]:
+    """Table II's means from its own run (``tests_all.csv``): each method's cell
+    (``\\ResDAggerCircFourOffroad``) and the BC it is compared with there
+    (``\\ResMethodsBCCircFourOffroad``), so the prose never sets a method of one run beside
+    the BC of another."""
+    lines, seen = [], set()
+    for row in tests_all.itertuples():
+        if row.setting not in SETTING_CODES:
+            continue
+        metric = METRIC_CODES.get(row.metric) or _camel(str(row.metric))
+        cell = f"{SETTING_CODES[row.setting]}{metric}"
+        if row.method != BC_RL and row.method in METHOD_CODES:
+            lines.append(_macro(f"Res{METHOD_CODES[row.method]}{cell}", _num(row.mean_a)))
+        if row.baseline == BC and cell not in seen:
+            seen.add(cell)
+            lines.append(_macro(f"ResMethodsBC{cell}", _num(row.mean_b)))
+    return lines
+
+
 def _bc_row(summary: pd.DataFrame, metric: str) -> dict[str, float]:
     rows = summary[(summary.metric == metric) & (summary.method == BC)]
     return dict(zip(rows.setting, rows["mean"].astype(float), strict=True))
@@ -173,6 +194,7 @@ def results_tex(paper: str | Path) -> str | None:
                   _macro("ResMethodsCells", str(len(tests_all))),
                   _macro("ResMethodsSigHolm", str(int(tests_all.significant.astype(bool).sum()))),
                   _macro("ResTaughtSigHolm", str(int(taught.significant.astype(bool).sum())))]
+        lines += _methods_means(tests_all)
     extra = read_table(tables / "supplementary_summary.csv")
     if extra is not None:
         lines.append("% metrics beyond Table I under Full and for the references, from "
