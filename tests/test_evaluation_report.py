@@ -129,3 +129,36 @@ def test_verdict_says_bc_safer_when_it_is(tmp_path):
     _, per_scenario = aggregate.load_evaluations([fabricate(tmp_path, "full", effect=-0.3)])
     verdicts = tables.safety_verdicts(aggregate.compare_methods(per_scenario))
     assert verdicts["full"].startswith("no (BC is safer)")
+
+
+def test_compare_states_how_two_runs_conclusions_differ(tmp_path):
+    """The comparison of two report folders reads each run's BC order, the gap to Full and
+    BC-RL - BC from its own tables; a folder without them is a one-line error."""
+    import pandas as pd
+    import pytest
+
+    from igdrivsim.errors import ConfigError
+    from igdrivsim.report.compare import compare_markdown
+
+    def write(folder, offroad):
+        folder.mkdir()
+        rows = [("offroad", s, "bc", v) for s, v in offroad.items()]
+        rows += [(m, s, "bc", 1.0) for m in ("log_divergence", "overlap") for s in offroad]
+        rows += [(m, "none", "constant_velocity", 9.0)
+                 for m in ("log_divergence", "offroad", "overlap")]
+        pd.DataFrame(rows, columns=["metric", "setting", "method", "mean"]).to_csv(
+            folder / "summary.csv", index=False)
+        pd.DataFrame([("bc_rl", "offroad", s, -1.5, True, 1.0) for s in offroad],
+                     columns=["method", "metric", "setting", "diff", "significant", "mde"]
+                     ).to_csv(folder / "tests.csv", index=False)
+        return folder
+
+    old = write(tmp_path / "old", {"full": 2.0, "circular_r4": 5.0})
+    new = write(tmp_path / "new", {"full": 2.0, "circular_r4": 1.0})
+    text = compare_markdown(old, new)
+    offroad = text.split("## offroad")[1].split("##")[0]
+    assert "| BC, best to worst | Full < Circ r=4 | Circ r=4 < Full |" in offroad
+    assert "| BC gap to Full | Circ r=4 +3.00 | Circ r=4 -1.00 |" in offroad
+    assert "Circ r=4 -1.50* (1.00)" in offroad
+    with pytest.raises(ConfigError, match="expected summary.csv"):
+        compare_markdown(tmp_path, new)

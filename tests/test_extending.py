@@ -92,9 +92,11 @@ def test_the_method_recipe_adds_a_hyper_parameter_without_touching_the_config():
     try:
         exec(_snippet("method-module"), module.__dict__)  # noqa: S102 - the documented module
         base = with_overrides(get_profile("smoke"), ["training.method=bc_rl_scaled"])
-        assert update_spec(base.validate()).param("rl_scale") == 10.0  # the declared default
+        assert update_spec(base.validate()).params.rl_scale == 10.0  # the declared default
         config = with_overrides(base, ["method.rl_scale=20"]).validate()
-        assert update_spec(config).param("rl_scale") == 20.0
+        assert update_spec(config).params.rl_scale == 20.0
+        with pytest.raises(ConfigError, match="expected float"):
+            with_overrides(base, ["method.rl_scale=ten"])
         assert config.collects_rollout
         with pytest.raises(ConfigError, match="unknown method parameter"):
             with_overrides(base, ["method.nope=1"])

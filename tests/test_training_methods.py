@@ -80,6 +80,31 @@ def test_configuration_reads_the_registry(extra_method):
     assert advisor.validate().policy.aux_head  # the method decides the auxiliary head
 
 
+def test_each_method_declares_and_checks_its_own_hyper_parameters():
+    """ADVISOR's alpha and DAgger's buffer are their own params, typed and checked there;
+    a run written when they were training fields still loads with its values."""
+    from igdrivsim.training.config import from_dict, to_dict
+    from igdrivsim.training.update import update_spec
+
+    advisor = with_overrides(SMOKE, ["training.method=advisor", "training.teacher=x",
+                                     "method.alpha=0.25", "method.aggregate_batches=3"])
+    spec = update_spec(advisor.validate(), teacher_policy=SMOKE.policy)  # no teacher run read
+    assert spec.params.alpha == 0.25 and not hasattr(spec.params, "aggregate_batches")
+    dagger = with_overrides(SMOKE, ["training.method=dagger", "training.teacher=x",
+                                    "method.aggregate_batches=3"])
+    assert update_spec(dagger.validate(), SMOKE.policy).params.aggregate_batches == 3
+    with pytest.raises(ConfigError, match="method.alpha must be finite and >= 0"):
+        with_overrides(advisor, ["method.alpha=-1"]).validate()
+    with pytest.raises(ConfigError, match="expected int"):
+        with_overrides(dagger, ["method.aggregate_batches=2.5"])
+    with pytest.raises(ConfigError, match="aggregate_batches must be >= 1"):
+        with_overrides(dagger, ["method.aggregate_batches=0"]).validate()
+    old = to_dict(dagger)
+    old["training"].pop("method_params")
+    old["training"] |= {"aggregate_batches": 3, "advisor_alpha": 1.0}
+    assert from_dict(old) == dagger
+
+
 def test_train_command_offers_every_registered_method(extra_method):
     from igdrivsim.training.commands import train_arguments
 
@@ -119,7 +144,7 @@ def _taught(method: str, teacher: Path, data: str, out: Path, *sets: str) -> Pat
 
 def test_dagger_aggregates_the_students_states_and_learns(teacher_run, toy_data, tmp_path):
     run = _taught("dagger", teacher_run, toy_data, tmp_path / "dagger",
-                  "training.aggregate_batches=2")
+                  "method.aggregate_batches=2")
     lines = _lines(run)
     # the data set grows by one batch of the student's episodes per update up to its capacity
     assert [x["aggregate_episodes"] for x in lines] == [4, 8, 8, 8, 8, 8]
@@ -134,7 +159,7 @@ def test_dagger_aggregates_the_students_states_and_learns(teacher_run, toy_data,
 
 def test_advisor_weights_imitation_and_learns(teacher_run, toy_data, tmp_path):
     run = _taught("advisor", teacher_run, toy_data, tmp_path / "advisor",
-                  "training.advisor_alpha=0.1")
+                  "method.alpha=0.1")
     lines = _lines(run)
     assert all(0.0 < x["imitation_weight"] <= 1.0 for x in lines)
     assert lines[-1]["aux_teacher_ce"] < lines[0]["aux_teacher_ce"]

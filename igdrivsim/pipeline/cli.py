@@ -32,9 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
         "report -> publish -> PDF, over one worker process per core. Prints its plan and "
         "estimated wall time first. Resumable: rerun the same command after an interruption."))
     parser.add_argument("--profile", choices=tuple(PROFILES), default="laptop",
-                        help="smoke (minutes, CI), laptop (the default: trained to the "
-                             "competence targets, about 2.8 h on 2 cores; the plan printed first "
-                             "gives the estimate for this machine), quick (the laptop network "
+                        help="smoke (minutes, CI), laptop (the default: 1,000 updates, "
+                             "about 3 h on 2 cores; the plan printed first gives the estimate "
+                             "for this machine), quick (the laptop network "
                              "at 300 updates, about 50 min on 2 cores, below the competence "
                              "targets), gpu (the laptop's updates with 4x the seeds and "
                              "validation scenarios; one GPU), paper (the paper's sizes; GPUs)")

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -49,7 +50,7 @@ from igdrivsim.training import env
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.env import WARMUP_STEPS
 from igdrivsim.training.losses import bc_loss, gae, normalize
-from igdrivsim.training.methods import Method, Outputs, get_method
+from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
 from igdrivsim.training.privileged import teacher_config
 from igdrivsim.training.teacher import (
     EPISODE_STEPS,
@@ -81,18 +82,12 @@ class UpdateSpec:
     minibatches: int
     grad_clip: float
     record: ObservationConfig  # what a teacher-forced record holds (superset of ``obs``)
-    advisor_alpha: float = 1.0
-    aggregate_batches: int = 4  # DAgger: updates' worth of labelled episodes kept
     teacher_policy: PolicyConfig | None = None  # the privileged teacher's network (static)
-    method_params: tuple[tuple[str, float], ...] = ()  # the method's params, defaults filled
+    params: Any = NoParams()  # the method's own hyper-parameters (``Method.params``)
 
     @property
     def learner(self) -> Method:
         return get_method(self.method)
-
-    def param(self, name: str) -> float:
-        """The value of one of the method's own hyper-parameters (``Method.params``)."""
-        return dict(self.method_params)[name]
 
 
 def sim_params(config: RunConfig) -> SimParams:
@@ -130,10 +125,8 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
         grad_clip=t.grad_clip,
         record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
                                config.data.max_objects),
-        advisor_alpha=t.advisor_alpha, aggregate_batches=t.aggregate_batches,
         teacher_policy=teacher_policy or teacher_policy_config(config),
-        method_params=tuple((name, dict(t.method_params).get(name, default))
-                            for name, default in get_method(t.method).params))
+        params=get_method(t.method).with_params(dict(t.method_params)))
 
 
 def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
@@ -201,13 +194,13 @@ def empty_aggregate(spec: UpdateSpec, batch: int) -> Aggregate | None:
     """The empty buffer of one (setting, seed) (``None`` unless the method aggregates)."""
     if "aggregate" not in spec.learner.episodes:
         return None
-    n = spec.aggregate_batches * batch
+    n = spec.params.aggregate_batches * batch
     obs = jax.tree.map(lambda x: jnp.zeros((n, EPISODE_STEPS, *x.shape), x.dtype),
                        example_observation(spec.obs))
     steps = EPISODE_STEPS - WARMUP_STEPS
     return Aggregate(obs, jnp.zeros((n, steps, 3, spec.policy.num_bins)),
                      jnp.zeros((n, steps), bool), jnp.zeros((), jnp.int32),
-                     spec.aggregate_batches)
+                     spec.params.aggregate_batches)
 
 
 def _time_major(x):

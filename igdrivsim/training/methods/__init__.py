@@ -11,8 +11,14 @@ hands the method's ``loss`` the outputs. The episodes:
   with log-probabilities, values, rewards ``-1[overlap] - 1[offroad]``, GAE advantages and
   returns; with ``teacher=True`` a privileged teacher (``training.teacher``, a Full-setting
   run) labels each visited state with its action distribution, seeing the full observation;
-- ``aggregate``: teacher-labelled rollouts of the last ``training.aggregate_batches`` updates,
-  kept in a buffer that grows with the student's states (DAgger's data set).
+- ``aggregate``: teacher-labelled rollouts of the last ``aggregate_batches`` updates (a field
+  the method's ``params`` must declare), kept in a buffer that grows with the student's states
+  (DAgger's data set).
+
+A method's own hyper-parameters are a frozen dataclass declared next to its loss (``params``,
+an instance holding the defaults; validate in its ``__post_init__``): ``--set
+method.NAME=VALUE`` sets a field (parsed to the field's type), the loss reads
+``spec.params.NAME``; the shared configuration does not change.
 
 ``igdrivsim train --method``, the configuration, the pipeline's ``--methods``, the tables and
 the figures all read this registry (name, label, colour, baseline); a method is named nowhere
@@ -21,9 +27,10 @@ else. Table I compares BC-RL with BC; Table II every method with its ``baseline`
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import pkgutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -51,6 +58,11 @@ LossFn = Callable[[Any, dict[str, Outputs], dict[str, jax.Array]],
 
 
 @dataclass(frozen=True)
+class NoParams:
+    """The hyper-parameters of a method that has none of its own."""
+
+
+@dataclass(frozen=True)
 class Method:
     """One learning method."""
 
@@ -62,18 +74,28 @@ class Method:
     teacher: bool = False  # a privileged teacher labels the rollout's states
     aux_head: bool = False  # the network gets an auxiliary imitation head (ADVISOR)
     baseline: str | None = "bc"  # the method it is compared with (Tables I-II: BC)
-    # the method's own hyper-parameters and their defaults ({name: value}); set with
-    # ``--set method.NAME=VALUE``, read in the loss as ``spec.param(NAME)``
-    params: Any = ()
+    # the method's own hyper-parameters: a frozen dataclass instance holding their defaults;
+    # set with ``--set method.NAME=VALUE``, read in the loss as ``spec.params.NAME``
+    params: Any = NoParams()
 
     def __post_init__(self):
-        object.__setattr__(self, "params", tuple(sorted(
-            (str(k), float(v)) for k, v in dict(self.params).items())))
+        if not dataclasses.is_dataclass(self.params) or isinstance(self.params, type):
+            raise ConfigError(f"method {self.name!r}: params must be a dataclass instance "
+                              f"(its defaults), got {self.params!r}")
         unknown = set(self.episodes) - set(EPISODES)
         if unknown or not self.episodes:
             raise ConfigError(f"method {self.name!r}: episodes must be among {EPISODES}")
         if "aggregate" in self.episodes and not self.teacher:
             raise ConfigError(f"method {self.name!r}: aggregate episodes need teacher=True")
+        if "aggregate" in self.episodes and not hasattr(self.params, "aggregate_batches"):
+            raise ConfigError(f"method {self.name!r}: aggregate episodes need an "
+                              "aggregate_batches field in its params")
+
+    def with_params(self, values: Mapping[str, Any]) -> Any:
+        """The method's params with those of ``values`` it declares set (the others are another
+        method's, ignored); the params' own checks raise a one-line error."""
+        own = {f.name for f in dataclasses.fields(self.params)}
+        return dataclasses.replace(self.params, **{k: v for k, v in values.items() if k in own})
 
     @property
     def rollout(self) -> bool:
@@ -92,9 +114,14 @@ def register_method(method: Method) -> Method:
     return method
 
 
-def method_param_names() -> set[str]:
-    """Every hyper-parameter a registered method declares (``--set method.NAME=VALUE``)."""
-    return {name for m in METHODS.values() for name, _ in m.params}
+def method_param_defaults() -> dict[str, Any]:
+    """Every hyper-parameter a registered method declares (``--set method.NAME=VALUE``), with
+    the default of the first method declaring it (its type parses the value)."""
+    found: dict[str, Any] = {}
+    for method in METHODS.values():
+        for f in dataclasses.fields(method.params):
+            found.setdefault(f.name, getattr(method.params, f.name))
+    return found
 
 
 def get_method(name: str) -> Method:

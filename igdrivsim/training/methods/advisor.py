@@ -9,18 +9,21 @@ information the student's observation lacks) imitation is down-weighted in favou
     loss = mean_s[w(s) CE(teacher, pi)(s) + (1 - w(s)) PPO(s)]
            + w_rl (vf_coef * value loss - ent_coef * entropy) + mean_s CE(teacher, aux)(s)
 
-``alpha`` is ``training.advisor_alpha``; PPO's reward is the paper's ``-1[overlap] -
-1[offroad]``. The logged episodes only warm the GRU up. The value and entropy terms carry
-BC-RL's ``w_RL``: the returns are not normalised (sums of up to 80 penalties), and at weight 1
-the value loss's gradient (norm 43 against 0.55 for the imitation term, measured at the end of
-a laptop run) took almost all of the clipped update, so the actor barely learned.
+``alpha`` is ``--set method.alpha=VALUE`` (:class:`Params`); PPO's reward is the paper's
+``-1[overlap] - 1[offroad]``. The logged episodes only warm the GRU up. The value and entropy
+terms carry BC-RL's ``w_RL``: the returns are not normalised (sums of up to 80 penalties), and
+at weight 1 the value loss's gradient (norm 43 against 0.55 for the imitation term, measured at
+the end of a laptop run) took almost all of the clipped update, so the actor barely learned.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.errors import ConfigError
 from igdrivsim.training.losses import (
     action_log_prob,
     entropy,
@@ -33,10 +36,19 @@ from igdrivsim.training.losses import (
 from igdrivsim.training.methods import Method, register_method
 
 
+@dataclass(frozen=True)
+class Params:
+    alpha: float = 1.0  # imitation weight exp(-alpha KL(teacher || aux)); 0: imitation only
+
+    def __post_init__(self):
+        if not 0.0 <= self.alpha < float("inf"):
+            raise ConfigError(f"method.alpha must be finite and >= 0, got {self.alpha}")
+
+
 def loss(spec, out, batch):
     roll, mask, teacher = out["rollout"], batch["valid"], batch["teacher_logp"]
     ce = soft_cross_entropy(teacher, roll.logits)
-    weight = jnp.exp(-spec.advisor_alpha * jax.lax.stop_gradient(
+    weight = jnp.exp(-spec.params.alpha * jax.lax.stop_gradient(
         kl_divergence(teacher, roll.aux_logits)))
     pg = surrogate_terms(action_log_prob(roll.logits, batch["actions"]), batch["log_probs"],
                          batch["advantages"], spec.clip_eps)
@@ -51,4 +63,4 @@ def loss(spec, out, batch):
 
 
 register_method(Method("advisor", "ADVISOR", "#B07AA1", loss, episodes=("rollout",),
-                       teacher=True, aux_head=True))
+                       teacher=True, aux_head=True, params=Params()))

@@ -1,0 +1,100 @@
+"""Two runs' Table I beside each other: what changed in the benchmark's conclusions.
+
+Reads two report folders (``summary.csv`` and ``tests.csv`` of ``igdrivsim report``; a committed
+``paper/tables`` of any commit, e.g. extracted with ``git show REV:paper/tables/summary.csv``)
+and prints, per Table I metric, the reference constant-velocity level, BC's setting order, the
+observation gap (each partial setting's BC mean minus Full's) and BC-RL - BC with its minimum
+detectable effect (``*``: significant after Holm). It says how a change of data, profile or code
+moved the conclusions a reader takes from Table I, not only its cells.
+
+``python -m igdrivsim.report.compare OLD_TABLES NEW_TABLES [--labels OLD NEW] [--out FILE]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.evaluation.schema import (
+    BC,
+    BC_RL,
+    CONSTANT_VELOCITY,
+    METRIC_BY_KEY,
+    setting_short,
+    table_settings,
+)
+from igdrivsim.io import atomic_write_text
+from igdrivsim.report.results_tex import read_table
+
+METRIC_KEYS = ("log_divergence", "offroad", "overlap")  # Table I's per-step metrics
+FULL = "full"
+
+
+def _tables(folder: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    summary, tests = read_table(folder / "summary.csv"), read_table(folder / "tests.csv")
+    if summary is None or tests is None:
+        raise ConfigError(f"{folder}: expected summary.csv and tests.csv (igdrivsim report's "
+                          "tables)")
+    return summary, tests
+
+
+def run_lines(summary: pd.DataFrame, tests: pd.DataFrame, metric: str) -> dict[str, str]:
+    """One run's cells for ``metric``: reference, BC's order, the gap and BC-RL - BC."""
+    bc = summary[(summary.metric == metric) & (summary.method == BC)].set_index("setting")["mean"]
+    cv = summary[(summary.metric == metric) & (summary.method == CONSTANT_VELOCITY)]["mean"]
+    order = table_settings(summary)
+    partial = [s for s in order if s != FULL and s in bc.index]
+    rl = tests[(tests.metric == metric) & (tests.method == BC_RL)].set_index("setting")
+    return {
+        "constant velocity": f"{cv.iloc[0]:.2f}" if len(cv) else "--",
+        "BC, best to worst": " < ".join(setting_short(s) for s in bc.sort_values().index),
+        "BC gap to Full": ", ".join(f"{setting_short(s)} {bc[s] - bc[FULL]:+.2f}"
+                                    for s in partial if FULL in bc),
+        "BC-RL - BC (MDE)": ", ".join(
+            f"{setting_short(s)} {r['diff']:+.2f}{'*' if bool(r.significant) else ''} "
+            f"({r.mde:.2f})" for s, r in rl.loc[[s for s in order if s in rl.index]].iterrows()),
+    }
+
+
+def compare_markdown(old: Path, new: Path, labels: tuple[str, str] = ("old", "new")) -> str:
+    """The markdown comparison of two report folders."""
+    runs = [(label, *_tables(Path(folder))) for label, folder in zip(labels, (old, new),
+                                                                       strict=True)]
+    lines = [f"# Table I: {labels[0]} vs {labels[1]}", "",
+             "Written by `python -m igdrivsim.report.compare`. `*`: significant after Holm; "
+             "in brackets the minimum detectable effect (80% power).", ""]
+    for metric in METRIC_KEYS:
+        name = " ".join(p for p in METRIC_BY_KEY[metric].label if not p.startswith("("))
+        lines += [f"## {name} ({METRIC_BY_KEY[metric].unit})", "", "| | " + " | ".join(
+            label for label, *_ in runs) + " |", "|---|" + "---|" * len(runs)]
+        cells = [run_lines(summary, tests, metric) for _, summary, tests in runs]
+        lines += [f"| {row} | " + " | ".join(c[row] for c in cells) + " |" for row in cells[0]]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.compare",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("old", type=Path, help="report tables folder (summary.csv, tests.csv)")
+    parser.add_argument("new", type=Path, help="the same for the run compared with it")
+    parser.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"))
+    parser.add_argument("--out", type=Path, help="also write the markdown here")
+    args = parser.parse_args(argv)
+    try:
+        text = compare_markdown(args.old, args.new, tuple(args.labels))
+        if args.out:
+            atomic_write_text(args.out, text)
+    except REPORTED as err:
+        print(f"compare: error: {error_line(err)}", file=sys.stderr)
+        return 2
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
