@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 
 from igdrivsim.data import Capacities, load_scenario, stack_scenarios, write_tfexample
-from igdrivsim.observation import ObservationConfig, get_setting, observe, setting_params
+from igdrivsim.observation import (
+    ObservationConfig,
+    episode_observations,
+    get_setting,
+    observe,
+    setting_params,
+    superset_config,
+)
 from igdrivsim.simulator import SimParams, reset, toy
 from igdrivsim.training import inputs
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.teacher import (
-    compute_teacher,
-    episode_observations,
-    superset_config,
-)
+from igdrivsim.training.teacher import compute_teacher
 from igdrivsim.training.update import update_spec
 
 SAMPLE = (Path(__file__).resolve().parents[1]
@@ -61,9 +64,15 @@ def test_recorded_observation_equals_the_online_one(recorded, name):
         online.append(observe(s, get_setting(name), key, jax.random.fold_in(key, s.timestep),
                               OBS))
         s = step(s, dynamics.undiscretize(acts[k]), sim)
+    record = jax.tree.map(lambda x: jnp.asarray(x[0]), rec).replace(actions=None,
+                                                                     action_valid=None)
     for t in (0, 9, 10, 40, 89):
         a = jax.tree.map(lambda x, t=t: np.asarray(x[t]), cached)
         b = online[t]
+        # one observe: a recorded step is a source as a simulator state is
+        one = observe(jax.tree.map(lambda x, t=t: x[t], record), params, key,
+                      jax.random.fold_in(key, t), OBS)
+        jax.tree.map(np.testing.assert_array_equal, one, a)
         np.testing.assert_array_equal(a.objects_valid, np.asarray(b.objects_valid))
         np.testing.assert_array_equal(a.roadgraph_valid, np.asarray(b.roadgraph_valid))
         np.testing.assert_allclose(a.objects, np.asarray(b.objects), atol=2e-5)

@@ -50,6 +50,7 @@ from igdrivsim.observation.observe import (
     sdc_pose,
 )
 from igdrivsim.observation.occlusion import LineOfSightOcclusion, line_of_sight  # registers
+from igdrivsim.observation.record import ObservationRecord, episode_observations, superset_config
 
 __all__ = [
     "OBJECT_FEATURES", "POSITION_SCALE", "ROADGRAPH_FEATURES", "SPEED_SCALE",
@@ -62,4 +63,5 @@ __all__ = [
     "PAPER_SETTINGS",
     "LineOfSightOcclusion", "line_of_sight",
     "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
+    "ObservationRecord", "episode_observations", "superset_config",
 ]

@@ -1,8 +1,10 @@
 """The observation pipeline: believed pose -> SDC-frame features -> hiding, for one example.
 
-``observe(state, setting, episode_key, step_key)`` is what training and evaluation call at every
-step; :func:`observe_setting_arrays` is the same on plain arrays (tests, pictures). Both take one
-example: ``jax.vmap`` them over a batch of states and keys.
+``observe(source, setting, episode_key, step_key)`` is what training and evaluation call at
+every step; the source is a simulator state or one step of a recorded episode
+(:class:`~igdrivsim.observation.record.ObservationRecord`, the teacher-forced episodes BC trains
+on). :func:`observe_setting_arrays` is the same on plain arrays (tests, pictures). All take one
+example: ``jax.vmap`` them over a batch of sources and keys.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from igdrivsim.observation.features import (
     observe_arrays,
 )
 from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
+from igdrivsim.observation.record import ObservationRecord, observe_record
 from igdrivsim.simulator import current_objects, sdc_yaw_rate
 
 
@@ -70,16 +73,19 @@ def observe_with_selection(
 
 
 def observe(
-    state: Any,
+    source: Any,
     setting: ObservationSetting,
     episode_key: jax.Array,
     step_key: jax.Array,
     config: ObservationConfig = DEFAULT_CONFIG,
 ) -> Observation:
-    """The imitator's observation of a simulator state (one example) under ``setting``.
+    """The imitator's observation (one example) under ``setting``, of a simulator state or of
+    one step of an :class:`ObservationRecord`.
 
     Pass the SAME ``episode_key`` at every step of an episode (the position-noise offset is drawn
     from it) and a fresh ``step_key`` per step (random masking), e.g.
     ``jax.random.fold_in(episode_key, state.timestep)``.
     """
-    return observe_with_selection(state, setting, episode_key, step_key, config)[0]
+    if isinstance(source, ObservationRecord):
+        return observe_record(source, setting, episode_key, step_key, config)
+    return observe_with_selection(source, setting, episode_key, step_key, config)[0]

@@ -33,16 +33,14 @@ from igdrivsim.data import read_scenarios
 from igdrivsim.data.manifest import count_scenarios, load_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.observation import ObservationConfig
+from igdrivsim.observation import ObservationConfig, ObservationRecord, superset_config
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.teacher import (
-    TeacherSteps,
     cache_key,
     compute_teacher,
     data_identity,
     load_or_compute,
-    superset_config,
 )
 
 MANIFEST = "manifest.jsonl"
@@ -154,7 +152,7 @@ class Dataset:
     """Teacher-forced records (and, for BC-RL, reset states) of all training scenarios in host
     memory, and the batch sampler."""
 
-    def __init__(self, teacher: TeacherSteps | None, states: SimState | None, batch_size: int,
+    def __init__(self, teacher: ObservationRecord | None, states: SimState | None, batch_size: int,
                  seeds: Sequence[int]):
         self.teacher = teacher
         self.states = states

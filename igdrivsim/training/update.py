@@ -38,10 +38,13 @@ from igdrivsim.observation import (
     Observation,
     ObservationConfig,
     ObservationParams,
+    ObservationRecord,
     ObservationSetting,
+    episode_observations,
     get_setting,
     setting_params,
     stack_params,
+    superset_config,
 )
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
@@ -52,13 +55,7 @@ from igdrivsim.training.env import WARMUP_STEPS
 from igdrivsim.training.losses import bc_loss, gae, normalize
 from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
 from igdrivsim.training.privileged import teacher_config
-from igdrivsim.training.teacher import (
-    EPISODE_STEPS,
-    TeacherSteps,
-    episode_observations,
-    record_episode,
-    superset_config,
-)
+from igdrivsim.training.teacher import EPISODE_STEPS, record_episode
 
 
 @dataclass(frozen=True)
@@ -148,7 +145,7 @@ def cosine_lr(update: int, num_updates: int, lr: float, lr_end: float) -> float:
     return lr_end + 0.5 * (lr - lr_end) * (1.0 + math.cos(math.pi * frac))
 
 
-def expert_sequences(spec: UpdateSpec, rec: TeacherSteps, setting, episode_keys,
+def expert_sequences(spec: UpdateSpec, rec: ObservationRecord, setting, episode_keys,
                      steps: int = EPISODE_STEPS) -> Observation:
     """Time-major observations ``[steps, b, ...]`` of recorded episodes ``[b]``."""
     part = jax.tree.map(lambda x: x[:, :steps], rec.replace(actions=None, action_valid=None))
@@ -253,7 +250,7 @@ def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Ob
     return jax.nn.log_softmax(logits[WARMUP_STEPS:], axis=-1)
 
 
-def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: TeacherSteps,
+def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: ObservationRecord,
             states: SimState | None, setting, teacher_params, key):
     """The episodes of one update (scenario-major arrays for minibatching), the buffer after
     this update's push, and the collection's metrics."""
@@ -300,7 +297,7 @@ def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: TeacherStep
 
 
 def update_one(spec: UpdateSpec, params, opt_state, buffer: Aggregate | None,
-               rec: TeacherSteps, states: SimState | None, setting, teacher_params, key, lr):
+               rec: ObservationRecord, states: SimState | None, setting, teacher_params, key, lr):
     """One update of one (setting, seed) on its batch ``[B]``: ``(params, opt_state, buffer,
     metrics)``."""
     b = rec.sdc_yaw.shape[0]
