@@ -30,7 +30,8 @@ from maze.rollout import run_stream, start_stream
 @dataclasses.dataclass(frozen=True)
 class BCConfig:
     """Dataset size and optimiser of BC (its own learning rate). The study uses 16 minibatches
-    of whole streams for 6 epochs: more, smaller Adam steps learn faster per epoch."""
+    of whole streams for 12 epochs: more, smaller Adam steps learn faster per epoch, and at 6
+    epochs BC partial -> partial stopped at 86% of partial RL's return (12: 93%)."""
 
     num_envs: int = 64
     num_steps: int = 512

@@ -73,8 +73,8 @@ class StudyConfig:
     rl_full_updates: int = 80
     rl_partial_updates: int = 120
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=6, num_minibatches=16)
-    bc_chunk_epochs: int = 1
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=12, num_minibatches=16)
+    bc_chunk_epochs: int = 2  # epochs between evaluations of the BC curves
     eval_episodes: int = 256
     final_eval_rounds: int = 4
     baselines: bool = True  # Fig. 2b: DAgger, BC+PPO, ADVISOR (full expert -> partial student)
