@@ -108,6 +108,8 @@ METRICS: tuple[Metric, ...] = (
     Metric("offroad_rate", "offroad", ("offroad", r"rate (\%)"), 100.0, "%", False),
 )
 METRIC_BY_KEY: dict[str, Metric] = {m.key: m for m in METRICS}
+# Table I's per-step metrics, the ones its side tables (real logs, run comparisons) report
+STEP_METRICS: tuple[str, ...] = ("log_divergence", "offroad", "overlap")
 
 
 def _row(*cells: tuple[float, float]) -> dict[str, tuple[float, float]]:

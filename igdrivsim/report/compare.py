@@ -20,17 +20,16 @@ import pandas as pd
 
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.evaluation.schema import (
-    BC,
     BC_RL,
     CONSTANT_VELOCITY,
     METRIC_BY_KEY,
+    STEP_METRICS,
     setting_short,
     table_settings,
 )
 from igdrivsim.io import atomic_write_text
-from igdrivsim.report.results_tex import read_table
+from igdrivsim.report.results_tex import bc_means, read_table
 
-METRIC_KEYS = ("log_divergence", "offroad", "overlap")  # Table I's per-step metrics
 FULL = "full"
 
 
@@ -44,7 +43,7 @@ def _tables(folder: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 def run_lines(summary: pd.DataFrame, tests: pd.DataFrame, metric: str) -> dict[str, str]:
     """One run's cells for ``metric``: reference, BC's order, the gap and BC-RL - BC."""
-    bc = summary[(summary.metric == metric) & (summary.method == BC)].set_index("setting")["mean"]
+    bc = pd.Series(bc_means(summary, metric), dtype=float)
     cv = summary[(summary.metric == metric) & (summary.method == CONSTANT_VELOCITY)]["mean"]
     order = table_settings(summary)
     partial = [s for s in order if s != FULL and s in bc.index]
@@ -67,7 +66,7 @@ def compare_markdown(old: Path, new: Path, labels: tuple[str, str] = ("old", "ne
     lines = [f"# Table I: {labels[0]} vs {labels[1]}", "",
              "Written by `python -m igdrivsim.report.compare`. `*`: significant after Holm; "
              "in brackets the minimum detectable effect (80% power).", ""]
-    for metric in METRIC_KEYS:
+    for metric in STEP_METRICS:
         name = " ".join(p for p in METRIC_BY_KEY[metric].label if not p.startswith("("))
         lines += [f"## {name} ({METRIC_BY_KEY[metric].unit})", "", "| | " + " | ".join(
             label for label, *_ in runs) + " |", "|---|" + "---|" * len(runs)]

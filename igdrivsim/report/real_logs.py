@@ -25,12 +25,13 @@ from igdrivsim.evaluation.schema import (
     METHOD_LABELS,
     METRIC_BY_KEY,
     REFERENCES,
+    STEP_METRICS,
     setting_short,
     table_settings,
 )
 from igdrivsim.io import atomic_write_text
 
-METRIC_KEYS = ("log_divergence", "offroad", "overlap")  # Table I's per-step metrics
+METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
 HEADERS = {"log_divergence": "log divergence (m)", "offroad": "offroad (%)",
            "overlap": "overlap (%)"}

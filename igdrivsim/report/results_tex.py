@@ -122,7 +122,8 @@ def _methods_means(tests_all: pd.DataFrame) -> list[str]:
     return lines
 
 
-def _bc_row(summary: pd.DataFrame, metric: str) -> dict[str, float]:
+def bc_means(summary: pd.DataFrame, metric: str) -> dict[str, float]:
+    """BC's mean over seeds of ``metric`` per setting, from a ``summary.csv``."""
     rows = summary[(summary.metric == metric) & (summary.method == BC)]
     return dict(zip(rows.setting, rows["mean"].astype(float), strict=True))
 
@@ -133,7 +134,7 @@ def _counts(summary: pd.DataFrame, tests: pd.DataFrame) -> list[str]:
     paper = [(r, PAPER_TABLE1[r.metric][r.setting]) for r in cells.itertuples()
              if r.setting in PAPER_TABLE1.get(r.metric, {})]
     offroad = cells[cells.metric == "offroad"]
-    bc_div, bc_off = _bc_row(summary, "log_divergence"), _bc_row(summary, "offroad")
+    bc_div, bc_off = bc_means(summary, "log_divergence"), bc_means(summary, "offroad")
     partial = [s for s in bc_div if s in SETTING_CODES and s != "full"]
     full_div, full_off = bc_div.get("full", math.nan), bc_off.get("full", math.nan)
     values = dict(
