@@ -178,3 +178,22 @@ def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):
     assert not lane.is_alive() and proc.poll() is not None and not pipe.children
     with pytest.raises(StageError, match="not started"):
         pipe.stage("later", [["python", "-c", "pass"]])
+
+
+def test_stamps_say_where_each_training_part_ran(tmp_path, monkeypatch):
+    """A run resumed on another machine (the taught methods trained on a GPU, say) states both
+    machines in its provenance, each with its parts; stamps from before the field count as
+    this machine's."""
+    pipe = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", workers=2,
+                    methods=("bc", "bc_rl", "dagger"))
+    monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))
+    assert pipe.stage("train_bc", [["python", "-c", "pass"]])
+    assert json.loads(pipe.stamp_path("train_bc").read_text())["device"] == (
+        "test CPU, 2 cores, 2 worker process(es)")
+    assert pipe.trained_on() == "test CPU, 2 cores, 2 worker process(es)"
+    stamps = pipe.work / "stages"
+    (stamps / "train_bc_rl-1of2.json").write_text(json.dumps({"commands": []}))
+    (stamps / "train_dagger.json").write_text(json.dumps({"device": "GPU box, 1 worker"}))
+    (stamps / "train_other.json").write_text(json.dumps({"device": "not this run's"}))
+    assert pipe.trained_on() == ("test CPU, 2 cores, 2 worker process(es) (bc, bc_rl-1of2); "
+                                 "GPU box, 1 worker (dagger)")

@@ -29,7 +29,8 @@ class StageError(IGDrivSimError):
 class StageRunner:
     """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps). The dataclass that
     inherits it provides ``work``, ``quiet``, ``in_process``, ``one_thread``, ``ran``,
-    ``stopping`` and ``children``."""
+    ``stopping``, ``children`` and ``device_text`` (where the stages run: recorded in each
+    stamp, so a run resumed on another machine says which stage ran where)."""
 
     # ----------------------------------------------------------------------- bookkeeping
     def log_path(self, stage: str) -> Path:
@@ -52,6 +53,15 @@ class StageRunner:
         except (OSError, ValueError):
             return False
         return stamped == [list(map(str, c)) for c in commands]
+
+    def stamped_device(self, stage: str) -> str:
+        """Where a complete stage ran (its stamp; this machine for a stamp that predates the
+        field)."""
+        try:
+            device = json.loads(self.stamp_path(stage).read_text(encoding="utf-8")).get("device")
+        except (OSError, ValueError):
+            device = None
+        return device or self.device_text
 
     def _say(self, text: str) -> None:
         print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
@@ -88,7 +98,8 @@ class StageRunner:
         atomic_write_text(self.stamp_path(name), json.dumps(dict(
             stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
                                                                          for c in commands],
-            finished=time.strftime("%Y-%m-%d %H:%M:%S")), indent=2) + "\n")
+            finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text),
+            indent=2) + "\n")
         self.ran.add(name)
         self._say(f"{name}: done in {time.time() - start:.0f} s")
         return True

@@ -314,8 +314,7 @@ class Pipeline(StageRunner):
         entry = provenance.Entry(
             command=self.command_text(), run=self.kind, profile=self.profile.name,
             updates=updates, commit=git_commit(),
-            device=f"{self.machine.label()}, {self.lanes} worker process(es)",
-            wall_s=round(self.wall_seconds()), date=provenance.today(),
+            device=self.trained_on(), wall_s=round(self.wall_seconds()), date=provenance.today(),
             note=provenance.competence_note(self.profile.name, updates))
         published = provenance.publish(self.staged, self.paper, entry)
         self._say(f"publish: {len(published)} files in {self.paper} (provenance: "
@@ -334,6 +333,23 @@ class Pipeline(StageRunner):
     def _record_wall(self) -> None:
         path = self.work / "wall.json"
         atomic_write_json(path, {"seconds": round(self.wall_seconds(), 1)})
+
+    @property
+    def device_text(self) -> str:
+        """This machine and its worker processes, as stamps and provenance state it."""
+        return f"{self.machine.label()}, {self.lanes} worker process(es)"
+
+    def trained_on(self) -> str:
+        """Where this run's training stages ran: one machine, or each machine with its parts
+        (a run resumed elsewhere, e.g. the taught methods trained on a GPU)."""
+        where: dict[str, list[str]] = {}
+        for path in sorted((self.work / "stages").glob("train_*.json")):
+            part = path.stem.removeprefix("train_")
+            if any(part == m or part.startswith(f"{m}-") for m in self.methods):
+                where.setdefault(self.stamped_device(path.stem), []).append(part)
+        if len(where) <= 1:
+            return next(iter(where), self.device_text)
+        return "; ".join(f"{device} ({', '.join(parts)})" for device, parts in where.items())
 
     @property
     def machine(self) -> planning.Machine:

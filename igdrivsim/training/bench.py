@@ -21,6 +21,7 @@ import time
 
 import jax
 import numpy as np
+from jax.extend.core import ClosedJaxpr, Jaxpr
 
 from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.errors import ConfigError, check_min
@@ -57,6 +58,35 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="FILE",
                         help="also write the results and the machine they ran on to this JSON "
                              "file")
+
+
+def matmul_flops(fn, *args) -> int:
+    """Floating-point operations of the matrix products (``dot_general``) one call of ``fn``
+    does: 2 x output size x contracted size each, a ``scan`` body's times its length. XLA's
+    cost analysis counts a loop's body once whatever its trip count, so it cannot price a
+    90-step episode; the products are nearly all of a network's arithmetic (the element-wise
+    rest is left out, so the rate derived from this is a lower bound)."""
+    def count(jaxpr) -> int:
+        total = 0
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name == "dot_general":
+                (contract, _), _ = eqn.params["dimension_numbers"]
+                lhs = eqn.invars[0].aval.shape
+                total += 2 * int(np.prod(eqn.outvars[0].aval.shape)) * int(
+                    np.prod([lhs[d] for d in contract]))
+                continue
+            subs = [v for v in eqn.params.values() if isinstance(v, (Jaxpr,
+                                                                     ClosedJaxpr))]
+            subs += [b for v in eqn.params.values() if isinstance(v, tuple)
+                     for b in v if isinstance(b, (Jaxpr, ClosedJaxpr))]
+            inner = [count(getattr(j, "jaxpr", j)) for j in subs]
+            if eqn.primitive.name == "cond":
+                total += max(inner, default=0)  # one branch runs
+            else:
+                total += sum(inner) * int(eqn.params.get("length", 1))
+        return total
+
+    return count(jax.make_jaxpr(fn)(*args).jaxpr)
 
 
 def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 0, seeds: int = 0,
@@ -105,6 +135,7 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     t0 = time.perf_counter()
     update = get_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
     compile_s = time.perf_counter() - t0
+    flops = matmul_flops(get_update(spec), params, opt_state, buffer, *args, 0, 1e-3)
     t0 = time.perf_counter()
     params, opt_state, buffer, m = update(params, opt_state, buffer, *args, 0, 1e-3)
     jax.block_until_ready(params)
@@ -129,6 +160,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             "updates_per_s": round(1.0 / per_update, 3),
             "scenario_steps_per_s": round(steps / per_update, 1),
             "grad_steps_per_s": round(grads / per_update, 2),
+            "matmul_flops_per_update": flops,
+            "matmul_tflop_per_s": round(flops / per_update / 1e12, 4),
             "bc_loss": float(np.mean(jax.device_get(m["bc_loss"])))}
 
 
