@@ -193,4 +193,6 @@ def encode_tfexample(scenario: Scenario) -> bytes:
         start += width
     fm["scenario/id"].bytes_list.value.append(
         decode_scenario_id(scenario.scenario_id).encode("ascii"))
-    return example.SerializeToString()
+    # deterministic: a map's entries in key order, so the same scenario is the same bytes in any
+    # process (protobuf otherwise writes them in hash order)
+    return example.SerializeToString(deterministic=True)
