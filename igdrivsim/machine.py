@@ -10,7 +10,8 @@ import sys
 
 
 def machine_record() -> dict:
-    """CPU count, load average, OS, Python, JAX and its devices, date (UTC) and command line."""
+    """CPU count, load average, OS, Python, JAX, its devices and default matrix precision, date
+    (UTC) and command line."""
     import jax  # lazy: JAX only when a record is taken
 
     try:
@@ -23,4 +24,6 @@ def machine_record() -> dict:
             "python": platform.python_version(), "jax": jax.__version__,
             "backend": jax.default_backend(),
             "devices": sorted({d.device_kind for d in jax.devices()}),
+            # JAX_DEFAULT_MATMUL_PRECISION changes what a float32 product costs on a GPU
+            "matmul_precision": jax.config.jax_default_matmul_precision,
             "command": " ".join(["igdrivsim", *sys.argv[1:]]) if sys.argv else None}

@@ -175,7 +175,7 @@ def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     out = io.StringIO()
     msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1, out)
     assert msg and "years" in msg and out.getvalue().count("\n") == 1
-    assert "~497 h on one H200" in msg  # 119,382 updates x 768 episodes x 15.0 / 768 s
+    assert "~499 h on one H200" in msg  # 119,382 updates x 768 episodes x 15.05 / 768 s
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
     gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1, io.StringIO())

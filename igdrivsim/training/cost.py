@@ -25,9 +25,10 @@ from igdrivsim.training.config import RunConfig
 CPU_SECONDS_PER_EPISODE = 9.78  # teacher-forced methods (BC)
 CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger, ADVISOR)
 # Paper network on one NVIDIA H200 at the paper's batch: `igdrivsim bench train --profiles
-# paper --obs full --batch-size 256 --seeds 3` = 15.0 s per update of 768 episodes (BC),
-# 30.3 s with `--method bc_rl`. README "Running at paper scale".
-GPU_SECONDS_PER_EPISODE = 15.0 / 768
+# paper --method bc --obs full --batch-size 256 --seeds 3` = 15.05 s per update of 768 episodes
+# (docs/bench/train_paper_bc_h200.json, 2026-11-27); with `--method bc_rl`, 30.3 s (measured
+# before bench wrote files; README "Running at paper scale").
+GPU_SECONDS_PER_EPISODE = 15.05 / 768
 GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 # Laptop network, 3 seeds, 16 scenarios per update: seconds per update of ONE setting in one
@@ -46,12 +47,12 @@ LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
 MAZE_CPU_S = 534.0
 LAPTOP_OTHER_CPU_S = 1211.0 - MAZE_CPU_S
-# One H200, laptop network (the 244k-parameter one before 7f262a6), 6 settings x 3 seeds per
-# update (README at 6ae8db5, speed table, `igdrivsim bench train --profiles laptop`): BC
-# 0.0255 s, BC-RL 0.0492 s; compile 16.6 s / 24.2 s.
-GPU_S_PER_SETTING_UPDATE = 0.0255 / 6
-GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.0492 / 6
-GPU_COMPILE_S = 24.2
+# One H200, laptop network, 6 settings x 3 seeds per update (`igdrivsim bench train --profiles
+# laptop --method M --updates 5`, 2026-11-27): BC 0.0262 s (docs/bench/train_laptop_bc_h200.json),
+# BC-RL 0.0907 s, compile 30.6 s (docs/bench/train_laptop_bc_rl_h200.json).
+GPU_S_PER_SETTING_UPDATE = 0.0262 / 6
+GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.0907 / 6
+GPU_COMPILE_S = 30.6
 
 
 def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
