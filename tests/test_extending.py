@@ -1,5 +1,6 @@
 """The extension recipes of docs/EXTENDING.md hold: a method module is picked up by being
-added, and an observation model without a data form is never folded as full observability."""
+added, an observation model trains beside the paper's six, and one that is not a pytree is
+never padded as full observability."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from igdrivsim.observation.models import (
     ObservationModel,
     ObservationSetting,
     get_setting,
-    setting_params,
+    stack_settings,
 )
 from igdrivsim.training import methods
 
@@ -26,9 +27,50 @@ class HideEveryRoadPoint(ObservationModel):
         return features.hide_roadgraph(obs, obs.roadgraph_valid & False)
 
 
-def test_a_model_without_a_data_form_has_none():
-    assert setting_params(ObservationSetting("hide_all", (HideEveryRoadPoint(),))) is None
-    assert setting_params(get_setting("full")) is not None  # full observability is the identity
+def test_a_model_that_is_not_a_pytree_trains_on_its_own():
+    plain = ObservationSetting("hide_all", (HideEveryRoadPoint(),))
+    assert stack_settings([plain, "full"]) is None
+    assert stack_settings([get_setting("full")]) is not None  # full observability is the identity
+
+
+def test_the_observation_model_recipe_trains_beside_the_paper_six():
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from flax import struct
+
+    from igdrivsim.observation import models as obs_models
+    from igdrivsim.observation.models import PAPER_SETTINGS, apply_setting
+    from igdrivsim.policy.act import example_observation
+    from igdrivsim.training.config import get_profile, with_overrides
+    from igdrivsim.training.update import settings_as_data
+
+    namespace = {**vars(obs_models), **vars(features), "struct": struct}
+    try:
+        exec(_snippet("observation-model"), namespace)  # noqa: S102 - the documented module
+        names = [*PAPER_SETTINGS, "rear_blind_5"]
+        config = with_overrides(get_profile("smoke"),
+                                [f"observation.setting={','.join(names)}"]).validate()
+        stacked = settings_as_data(config)
+        assert jax.tree.leaves(stacked)[0].shape == (len(names),)
+        obs = example_observation()
+        rng = np.random.default_rng(0)
+        obs = obs.replace(objects=jnp.asarray(rng.normal(size=obs.objects.shape), jnp.float32),
+                          objects_valid=jnp.ones(obs.objects_valid.shape, bool),
+                          roadgraph=jnp.asarray(rng.normal(size=obs.roadgraph.shape),
+                                                jnp.float32),
+                          roadgraph_valid=jnp.ones(obs.roadgraph_valid.shape, bool))
+        keys = (jax.random.key(0), jax.random.key(1))
+        together = jax.vmap(lambda s: apply_setting(s, obs, *keys))(stacked)
+        for g, name in enumerate(names):
+            alone = apply_setting(get_setting(name), obs, *keys)
+            for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(together), strict=True):
+                np.testing.assert_array_equal(a, b[g])
+        rear = apply_setting(get_setting("rear_blind_5"), obs, *keys)
+        assert 0 < int(rear.objects_valid.sum()) < obs.objects_valid.size  # it hides some
+    finally:
+        for registry in (obs_models.PRESETS, obs_models.PRESET_TITLES, obs_models.PRESET_SHORT):
+            registry.pop("rear_blind_5", None)
 
 
 def test_every_module_of_the_methods_package_is_registered_in_the_tables_order():

@@ -1,4 +1,5 @@
-"""Line-of-sight occlusion on constructed geometry, its data form, and its registry entry."""
+"""Line-of-sight occlusion on constructed geometry, stacked with other settings, and its
+registry entry."""
 
 from __future__ import annotations
 
@@ -18,8 +19,7 @@ from igdrivsim.observation import (
     apply_setting,
     get_setting,
     line_of_sight,
-    setting_params,
-    stack_params,
+    stack_settings,
 )
 
 KEYS = (jax.random.key(0), jax.random.key(1))
@@ -72,34 +72,41 @@ def test_invalid_objects_and_a_box_around_the_ego_occlude_nothing():
     assert line_of_sight(overlapping, 4.5, 2.0)[1].all()
 
 
-def test_data_form_equals_the_model_and_composes():
+def _first(stacked):
+    return jax.tree.map(lambda x: x[0], stacked)
+
+
+def test_a_stack_of_one_equals_the_setting_and_composes():
     obs = observation([(10, 0, 0), (20, 0, 0), (3, 2, 0), (7, -3, 0.3)],
                       [(15, 0.5), (5, 0), (2, 1), (-10, 0), (8, 8)])
-    for name in ("occlusion", "occlusion+circular_r6", "gaussian_noise+occlusion"):
+    for name in ("occlusion", "occlusion+circular_r6", "gaussian_noise+occlusion",
+                 "circular_r6+occlusion"):
         static = apply_setting(get_setting(name), obs, *KEYS)
-        data = apply_setting(setting_params(name), obs, *KEYS)
+        data = apply_setting(_first(stack_settings([name])), obs, *KEYS)
         assert same(static, data), name
     assert not same(apply_setting(get_setting("occlusion"), obs, *KEYS), obs)
-    # hiding first and occluding after is not the data form's order: compiled as a program
-    assert setting_params("circular_r6+occlusion") is None
-    assert setting_params("occlusion+occlusion") is None
+    # hiding first and occluding after differ from the other order: no shared program
+    assert stack_settings(["circular_r6+occlusion", "occlusion+circular_r6"]) is None
+    assert stack_settings(["occlusion+occlusion", "full"]) is not None  # two slots, both off
 
 
 def test_a_stack_with_and_without_occlusion_matches_each_alone():
     obs = observation([(10, 0, 0), (20, 0, 0), (3, 2, 0)], [(15, 0.5), (5, 0), (2, 1)])
-    names = ["full", "occlusion", "circular_r4"]
-    stacked = stack_params([setting_params(n) for n in names])
+    names = ["full", "occlusion", "circular_r4", "circular_r6+occlusion"]
+    stacked = stack_settings(names)
     together = jax.vmap(lambda p: apply_setting(p, obs, *KEYS))(stacked)
     for g, name in enumerate(names):
-        alone = apply_setting(setting_params(name), obs, *KEYS)
+        alone = apply_setting(get_setting(name), obs, *KEYS)
         got = jax.tree.map(lambda x, g=g: x[g], together)
         assert same(alone, got), name
     # the paper's settings alone carry no occluder, so they never trace the geometry
-    assert setting_params("full").occluder_length is None
+    assert not any(isinstance(m, LineOfSightOcclusion)
+                   for m in stack_settings(["full", "circular_r4"]).models)
 
 
 def test_registry_entry_and_bad_sizes():
     assert PRESETS["occlusion"].models == (LineOfSightOcclusion(),)
     assert PRESET_TITLES["occlusion"] == "Line-of-sight occlusion"
     with pytest.raises(ConfigError, match="length and width"):
-        LineOfSightOcclusion(length=0.0)
+        LineOfSightOcclusion(length=-1.0)
+    assert LineOfSightOcclusion(0.0, 0.0) == LineOfSightOcclusion().neutral()

@@ -15,7 +15,7 @@ from igdrivsim.observation import (
     episode_observations,
     get_setting,
     observe,
-    setting_params,
+    stack_settings,
     superset_config,
 )
 from igdrivsim.simulator import SimParams, reset, toy
@@ -46,7 +46,7 @@ def test_recorded_observation_equals_the_online_one(recorded, name):
     observation (same points, same hiding, same draws)."""
     states, rec = recorded
     key = jax.random.key(3)
-    params = setting_params(name)
+    params = jax.tree.map(lambda x: x[0], stack_settings([name]))
     cached = episode_observations(jax.tree.map(lambda x: jnp.asarray(x[0]), rec).replace(
         actions=None, action_valid=None), params, key, OBS)
     state = jax.tree.map(lambda x: x[0], states)

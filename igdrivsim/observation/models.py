@@ -24,8 +24,12 @@ Adding a model takes one small function and a registry entry::
 
     register_setting(ObservationSetting("front_only", (FunctionModel(hide_behind),)))
 
-A complete model with a data form (so it trains together with the paper's six) is
-:mod:`igdrivsim.observation.occlusion`; ``docs/EXTENDING.md`` walks through it.
+A setting is a pytree whose numbers are data (:func:`flax.struct.dataclass` models): settings
+that share a structure stack along a leading axis and ``vmap`` as one program
+(:func:`stack_settings`; training and evaluation run every setting of a method together this
+way). A model that defines ``neutral()`` (itself with parameters that hide nothing) also stacks
+with settings that lack it. A complete such model is :mod:`igdrivsim.observation.occlusion`;
+``docs/EXTENDING.md`` walks through it.
 
 Settings compose: ``ObservationSetting("noisy_fov", (GaussianPositionNoise(3.0),
 CircularFieldOfView(4.0)))``, or by name with :func:`get_setting`
@@ -36,8 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -52,12 +55,20 @@ from igdrivsim.observation.features import (
     object_positions,
     roadgraph_positions,
 )
-from igdrivsim.observation.sight import line_of_sight
 
 
-@dataclass(frozen=True)
+def concrete(value: Any) -> bool:
+    """A Python number (a model's parameters are checked when built, not when traced)."""
+    return isinstance(value, int | float)
+
+
+@struct.dataclass
 class ObservationModel:
-    """Base model: the identity (full observability). Subclasses override one or both hooks."""
+    """Base model: the identity (full observability). Subclasses override one or both hooks.
+
+    A subclass decorated with :func:`flax.struct.dataclass` is a pytree whose fields are data
+    (``struct.field(pytree_node=False)`` for the others), so settings of it stack and train
+    together; a plain frozen dataclass works everywhere but trains on its own."""
 
     def perceive_pose(self, sdc_xy: jax.Array, sdc_yaw: jax.Array, episode_key: jax.Array,
                       step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -69,40 +80,39 @@ class ObservationModel:
         """The observation after this model's hiding; default: unchanged."""
         return obs
 
-    def fold_params(self, params: ObservationParams, index: int) -> ObservationParams | None:
-        """This model (the ``index``-th of its setting) folded into a setting-as-data
-        description, or ``None`` when it has no such form (then the setting is compiled as a
-        static program). Default: ``None``, so a model that overrides a hook but not this one
-        is never silently treated as full observability when settings train together."""
+    def neutral(self) -> ObservationModel | None:
+        """This model with parameters under which it changes nothing (the padding of a setting
+        that lacks it in a stack), or ``None`` when it has none; default: ``None``, so a model
+        is never silently taken for full observability."""
         return None
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class FullObservability(ObservationModel):
     """Sees everything the SDC-frame observation holds."""
 
-    def fold_params(self, params, index):
-        return params  # nothing hidden: the identity
+    def neutral(self):
+        return self
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class CircularFieldOfView(ObservationModel):
     """Hides objects (centres) and road points farther than ``radius`` metres from the ego."""
 
     radius: float
 
     def __post_init__(self) -> None:
-        if not self.radius > 0:
+        if concrete(self.radius) and not self.radius > 0:
             raise ConfigError(f"circular field of view: radius must be > 0, got {self.radius}")
 
     def apply(self, obs, episode_key, step_key):
         return _hide_outside(obs, lambda xy: _within(xy, self.radius))
 
-    def fold_params(self, params, index):
-        return params.replace(fov_radius=min(params.fov_radius, self.radius))
+    def neutral(self):
+        return self.replace(radius=math.inf)
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class ConicFieldOfView(ObservationModel):
     """Hides what is farther than ``radius`` or outside ``+-angle/2`` of the ego heading (+x).
 
@@ -113,7 +123,8 @@ class ConicFieldOfView(ObservationModel):
     angle: float  # full opening angle, radians
 
     def __post_init__(self) -> None:
-        if not self.radius > 0 or not 0 < self.angle <= 2 * math.pi:
+        if concrete(self.radius) and concrete(self.angle) and not (
+                self.radius > 0 and 0 < self.angle <= 2 * math.pi):
             raise ConfigError(f"conic field of view: need radius > 0 and 0 < angle <= 2*pi, got "
                               f"radius={self.radius}, angle={self.angle}")
 
@@ -124,12 +135,11 @@ class ConicFieldOfView(ObservationModel):
 
         return _hide_outside(obs, inside)
 
-    def fold_params(self, params, index):
-        return params.replace(fov_radius=min(params.fov_radius, self.radius),
-                              fov_half_angle=min(params.fov_half_angle, self.angle / 2))
+    def neutral(self):
+        return self.replace(radius=math.inf, angle=2 * math.pi)
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class GaussianPositionNoise(ObservationModel):
     """The ego believes it is at ``p + eps``, ``eps ~ N(0, sigma^2 I)`` drawn ONCE per episode.
 
@@ -140,7 +150,7 @@ class GaussianPositionNoise(ObservationModel):
     sigma: float
 
     def __post_init__(self) -> None:
-        if not self.sigma >= 0:
+        if concrete(self.sigma) and not self.sigma >= 0:
             raise ConfigError(f"gaussian position noise: sigma must be >= 0, got {self.sigma}")
 
     def offset(self, episode_key: jax.Array) -> jax.Array:
@@ -150,40 +160,37 @@ class GaussianPositionNoise(ObservationModel):
     def perceive_pose(self, sdc_xy, sdc_yaw, episode_key, step_key):
         return sdc_xy + self.offset(episode_key), sdc_yaw
 
-    def fold_params(self, params, index):
-        if params.noise_sigma > 0:  # two noise models: no single-offset form
-            return None
-        return params.replace(noise_sigma=self.sigma, noise_key=index)
+    def neutral(self):
+        return self.replace(sigma=0.0)
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class RandomMasking(ObservationModel):
     """Hides each other object independently with probability ``p``, redrawn every step."""
 
     p: float
 
     def __post_init__(self) -> None:
-        if not 0 <= self.p <= 1:
+        if concrete(self.p) and not 0 <= self.p <= 1:
             raise ConfigError(f"random masking: p must be in [0, 1], got {self.p}")
 
     def apply(self, obs, episode_key, step_key):
         hidden = jax.random.bernoulli(step_key, self.p, obs.objects_valid.shape)
         return hide_objects(obs, ~hidden)
 
-    def fold_params(self, params, index):
-        if params.mask_p > 0:
-            return None
-        return params.replace(mask_p=self.p, mask_key=index)
+    def neutral(self):
+        return self.replace(p=0.0)
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class FunctionModel(ObservationModel):
     """A model from one function ``fn(obs, episode_key, step_key) -> Observation``.
 
     Define ``fn`` at module level so the setting stays hashable and ``jit`` caches it.
     """
 
-    fn: Callable[[Observation, jax.Array, jax.Array], Observation]
+    fn: Callable[[Observation, jax.Array, jax.Array], Observation] = struct.field(
+        pytree_node=False)
 
     def apply(self, obs, episode_key, step_key):
         return self.fn(obs, episode_key, step_key)
@@ -198,12 +205,20 @@ def _hide_outside(obs: Observation, inside: Callable[[jax.Array], jax.Array]) ->
     return hide_roadgraph(obs, inside(roadgraph_positions(obs)))
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class ObservationSetting:
-    """A named composition of models, applied in order (hashable: usable as a static jit arg)."""
+    """A named composition of models, applied in order. Hashable (a static ``jit`` argument)
+    while its numbers are Python numbers; a pytree of them otherwise (:func:`stack_settings`).
 
-    name: str
+    Model ``i`` draws from ``fold_in(key, keys[i])`` (``keys`` None: ``i``), so a stacked
+    setting whose models sit at other positions draws as the setting alone does."""
+
+    name: str = struct.field(pytree_node=False)
     models: tuple[ObservationModel, ...] = ()
+    keys: tuple[Any, ...] | None = None
+
+    def key_index(self, i: int) -> Any:
+        return i if self.keys is None else self.keys[i]
 
     def describe(self) -> dict[str, Any]:
         """A JSON-ready description (for ``config.json``)."""
@@ -216,103 +231,84 @@ class ObservationSetting:
         return {"name": self.name, "models": [one(m) for m in self.models]}
 
 
-@struct.dataclass
-class ObservationParams:
-    """A setting as data: the built-in models' parameters in one pytree of scalars.
-
-    Settings that differ only by these numbers share one compiled program (stack them and
-    ``vmap``; training and evaluation run every setting of a method together this way). The
-    draws equal the static setting's: the noise offset and the masking use the keys of the
-    models' positions ``noise_key`` / ``mask_key`` in the setting. Neutral values: ``noise_sigma
-    = 0``, ``fov_radius = inf``, ``fov_half_angle = inf``, ``mask_p = 0``. The occluder box
-    (:mod:`.occlusion`) is ``None`` when no setting occludes, so the paper's six settings never
-    trace the occlusion geometry; a stack that mixes both uses ``0`` for "no occlusion".
-    """
-
-    noise_sigma: Any = 0.0
-    fov_radius: Any = math.inf
-    fov_half_angle: Any = math.inf
-    mask_p: Any = 0.0
-    noise_key: Any = 0
-    mask_key: Any = 0
-    occluder_length: Any = None
-    occluder_width: Any = None
-
-    def as_arrays(self) -> ObservationParams:
-        f32 = lambda v: None if v is None else jnp.asarray(v, jnp.float32)  # noqa: E731
-        i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
-        return ObservationParams(f32(self.noise_sigma), f32(self.fov_radius),
-                                 f32(self.fov_half_angle), f32(self.mask_p),
-                                 i32(self.noise_key), i32(self.mask_key),
-                                 f32(self.occluder_length), f32(self.occluder_width))
+def _is_pytree(model: ObservationModel) -> bool:
+    """A registered pytree node (a struct dataclass), not an opaque leaf."""
+    return jax.tree.structure(model) != jax.tree.structure(0.0)
 
 
-def setting_params(setting: ObservationSetting | str) -> ObservationParams | None:
-    """``setting`` as :class:`ObservationParams`, or ``None`` when one of its models has no
-    such form (a :class:`FunctionModel`, two noise or two masking models)."""
-    params: ObservationParams | None = ObservationParams()
-    for i, m in enumerate(get_setting(setting).models):
-        params = m.fold_params(params, i)
-        if params is None:
+def _merged_order(sequences: list[list[Any]]) -> list[Any] | None:
+    """One order of every slot that keeps each sequence's order (first seen first), or
+    ``None`` when two sequences order two slots oppositely."""
+    slots = list(dict.fromkeys(s for seq in sequences for s in seq))
+    after = {s: set() for s in slots}
+    for seq in sequences:
+        for a, b in zip(seq, seq[1:], strict=False):
+            after[b].add(a)
+    order: list[Any] = []
+    while len(order) < len(slots):
+        ready = [s for s in slots if s not in order and after[s] <= set(order)]
+        if not ready:
             return None
-    return params.as_arrays()
+        order.append(ready[0])
+    return order
 
 
-def stack_params(settings: list[ObservationParams]) -> ObservationParams:
-    """Stack per-setting parameters on a leading axis (for ``vmap``)."""
-    if any(p.occluder_length is not None for p in settings):
-        zero = jnp.zeros((), jnp.float32)
-        settings = [p if p.occluder_length is not None else
-                    p.replace(occluder_length=zero, occluder_width=zero) for p in settings]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *settings)
+def _stack_leaf(*values: Any) -> jax.Array:
+    """Python numbers stacked as strongly typed arrays (float32, int32), as traced data."""
+    stacked = jnp.stack([jnp.asarray(v) for v in values])
+    return stacked.astype(stacked.dtype)
 
 
-def _params_pose(p: ObservationParams, sdc_xy, sdc_yaw, episode_key, step_key):
-    noise = jax.random.normal(jax.random.fold_in(episode_key, p.noise_key), (2,), jnp.float32)
-    return sdc_xy + p.noise_sigma * noise, sdc_yaw
+def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationSetting | None:
+    """``settings`` as ONE setting whose numbers carry a leading axis ``[G]`` (``vmap`` over it),
+    or ``None`` when they cannot share a program: a model that is not a pytree, a model missing
+    from a setting without a ``neutral()`` form, or two settings that order their models
+    oppositely. Each setting's models keep their order and draws; a setting lacking a model
+    gets its neutral form, which changes nothing."""
+    found = [get_setting(s) for s in settings]
+    rows: list[dict[Any, tuple[ObservationModel, int]]] = []
+    for setting in found:
+        row: dict[Any, tuple[ObservationModel, int]] = {}
+        for i, m in enumerate(setting.models):
+            if not _is_pytree(m):
+                return None
+            kind = (type(m), jax.tree.structure(m))  # a treedef alone may not tell classes apart
+            row[(kind, sum(k[0] == kind for k in row))] = (m, i)
+        rows.append(row)
+    order = _merged_order([list(row) for row in rows])
+    if order is None:
+        return None
+    models, keys = [], []
+    for slot in order:
+        present = next(row[slot][0] for row in rows if slot in row)
+        column = [row.get(slot, (present.neutral(), 0)) for row in rows]
+        if any(m is None for m, _ in column):
+            return None
+        models.append(jax.tree.map(_stack_leaf, *[m for m, _ in column]))
+        keys.append(jnp.asarray([i for _, i in column], jnp.int32))
+    return ObservationSetting(",".join(s.name for s in found), tuple(models), tuple(keys))
 
 
-def _params_apply(p: ObservationParams, obs: Observation, episode_key, step_key) -> Observation:
-    if p.occluder_length is not None:  # first, so that every object occludes
-        keep_objects, keep_roadgraph = line_of_sight(obs, p.occluder_length, p.occluder_width)
-        off = p.occluder_length <= 0
-        obs = hide_roadgraph(hide_objects(obs, keep_objects | off), keep_roadgraph | off)
-
-    def inside(xy):
-        bearing = jnp.abs(jnp.arctan2(xy[..., 1], xy[..., 0]))
-        return (jnp.sum(xy**2, axis=-1) <= p.fov_radius**2) & (bearing <= p.fov_half_angle)
-
-    obs = _hide_outside(obs, inside)
-    key = jax.random.fold_in(step_key, p.mask_key)
-    hidden = jax.random.bernoulli(key, p.mask_p, obs.objects_valid.shape)
-    return hide_objects(obs, ~hidden)
-
-
-Setting = ObservationSetting | ObservationParams
-
-
-def _model_keys(key: jax.Array, i: int) -> jax.Array:
+def _model_keys(key: jax.Array, i: Any) -> jax.Array:
     return jax.random.fold_in(key, i)
 
 
-def perceive_pose(setting: Setting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
+def perceive_pose(setting: ObservationSetting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
                   episode_key: jax.Array, step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The ego's believed pose under ``setting`` (stage 1 of the pipeline)."""
-    if isinstance(setting, ObservationParams):
-        return _params_pose(setting, sdc_xy, sdc_yaw, episode_key, step_key)
     for i, m in enumerate(setting.models):
-        sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, _model_keys(episode_key, i),
-                                          _model_keys(step_key, i))
+        k = setting.key_index(i)
+        sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, _model_keys(episode_key, k),
+                                          _model_keys(step_key, k))
     return sdc_xy, sdc_yaw
 
 
-def apply_setting(setting: Setting, obs: Observation, episode_key: jax.Array,
+def apply_setting(setting: ObservationSetting, obs: Observation, episode_key: jax.Array,
                   step_key: jax.Array) -> Observation:
     """The hiding of every model of ``setting``, in order (stage 2 of the pipeline)."""
-    if isinstance(setting, ObservationParams):
-        return _params_apply(setting, obs, episode_key, step_key)
     for i, m in enumerate(setting.models):
-        obs = m.apply(obs, _model_keys(episode_key, i), _model_keys(step_key, i))
+        k = setting.key_index(i)
+        obs = m.apply(obs, _model_keys(episode_key, k), _model_keys(step_key, k))
     return obs
 
 

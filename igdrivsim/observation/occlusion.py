@@ -8,21 +8,21 @@ default 4.5 m x 2.0 m, a typical passenger car) centred on its observed position
 its observed heading; an object never occludes itself, and a box that contains the ego (an
 overlap) occludes nothing. Road points under a box are hidden too (the segment enters the box).
 Occluders are the objects still visible when the model runs: put it first in a composition so
-that every object occludes (its data form, :class:`ObservationParams`, applies it first).
+that every object occludes. A box of length 0 occludes nothing (the model's ``neutral()``
+form, with which a setting without occlusion trains beside one with it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import jax
+from flax import struct
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import Observation, hide_objects, hide_roadgraph
 from igdrivsim.observation.models import (
     ObservationModel,
-    ObservationParams,
     ObservationSetting,
+    concrete,
     register_setting,
 )
 from igdrivsim.observation.sight import line_of_sight
@@ -30,12 +30,14 @@ from igdrivsim.observation.sight import line_of_sight
 
 def occlude(obs: Observation, length: jax.Array | float, width: jax.Array | float
             ) -> Observation:
-    """``obs`` with everything hidden from the ego's line of sight removed (ONE example)."""
+    """``obs`` with everything hidden from the ego's line of sight removed (ONE example); a box
+    of length 0 hides nothing."""
     keep_objects, keep_roadgraph = line_of_sight(obs, length, width)
-    return hide_roadgraph(hide_objects(obs, keep_objects), keep_roadgraph)
+    off = length <= 0
+    return hide_roadgraph(hide_objects(obs, keep_objects | off), keep_roadgraph | off)
 
 
-@dataclass(frozen=True)
+@struct.dataclass
 class LineOfSightOcclusion(ObservationModel):
     """Hides objects and road points behind other objects' boxes (``length`` x ``width`` m)."""
 
@@ -43,19 +45,16 @@ class LineOfSightOcclusion(ObservationModel):
     width: float = 2.0
 
     def __post_init__(self) -> None:
-        if not (self.length > 0 and self.width > 0):
-            raise ConfigError(f"line-of-sight occlusion: length and width must be > 0, got "
-                              f"{self.length} x {self.width}")
+        if concrete(self.length) and concrete(self.width) and not (
+                self.length >= 0 and self.width >= 0):
+            raise ConfigError(f"line-of-sight occlusion: length and width must be >= 0 (0: "
+                              f"nothing occludes), got {self.length} x {self.width}")
 
     def apply(self, obs, episode_key, step_key):
         return occlude(obs, self.length, self.width)
 
-    def fold_params(self, params: ObservationParams, index: int) -> ObservationParams | None:
-        hid_before = (params.fov_radius < float("inf") or params.fov_half_angle < float("inf")
-                      or params.mask_p > 0 or params.occluder_length is not None)
-        if hid_before:  # the data form occludes first; after another hiding: static program
-            return None
-        return params.replace(occluder_length=self.length, occluder_width=self.width)
+    def neutral(self):
+        return self.replace(length=0.0, width=0.0)
 
 
 register_setting(ObservationSetting("occlusion", (LineOfSightOcclusion(),)),

@@ -1,7 +1,6 @@
 """Line-of-sight geometry: which objects and road points another object's box hides from the
-ego (see :mod:`igdrivsim.observation.occlusion` for the model and its assumptions). Below
-:mod:`.models` (whose data form of a setting applies it) and :mod:`.occlusion` (the model,
-registered as ``occlusion``), so neither imports the other's way round.
+ego: the geometry of :mod:`igdrivsim.observation.occlusion` (the model, registered as
+``occlusion``, and its assumptions), kept apart so that it is read and tested on its own.
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import METHODS
 from igdrivsim.io import atomic_copy, atomic_write_json
-from igdrivsim.observation import get_setting, setting_params
+from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
 from igdrivsim.pipeline import lanes, planning
 from igdrivsim.pipeline.profiles import PipelineProfile
@@ -81,11 +81,12 @@ class Pipeline(StageRunner):
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
         self.settings = tuple(self.settings or self.profile.settings)
-        for name in self.settings:  # any registered setting or '+' composition of them
-            if setting_params(get_setting(name)) is None:
-                raise ConfigError(f"setting {name!r} has no data form (ObservationParams), so it "
-                                  "cannot train together with the others; train it on its own "
-                                  "with igdrivsim train")
+        for i, name in enumerate(self.settings):  # any registered setting or '+' composition
+            if stack_settings(self.settings[:i + 1]) is None:
+                raise ConfigError(f"setting {name!r} cannot share one program with the settings "
+                                  "before it (a model that is not a pytree or has no neutral() "
+                                  "form, or another order of the same models; "
+                                  "docs/EXTENDING.md); train it on its own with igdrivsim train")
         self.ran: set[str] = set()  # stages that ran in this invocation
         self.started = time.time()
         self._machine: planning.Machine | None = None

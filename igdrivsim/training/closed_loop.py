@@ -25,8 +25,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from igdrivsim.observation import (
     ObservationConfig,
     get_setting,
-    setting_params,
-    stack_params,
+    stack_settings,
 )
 from igdrivsim.policy.act import policy_actor
 from igdrivsim.policy.network import PolicyConfig
@@ -135,7 +134,7 @@ def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, se
                   obs_config, params, actions, metrics_fn, episode: EpisodeFn | None = None):
     """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
     ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
-    :class:`~igdrivsim.observation.ObservationParams` ``[G]`` (settings as data), or ``None``
+    settings stacked ``[G]`` (:func:`~igdrivsim.observation.stack_settings`), or ``None``
     with the static ``setting`` (``G = 1``). Outputs ``[G, S, B, steps]``."""
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
 
@@ -255,8 +254,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     names = [setting] if single else list(setting)
     if single:
         policy_params = jax.tree.map(lambda x: x[None], policy_params)
-    found = [setting_params(n) for n in names]
-    settings = None if any(p is None for p in found) else stack_params(found)
+    settings = stack_settings(names)
     if settings is None and len(names) > 1:
         groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
                                   policy_config=policy_config, setting=n,

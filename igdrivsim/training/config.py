@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.observation import get_setting, setting_params
+from igdrivsim.observation import stack_settings
 from igdrivsim.policy.network import NUM_BINS, PolicyConfig
 from igdrivsim.training.methods import DEFAULT_METHOD, get_method, method_param_defaults
 
@@ -152,9 +152,11 @@ class RunConfig:
         if not names or len(set(names)) != len(names):
             raise ConfigError("observation.setting must name distinct settings, got "
                               f"{self.observation.setting!r}")
-        if len(names) > 1 and any(setting_params(get_setting(n)) is None for n in names):
-            raise ConfigError("settings trained together must be expressible as data "
-                              "(ObservationParams); train a custom setting on its own")
+        if len(names) > 1 and stack_settings(names) is None:
+            raise ConfigError(f"observation.setting={self.observation.setting!r}: these settings "
+                              "cannot share one program (a model that is not a pytree or has "
+                              "no neutral() form, or two orders of the same models; "
+                              "docs/EXTENDING.md); train a custom setting on its own")
         if self.policy.aux_head != method.aux_head:
             return dataclasses.replace(self, policy=dataclasses.replace(
                 self.policy, aux_head=method.aux_head))

@@ -2,9 +2,9 @@
 
 One update consumes, per seed, a batch of ``B`` scenarios: their teacher-forced records
 (:mod:`igdrivsim.training.teacher`; computed once per dataset) and, for methods that drive,
-their simulator states at reset. Settings are data (:class:`~igdrivsim.observation.
-ObservationParams`, axis ``G``) and seeds a batch axis (``S``): one compiled program trains
-every (setting, seed) pair of a method.
+their simulator states at reset. Settings are data (stacked
+:class:`~igdrivsim.observation.ObservationSetting`, axis ``G``) and seeds a batch axis (``S``):
+one compiled program trains every (setting, seed) pair of a method.
 
 1. the episodes the method asks for (:mod:`igdrivsim.training.methods`): the logged episode
    under the setting's observation model, built on the fly from the record (labels: the
@@ -37,13 +37,11 @@ from flax import struct
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
-    ObservationParams,
     ObservationRecord,
     ObservationSetting,
     episode_observations,
     get_setting,
-    setting_params,
-    stack_params,
+    stack_settings,
     superset_config,
 )
 from igdrivsim.policy.act import example_observation
@@ -98,13 +96,11 @@ def run_settings(config: RunConfig) -> list[str]:
     return [s.strip() for s in config.observation.setting.split(",") if s.strip()]
 
 
-def settings_as_data(config: RunConfig) -> ObservationParams | None:
-    """Stacked :class:`ObservationParams` ``[G]`` of the run's settings, or ``None`` when one
-    of them has no such form (then the run must have exactly one setting, compiled static)."""
-    params = [setting_params(s) for s in run_settings(config)]
-    if any(p is None for p in params):
-        return None
-    return stack_params(params)
+def settings_as_data(config: RunConfig) -> ObservationSetting | None:
+    """The run's settings stacked ``[G]`` (:func:`~igdrivsim.observation.stack_settings`), or
+    ``None`` when they cannot share a program (then the run has exactly one setting, compiled
+    static)."""
+    return stack_settings(run_settings(config))
 
 
 def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
