@@ -11,7 +11,7 @@ from igdrivsim.errors import IGDrivSimError
 from igdrivsim.pipeline.profiles import PROFILES
 from igdrivsim.pipeline.stages import Pipeline
 from igdrivsim.report.figures import load_curves
-from igdrivsim.training.loop import _truncate_jsonl
+from igdrivsim.training.run import truncate_jsonl
 
 
 def test_a_killed_rerun_of_a_stage_is_not_taken_for_complete(tmp_path):
@@ -27,9 +27,9 @@ def test_a_killed_rerun_of_a_stage_is_not_taken_for_complete(tmp_path):
 def test_a_torn_log_line_is_dropped_on_resume(tmp_path):
     log = tmp_path / "metrics.jsonl"
     log.write_text('{"update": 1, "x": 1}\n{"update": 2, "x": 2}\n{"update": 3, "x"')
-    _truncate_jsonl(str(log), upto=5)
+    truncate_jsonl(str(log), upto=5)
     assert [json.loads(line)["update"] for line in log.read_text().splitlines()] == [1, 2]
-    _truncate_jsonl(str(log), upto=1)
+    truncate_jsonl(str(log), upto=1)
     assert log.read_text() == '{"update": 1, "x": 1}\n'
 
 

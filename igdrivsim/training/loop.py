@@ -1,8 +1,9 @@
-"""The training driver: config.json, data, parameters, the update loop, metrics, checkpoints.
+"""The training loop: ``make_train`` (the run's pure ``init`` and ``update``, PureJaxRL style)
+applied batch by batch, with :class:`~igdrivsim.training.run.Run` at its edges.
 
 ``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run: every
 setting of ``config.observation.setting`` (a comma list; settings as data, one compiled
-program) x ``config.training.seeds`` seeds. Layout of ``out_dir``:
+program) x ``config.training.seeds`` seeds. Layout of ``out_dir`` (written by ``Run``):
 
 - ``config.json``: the resolved :class:`RunConfig` (plus ``num_updates`` and the device count);
 - ``metrics.jsonl``: one line per logged update (``update`` = updates done, ``bc_loss``, ``lr``,
@@ -23,30 +24,30 @@ program) x ``config.training.seeds`` seeds. Layout of ``out_dir``:
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import count_params, init_params_per_seed
 from igdrivsim.training import inputs
 from igdrivsim.training.checkpoint import Checkpoints
 from igdrivsim.training.closed_loop import evaluate_policy
-from igdrivsim.training.config import RunConfig, from_dict, to_dict
+from igdrivsim.training.config import RunConfig, from_dict
 from igdrivsim.training.cost import warn_if_cpu
 from igdrivsim.training.privileged import TEACHER_SETTING, teacher_config
+from igdrivsim.training.run import CONFIG, Hook, Run, barrier, is_complete
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
@@ -59,7 +60,6 @@ from igdrivsim.training.update import (
     update_spec,
 )
 
-CONFIG, METRICS, CURVES, DONE = "config.json", "metrics.jsonl", "curves.jsonl", "DONE"
 _UPDATE_CACHE: dict[UpdateSpec, object] = {}
 
 
@@ -112,61 +112,6 @@ def get_update(spec: UpdateSpec):
     return _UPDATE_CACHE[spec]
 
 
-def is_complete(out_dir: str) -> bool:
-    return os.path.isfile(os.path.join(out_dir, DONE))
-
-
-def _check_config(out_dir: str, record: dict) -> None:
-    """Refuse to resume a run started with another configuration (fields added to the config
-    classes since then count at their defaults)."""
-    path = os.path.join(out_dir, CONFIG)
-    with open(path) as f:
-        old = json.load(f)
-    try:
-        old_config = to_dict(from_dict(old.get("config", {})))
-    except (ConfigError, TypeError):
-        old_config = old.get("config")
-    if json.loads(json.dumps(old_config)) != json.loads(json.dumps(record["config"])):
-        raise ConfigError(f"{path}: the run was started with a different configuration; "
-                          "use another --out or the same options")
-
-
-def _truncate_jsonl(path: str, upto: int) -> None:
-    """Keep the lines of updates ``<= upto`` (a resumed run re-logs the rest); a line torn by
-    a kill mid-write (not JSON, or without an update) is dropped with the rest."""
-    if not os.path.isfile(path):
-        return
-
-    def update_of(line: str) -> int | None:
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            return None
-        return entry.get("update") if isinstance(entry, dict) else None
-
-    with open(path) as f:
-        kept = [ln if ln.endswith("\n") else ln + "\n" for ln in f
-                if isinstance(u := update_of(ln), int) and u <= upto]
-    atomic_write_text(path, "".join(kept))
-
-
-def _log_line(update: int, lr: float, metrics: dict, rates: dict) -> dict:
-    line = {"update": update, "lr": lr, **rates}
-    for name, values in metrics.items():
-        values = np.asarray(values, np.float64)  # [G, S]
-        line[name] = float(values.mean())
-        line[f"{name}_seeds"] = [float(v) for v in values.mean(axis=0)]
-    return line
-
-
-def _curve_lines(update: int, settings: list[str], method: str, seeds: list[int],
-                 values: dict) -> list[dict]:
-    """One curves.jsonl line per (setting, seed) from ``{name: [G, S] array}``."""
-    return [{"update": update, "setting": name, "method": method, "seed": seed,
-             **{k: float(np.asarray(v)[g, i]) for k, v in values.items()}}
-            for g, name in enumerate(settings) for i, seed in enumerate(seeds)]
-
-
 class Validation:
     """The fixed validation subset a run is judged on while it trains: teacher-forced BC loss
     and closed-loop metrics of every (setting, seed)."""
@@ -194,16 +139,6 @@ class Validation:
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
 
-def barrier(name: str, timeout_s: int = 3600) -> None:
-    """Wait until every process gets here (several processes only). Gloo's CPU collectives give
-    up after 30 s, so processes meet here before work whose duration differs between them
-    (compiling, loading) is followed by a collective."""
-    if jax.process_count() > 1:
-        from jax._src import distributed  # private JAX API: only for several processes
-
-        distributed.global_state.client.wait_at_barrier(f"igdrivsim-{name}", timeout_s * 1000)
-
-
 def load_teacher(run_dir: str, student: RunConfig):
     """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
     teacher_config(run_dir, student)
@@ -216,6 +151,37 @@ def load_teacher(run_dir: str, student: RunConfig):
     return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
 
 
+class Train(NamedTuple):
+    """A run's pure functions: ``init() -> state`` and ``update(state, batch, u) -> (state,
+    metrics, lr)``; a state is ``(params, opt_state, buffer)``, each ``[G, S]``."""
+
+    init: Callable[[], tuple]
+    update: Callable[[tuple, tuple, int], tuple]
+
+
+def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=None,
+               teacher_params=None, keys=None, step=None) -> Train:
+    """``(init, update)`` of a run (PureJaxRL's ``make_train``): ``update`` applies the
+    compiled update of ``spec`` (or ``step``, e.g. ahead-of-time compiled) to one batch
+    ``(teacher records, reset states)`` at update ``u`` with its cosine learning rate;
+    ``settings`` (stacked, or None for one static setting), ``teacher_params`` and ``keys``
+    (default: :func:`seed_keys`) are the run's constants."""
+    t = config.training
+    step = step or get_update(spec)
+    keys = seed_keys(config) if keys is None else keys
+
+    def init() -> tuple:
+        return (*init_state(config, spec), init_buffer(config, spec))
+
+    def update(state: tuple, batch: tuple, u: int) -> tuple:
+        lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+        params, opt_state, buffer, metrics = step(*state, *batch, settings, teacher_params,
+                                                  keys, u, lr)
+        return (params, opt_state, buffer), metrics, lr
+
+    return Train(init, update)
+
+
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
           stop_after: int | None = None, progress: bool = True, devices=None,
           log=print, val_data=None, cache_dir: str | None = None) -> TrainResult:
@@ -225,146 +191,92 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     records are cached (none: computed, not saved). ``stop_after``: stop (with a checkpoint)
     once that many updates are done (a debugging aid for resume tests)."""
     config = config.validate()
-    out_dir = os.fspath(out_dir)
     start_time = time.perf_counter()
-    os.makedirs(out_dir, exist_ok=True)
-    record = {"config": to_dict(config)}
-    if os.path.isfile(os.path.join(out_dir, CONFIG)):
-        _check_config(out_dir, record)
-        if is_complete(out_dir):
-            log(f"run {out_dir} is already complete; nothing to do")
-            return TrainResult(None, -1, -1, True, 0.0)
-        if not resume:
-            raise ConfigError(f"{out_dir} holds an unfinished run; pass --resume to continue it")
-    # every process has looked at the folder before process 0 writes config.json below
-    # (otherwise a slower process would find it and refuse to start a "resumed" run)
-    barrier("checked")
-    spec = update_spec(config)
+    t = config.training
     settings_list = run_settings(config)
+    run = Run(out_dir, config, settings_list, resume, log)
+    if run.complete_already():
+        return TrainResult(None, -1, -1, True, 0.0)
+    spec = update_spec(config)
     mesh = inputs.make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
-    main = jax.process_index() == 0
     if config.data.stream:  # paper scale: per-process shards decoded on demand
         from igdrivsim.training.stream import StreamDataset  # lazy: grain, only for data.stream
 
         dataset = StreamDataset.from_config(config, data, spec.sim)
     else:
-        dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and main,
+        dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and run.main,
                                              cache_dir=cache_dir,
                                              need_states=config.collects_rollout)
     num_updates = total_updates(config, dataset.num)
-    if main:  # the paper profile without an accelerator: say how long it would take
+    if run.main:  # the paper profile without an accelerator: say how long it would take
         warn_if_cpu(config, dataset.num, jax.default_backend(), mesh.size)
-    record |= {"num_updates": num_updates, "num_scenarios": dataset.num,
-               "settings": settings_list, "devices": mesh.size,
-               "processes": jax.process_count()}
-    if main:
-        atomic_write_json(os.path.join(out_dir, CONFIG), record, indent=2)
-    validation = None
-    t = config.training
+    run.write_config(num_updates=num_updates, num_scenarios=dataset.num,
+                     settings=settings_list, devices=mesh.size,
+                     processes=jax.process_count())
     if val_data is not None and t.eval_every > 0:
-        validation = Validation(config, spec, val_data, cache_dir)
+        run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
 
-    params, opt_state = init_state(config, spec)
-    buffer = init_buffer(config, spec)
+    rep = inputs.replicated(mesh)
     teacher_params = None
     if spec.learner.teacher:
-        teacher_params = load_teacher(t.teacher, config)
+        teacher_params = inputs.place(load_teacher(t.teacher, config), rep)
         log(f"privileged teacher: the full setting of {t.teacher}")
-    per_seed = count_params(jax.tree.map(lambda x: x[0, 0], params))
+    settings = settings_as_data(config)
+    settings = None if settings is None else inputs.place(settings, rep)
+    keys = inputs.place(seed_keys(config), rep)
+    fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
+    state = fns.init()
+    per_seed = count_params(jax.tree.map(lambda x: x[0, 0], state[0]))
     log(f"policy: {per_seed:,} parameters per run x {len(settings_list)} setting(s) x "
         f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
         f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
-    rep = inputs.replicated(mesh)
-    params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
-    buffer, teacher_params = inputs.place(buffer, rep), inputs.place(teacher_params, rep)
-    settings = settings_as_data(config)
-    settings = None if settings is None else inputs.place(settings, rep)
+    state = inputs.place(state, rep)
     barrier("start")
-    ckpt = Checkpoints(out_dir, t.max_checkpoints)
-    start, data_state = 0, None
-    if resume and ckpt.latest_step() is not None:
-        start = ckpt.latest_step()
-        params, opt_state, buffer = ckpt.restore(start, params, opt_state, buffer)
-        if config.data.stream:
-            from igdrivsim.training.stream import load_state  # lazy: grain, only for data.stream
+    start, state = run.restore(state)
+    data_state = None
+    if start and config.data.stream:
+        from igdrivsim.training.stream import load_state  # lazy: grain, only for data.stream
 
-            data_state = load_state(out_dir, start)
-        log(f"resuming from update {start}")
-    metrics_path = os.path.join(out_dir, METRICS)
-    curves_path = os.path.join(out_dir, CURVES)
-    if main:
-        _truncate_jsonl(metrics_path, start if resume else -1)
-        _truncate_jsonl(curves_path, start if resume else -1)
+        data_state = load_state(run.dir, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
-    update = get_update(spec)
-    keys = inputs.place(seed_keys(config), rep)
-    seeds = list(range(t.seed_offset, t.seed_offset + t.seeds))
     runs = len(settings_list) * t.seeds
     steps_per_update = runs * config.data.batch_size * 80 * t.ppo_epochs
     grads_per_update = runs * t.ppo_epochs * t.ppo_minibatches
-    bar = None
-    if progress and main:
-        bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train", dynamic_ncols=True)
+    if progress:
+        run.progress(start, num_updates)
     batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
                               config.data.prefetch, data_state)
     last_log, last_time = start, time.perf_counter()
-
-    def write_curves(f, done, values):
-        for line in _curve_lines(done, settings_list, t.method, seeds, values):
-            f.write(json.dumps(line) + "\n")
-        f.flush()
-
-    with contextlib.ExitStack() as stack:
-        opener = (lambda p: open(p, "a")) if main else (lambda p: open(os.devnull, "w"))
-        metrics_file = stack.enter_context(opener(metrics_path))
-        curves_file = stack.enter_context(opener(curves_path))
-        if validation is not None and start == 0:
-            write_curves(curves_file, 0, validation(params))
-        for u, ((teacher, states), data_state) in zip(range(start, end), batches, strict=True):
-            lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+    with run:
+        if start == 0:
+            run.run_hooks(0, state[0])
+        for u, (batch, data_state) in zip(range(start, end), batches, strict=True):
             if u == start and jax.process_count() > 1:  # compile everywhere, then meet
-                update = update.lower(params, opt_state, buffer, teacher, states, settings,
-                                      teacher_params, keys, u, lr).compile()
+                lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+                step = get_update(spec).lower(*state, *batch, settings, teacher_params, keys,
+                                              u, lr).compile()
+                fns = make_train(config, spec, num_updates, settings, teacher_params, keys,
+                                 step)
                 barrier("compiled")
-            params, opt_state, buffer, metrics = update(
-                params, opt_state, buffer, teacher, states, settings, teacher_params, keys, u,
-                lr)
+            state, metrics, lr = fns.update(state, batch, u)
             done = u + 1
-            if bar is not None:
-                bar.update()
+            if run.bar is not None:
+                run.bar.update()
             if done % t.log_every == 0 or done == end:
                 metrics = jax.device_get(metrics)
                 now = time.perf_counter()
                 rate = (done - last_log) / max(now - last_time, 1e-9)
-                line = _log_line(done, lr, metrics, {
+                run.metrics(done, lr, metrics, {
                     "updates_per_s": rate, "scenario_steps_per_s": rate * steps_per_update,
                     "grad_steps_per_s": rate * grads_per_update})
-                metrics_file.write(json.dumps(line) + "\n")
-                metrics_file.flush()
-                loss_key = "bc_loss" if "bc_loss" in metrics else "teacher_ce"
-                write_curves(curves_file, done, {loss_key: metrics[loss_key]})
-                if bar is not None:
-                    bar.set_postfix({loss_key: f"{line[loss_key]:.3f}"}, refresh=False)
                 last_log, last_time = done, time.perf_counter()
-            if validation is not None and (done % t.eval_every == 0 or done == num_updates):
-                write_curves(curves_file, done, validation(params))
+            if run.run_hooks(done, state[0], last=done == num_updates):
                 last_time = time.perf_counter()  # rates measure training only
             if done % t.checkpoint_every == 0 or done == end:
-                if data_state is not None:  # the input iterator's state, saved first
-                    # lazy: grain, only for data.stream
-                    from igdrivsim.training.stream import save_state
-
-                    save_state(out_dir, done, data_state, ckpt.manager.all_steps())
-                barrier(f"save-{done}")
-                ckpt.save(done, params, opt_state, buffer)
-    if bar is not None:
-        bar.close()
-    ckpt.close()
-    complete = end == num_updates
-    if complete and main:
-        atomic_write_text(os.path.join(out_dir, DONE), f"{num_updates}\n")
-    return TrainResult(params, end, num_updates, complete, time.perf_counter() - start_time)
+                run.checkpoint(done, state, data_state)
+    complete = run.finish(end, num_updates)
+    return TrainResult(state[0], end, num_updates, complete, time.perf_counter() - start_time)
 
 
 def load_run(run_dir: str | os.PathLike, step: int | None = None):
