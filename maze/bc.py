@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from igdrivsim.core.losses import log_prob
 from maze.env import MazeParams
 from maze.network import GRUPolicy
 from maze.rollout import run_stream, start_stream
@@ -73,8 +74,7 @@ def nll(model: GRUPolicy, net_params, demos: Demos) -> jax.Array:
     """Mean negative log-likelihood of the expert's actions under the imitator."""
     h0 = jnp.zeros((demos.obs.shape[1], model.hidden))
     _, logits, _ = model.apply(net_params, h0, demos.obs, demos.first)
-    log_p = jax.nn.log_softmax(logits)
-    return -jnp.take_along_axis(log_p, demos.action[..., None], -1).mean()
+    return -log_prob(logits, demos.action).mean()
 
 
 def make_bc(model: GRUPolicy, cfg: BCConfig, chunk_epochs: int):

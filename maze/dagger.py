@@ -2,10 +2,11 @@
 
 Iteration 0: the full-observation teacher drives and labels (plain BC data). Every later
 iteration: the partial-observation student drives, the teacher, running alongside on the full
-observation of the same states, labels them (:mod:`maze.teacher`); the new streams are appended
-to a preallocated buffer (``iterations`` slots) and the student is trained on the aggregate for
-``steps_per_iteration`` minibatches of whole streams drawn uniformly from the filled slots.
-Labels are the teacher's action distributions (soft cross-entropy). Pure and single-seed.
+observation of the same states, labels them (:func:`maze.rollout.run_labelled`); the new
+streams are appended to a preallocated buffer (``iterations`` slots) and the student is trained
+on the aggregate for ``steps_per_iteration`` minibatches of whole streams drawn uniformly from
+the filled slots. Labels are the teacher's action distributions (soft cross-entropy). Pure and
+single-seed.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from igdrivsim.core.losses import soft_cross_entropy
 from maze.env import MazeParams
 from maze.network import GRUPolicy
-from maze.rollout import start_stream
-from maze.teacher import run_labelled, soft_cross_entropy
+from maze.rollout import run_labelled, start_stream
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,7 +79,7 @@ def make_dagger(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: D
         slot = state.filled
         obs = state.obs.at[slot].set(traj.obs)
         first = state.first.at[slot].set(traj.first)
-        label = state.label.at[slot].set(traj.teacher_logp)
+        label = state.label.at[slot].set(traj.label)
         filled = slot + 1
 
         def step(carry, key):

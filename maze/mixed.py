@@ -1,9 +1,9 @@
 """BC+PPO (the paper's remedy) and adaptive weighting (ADVISOR, Weihs et al. 2021) in the maze.
 
 Both train a partial-observation student with recurrent PPO on the maze's own reward while the
-full-observation teacher labels every state the student visits (:mod:`maze.teacher`). The per-
-state loss mixes imitation (soft cross-entropy to the teacher's action distribution) and the
-clipped PPO policy term:
+full-observation teacher labels every state the student visits
+(:func:`maze.rollout.run_labelled`). The per-state loss mixes imitation (soft cross-entropy to
+the teacher's action distribution) and the clipped PPO policy term:
 
 * ``adaptive = False`` (BC+PPO): ``w_bc * CE + w_rl * PPO`` (value and entropy terms scaled by
   ``w_rl`` too: the paper's ``w_BC BC + w_RL PPO`` with ``w_BC = 1``, ``w_RL = 0.05``).
@@ -26,11 +26,11 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from igdrivsim.core.losses import gae, kl_divergence, soft_cross_entropy
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
-from maze.ppo import PPOConfig, gae, make_optimizer
-from maze.rollout import Stream, start_stream
-from maze.teacher import kl, run_labelled, soft_cross_entropy
+from maze.ppo import PPOConfig, make_optimizer, ppo_terms
+from maze.rollout import Stream, run_labelled, start_stream
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,17 +75,10 @@ def make_mixed(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: PP
 
     def loss_fn(net_params, h0, batch, adv, targets, adaptive):
         _, logits, value, aux = model.apply(net_params, h0, batch.obs, batch.first)
-        log_p = jax.nn.log_softmax(logits)
-        new_log_prob = jnp.take_along_axis(log_p, batch.action[..., None], -1)[..., 0]
-        ratio = jnp.exp(new_log_prob - batch.log_prob)
-        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv)
-        v_clipped = batch.value + jnp.clip(value - batch.value, -cfg.clip_eps, cfg.clip_eps)
-        value_loss = 0.5 * jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2).mean()
-        entropy = -(jnp.exp(log_p) * log_p).sum(-1).mean()
-        ce = soft_cross_entropy(batch.teacher_logp, logits)
-        aux_ce = soft_cross_entropy(batch.teacher_logp, aux)
-        w_adv = jnp.exp(-mix.alpha * jax.lax.stop_gradient(kl(batch.teacher_logp, aux)))
+        pg, value_loss, entropy = ppo_terms(logits, value, batch, adv, targets, cfg)
+        ce = soft_cross_entropy(batch.label, logits)
+        aux_ce = soft_cross_entropy(batch.label, aux)
+        w_adv = jnp.exp(-mix.alpha * jax.lax.stop_gradient(kl_divergence(batch.label, aux)))
         w_il = jnp.where(adaptive, w_adv, mix.w_bc)
         w_pg = jnp.where(adaptive, 1.0 - w_adv, mix.w_rl)
         rl_scale = jnp.where(adaptive, 1.0, mix.w_rl)

@@ -1,5 +1,8 @@
 """Recurrent PPO (PureJaxRL style): rollout, GAE and minibatch epochs in one jitted function.
 
+The rollout is the shared runner (:mod:`maze.rollout`), GAE and the loss terms the shared ones
+(:mod:`igdrivsim.core.losses`), as in the driving benchmark's BC-RL.
+
 ``make_ppo(...)`` returns ``init(key, net_params, partial, total_updates) -> PPOState`` and
 ``train_chunk(PPOState) -> (PPOState, metrics)``, a ``lax.scan`` over ``chunk_updates`` PPO
 updates; both are pure and single-seed, so the study ``vmap``s them over seeds and calls the chunk
@@ -19,6 +22,14 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from igdrivsim.core.losses import (
+    clipped_value_loss,
+    entropy,
+    gae,
+    log_prob,
+    normalize,
+    surrogate_terms,
+)
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
 from maze.rollout import Stream, run_stream, start_stream
@@ -62,19 +73,13 @@ def make_optimizer(max_grad_norm: float):
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.scale_by_adam(eps=1e-5))
 
 
-def gae(values, rewards, dones, last_value, gamma, lam):
-    """Generalised advantage estimates and returns (episode ends cut the bootstrap)."""
-
-    def back(carry, xs):
-        adv, next_value = carry
-        value, reward, done = xs
-        delta = reward + gamma * next_value * (1.0 - done) - value
-        adv = delta + gamma * lam * (1.0 - done) * adv
-        return (adv, value), adv
-
-    _, adv = jax.lax.scan(back, (jnp.zeros_like(last_value), last_value),
-                          (values, rewards, dones.astype(jnp.float32)), reverse=True)
-    return adv, adv + values
+def ppo_terms(logits, value, batch, adv, targets, cfg: PPOConfig):
+    """Per-state clipped policy loss, the clipped value loss and the entropy of a minibatch
+    (the shared terms of :mod:`igdrivsim.core.losses`; the advantages normalised here)."""
+    pg = surrogate_terms(log_prob(logits, batch.action), batch.log_prob, normalize(adv),
+                         cfg.clip_eps)
+    return (pg, clipped_value_loss(value, batch.value, targets, cfg.clip_eps),
+            entropy(logits).mean())
 
 
 def make_ppo(model: GRUPolicy, params: MazeParams, cfg: PPOConfig, chunk_updates: int):
@@ -90,16 +95,8 @@ def make_ppo(model: GRUPolicy, params: MazeParams, cfg: PPOConfig, chunk_updates
 
     def loss_fn(net_params, h0, batch, adv, targets):
         _, logits, value = model.apply(net_params, h0, batch.obs, batch.first)
-        log_p = jax.nn.log_softmax(logits)
-        new_log_prob = jnp.take_along_axis(log_p, batch.action[..., None], -1)[..., 0]
-        ratio = jnp.exp(new_log_prob - batch.log_prob)
-        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        policy_loss = -jnp.minimum(ratio * adv,
-                                   jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv).mean()
-        v_clipped = batch.value + jnp.clip(value - batch.value, -cfg.clip_eps, cfg.clip_eps)
-        value_loss = 0.5 * jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2).mean()
-        entropy = -(jnp.exp(log_p) * log_p).sum(-1).mean()
-        return policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+        pg, value_loss, ent = ppo_terms(logits, value, batch, adv, targets, cfg)
+        return pg.mean() + cfg.vf_coef * value_loss - cfg.ent_coef * ent
 
     grad_fn = jax.grad(loss_fn)
 

@@ -21,8 +21,7 @@ from maze import study as S
 from maze.dagger import DAggerConfig
 from maze.mixed import MixedConfig
 from maze.ppo import PPOConfig
-from maze.rollout import start_stream
-from maze.teacher import run_labelled
+from maze.rollout import run_labelled, start_stream
 
 TINY = dataclasses.replace(
     S.PROFILES["smoke"], profile="test-baselines", size=5, max_steps=30, seeds=2, hidden=16,
@@ -56,11 +55,11 @@ def test_teacher_sees_full_student_partial_and_who_drives(study):
     for drives in (False, True):
         _, _, traj = run_labelled(model, student, model, teacher, stream, h,
                                   jax.random.PRNGKey(1), 20, p, teacher_drives=drives)
-        goal_s, goal_t = np.asarray(traj.obs[..., -2:]), np.asarray(traj.teacher_obs[..., -2:])
+        goal_s, goal_t = np.asarray(traj.obs[..., -2:]), np.asarray(traj.other_obs[..., -2:])
         assert (goal_t >= 0).all()  # the teacher always sees the goal
         assert (goal_s == -1).any() and ((goal_s == goal_t) | (goal_s == -1)).all()
-        np.testing.assert_array_equal(traj.obs[..., :-2], traj.teacher_obs[..., :-2])
-        assert (np.asarray(traj.teacher_logp).argmax(-1) == 0).all()  # the label: "up"
+        np.testing.assert_array_equal(traj.obs[..., :-2], traj.other_obs[..., :-2])
+        assert (np.asarray(traj.label).argmax(-1) == 0).all()  # the label: "up"
         up = float((np.asarray(traj.action) == 0).mean())
         assert up > 0.95 if drives else 0.1 < up < 0.45, (drives, up)
 

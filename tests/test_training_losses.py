@@ -49,7 +49,8 @@ def test_gae_by_hand():
     rewards = jnp.array([[1.0, 0.0, 2.0]])
     values = jnp.array([[0.5, 1.0, 1.5]])
     gamma, lam = 0.9, 0.8
-    adv, ret = gae(rewards, values, jnp.array([0.0]), gamma, lam)
+    adv, ret = gae(values, rewards, jnp.zeros((1, 3), bool), jnp.array([0.0]), gamma, lam,
+                   axis=-1)
     d2 = 2.0 + 0.0 - 1.5
     d1 = 0.0 + gamma * 1.5 - 1.0
     d0 = 1.0 + gamma * 1.0 - 0.5

@@ -1,18 +1,19 @@
-"""The one episode runner (``run_episode``), the actor interface and the reference actors.
+"""The simulator's episode runner (``run_episode``) and the reference actors.
 
 Every closed-loop episode in the package (evaluation, BC-RL's rollout, replay) is
-:func:`run_episode`: an :class:`Actor` drives the SDC for ``params.num_controlled_steps`` steps
-of a ``lax.scan`` from a state at reset, and each step leaves one :class:`Transition` (as
-PureJaxRL's transition tuple is the only interface between rollout and loss). An actor is two
-pure functions (Waymax's ``init`` / ``select_action`` split):
+:func:`run_episode`: the shared runner of :mod:`igdrivsim.core.episode` (the maze's too) with
+the simulator's step, driving the SDC for ``params.num_controlled_steps`` steps from a state at
+reset; each step leaves one :class:`Transition` (as PureJaxRL's transition tuple is the only
+interface between rollout and loss). An :class:`~igdrivsim.core.episode.Actor` is two pure
+functions:
 
 * ``init(state, key) -> carry``: the recurrent state before the first controlled step (the
   learned policy: its GRU warmed on the logged observations of steps 0..9; ``None`` for
   actors without memory);
 * ``step(state, carry, key) -> (action, carry, extras)``: ``action`` is the continuous
   delta-local ``f32[..., 3]`` applied by :func:`~igdrivsim.simulator.step`; ``extras`` any
-  pytree recorded per step, or a :class:`StepInfo` when the actor also observes (observation,
-  value, log-probability).
+  pytree recorded per step, or a :class:`~igdrivsim.core.episode.StepInfo` when the actor
+  also observes (observation, value, log-probability).
 
 An :class:`Actor` is callable as its ``step``, and a bare ``step`` function (the older
 *policy function*) is accepted wherever an actor is. The runner works on a single state or on
@@ -35,6 +36,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.core import episode
+from igdrivsim.core.episode import Actor, StepInfo
 from igdrivsim.data.scenario import DT, NUM_STEPS
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.expert import expert_action, expert_discrete_action
@@ -51,31 +54,6 @@ from igdrivsim.simulator.state import (
 
 DEFAULT_PARAMS = SimParams()
 PolicyFn = Callable[[SimState, Any, jax.Array], tuple[jax.Array, Any, Any]]
-
-
-def _no_carry(state: SimState, key: jax.Array) -> None:
-    del state, key
-    return None
-
-
-class Actor(NamedTuple):
-    """``init(state, key) -> carry`` and ``step(state, carry, key) -> (action, carry,
-    extras)``, pure functions (see the module docstring). Calling the actor calls ``step``."""
-
-    step: PolicyFn
-    init: Callable[[SimState, jax.Array], Any] = _no_carry
-
-    def __call__(self, state: SimState, carry: Any, key: jax.Array):
-        return self.step(state, carry, key)
-
-
-class StepInfo(NamedTuple):
-    """What an observing actor reports per step besides its action (``None``: not computed)."""
-
-    observation: Any = None  # the Observation the actor acted on
-    value: jax.Array | None = None  # f32[...], the critic's estimate
-    log_prob: jax.Array | None = None  # f32[...], log pi(levels)
-    extras: Any = None  # anything else (the chosen levels for the learned policy)
 
 
 class Transition(NamedTuple):
@@ -124,14 +102,9 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
     """
     actor = as_actor(actor)
     num_steps = params.num_controlled_steps if num_steps is None else num_steps
-    if carry is None:
-        carry = actor.init(state, key)
 
-    def body(c, k):
-        s, pc = c
-        action, pc, info = actor.step(s, pc, k)
-        if not isinstance(info, StepInfo):
-            info = StepInfo(extras=info)
+    def env_step(s, action):
+        # the label and the validity belong to the state the action is taken in
         label = expert_discrete_action(s, params) if expert else None
         valid = action_defined(s)
         s = step(s, action, params)
@@ -140,12 +113,16 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
             r = reward(m if metrics_fn is step_metrics else step_metrics(s, params))
         else:
             r = None
-        tr = Transition(info.observation if observation else None, action, info.extras, label,
-                        info.log_prob if log_prob else None, info.value if value else None,
-                        r, valid, m)
-        return (s, pc), tr
+        return s, (label, valid, r, m)
 
-    (final, _), out = jax.lax.scan(body, (state, carry), jax.random.split(key, num_steps))
+    def record(st: episode.Step) -> Transition:
+        info = st.info if isinstance(st.info, StepInfo) else StepInfo(extras=st.info)
+        label, valid, r, m = st.out
+        return Transition(info.observation if observation else None, st.action, info.extras,
+                          label, info.log_prob if log_prob else None,
+                          info.value if value else None, r, valid, m)
+
+    final, _, out = episode.run_episode(env_step, actor, state, key, num_steps, carry, record)
     return final, out
 
 

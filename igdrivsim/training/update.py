@@ -268,8 +268,8 @@ def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: Observation
                               episode_keys, k_act, privileged=full)
     roll = jax.tree.map(jax.lax.stop_gradient, roll)
     # Episodes end at step 90 (terminal): the value after the last step is 0.
-    adv, ret = gae(roll.rewards.T, roll.values.T, jnp.zeros((b,)), spec.gamma,
-                   spec.gae_lambda)
+    adv, ret = gae(roll.values.T, roll.rewards.T, jnp.zeros((b, roll.valid.shape[0]), bool),
+                   jnp.zeros((b,)), spec.gamma, spec.gae_lambda, axis=-1)  # [b, 80]
     adv = normalize(adv.T, roll.valid)
     bm = _time_major  # time-major -> scenario-major
     data |= {"rollout_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),
