@@ -6,6 +6,7 @@ One compiled update (smoke, bc_rl) is shared by every in-process run of this mod
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -80,7 +81,15 @@ def test_resume_reaches_the_same_parameters(full_run, data_dir, tmp_path):
     assert not first.complete and first.updates_done == 2
     with pytest.raises(Exception, match="--resume"):
         train(CONFIG, data_dir, out, progress=False, log=lambda *_: None)
-    second = train(CONFIG, data_dir, out, resume=True, progress=False, log=lambda *_: None)
+    other_lr = dataclasses.replace(CONFIG, training=dataclasses.replace(
+        CONFIG.training, lr=CONFIG.training.lr * 2))
+    with pytest.raises(Exception, match="different configuration"):
+        train(other_lr, data_dir, out, resume=True, progress=False, log=lambda *_: None)
+    # how often it is checkpointed is bookkeeping: the run resumes under another value
+    kept_otherwise = dataclasses.replace(CONFIG, training=dataclasses.replace(
+        CONFIG.training, checkpoint_every=1, max_checkpoints=3))
+    second = train(kept_otherwise, data_dir, out, resume=True, progress=False,
+                   log=lambda *_: None)
     assert second.complete
     assert _max_diff(second.params, result.params) == 0.0
     lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]

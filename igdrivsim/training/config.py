@@ -236,7 +236,7 @@ def laptop() -> RunConfig:
         observation=ObsConfig(num_objects=16, num_roadgraph_points=64, roadgraph_stride=8),
         training=TrainConfig(seeds=3, num_updates=COMPETENT_UPDATES, lr=3e-3, ppo_epochs=2,
                              ppo_minibatches=4, log_every=10, eval_every=250, val_scenarios=32,
-                             checkpoint_every=250),
+                             checkpoint_every=50),
     )
 
 

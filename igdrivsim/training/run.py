@@ -91,6 +91,21 @@ def curve_lines(update: int, settings: list[str], method: str, seeds: list[int],
             for g, name in enumerate(settings) for i, seed in enumerate(seeds)]
 
 
+# How a run is kept, not what it computes: a run resumes under other values of these.
+BOOKKEEPING = (("training", "checkpoint_every"), ("training", "max_checkpoints"),
+               ("data", "prefetch"))
+
+
+def _computed(config) -> object:
+    """A config dict (JSON types) without its :data:`BOOKKEEPING` fields."""
+    config = json.loads(json.dumps(config))
+    if isinstance(config, dict):
+        for section, name in BOOKKEEPING:
+            if isinstance(config.get(section), dict):
+                config[section].pop(name, None)
+    return config
+
+
 class Run:
     """The folder of one run of ``config`` (every setting x seed), on every process; only
     process 0 writes. Use as a context manager around the update loop."""
@@ -130,7 +145,8 @@ class Run:
 
     def _check_config(self) -> None:
         """Refuse to resume a run started with another configuration (fields added to the
-        config classes since then count at their defaults)."""
+        config classes since then count at their defaults; :data:`BOOKKEEPING` fields may
+        differ)."""
         path = os.path.join(self.dir, CONFIG)
         with open(path) as f:
             old = json.load(f)
@@ -138,7 +154,7 @@ class Run:
             old_config = to_dict(from_dict(old.get("config", {})))
         except (ConfigError, TypeError):
             old_config = old.get("config")
-        if json.loads(json.dumps(old_config)) != json.loads(json.dumps(self.record["config"])):
+        if _computed(old_config) != _computed(self.record["config"]):
             raise ConfigError(f"{path}: the run was started with a different configuration; "
                               "use another --out or the same options")
 
