@@ -197,3 +197,20 @@ def test_stamps_say_where_each_training_part_ran(tmp_path, monkeypatch):
     (stamps / "train_other.json").write_text(json.dumps({"device": "not this run's"}))
     assert pipe.trained_on() == ("test CPU, 2 cores, 2 worker process(es) (bc, bc_rl-1of2); "
                                  "GPU box, 1 worker (dagger)")
+
+
+def test_the_default_and_the_methods_run_keep_their_own_wall_time(tmp_path):
+    """Both runs share a work folder; each one's provenance states its own invocations' time
+    (a single-run wall.json from before counts as the default run's)."""
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "wall.json").write_text(json.dumps({"seconds": 100.0}))
+    methods = Pipeline(PROFILES["smoke"], work, tmp_path / "paper",
+                       methods=("bc", "bc_rl", "dagger"))
+    methods.started -= 40.0
+    methods._record_wall()
+    walls = json.loads((work / "wall.json").read_text())
+    assert walls["default"] == 100.0 and 40.0 <= walls["methods"] < 45.0
+    default = Pipeline(PROFILES["smoke"], work, tmp_path / "paper")
+    assert 100.0 <= default.wall_seconds() < 105.0
+    assert 40.0 <= methods.wall_seconds() < 90.0

@@ -323,17 +323,23 @@ class Pipeline(StageRunner):
         return published
 
     def wall_seconds(self) -> float:
-        """This run's wall time: this invocation's and those of the interrupted ones before."""
-        path = self.work / "wall.json"
+        """This run's wall time: this invocation's and those of the interrupted ones before,
+        kept per kind of run (the default run and the taught methods' run share a work folder;
+        a file from before the kinds were told apart counts as the default run's)."""
+        return self._walls().get(self.kind, 0.0) + time.time() - self.started
+
+    def _walls(self) -> dict[str, float]:
         try:
-            before = float(json.loads(path.read_text(encoding="utf-8"))["seconds"])
-        except (OSError, ValueError, KeyError, TypeError):
-            before = 0.0
-        return before + time.time() - self.started
+            record = json.loads((self.work / "wall.json").read_text(encoding="utf-8"))
+            if "seconds" in record:  # the older single-run form
+                record = {"default": record.pop("seconds"), **record}
+            return {str(k): float(v) for k, v in record.items()}
+        except (OSError, ValueError, TypeError, AttributeError):
+            return {}
 
     def _record_wall(self) -> None:
-        path = self.work / "wall.json"
-        atomic_write_json(path, {"seconds": round(self.wall_seconds(), 1)})
+        walls = self._walls() | {self.kind: round(self.wall_seconds(), 1)}
+        atomic_write_json(self.work / "wall.json", walls)
 
     @property
     def device_text(self) -> str:
