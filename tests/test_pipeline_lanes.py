@@ -46,7 +46,7 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
     monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
     monkeypatch.setattr(pipe, "run_render", lambda v, echo=True: fake("render", echo))
     monkeypatch.setattr(pipe, "run_teacher", lambda c: fake("teacher", True, 0.1))
-    monkeypatch.setattr(pipe, "run_report", lambda e, u: fake("report", True, 0.1))
+    monkeypatch.setattr(pipe, "run_report", lambda e, u, p: fake("report", True, 0.1))
     monkeypatch.setattr(pipe, "run_pdf", lambda: None)
     monkeypatch.setattr(pipe, "publish", lambda: [])
     pipe.times = times
@@ -214,3 +214,16 @@ def test_the_default_and_the_methods_run_keep_their_own_wall_time(tmp_path):
     default = Pipeline(PROFILES["smoke"], work, tmp_path / "paper")
     assert 100.0 <= default.wall_seconds() < 105.0
     assert 40.0 <= methods.wall_seconds() < 90.0
+
+
+def test_the_report_draws_the_learning_curves_of_this_runs_parts_only(tmp_path, monkeypatch):
+    """The default and the methods run share runs/: each report names its own parts' runs
+    (an unfinished DAgger run beside the default run is not in the default run's Fig. 4)."""
+    pipe = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper")
+    seen = []
+    monkeypatch.setattr(pipe, "stage", lambda name, commands, **kw: seen.append(commands))
+    pipe.run_report(pipe.work / "evals", [], ["bc", "bc_rl-1of2"])
+    argv = [str(a) for a in seen[0][0]]
+    runs = argv[argv.index("--runs") + 1:]
+    runs = runs[:next((i for i, a in enumerate(runs) if a.startswith("--")), len(runs))]
+    assert runs == [str(pipe.work / "runs" / "bc"), str(pipe.work / "runs" / "bc_rl-1of2")]

@@ -253,13 +253,16 @@ class Pipeline(StageRunner):
         """The report goes to the repository's paper/ (no --out)."""
         return self.paper.resolve() == (REPO_ROOT / "paper").resolve()
 
-    def run_report(self, evals: Path, upstream: Sequence[str]) -> None:
+    def run_report(self, evals: Path, upstream: Sequence[str], parts: Sequence[str]) -> None:
+        """The report of this run: its learning curves (Fig. 4) from its own ``parts``' runs
+        only, not from another run's in the same work folder (the methods run's, say)."""
         # results.md: published with the tables (PAPER/results.md); the default run's goes to
         # docs/results.md instead, rewritten from paper/ once published (write_results)
         page = ["--results", self.work / "results.md"] if self.default_paper else []
+        runs = [self.work / "runs" / part for part in parts]
         self.stage("report", [["igdrivsim", "report", "--evals", evals, "--out", self.staged,
                                "--profile", self.profile.name, "--data-label", self.data_label,
-                               "--work", self.work, *page]],
+                               "--work", self.work, "--runs", *runs, *page]],
                    depends=upstream, outputs=[self.staged / "tables" / "table1.tex"])
 
     def write_results(self) -> None:
@@ -524,7 +527,7 @@ class Pipeline(StageRunner):
         lanes.run_jobs(jobs, self.lanes, self.stopping, echo_alone=self.in_process)
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
                     *[f"evaluate_{p.name}" for p in (*first, *second)]]
-        self.run_report(self.work / "evals", upstream)
+        self.run_report(self.work / "evals", upstream, [p.name for p in (*first, *second)])
         self.run_real_logs()
         self.publish()
         self.write_results()
