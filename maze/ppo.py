@@ -37,9 +37,11 @@ from maze.rollout import Stream, run_stream, start_stream
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """Paper (PureJaxRL) defaults except ``lr`` (1e-3: at 2.5e-4 the partial agent stalls)."""
+    """Paper (PureJaxRL) defaults except ``lr``: at 2.5e-4 the partial agent stalls within a
+    laptop's budget; 2e-3 against 1e-3 (10 seeds, measured) reached partial return 6.16 in 80
+    updates where 1e-3 reached 5.27 in 120, and full return 9.62 in 50 updates (9.60 in 80)."""
 
-    lr: float = 1e-3
+    lr: float = 2e-3
     anneal_lr: bool = True
     num_envs: int = 64
     num_steps: int = 128
