@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The GPU speeds of docs/bench/ on this machine's accelerator, one JSON file each in OUT:
 # the laptop network's BC and BC-RL update (6 settings x 3 seeds) and the paper network's BC
-# update at the paper's batch (256 scenarios x 3 seeds), with JAX's default matrix precision
-# and with bf16 products. Each file records the machine, the date, the precision and the
-# matrix TFLOP/s (docs/bench/README.md says how they are counted).
+# update at the paper's batch (256 scenarios x 3 seeds), with JAX's default matrix precision,
+# with bf16 products, traced (its busiest kernels) and with XLA's Triton matrix-product fusions
+# off (cuBLAS products). Each file records the machine, the date, the precision and the matrix
+# TFLOP/s (docs/bench/README.md says how they are counted).
 #
 #   bash scripts/bench_gpu.sh OUT        # e.g. OUT=docs/bench; a few minutes on one H200
 set -euo pipefail
@@ -22,3 +23,6 @@ B=("$PYTHON" -m igdrivsim.cli bench train)
 P=(--profiles paper --method bc --obs full --batch-size 256 --seeds 3 --updates 2)
 "${B[@]}" "${P[@]}" --out "$OUT/train_paper_bc_$tag.json"
 JAX_DEFAULT_MATMUL_PRECISION=bfloat16 "${B[@]}" "${P[@]}" --out "$OUT/train_paper_bc_bf16_$tag.json"
+"${B[@]}" "${P[@]}" --updates 1 --trace "$OUT/trace_$tag" --out "$OUT/train_paper_bc_trace_$tag.json"
+XLA_FLAGS="${XLA_FLAGS:-} --xla_gpu_enable_triton_gemm=false" "${B[@]}" "${P[@]}" \
+    --out "$OUT/train_paper_bc_cublas_$tag.json"

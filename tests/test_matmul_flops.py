@@ -27,3 +27,30 @@ def test_cond_counts_the_costlier_branch():
     w, x = jnp.ones((64, 64)), jnp.ones((8, 64))
     assert matmul_flops(lambda w, x: jax.lax.cond(x.sum() > 0, lambda: x @ w, lambda: x),
                         w, x) == PRODUCT
+
+
+def test_trace_summary_sums_a_kernel_kind_per_timeline_line(tmp_path):
+    """`bench train --trace`: a device's kernels are summed per kind (digits folded) and per
+    timeline line; host lines are left out when a device is in the trace."""
+    import gzip
+    import json
+
+    from igdrivsim.training.bench import trace_summary
+
+    meta = [{"ph": "M", "name": "process_name", "pid": 1, "args": {"name": "/device:GPU:0"}},
+            {"ph": "M", "name": "process_name", "pid": 2, "args": {"name": "/host:CPU"}},
+            {"ph": "M", "name": "thread_name", "pid": 1, "tid": 7, "args": {"name": "Stream #7"}}]
+    spans = [{"ph": "X", "pid": 1, "tid": 7, "ts": 0, "dur": 3e6, "name": "gemm_fusion_dot_12"},
+             {"ph": "X", "pid": 1, "tid": 7, "ts": 3e6, "dur": 1e6, "name": "gemm_fusion_dot_3"},
+             {"ph": "X", "pid": 1, "tid": 7, "ts": 4e6, "dur": 1e6, "name": "loop_add_fusion"},
+             {"ph": "X", "pid": 2, "tid": 1, "ts": 0, "dur": 9e6, "name": "python"}]
+    path = tmp_path / "plugins" / "profile" / "run"
+    path.mkdir(parents=True)
+    with gzip.open(path / "perfetto_trace.json.gz", "wt") as f:
+        json.dump({"traceEvents": meta + spans}, f)
+    out = trace_summary(str(tmp_path))
+    assert out["trace_span_s"] == 5.0 and out["trace_busy_s"] == 5.0
+    assert out["trace_top"][0] == {"name": "Stream #N: gemm_fusion_dot_N", "seconds": 4.0,
+                                   "share": 0.8, "count": 2}
+    assert [r["name"] for r in out["trace_top"]] == ["Stream #N: gemm_fusion_dot_N",
+                                                      "Stream #N: loop_add_fusion"]

@@ -16,8 +16,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import glob
+import gzip
 import json
+import os
+import re
 import time
+from collections import defaultdict
 
 import jax
 import numpy as np
@@ -58,6 +63,9 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="FILE",
                         help="also write the results and the machine they ran on to this JSON "
                              "file")
+    parser.add_argument("--trace", default=None, metavar="DIR",
+                        help="after timing, trace one more update with jax.profiler into DIR "
+                             "(a Perfetto trace) and add its busiest operations to the record")
 
 
 def matmul_flops(fn, *args) -> int:
@@ -89,9 +97,47 @@ def matmul_flops(fn, *args) -> int:
     return count(jax.make_jaxpr(fn)(*args).jaxpr)
 
 
+def trace_summary(trace_dir: str, top: int = 15) -> dict:
+    """Where a traced update's time went, from the Perfetto trace ``jax.profiler`` wrote under
+    ``trace_dir``: the busiest device (or, on a CPU, XLA thread) operations by total duration,
+    each named by its timeline line (a device's streams, "XLA Ops" and "XLA Modules" lines
+    overlap, so shares are of all lines' busy time) and their digits folded (``fusion.123`` ->
+    ``fusion.N``) so that one kind of kernel sums over its instances; and the traced span."""
+    files = sorted(glob.glob(os.path.join(trace_dir, "**", "perfetto_trace.json.gz"),
+                             recursive=True))
+    if not files:
+        raise ConfigError(f"no perfetto_trace.json.gz under {trace_dir}")
+    with gzip.open(files[-1], "rt") as f:
+        events = json.load(f)
+    events = events.get("traceEvents", events) if isinstance(events, dict) else events
+    names = {e["pid"]: e.get("args", {}).get("name", "") for e in events
+             if e.get("ph") == "M" and e.get("name") == "process_name"}
+    threads = {(e["pid"], e.get("tid")): e.get("args", {}).get("name", "")
+               for e in events if e.get("ph") == "M" and e.get("name") == "thread_name"}
+    device = {pid for pid, n in names.items() if "/device:" in n}
+    keep = device or {pid for pid, n in names.items() if "host" in n.lower()} or set(names)
+    spans = [e for e in events if e.get("ph") == "X" and e.get("pid") in keep and "dur" in e]
+    busy: dict[str, float] = defaultdict(float)
+    count: dict[str, int] = defaultdict(int)
+    for e in spans:
+        # one line per (thread, kernel kind): a device's streams, XLA ops and modules overlap
+        thread = re.sub(r"\d+", "N", threads.get((e["pid"], e.get("tid")), ""))
+        name = thread + ": " + re.sub(r"\d+", "N", e.get("name", "?"))
+        busy[name] += e["dur"] / 1e6
+        count[name] += 1
+    total = sum(busy.values())
+    start = min((e["ts"] for e in spans), default=0.0)
+    end = max((e["ts"] + e["dur"] for e in spans), default=0.0)
+    rows = sorted(busy.items(), key=lambda kv: -kv[1])[:top]
+    return {"trace_file": files[-1], "trace_span_s": round((end - start) / 1e6, 4),
+            "trace_busy_s": round(total, 4), "trace_events": len(spans),
+            "trace_top": [{"name": n, "seconds": round(t, 4), "share": round(t / total, 4),
+                           "count": count[n]} for n, t in rows]}
+
+
 def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 0, seeds: int = 0,
                   updates: int = 3, overrides: tuple[str, ...] = (),
-                  obs: str = ",".join(PAPER_SETTINGS)) -> dict:
+                  obs: str = ",".join(PAPER_SETTINGS), trace: str | None = None) -> dict:
     """Measure one profile; returns the JSON record."""
     # lazy: keeps `igdrivsim bench train --help` fast (the loop pulls in orbax, grain)
     from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
@@ -146,6 +192,12 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     jax.block_until_ready(params)
     per_update = (time.perf_counter() - t0) / updates
     cpu_per_update = (time.process_time() - c0) / updates
+    traced = {}
+    if trace:
+        with jax.profiler.trace(trace, create_perfetto_trace=True):
+            params, opt_state, buffer, m = update(params, opt_state, buffer, *args, 0, 1e-3)
+            jax.block_until_ready(params)
+        traced = trace_summary(trace)
     t = config.training
     runs = len(run_settings(config)) * t.seeds
     steps = runs * config.data.batch_size * 80 * t.ppo_epochs
@@ -162,7 +214,7 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             "grad_steps_per_s": round(grads / per_update, 2),
             "matmul_flops_per_update": flops,
             "matmul_tflop_per_s": round(flops / per_update / 1e12, 4),
-            "bc_loss": float(np.mean(jax.device_get(m["bc_loss"])))}
+            "bc_loss": float(np.mean(jax.device_get(m["bc_loss"]))), **traced}
 
 
 def bench_train_command(args: argparse.Namespace) -> int:
@@ -179,8 +231,9 @@ def bench_train_command(args: argparse.Namespace) -> int:
         require_file_target(args.out)
     records = []
     for name in names:
+        trace = os.path.join(args.trace, name) if args.trace else None
         records.append(bench_profile(name, args.method, args.batch, args.seeds, args.updates,
-                                     tuple(args.overrides), args.obs))
+                                     tuple(args.overrides), args.obs, trace))
         print(json.dumps(records[-1]), flush=True)
     if args.out:
         atomic_write_json(args.out, {"machine": machine_record(), "records": records}, indent=2)

@@ -208,7 +208,8 @@ def smoke() -> RunConfig:
 # with every seed at 1,000 updates; on the calibrated scenes it meets offroad and overlap and
 # drifts 0.66x constant velocity's log divergence (target 0.5x; 0.58x at 2,000 updates), and
 # reaching it would take about four times the budget (paper/findings.tex, "On the calibrated
-# scenes"). 300 (the quick profile) misses more.
+# scenes"). At this compute no other learning rate, batch, number of passes or of minibatches
+# did better (docs/bench/competence_sweep_h200.md). 300 (the quick profile) misses more.
 COMPETENT_UPDATES = 1000
 QUICK_UPDATES = 300
 # Seeds of the gpu profile: 4x the laptop's, so each cell's minimum detectable effect is about

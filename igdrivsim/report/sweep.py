@@ -1,0 +1,122 @@
+"""A sweep of one setting's training variants in one table: what each override bought, at what
+compute.
+
+Reads a sweep folder as ``scripts/competence_sweep.sh`` writes it (``runs/NAME`` trained by
+``igdrivsim train``, ``evals/NAME`` by ``igdrivsim evaluate``) and prints, per variant, its
+overrides of the profile, the updates evaluated (the last checkpoint of a run stopped early),
+its compute relative to the profile's budget (scenario-episodes trained forward and backward:
+updates x batch x passes), and the closed-loop metrics: log divergence as the mean over seeds
+with the range of the seed means, and its ratio to constant velocity's on the same scenarios
+when ``--references`` gives that actor's evaluation.
+
+``python -m igdrivsim.report.sweep SWEEP [--references EVAL_DIR] [--out FILE]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
+from igdrivsim.io import atomic_write_text
+from igdrivsim.training.config import from_dict, get_profile, to_dict
+
+# the training fields a variant's compute scales with
+_COMPUTE = (("data", "batch_size"), ("training", "ppo_epochs"), ("training", "num_updates"))
+
+
+def _overrides(config: dict, base: dict) -> list[str]:
+    """``section.field=value`` of every field where ``config`` differs from ``base``, leaving
+    out bookkeeping (logging, validation, checkpoints)."""
+    skip = {"log_every", "eval_every", "val_scenarios", "checkpoint_every", "max_checkpoints"}
+    return [f"{section}.{key}={value}" for section, fields in config.items()
+            if isinstance(fields, dict) for key, value in fields.items()
+            if key not in skip and base.get(section, {}).get(key) != value]
+
+
+def _evaluated_update(run: Path, planned: int) -> int:
+    """The update a run's evaluation saw: its last closed-loop validation (a run validates at
+    each of its checkpoints), or the planned updates when the run finished."""
+    if (run / "DONE").exists():
+        return planned
+    curves = run / "curves.jsonl"
+    updates = [json.loads(line).get("update", 0) for line in curves.read_text().splitlines()
+               if '"log_divergence"' in line] if curves.exists() else []
+    return max(updates, default=0)
+
+
+def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
+    """One row per variant of ``sweep`` (see the module docstring)."""
+    runs = sorted(p for p in (sweep / "runs").glob("*") if (p / "config.json").exists())
+    if not runs:
+        raise ConfigError(f"{sweep}/runs: no trained run (config.json) found")
+    cv = None
+    if references is not None:
+        ref = pd.read_csv(references / "per_scenario.csv")
+        cv = ref[ref.method == CONSTANT_VELOCITY].set_index("scenario_id")["log_divergence"]
+    rows = []
+    for run in runs:
+        config = from_dict(json.loads((run / "config.json").read_text())["config"])
+        saved, base = to_dict(config), to_dict(get_profile(config.profile))
+        scores = sweep / "evals" / run.name / "per_scenario.csv"
+        if not scores.exists():
+            raise ConfigError(f"{scores}: no evaluation of run {run.name}")
+        frame = pd.read_csv(scores)
+        seeds = frame.groupby("seed")["log_divergence"].mean()
+        planned = config.training.num_updates
+        updates = _evaluated_update(run, planned)
+        compute = updates / base["training"]["num_updates"]
+        for section, key in _COMPUTE[:2]:
+            compute *= saved[section][key] / base[section][key]
+        row = {"variant": run.name, "overrides": " ".join(_overrides(saved, base)) or "-",
+               "updates": updates if updates == planned else f"{updates} of {planned}",
+               "compute": round(compute, 2),
+               "log_divergence": round(seeds.mean(), 2),
+               "seed_range": f"{seeds.min():.2f}-{seeds.max():.2f}",
+               "offroad_pct": round(100 * frame["offroad_steps"].mean(), 2),
+               "overlap_pct": round(100 * frame["overlap_steps"].mean(), 2),
+               "scenarios": frame["scenario_id"].nunique()}
+        if cv is not None:
+            row["x_constant_velocity"] = round(
+                seeds.mean() / cv.reindex(frame["scenario_id"].unique()).mean(), 3)
+        rows.append(row)
+    return pd.DataFrame(rows).sort_values(["compute", "log_divergence"]).reset_index(drop=True)
+
+
+def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
+    table = sweep_table(sweep, references)
+    head = ("Log divergence (m): mean over seeds, and the range of the seed means; offroad and "
+            "overlap: % of steps. compute: scenario-episodes trained, relative to the "
+            "profile's budget.\n\n")
+    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
+    lines += ["| " + " | ".join(str(v) for v in row) + " |"
+              for row in table.itertuples(index=False)]
+    return head + "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.sweep",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
+    parser.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
+                        help="`igdrivsim evaluate --references` output on the same data")
+    parser.add_argument("--out", type=Path, help="also write the markdown here")
+    args = parser.parse_args(argv)
+    try:
+        text = sweep_markdown(args.sweep, args.references)
+        if args.out:
+            atomic_write_text(args.out, text)
+    except REPORTED as err:
+        print(f"sweep: error: {error_line(err)}", file=sys.stderr)
+        return 2
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Full BC of a profile under training variants, on the default run's data: each variant trained
+# (3 seeds, closed-loop validation on every validation scenario at each checkpoint) and
+# evaluated as the pipeline does, then one table (python -m igdrivsim.report.sweep) in
+# WORK/sweep.md. Variants run side by side (JOBS at a time); on a GPU all of them at once.
+#
+#   bash scripts/competence_sweep.sh WORK NAME[=SECTION.FIELD=VALUE,...] ...
+#   e.g. bash scripts/competence_sweep.sh /tmp/sweep base b32=data.batch_size=32 \
+#            lr6e-3=training.lr=6e-3 b32e1=data.batch_size=32,training.ppo_epochs=1
+#
+# PROFILE (default laptop) names the profile; the data are the pipeline's (`igdrivsim generate
+# --train 3072 --val 512 --seed 0`, filtered), written to WORK/data once.
+set -uo pipefail
+WORK="${1:?usage: bash scripts/competence_sweep.sh WORK NAME[=OVERRIDES] ...}"; shift
+[ $# -gt 0 ] || { echo "competence_sweep.sh: name at least one variant (e.g. base)" >&2; exit 2; }
+PROFILE="${PROFILE:-laptop}"; JOBS="${JOBS:-$(nproc)}"
+PYTHON="${PYTHON:-python3}"; I=("$PYTHON" -m igdrivsim.cli)
+mkdir -p "$WORK/logs"
+if [ ! -f "$WORK/filtered/validation/manifest.jsonl" ]; then
+    "${I[@]}" generate --out "$WORK/data" --train 3072 --val 512 --seed 0 --no-progress || exit 1
+    "${I[@]}" filter "$WORK/data/training" --out "$WORK/filtered/training" || exit 1
+    "${I[@]}" filter "$WORK/data/validation" --out "$WORK/filtered/validation" || exit 1
+fi
+VAL=$("$PYTHON" -c "import json, sys; print(json.load(open(sys.argv[1]))['kept'])" \
+      "$WORK/filtered/validation/counts.json") || exit 1
+variant() {  # NAME[=OVERRIDES]
+    local name="${1%%=*}" sets=(--set training.eval_every=250 --set training.val_scenarios=$VAL
+                                --set training.checkpoint_every=250 --set training.log_every=50)
+    [ "$name" != "$1" ] && IFS=, read -ra extra <<< "${1#*=}" && for s in "${extra[@]}"; do
+        sets+=(--set "$s"); done
+    local t=$SECONDS
+    "${I[@]}" train --profile "$PROFILE" --obs full --method bc --seeds 3 --resume \
+        --data "$WORK/filtered/training" --val-data "$WORK/filtered/validation" \
+        --cache-dir "$WORK/cache" --out "$WORK/runs/$name" --no-progress "${sets[@]}" \
+        > "$WORK/logs/train_$name.log" 2>&1 || echo "$name: training failed ($WORK/logs/train_$name.log)"
+    "${I[@]}" evaluate "$WORK/runs/$name" --out "$WORK/evals/$name" --no-progress \
+        --data "$WORK/filtered/validation" --batch-size 32 --limit 0 > "$WORK/logs/eval_$name.log" 2>&1
+    echo "$name: trained and evaluated in $((SECONDS - t)) s"
+}
+for v in "$@"; do
+    while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
+    variant "$v" &
+done
+wait
+if [ ! -f "$WORK/references/per_scenario.csv" ]; then
+    "${I[@]}" evaluate --references --like "$WORK/runs/${1%%=*}" --out "$WORK/references" \
+        --data "$WORK/filtered/validation" --batch-size 32 --limit 0 --no-progress \
+        > "$WORK/logs/references.log" 2>&1
+fi
+"$PYTHON" -m igdrivsim.report.sweep "$WORK" --references "$WORK/references" --out "$WORK/sweep.md"
