@@ -29,9 +29,10 @@ variant() {  # NAME[=OVERRIDES]
     [ "$name" != "$1" ] && IFS=, read -ra extra <<< "${1#*=}" && for s in "${extra[@]}"; do
         sets+=(--set "$s"); done
     local t=$SECONDS
+    echo "$name: training (progress, rate and ETA: $WORK/logs/train_$name.log)"
     "${I[@]}" train --profile "$PROFILE" --obs full --method bc --seeds 3 --resume \
         --data "$WORK/filtered/training" --val-data "$WORK/filtered/validation" \
-        --cache-dir "$WORK/cache" --out "$WORK/runs/$name" --no-progress "${sets[@]}" \
+        --cache-dir "$WORK/cache" --out "$WORK/runs/$name" "${sets[@]}" \
         > "$WORK/logs/train_$name.log" 2>&1 || echo "$name: training failed ($WORK/logs/train_$name.log)"
     "${I[@]}" evaluate "$WORK/runs/$name" --out "$WORK/evals/$name" --no-progress \
         --data "$WORK/filtered/validation" --batch-size 32 --limit 0 > "$WORK/logs/eval_$name.log" 2>&1
