@@ -62,3 +62,12 @@ def test_sweep_without_runs_is_a_one_line_error(tmp_path, capsys):
     assert main([str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("sweep: error:") and "runs" in err and "\n" not in err
+
+
+def test_sweep_with_a_broken_config_names_the_file(tmp_path, capsys):
+    run = tmp_path / "runs" / "bad"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    assert main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "runs/bad/config.json" in err and "\n" not in err

@@ -26,8 +26,8 @@ from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
 from igdrivsim.training.config import from_dict, get_profile, to_dict
 
-# the training fields a variant's compute scales with
-_COMPUTE = (("data", "batch_size"), ("training", "ppo_epochs"), ("training", "num_updates"))
+# the fields a variant's compute per update scales with (and the updates it trained)
+_PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
 
 
 def _overrides(config: dict, base: dict) -> list[str]:
@@ -61,7 +61,10 @@ def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
         cv = ref[ref.method == CONSTANT_VELOCITY].set_index("scenario_id")["log_divergence"]
     rows = []
     for run in runs:
-        config = from_dict(json.loads((run / "config.json").read_text())["config"])
+        try:
+            config = from_dict(json.loads((run / "config.json").read_text())["config"])
+        except (ValueError, KeyError, TypeError) as err:
+            raise ConfigError(f"{run / 'config.json'}: not a run's config ({err})") from err
         saved, base = to_dict(config), to_dict(get_profile(config.profile))
         scores = sweep / "evals" / run.name / "per_scenario.csv"
         if not scores.exists():
@@ -71,7 +74,7 @@ def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
         planned = config.training.num_updates
         updates = _evaluated_update(run, planned)
         compute = updates / base["training"]["num_updates"]
-        for section, key in _COMPUTE[:2]:
+        for section, key in _PER_UPDATE:
             compute *= saved[section][key] / base[section][key]
         row = {"variant": run.name, "overrides": " ".join(_overrides(saved, base)) or "-",
                "updates": updates if updates == planned else f"{updates} of {planned}",
