@@ -214,6 +214,11 @@ def test_the_default_and_the_methods_run_keep_their_own_wall_time(tmp_path):
     default = Pipeline(PROFILES["smoke"], work, tmp_path / "paper")
     assert 100.0 <= default.wall_seconds() < 105.0
     assert 40.0 <= methods.wall_seconds() < 90.0
+    # written again while running (an invocation killed outright still counts): the time
+    # before this invocation is not added twice
+    methods._record_wall()
+    methods._record_wall()
+    assert 40.0 <= json.loads((work / "wall.json").read_text())["methods"] < 45.0
 
 
 def test_the_report_draws_the_learning_curves_of_this_runs_parts_only(tmp_path, monkeypatch):

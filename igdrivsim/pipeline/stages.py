@@ -58,6 +58,9 @@ from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 
 PAPER_SOURCES = ("main.tex", "findings.tex", "references.bib", "Makefile")
+# how often a running invocation writes its wall time so far to wall.json: an invocation killed
+# outright (out of memory, a closed session) still counts, up to this much, in the provenance
+WALL_EVERY_S = 60.0
 
 
 @dataclass
@@ -89,6 +92,7 @@ class Pipeline(StageRunner):
                                   "docs/EXTENDING.md); train it on its own with igdrivsim train")
         self.ran: set[str] = set()  # stages that ran in this invocation
         self.started = time.time()
+        self._walls_before: dict[str, float] | None = None  # wall.json when this one began
         self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
         self.children: set[subprocess.Popen] = set()  # stage processes now running
@@ -329,7 +333,9 @@ class Pipeline(StageRunner):
         """This run's wall time: this invocation's and those of the interrupted ones before,
         kept per kind of run (the default run and the taught methods' run share a work folder;
         a file from before the kinds were told apart counts as the default run's)."""
-        return self._walls().get(self.kind, 0.0) + time.time() - self.started
+        if self._walls_before is None:  # read once: this invocation rewrites the file
+            self._walls_before = self._walls()
+        return self._walls_before.get(self.kind, 0.0) + time.time() - self.started
 
     def _walls(self) -> dict[str, float]:
         try:
@@ -488,10 +494,18 @@ class Pipeline(StageRunner):
     def run(self) -> None:
         """Every stage in order, holding the work folder's lock."""
         with self.work_lock():
+            self.wall_seconds()  # the time of the invocations before this one, read now
+            stop = threading.Event()
+            threading.Thread(target=self._keep_wall, args=(stop,), daemon=True).start()
             try:
                 self._run_stages()
             finally:
+                stop.set()
                 self._record_wall()
+
+    def _keep_wall(self, stop: threading.Event) -> None:
+        while not stop.wait(WALL_EVERY_S):
+            self._record_wall()
 
     def _run_stages(self) -> None:
         self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
