@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Full BC of a profile under training variants, on the default run's data: each variant trained
-# (3 seeds, closed-loop validation on every validation scenario at each checkpoint) and
+# Full BC of a profile under training variants, on a reproduce.sh run's data: each variant
+# trained (3 seeds, closed-loop validation on every validation scenario at each checkpoint) and
 # evaluated as the pipeline does, then one table (python -m igdrivsim.report.sweep) in
 # WORK/sweep.md. Variants run side by side (JOBS at a time); on a GPU all of them at once.
 #
@@ -8,21 +8,23 @@
 #   e.g. bash scripts/competence_sweep.sh /tmp/sweep base b32=data.batch_size=32 \
 #            lr6e-3=training.lr=6e-3 b32e1=data.batch_size=32,training.ppo_epochs=1
 #
-# PROFILE (default laptop) names the profile; the data are the pipeline's (`igdrivsim generate
-# --train 3072 --val 512 --seed 0`, filtered), written to WORK/data once.
+# RUN (default outputs/PROFILE, the default run's work folder; PROFILE default laptop) is the
+# reproduce.sh --out folder whose filtered data, teacher cache and reference evaluation are used.
 set -uo pipefail
 WORK="${1:?usage: bash scripts/competence_sweep.sh WORK NAME[=OVERRIDES] ...}"; shift
 [ $# -gt 0 ] || { echo "competence_sweep.sh: name at least one variant (e.g. base)" >&2; exit 2; }
 PROFILE="${PROFILE:-laptop}"; JOBS="${JOBS:-$(nproc)}"
+RUN="${RUN:-$(cd "$(dirname "$0")/.." && pwd)/outputs/$PROFILE}"
 PYTHON="${PYTHON:-python3}"; I=("$PYTHON" -m igdrivsim.cli)
+for need in filtered/training/manifest.jsonl filtered/validation/counts.json \
+            evals/references/per_scenario.csv; do
+    [ -f "$RUN/$need" ] || { echo "competence_sweep.sh: $RUN/$need not found: run" \
+        "bash scripts/reproduce.sh --profile $PROFILE first (or set RUN to its --out folder)" >&2
+        exit 2; }
+done
 mkdir -p "$WORK/logs"
-if [ ! -f "$WORK/filtered/validation/manifest.jsonl" ]; then
-    "${I[@]}" generate --out "$WORK/data" --train 3072 --val 512 --seed 0 --no-progress || exit 1
-    "${I[@]}" filter "$WORK/data/training" --out "$WORK/filtered/training" || exit 1
-    "${I[@]}" filter "$WORK/data/validation" --out "$WORK/filtered/validation" || exit 1
-fi
 VAL=$("$PYTHON" -c "import json, sys; print(json.load(open(sys.argv[1]))['kept'])" \
-      "$WORK/filtered/validation/counts.json") || exit 1
+      "$RUN/filtered/validation/counts.json") || exit 1
 variant() {  # NAME[=OVERRIDES]
     local name="${1%%=*}" sets=(--set training.eval_every=250 --set training.val_scenarios=$VAL
                                 --set training.checkpoint_every=250 --set training.log_every=50)
@@ -31,11 +33,11 @@ variant() {  # NAME[=OVERRIDES]
     local t=$SECONDS
     echo "$name: training (progress, rate and ETA: $WORK/logs/train_$name.log)"
     "${I[@]}" train --profile "$PROFILE" --obs full --method bc --seeds 3 --resume \
-        --data "$WORK/filtered/training" --val-data "$WORK/filtered/validation" \
-        --cache-dir "$WORK/cache" --out "$WORK/runs/$name" "${sets[@]}" \
+        --data "$RUN/filtered/training" --val-data "$RUN/filtered/validation" \
+        --cache-dir "$RUN/cache" --out "$WORK/runs/$name" "${sets[@]}" \
         > "$WORK/logs/train_$name.log" 2>&1 || echo "$name: training failed ($WORK/logs/train_$name.log)"
     "${I[@]}" evaluate "$WORK/runs/$name" --out "$WORK/evals/$name" --no-progress \
-        --data "$WORK/filtered/validation" --batch-size 32 --limit 0 > "$WORK/logs/eval_$name.log" 2>&1
+        --data "$RUN/filtered/validation" --batch-size 32 --limit 0 > "$WORK/logs/eval_$name.log" 2>&1
     echo "$name: trained and evaluated in $((SECONDS - t)) s"
 }
 for v in "$@"; do
@@ -43,9 +45,5 @@ for v in "$@"; do
     variant "$v" &
 done
 wait
-if [ ! -f "$WORK/references/per_scenario.csv" ]; then
-    "${I[@]}" evaluate --references --like "$WORK/runs/${1%%=*}" --out "$WORK/references" \
-        --data "$WORK/filtered/validation" --batch-size 32 --limit 0 --no-progress \
-        > "$WORK/logs/references.log" 2>&1
-fi
-"$PYTHON" -m igdrivsim.report.sweep "$WORK" --references "$WORK/references" --out "$WORK/sweep.md"
+"$PYTHON" -m igdrivsim.report.sweep "$WORK" --references "$RUN/evals/references" \
+    --out "$WORK/sweep.md"
