@@ -116,11 +116,19 @@ def test_every_output_has_the_provenance_entry_the_committed_report_has(done):
     produced = provenance.load(done.paper)
     committed = provenance.load(REPO_ROOT / "paper")
     assert "tables/table1.md" in produced and "figures/fig1_observations.png" in produced
+    assert provenance.stage_check(produced) == ([], [])  # every file names its stages' code
+    git = (REPO_ROOT / ".git").exists()
+    per_stage = {"stages", "mixed_commits"}  # beyond the committed schema 1 entries
     for rel, entry in produced.items():
         assert entry["command"].startswith("bash scripts/reproduce.sh --profile smoke --out ")
         assert entry["profile"] == "smoke" and entry["run"] == "default"
+        assert all(isinstance(c["commit"], str) == git for c in entry["stages"].values()), rel
         if rel in committed:  # the same kind of run writes it, with the same fields
-            assert committed[rel]["run"] == entry["run"] and set(committed[rel]) == set(entry)
+            assert committed[rel]["run"] == entry["run"]
+            assert set(committed[rel]) - per_stage == set(entry) - per_stage
+    assert {"report", "train_bc", "evaluate_bc", "evaluate_references"} <= set(
+        produced["tables/table1.md"]["stages"])
+    assert set(produced["figures/fig2_maze.png"]["stages"]) == {"maze"}
     line = next(ln for ln in (done.paper / "tables" / "table1.md").read_text().splitlines()
                 if ln.startswith(provenance.LINE_PREFIX))
     assert "--profile smoke" in line and "cores" in line

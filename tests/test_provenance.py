@@ -1,12 +1,20 @@
 """Every committed report file has a provenance entry; a run publishes only what its kind owns
-(the default run keeps Table II of the --methods run, and the other way round)."""
+(the default run keeps Table II of the --methods run, and the other way round); each entry
+names the code of the stages behind it, from their stamps (a republish keeps their commits)."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import subprocess
 from pathlib import Path
+
+import pytest
 
 from igdrivsim.pipeline.runner import REPO_ROOT
 from igdrivsim.report import provenance
+
+FIELDS = set(provenance.Entry.__dataclass_fields__)
 
 
 def test_every_committed_table_and_figure_has_an_entry():
@@ -16,11 +24,15 @@ def test_every_committed_table_and_figure_has_an_entry():
         for path in sorted((paper / sub).iterdir()):
             assert f"{sub}/{path.name}" in files, f"{sub}/{path.name} has no provenance entry"
     assert provenance.missing(paper) == []
+    problems, legacy = provenance.stage_check(files)
+    assert problems == []  # entries published since per-stage provenance name their stages
     for rel, entry in files.items():
-        assert set(entry) == set(provenance.Entry.__dataclass_fields__), rel
+        # published before per-stage provenance: schema 1 fields; since: every field
+        assert set(entry) == (FIELDS - {"stages"} if rel in legacy
+                              else FIELDS | {"mixed_commits"}), rel
         assert entry["run"] == provenance.owner(rel)
         if rel.endswith(".md"):  # the table states its entry in one line
-            assert provenance.Entry(**entry).line() in (paper / rel).read_text()
+            assert provenance.Entry.from_record(entry).line() in (paper / rel).read_text()
         if entry["updates"] is not None and entry["updates"] < 1000:
             assert provenance.BELOW_TARGETS in entry["note"], rel
 
@@ -45,14 +57,23 @@ def _entry(run: str, profile: str = "laptop", updates: int = 1000) -> provenance
                             note=provenance.competence_note(profile, updates))
 
 
+def _code(commit: str, dirty: bool = False) -> dict:
+    return {"commit": commit, "dirty": dirty, "diff_hash": "0123456789ab" if dirty else None}
+
+
+def _at(commit: str):
+    """``stages_of`` of publish: every file from a report stage run at ``commit``."""
+    return lambda rel: {"report": _code(commit)}
+
+
 def test_runs_publish_what_they_own_and_keep_the_rest(tmp_path):
     paper = tmp_path / "paper"
     methods = _staged(tmp_path / "m", ["tables/table1.md", "tables/table2.md"], "methods run")
-    assert provenance.publish(methods, paper, _entry("methods")) == [
+    assert provenance.publish(methods, paper, _entry("methods"), _at("abc1234")) == [
         "tables/table1.md", "tables/table2.md", "generated/run.tex"]
     # the default run replaces Table I, keeps Table II (it writes none) and its entry
     default = _staged(tmp_path / "d", ["tables/table1.md"], "default run")
-    published = provenance.publish(default, paper, _entry("default", "quick", 300))
+    published = provenance.publish(default, paper, _entry("default", "quick", 300), _at("abc1234"))
     assert "tables/table1.md" in published and "tables/table2.md" not in published
     assert "methods run" in (paper / "tables/table2.md").read_text()
     table1 = (paper / "tables/table1.md").read_text().splitlines()
@@ -63,7 +84,8 @@ def test_runs_publish_what_they_own_and_keep_the_rest(tmp_path):
     assert files["tables/table1.md"]["profile"] == "quick"
     # a later --methods run does not overwrite the default run's Table I
     again = _staged(tmp_path / "m2", ["tables/table1.md", "tables/table2.md"], "methods again")
-    assert provenance.publish(again, paper, _entry("methods")) == ["tables/table2.md"]
+    assert provenance.publish(again, paper, _entry("methods"), _at("abc1234")) == [
+        "tables/table2.md"]
     assert "default run" in (paper / "tables/table1.md").read_text()
     assert r"\newcommand{\ProvRun}" in (paper / "generated/run.tex").read_text()
 
@@ -81,3 +103,147 @@ def test_the_recorded_command_is_the_one_typed(tmp_path):
     assert plain.command_text() == "bash scripts/reproduce.sh"
     typed = pipeline_from_args(build_parser().parse_args(["--samples", str(found)]))
     assert typed.command_text() == f"bash scripts/reproduce.sh --samples {found}"
+
+
+def _git(repo: Path, *args: str) -> str:
+    return subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c",
+                           "commit.gpgsign=false", *args], cwd=repo, check=True,
+                          capture_output=True, text=True).stdout.strip()
+
+
+def test_code_state_records_the_commit_the_dirty_flag_and_the_diff_hash(tmp_path):
+    repo = tmp_path / "repo"
+    (repo / "paper").mkdir(parents=True)
+    _git(repo, "init", "-q")
+    (repo / "code.py").write_text("x = 1\n")
+    (repo / "paper" / "table.md").write_text("| a |\n")
+    _git(repo, "add", "code.py", "paper/table.md")
+    _git(repo, "commit", "-qm", "one")
+    head = _git(repo, "rev-parse", "--short", "HEAD")
+    assert provenance.code_state(repo) == {"commit": head, "dirty": False, "diff_hash": None}
+    (repo / "paper" / "table.md").write_text("| b |\n")  # the pipeline's own output: clean
+    assert provenance.code_state(repo)["dirty"] is False
+    (repo / "code.py").write_text("x = 2\n")
+    dirty = provenance.code_state(repo)
+    diff = subprocess.run(["git", "diff", "HEAD", "--", "code.py"], cwd=repo, check=True,
+                          capture_output=True).stdout
+    assert dirty == {"commit": head, "dirty": True,
+                     "diff_hash": hashlib.sha256(diff).hexdigest()[:12]}
+    (repo / "code.py").write_text("x = 3\n")  # other code, same commit: another hash
+    assert provenance.code_state(repo)["diff_hash"] not in (None, dirty["diff_hash"])
+    _git(repo, "commit", "-qam", "two")
+    assert provenance.code_state(repo)["commit"] not in (head, None)
+    # not a git checkout (an installed package), or a folder inside one: unknown, no error
+    (tmp_path / "plain").mkdir()
+    (repo / "sub").mkdir()
+    for where in (tmp_path / "plain", repo / "sub", tmp_path / "absent"):
+        assert provenance.code_state(where) == provenance.UNKNOWN_CODE
+
+
+def test_check_fails_when_a_published_file_lacks_its_stage_commits(tmp_path, capsys):
+    paper = tmp_path / "paper"
+    staged = _staged(tmp_path / "d", ["tables/table1.md"], "default run")
+    provenance.publish(staged, paper, _entry("default"), _at("abc1234"))
+    check = ["check", "--paper", str(paper)]
+    assert provenance.main(check) == 0
+    good = provenance.load(paper)
+    assert good["tables/table1.md"]["stages"] == {"report": _code("abc1234")}
+    for broken, message in (({"report": {"dirty": False, "diff_hash": None}},
+                             "stage commits missing for report"),
+                            ({}, "no stage commits"), (None, "no stage commits")):
+        provenance.save(paper, {**good, "tables/table1.md": {
+            **good["tables/table1.md"], "stages": broken}})
+        capsys.readouterr()
+        assert provenance.main(check) == 1, broken
+        assert f"tables/table1.md: {message}" in capsys.readouterr().out
+    # a publish whose stages are unknown to it records that, and the check fails
+    provenance.publish(staged, paper, _entry("default"), lambda rel: {})
+    assert provenance.main(check) == 1
+
+
+def test_entries_published_before_per_stage_provenance_stay_readable(tmp_path, capsys):
+    paper = tmp_path / "paper"
+    old = {k: v for k, v in provenance.Entry.record(_entry("methods")).items()
+           if k != "stages"}  # schema 1: no stages
+    (paper / "tables").mkdir(parents=True)
+    (paper / "tables" / "table2.md").write_text("# Table II\n")
+    (paper / provenance.FILE).write_text(json.dumps({
+        "schema": 1, "about": "old", "files": {"tables/table2.md": old}}))
+    assert provenance.Entry.from_record(old).line() == _entry("methods").line()
+    assert provenance.stage_check(provenance.load(paper)) == ([], ["tables/table2.md"])
+    assert provenance.main(["check", "--paper", str(paper)]) == 0  # reported, not failed
+    assert provenance.LEGACY in capsys.readouterr().out
+    provenance.publish(_staged(tmp_path / "d", ["tables/table1.md"], "default run"), paper,
+                       _entry("default"), _at("abc1234"))
+    record = json.loads((paper / provenance.FILE).read_text())
+    assert record["schema"] == provenance.SCHEMA == 2
+    assert record["files"]["tables/table2.md"] == old  # kept as it was: no commit invented
+    assert "stages" in record["files"]["tables/table1.md"]
+
+
+def test_the_about_text_names_modules_that_exist_and_help_shows_defaults(tmp_path, capsys):
+    import importlib
+    import re
+
+    provenance.save(tmp_path, {})
+    about = json.loads((tmp_path / provenance.FILE).read_text())["about"]
+    named = re.findall(r"igdrivsim(?:\.\w+)+", about)
+    assert named == ["igdrivsim.report.provenance"]
+    for module in named:
+        importlib.import_module(module)
+    with pytest.raises(SystemExit) as exit_:
+        provenance.main(["--help"])
+    assert exit_.value.code == 0
+    assert f"(default: {REPO_ROOT / 'paper'})" in " ".join(capsys.readouterr().out.split())
+
+
+def test_republishing_from_cached_stages_keeps_their_commits(tmp_path, monkeypatch):
+    """Stages stamp the code they ran; publishing reads the stamps, not today's HEAD: a
+    republish keeps the commits, a stage rerun at another commit makes the file mixed."""
+    from igdrivsim.pipeline import planning
+    from igdrivsim.pipeline.profiles import PROFILES
+    from igdrivsim.pipeline.stages import Pipeline
+
+    head = {"code": _code("aaaaaaa")}
+    monkeypatch.setattr(provenance, "code_state", lambda repo: dict(head["code"]))
+
+    def pipe() -> Pipeline:
+        p = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True,
+                     methods=("bc", "bc_rl"))
+        p._machine = planning.Machine(2, "test CPU")  # no device detection
+        return p
+
+    noop = [["python", "-c", "pass"]]
+    first = pipe()
+    for name in ("data", "train_bc", "train_dagger", "evaluate_bc", "maze", "report"):
+        assert first.stage(name, noop)  # train_dagger: another run's (not this run's methods)
+    _staged(first.staged, ["tables/table1.md", "tables/maze_summary.md"], "numbers")
+    assert "tables/table1.md" in first.publish()
+    files = provenance.load(first.paper)
+    table1 = files["tables/table1.md"]
+    assert set(table1["stages"]) == {"data", "train_bc", "evaluate_bc", "report"}
+    assert table1["commit"] == "aaaaaaa" and table1["mixed_commits"] is False
+    assert files["tables/maze_summary.md"]["stages"] == {"maze": _code("aaaaaaa")}
+
+    head["code"] = _code("bbbbbbb", dirty=True)  # HEAD moved on; the stages are cached
+    second = pipe()
+    assert second.stage("report", noop) is False
+    (second.paper / "tables" / "table1.md").unlink()  # missing: republished
+    assert "tables/table1.md" in second.publish()
+    again = provenance.load(second.paper)["tables/table1.md"]
+    assert again["stages"] == table1["stages"] and again["commit"] == "aaaaaaa"
+
+    (second.work / "stages" / "evaluate_bc.json").unlink()  # one stage reruns at bbbbbbb
+    third = pipe()
+    assert third.stage("evaluate_bc", noop) is True
+    (third.paper / "tables" / "table1.md").unlink()
+    third.publish()
+    mixed = provenance.load(third.paper)["tables/table1.md"]
+    assert mixed["mixed_commits"] is True
+    assert mixed["stages"]["evaluate_bc"] == _code("bbbbbbb", dirty=True)
+    assert mixed["stages"]["report"] == _code("aaaaaaa")
+    both = "stages at commits aaaaaaa, bbbbbbb-dirty (diff 0123456789ab)"
+    assert mixed["commit"] == "aaaaaaa, bbbbbbb-dirty (diff 0123456789ab)"
+    assert both in (third.paper / "tables" / "table1.md").read_text()
+    assert both in (third.paper / "generated" / "run.tex").read_text()
+    assert provenance.stage_check(provenance.load(third.paper))[0] == []

@@ -1,5 +1,6 @@
-"""Resumable stages: run a command line as a named stage, stamp it when complete, skip it
-when stamped, log it, and stop every running stage on an interrupt."""
+"""Resumable stages: run a command line as a named stage, stamp it when complete (with the
+code it ran: commit, dirty flag, diff hash), skip it when stamped, log it, and stop every
+running stage on an interrupt."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.io import atomic_write_text
+from igdrivsim.report import provenance
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
@@ -54,14 +56,30 @@ class StageRunner:
             return False
         return stamped == [list(map(str, c)) for c in commands]
 
+    def stamp(self, stage: str) -> dict:
+        """A complete stage's stamp (empty when there is none or it is unreadable)."""
+        try:
+            record = json.loads(self.stamp_path(stage).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+        return record if isinstance(record, dict) else {}
+
     def stamped_device(self, stage: str) -> str:
         """Where a complete stage ran (its stamp; this machine for a stamp that predates the
         field)."""
-        try:
-            device = json.loads(self.stamp_path(stage).read_text(encoding="utf-8")).get("device")
-        except (OSError, ValueError):
-            device = None
-        return device or self.device_text
+        return self.stamp(stage).get("device") or self.device_text
+
+    def stamped_code(self, stage: str) -> dict:
+        """The code a complete stage ran (:func:`provenance.code_state` as its stamp recorded
+        it when the stage started; unknown for a stamp that predates the field)."""
+        code = self.stamp(stage).get("code")
+        return dict(code) if isinstance(code, dict) else dict(provenance.UNKNOWN_CODE)
+
+    def stamped_stages(self) -> list[str]:
+        """The complete stages, in the order they finished."""
+        found = [(str(self.stamp(p.stem).get("finished", "")), p.stem)
+                 for p in (self.work / "stages").glob("*.json")]
+        return [name for _, name in sorted(found)]
 
     def _say(self, text: str) -> None:
         print(f"[reproduce {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
@@ -83,7 +101,7 @@ class StageRunner:
         # the half-rewritten stage (and so its dependents) for complete
         self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
-        start = time.time()
+        start, code = time.time(), provenance.code_state(REPO_ROOT)  # the code it runs
         with open(log, "a", encoding="utf-8") as fh:
             fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
             for argv in commands:
@@ -98,7 +116,7 @@ class StageRunner:
         atomic_write_text(self.stamp_path(name), json.dumps(dict(
             stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
                                                                          for c in commands],
-            finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text),
+            finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text, code=code),
             indent=2) + "\n")
         self.ran.add(name)
         self._say(f"{name}: done in {time.time() - start:.0f} s")

@@ -311,20 +311,22 @@ class Pipeline(StageRunner):
 
     def publish(self) -> list[str]:
         """Copy the report into ``PAPER`` with its provenance (when the report ran or a file
-        is missing there): this run's files, and another run's only where they are missing."""
+        is missing there): this run's files, and another run's only where they are missing.
+        Each file names the code of the stages behind it as their stamps recorded it (a
+        republish from cached stages keeps their commits)."""
         missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
         if not {"report", "real_logs"} & self.ran and not missing:
             return []
-        # lazy: the report's figures module sets matplotlib's backend when imported
-        from igdrivsim.report.build import git_commit
-
         updates = self.training_config().training.num_updates
         entry = provenance.Entry(
             command=self.command_text(), run=self.kind, profile=self.profile.name,
-            updates=updates, commit=git_commit(),
+            updates=updates, commit="unknown",  # each file's: its stages' (with_stages)
             device=self.trained_on(), wall_s=round(self.wall_seconds()), date=provenance.today(),
             note=provenance.competence_note(self.profile.name, updates))
-        published = provenance.publish(self.staged, self.paper, entry)
+        stamped = [s for s in self.stamped_stages() if self.of_this_run(s)]
+        code = {s: self.stamped_code(s) for s in stamped}
+        published = provenance.publish(self.staged, self.paper, entry, lambda rel: {
+            s: code[s] for s in provenance.stages_behind(rel, stamped)})
         self._say(f"publish: {len(published)} files in {self.paper} (provenance: "
                   f"{self.paper / provenance.FILE})")
         return published
@@ -360,12 +362,18 @@ class Pipeline(StageRunner):
         (a run resumed elsewhere, e.g. the taught methods trained on a GPU)."""
         where: dict[str, list[str]] = {}
         for path in sorted((self.work / "stages").glob("train_*.json")):
-            part = path.stem.removeprefix("train_")
-            if any(part == m or part.startswith(f"{m}-") for m in self.methods):
-                where.setdefault(self.stamped_device(path.stem), []).append(part)
+            if self.of_this_run(path.stem):
+                where.setdefault(self.stamped_device(path.stem), []).append(
+                    path.stem.removeprefix("train_"))
         if len(where) <= 1:
             return next(iter(where), self.device_text)
         return "; ".join(f"{device} ({', '.join(parts)})" for device, parts in where.items())
+
+    def of_this_run(self, stage: str) -> bool:
+        """A stage of this run: not the training or evaluation of another run's methods."""
+        part = stage.removeprefix("train_").removeprefix("evaluate_")
+        return part in (stage, "references") or any(
+            part == m or part.startswith(f"{m}-") for m in self.methods)
 
     @property
     def machine(self) -> planning.Machine:

@@ -3,11 +3,18 @@
 Every file under ``paper/`` that a run writes (tables, figures, generated LaTeX, the maze's
 config) has an entry: the command, the kind of run that owns it (``default``: the default
 run of ``scripts/reproduce.sh``; ``methods``: its ``--methods`` run with taught methods, which
-owns Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the commit, the
-device, the run's wall time and date. A run *publishes* the files its kind owns from its work
+owns Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device, the
+run's wall time and date, and the code behind its numbers: ``stages``, each pipeline stage
+the file's numbers came from (:func:`stages_behind`) -> the code that stage ran, as its stamp
+recorded it when it ran (:func:`code_state`: commit, dirty flag, hash of the diff), so a
+republish from cached stages keeps their commits; ``commit`` names them (``mixed_commits``:
+the stages ran at different commits). A run *publishes* the files its kind owns from its work
 folder into ``paper/``, and another kind's files only where they are missing (a fresh
 ``--out``): no run deletes or overwrites what another run wrote. Each markdown table and the
 PDF (``generated/run.tex``) carry the same in one line.
+
+Schema 1 entries (no ``stages``: published before per-stage provenance) stay readable; their
+``commit`` is the commit at publishing.
 
 ``python -m igdrivsim.report.provenance backfill [--paper DIR]`` derives the entries of
 committed files that have none from recorded metadata only: the commit that last wrote each
@@ -19,20 +26,27 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import fnmatch
+import hashlib
 import json
 import re
 import shlex
 import subprocess
 import sys
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text
 
 FILE = "provenance.json"
-SCHEMA = 1
+SCHEMA = 2  # 2: per-stage code (``stages``, ``mixed_commits``); 1: no ``stages``
+ABOUT = ("the command that wrote each file under this folder and the code (commit, dirty flag, "
+         "diff hash) of each pipeline stage its numbers came from (igdrivsim.report.provenance; "
+         "entries without 'stages' were published before per-stage provenance)")
+LEGACY = "stage commits unknown (published before per-stage provenance)"
 LINE_PREFIX = "Provenance: "
 # what a run of each kind owns (relative to the paper folder): the methods run Table II's files
 # (igdrivsim.report.build.METHODS_OUTPUTS); everything else the default run
@@ -41,6 +55,55 @@ METHODS_FILES = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex"
 OUTPUT_FOLDERS = ("tables", "figures", "generated")
 OUTPUT_FILES = ("maze_config.json", "results.md")  # outputs outside those folders
 BELOW_TARGETS = "its drivers are below the competence targets"
+# the pipeline stages whose numbers a file holds (fnmatch patterns of stage names), by the
+# file's path prefix; any other file: REPORT_STAGES (the report and what it reads)
+STAGE_SOURCES = (
+    (("figures/fig2", "figures/maze", "tables/maze", "maze_config.json"), ("maze",)),
+    (("figures/fig1",), ("render",)),
+    (("tables/speed_walk", "generated/speed_walk"), ("speed_walk", "report")),
+    (("tables/real_logs",), ("data", "filter_*", "teacher", "train_*", "real_logs")),
+)
+REPORT_STAGES = ("data", "filter_*", "teacher", "train_*", "evaluate_*", "report")
+CODE_KEYS = ("commit", "dirty", "diff_hash")
+UNKNOWN_CODE = dict.fromkeys(CODE_KEYS)  # not a git checkout (an installed package), or no git
+# what the pipeline itself writes into the checkout: not code, so it does not make it dirty
+OWN_OUTPUTS = ("paper", "docs/results.md", "README.md")
+
+
+def code_state(repo: str | Path) -> dict:
+    """The code of git checkout ``repo`` (its top level): ``{"commit", "dirty", "diff_hash"}``,
+    ``diff_hash`` the first 12 hex digits of the sha256 of ``git diff HEAD`` when dirty (None
+    when clean). The pipeline's own outputs (:data:`OWN_OUTPUTS`) do not count. All None
+    outside a git checkout or without git."""
+    repo = Path(repo).resolve()
+
+    def git(*args: str) -> bytes:
+        return subprocess.run(["git", *args], cwd=repo, capture_output=True, check=True,
+                              timeout=60).stdout
+
+    try:
+        if Path(git("rev-parse", "--show-toplevel").decode().strip()).resolve() != repo:
+            return dict(UNKNOWN_CODE)  # e.g. an installed package inside another checkout
+        commit = git("rev-parse", "--short", "HEAD").decode().strip()
+        diff = git("diff", "--no-ext-diff", "--no-color", "--binary", "HEAD", "--", ".",
+                   *(f":(exclude){path}" for path in OWN_OUTPUTS))
+    except (OSError, subprocess.SubprocessError, UnicodeDecodeError):
+        return dict(UNKNOWN_CODE)
+    return {"commit": commit, "dirty": bool(diff),
+            "diff_hash": hashlib.sha256(diff).hexdigest()[:12] if diff else None}
+
+
+def code_label(state: Mapping) -> str:
+    """``abc1234``, ``abc1234-dirty (diff 0123456789ab)`` or ``unknown``."""
+    commit = state.get("commit") or "unknown"
+    return f"{commit}-dirty (diff {state.get('diff_hash')})" if state.get("dirty") else commit
+
+
+def stages_behind(rel: str, stamped: Sequence[str]) -> list[str]:
+    """The stages among ``stamped`` (kept in their order) whose numbers file ``rel`` holds."""
+    patterns = next((p for prefixes, p in STAGE_SOURCES if rel.startswith(prefixes)),
+                    REPORT_STAGES)
+    return [s for s in stamped if any(fnmatch.fnmatchcase(s, p) for p in patterns)]
 
 
 @dataclass(frozen=True)
@@ -51,19 +114,52 @@ class Entry:
     run: str  # default | methods: the kind of run that owns the file
     profile: str  # the profile the command ran (laptop, quick, gpu, smoke, paper)
     updates: int | None  # training updates of that profile (None: not a trained output)
-    commit: str
+    commit: str  # the stages' code (code_label, comma-separated); schema 1: at publishing
     device: str  # CPU model and cores, or the accelerator; "device not recorded"
     wall_s: float | None  # the run's wall time (None: not recorded)
     date: str  # YYYY-MM-DD HH:MM UTC or YYYY-MM-DD
     note: str = ""
+    stages: dict[str, dict] | None = None  # stage -> its code_state; None: a schema 1 entry
+
+    @property
+    def commits(self) -> list[str]:
+        """The distinct code labels of the stages behind the file, in stage order."""
+        return list(dict.fromkeys(code_label(s) for s in (self.stages or {}).values()))
+
+    @property
+    def mixed_commits(self) -> bool:
+        """The stages behind the file ran different code."""
+        return len(self.commits) > 1
+
+    def with_stages(self, stages: Mapping[str, Mapping]) -> Entry:
+        """This entry for a file whose numbers came from ``stages`` (name -> code_state)."""
+        new = replace(self, stages={name: {k: state.get(k) for k in CODE_KEYS}
+                                    for name, state in stages.items()})
+        return replace(new, commit=", ".join(new.commits) or "unknown")
+
+    def record(self) -> dict:
+        """The entry as ``provenance.json`` holds it (schema 1 form without ``stages``)."""
+        out = asdict(self)
+        if self.stages is None:
+            out.pop("stages")
+        else:
+            out["mixed_commits"] = self.mixed_commits
+        return out
+
+    @classmethod
+    def from_record(cls, record: Mapping) -> Entry:
+        """An entry of ``provenance.json``, of either schema."""
+        return cls(**{k: v for k, v in record.items() if k in cls.__dataclass_fields__})
 
     def line(self) -> str:
         """The one-line statement of a table's header and the PDF."""
         wall = f"in {wall_text(self.wall_s)}" if self.wall_s else "wall time not recorded"
         updates = f", {self.updates:,} updates" if self.updates else ""
         note = f"; {self.note}" if self.note else ""
-        return (f"{LINE_PREFIX}written by `{self.command}` (profile {self.profile}{updates}) at "
-                f"commit {self.commit}, {self.device}, {wall}, {self.date}{note}.")
+        code = (f"with stages at commits {', '.join(self.commits)}" if self.mixed_commits
+                else f"at commit {self.commit}")
+        return (f"{LINE_PREFIX}written by `{self.command}` (profile {self.profile}{updates}) "
+                f"{code}, {self.device}, {wall}, {self.date}{note}.")
 
 
 def wall_text(seconds: float) -> str:
@@ -100,10 +196,7 @@ def load(paper: Path) -> dict[str, dict]:
 
 def save(paper: Path, files: dict[str, dict]) -> Path:
     return atomic_write_json(Path(paper) / FILE, {
-        "schema": SCHEMA,
-        "about": "the command that wrote each file under this folder (igdrivsim.evaluation."
-                 "provenance)",
-        "files": dict(sorted(files.items()))}, indent=2)
+        "schema": SCHEMA, "about": ABOUT, "files": dict(sorted(files.items()))}, indent=2)
 
 
 def outputs(folder: Path) -> list[str]:
@@ -134,26 +227,28 @@ def run_tex(entry: Entry) -> str:
             f"\\newcommand{{\\ProvRun}}{{{text}}}\n")
 
 
-def publish(staged: Path, paper: Path, entry: Entry) -> list[str]:
+def publish(staged: Path, paper: Path, entry: Entry,
+            stages_of: Callable[[str], Mapping[str, Mapping]]) -> list[str]:
     """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (and the
     others only where ``paper`` lacks them), stamp the markdown tables, write
     ``generated/run.tex`` for the PDF, and record an entry per published file in
-    ``paper/provenance.json``. Returns the published paths (relative)."""
+    ``paper/provenance.json``, with ``stages_of(rel)``: the stages behind file ``rel`` and the
+    code each ran (from their stamps). Returns the published paths (relative)."""
     staged, paper = Path(staged), Path(paper)
-    atomic_write_text(staged / "generated" / "run.tex", run_tex(entry))
+    atomic_write_text(staged / "generated" / "run.tex",
+                      run_tex(entry.with_stages(stages_of("generated/run.tex"))))
     files = load(paper)
     published = []
     for rel in outputs(staged):
         if owner(rel) != entry.run and (paper / rel).exists():
             continue  # another run's file: never overwritten
-        src, dst = staged / rel, paper / rel
+        src, dst, this = staged / rel, paper / rel, entry.with_stages(stages_of(rel))
         dst.parent.mkdir(parents=True, exist_ok=True)
         if rel.endswith(".md"):
-            atomic_write_text(dst, stamp_markdown(src.read_text(encoding="utf-8"),
-                                                  entry.line()))
+            atomic_write_text(dst, stamp_markdown(src.read_text(encoding="utf-8"), this.line()))
         else:
             atomic_copy(src, dst)
-        files[rel] = asdict(entry)
+        files[rel] = this.record()
         published.append(rel)
     save(paper, files)
     return published
@@ -230,7 +325,7 @@ def backfill(paper: Path, repo: Path, stamp: bool = True) -> list[str]:
         if rel in files or str((paper / rel).relative_to(repo)) not in tracked:
             continue
         entry = derive(rel, paper, repo)
-        files[rel] = asdict(entry)
+        files[rel] = entry.record()
         if stamp and rel.endswith(".md"):
             path = paper / rel
             atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
@@ -238,7 +333,7 @@ def backfill(paper: Path, repo: Path, stamp: bool = True) -> list[str]:
         added.append(rel)
     run = paper / "generated" / "run.tex"
     if not run.exists() and "tables/table1.tex" in files:  # the PDF's line: Table I's run
-        atomic_write_text(run, run_tex(Entry(**files["tables/table1.tex"])))
+        atomic_write_text(run, run_tex(Entry.from_record(files["tables/table1.tex"])))
         files["generated/run.tex"] = files["tables/table1.tex"]
         added.append("generated/run.tex")
     save(paper, files)
@@ -251,6 +346,25 @@ def missing(paper: Path) -> list[str]:
     return [rel for rel in outputs(paper) if rel not in files]
 
 
+def stage_check(files: Mapping[str, Mapping]) -> tuple[list[str], list[str]]:
+    """``(problems, legacy)``: the entries whose stage commits are missing (no stage, a stage
+    without its code, a wrong ``mixed_commits``), and the files of schema 1 entries (no
+    ``stages``: published before per-stage provenance, reported, not failed)."""
+    problems, legacy = [], []
+    for rel, entry in sorted(files.items()):
+        stages = entry.get("stages")
+        if "stages" not in entry:
+            legacy.append(rel)
+        elif not isinstance(stages, dict) or not stages:
+            problems.append(f"{rel}: no stage commits")
+        elif lacking := [name for name, code in stages.items()
+                         if not isinstance(code, dict) or not set(CODE_KEYS) <= set(code)]:
+            problems.append(f"{rel}: stage commits missing for {', '.join(lacking)}")
+        elif entry.get("mixed_commits") != Entry.from_record(entry).mixed_commits:
+            problems.append(f"{rel}: mixed_commits does not match its stages")
+    return problems, legacy
+
+
 def command_line(args: Sequence[str]) -> str:
     return "bash scripts/reproduce.sh" + ("".join(f" {shlex.quote(a)}" for a in args))
 
@@ -261,11 +375,13 @@ def today() -> str:
 
 def main(argv: Iterable[str] | None = None) -> int:
     """``backfill``: derive the missing entries from recorded metadata; ``check``: list the
-    outputs without an entry (exit 1 when there is one)."""
+    outputs without an entry and the entries without their stage commits (exit 1 when there is
+    one; entries published before per-stage provenance are counted, not failed)."""
     repo = Path(__file__).resolve().parents[2]
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.provenance",
-                                     description=main.__doc__)
-    parser.add_argument("action", choices=("backfill", "check"))
+                                     description=main.__doc__, formatter_class=FORMATTER)
+    parser.add_argument("action", choices=("backfill", "check"),
+                        help="backfill the missing entries, or check them")
     parser.add_argument("--paper", default=str(repo / "paper"), help="the report folder")
     args = parser.parse_args(list(argv) if argv is not None else None)
     try:
@@ -275,9 +391,12 @@ def main(argv: Iterable[str] | None = None) -> int:
                 print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
             return 0
         lacking = missing(paper)
-        for rel in lacking:
-            print(f"{rel}: no provenance entry")
-        return 1 if lacking else 0
+        problems, legacy = stage_check(load(paper))
+        for line in [f"{rel}: no provenance entry" for rel in lacking] + problems:
+            print(line)
+        if legacy:
+            print(f"{len(legacy)} file(s): {LEGACY}")
+        return 1 if lacking or problems else 0
     except REPORTED as err:
         print(f"provenance: error: {error_line(err)}", file=sys.stderr)
         return 2
