@@ -3,6 +3,7 @@ format, and the synthetic default's calibration against the WOMD targets (docs/s
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import jax
@@ -75,6 +76,13 @@ def test_stats_command_on_every_format(tmp_path, capsys):
     assert set(frame.dataset) == {s.split("=")[0] for s in specs}
     assert (frame[frame.dataset == "synthetic"].traffic_lights >= 0).all()
     assert (out / "stats.png").stat().st_size > 10_000 and (out / "stats.md").is_file()
+    assert "## Motion statistics" in (out / "stats.md").read_text()
+    assert "| CV distance at 8 s (m) |" in printed or len(specs) == 1
+    assert (out / "motion_stats.png").stat().st_size > 10_000
+    motion = pd.read_csv(out / "motion_stats.csv")
+    assert set(motion.dataset) == set(frame.dataset) and set(motion.group) == {"sdc", "others"}
+    agents = pd.read_csv(out / "motion_agents.csv")
+    assert (agents.groupby(["dataset", "file", "record"]).group.first() == "sdc").all()
     if len(specs) > 1:
         div = pd.read_csv(out / "divergence.csv")
         assert ((div.drop(columns=["dataset", "reference"]) >= 0)
@@ -84,6 +92,39 @@ def test_stats_command_on_every_format(tmp_path, capsys):
         assert row.objects_50m == 39 and row.traffic_lights == 16
     assert cli_main(["stats", str(syn), "--kept-only", "nope"]) == 2
     assert "no data set named 'nope'" in capsys.readouterr().err
+
+
+def test_stats_reads_a_filter_output_folder(tmp_path, capsys):
+    """A filter output folder (manifest.jsonl, counts.json, shards/) gives its kept scenarios,
+    as ``train`` and ``evaluate`` read it; one without a manifest is a one-line error."""
+    syn = tmp_path / "syn.tfrecord"
+    write_tfexample(syn, [generate_scenario(31, i) for i in range(4)])
+    filtered = tmp_path / "filtered"
+    assert cli_main(["filter", str(syn), "--out", str(filtered), "--workers", "1",
+                     "--no-progress"]) == 0
+    kept = json.loads((filtered / "counts.json").read_text())["kept"]
+    assert kept >= 1
+    out = tmp_path / "out"
+    assert cli_main(["stats", f"kept={filtered}", f"all={syn}", "--out", str(out),
+                     "--no-progress"]) == 0
+    frame = pd.read_csv(out / "stats.csv")
+    assert (frame.dataset == "kept").sum() == kept and frame[frame.dataset == "kept"].kept.all()
+    assert (frame.dataset == "all").sum() == 4
+    capsys.readouterr()
+    (filtered / "manifest.jsonl").unlink()
+    assert cli_main(["stats", str(filtered), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(filtered) in err and "manifest.jsonl" in err
+
+
+def test_stats_help_names_every_output(capsys):
+    from igdrivsim.data.stats_command import OUTPUTS
+
+    with pytest.raises(SystemExit):
+        cli_main(["stats", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    out_help = text[text.index("--out"):]
+    assert all(name in out_help for name in OUTPUTS), out_help
 
 
 def test_traffic_lights_round_trip_and_are_obeyed(tmp_path):

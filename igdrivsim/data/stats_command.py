@@ -1,9 +1,12 @@
-"""``igdrivsim stats``: scene statistics of any data (synthetic, tf.Example, Scenario, ScenarioNet).
+"""``igdrivsim stats``: scene and motion statistics of any data (synthetic, tf.Example, Scenario,
+ScenarioNet, a filter output folder).
 
-Prints the median [p10, p90] table per data set, writes ``OUT/stats.csv`` (one row per
-scenario), ``OUT/divergence.csv`` (Jensen-Shannon divergence of each data set's pooled
-speed / acceleration / nearest-object / road-edge histograms from the reference data set) and
-``OUT/stats.png`` (one panel per statistic, one distribution per data set).
+Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`:
+``stats.csv`` (one row per scenario), ``divergence.csv`` (Jensen-Shannon divergence of each data
+set's pooled speed / acceleration / nearest-object / road-edge histograms from the reference
+data set), ``stats.md`` (the scene and motion tables), ``stats.png`` (one panel per scene
+statistic), ``motion_stats.csv`` (per data set, group and motion statistic: summary and JS
+divergence), ``motion_agents.csv`` (one row per agent) and ``motion_stats.png``.
 """
 
 from __future__ import annotations
@@ -11,14 +14,26 @@ from __future__ import annotations
 import argparse
 import os
 from collections import defaultdict
+from collections.abc import Iterator, Sequence
 from itertools import islice
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from igdrivsim.data.manifest import COUNTS, MANIFEST, iter_manifest_scenarios, read_manifest
+from igdrivsim.data.motion_stats import (
+    GROUP_LABELS,
+    GROUPS,
+    MOTION_STATISTICS,
+    MotionPool,
+    motion_statistics,
+    motion_summary,
+    plot_motion,
+)
 from igdrivsim.data.reader import iter_scenarios
+from igdrivsim.data.scenario import Scenario
 from igdrivsim.data.stats import FEATURES, STATISTICS, js_divergence, scene_statistics, summary
-from igdrivsim.errors import ConfigError, check_min
+from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import atomic_savefig, atomic_write_csv, atomic_write_text, require_folder
 
 
@@ -36,35 +51,73 @@ def parse_datasets(specs: list[str]) -> dict[str, list[str]]:
     return dict(out)
 
 
+OUTPUTS = ("stats.csv", "divergence.csv", "stats.md", "stats.png", "motion_stats.csv",
+           "motion_agents.csv", "motion_stats.png")
+
+
 def stats_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="[NAME=]FILE",
                         help="TFRecord files, folders, globs or name@N (either WOMD format), "
-                             "ScenarioNet .pkl files / folders; NAME= groups files into one "
+                             "ScenarioNet .pkl files / folders, `igdrivsim filter` output "
+                             "folders (their kept scenarios); NAME= groups files into one "
                              "data set (default name: the file or folder name)")
-    parser.add_argument("--out", default=None, help="write stats.csv, divergence.csv, stats.png")
+    parser.add_argument("--out", default=None,
+                        help="write " + ", ".join(OUTPUTS) + " into this folder")
     parser.add_argument("--limit", type=int, default=None,
                         help="read at most N scenarios per data set")
     parser.add_argument("--kept-only", action="append", default=[], metavar="NAME",
                         help="summarise only the scenarios of data set NAME that the paper's "
-                             "filter keeps (repeatable; the CSV has every scenario)")
+                             "filter keeps, in the tables and the motion statistics "
+                             "(repeatable; the CSVs have every scenario)")
     parser.add_argument("--reference", default=None, metavar="NAME",
                         help="data set the divergences are taken from (default: the last one)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: bool = True):
-    """Rows (one per scenario, with ``dataset, file, record``) and pooled histograms per set."""
-    rows, hists = [], {}
+def iter_dataset(paths: list[str]) -> Iterator[tuple[str, int, Scenario]]:
+    """``(file, record, scenario)`` at native sizes over ``paths``; a filter output folder
+    (``manifest.jsonl``) gives its kept scenarios, as ``train`` and ``evaluate`` read it."""
+    for path in paths:
+        if os.path.isdir(path) and os.path.isfile(os.path.join(path, MANIFEST)):
+            entries = read_manifest(os.path.join(path, MANIFEST), kept_only=True)
+            for entry, scenario in iter_manifest_scenarios(entries, caps=None):
+                yield entry["file"], entry["record"], scenario
+        elif os.path.isdir(path) and os.path.isfile(os.path.join(path, COUNTS)):
+            raise DataError(f"a filter output folder without {MANIFEST} (an unfinished "
+                            "`igdrivsim filter` run?)", file=path)
+        else:  # native sizes: nothing is cut
+            for rec in iter_scenarios(path, caps=None):
+                yield rec.file, rec.record, rec.scenario
+
+
+def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: bool = True,
+            kept_only: Sequence[str] = ()):
+    """Scene rows (one per scenario, with ``dataset, file, record``), pooled scene histograms
+    per set, pooled motion statistics per set (only the filter-kept scenarios of the sets in
+    ``kept_only``) and motion rows (one per agent)."""
+    rows, hists, pools, agents = [], {}, {}, []
     for name, paths in datasets.items():
         pooled = {k: np.zeros(len(e) - 1, np.int64) for k, e in FEATURES.items()}
-        records = islice(iter_scenarios(paths, caps=None), limit)  # native sizes: nothing is cut
-        for rec in tqdm(records, desc=name, unit="scn", disable=not progress, total=limit):
-            row, h = scene_statistics(rec.scenario)
-            rows.append({"dataset": name, "file": rec.file, "record": rec.record, **row})
+        pools[name] = MotionPool()
+        records = islice(iter_dataset(paths), limit)
+        count = 0
+        for file, record, scenario in tqdm(records, desc=name, unit="scn", disable=not progress,
+                                           total=limit):
+            count += 1
+            row, h = scene_statistics(scenario)
+            where = {"dataset": name, "file": file, "record": record}
+            rows.append({**where, **row})
             for k in pooled:
                 pooled[k] += h[k]
+            motion = motion_statistics(scenario)
+            if row["kept"] or name not in kept_only:
+                pools[name].add(motion)
+            agents += [{**where, "scenario_id": row["scenario_id"], "kept": row["kept"], **a}
+                       for a in motion.agents]
+        if not count:
+            raise DataError(f"no scenarios in data set {name!r}", file=", ".join(paths))
         hists[name] = pooled
-    return rows, hists
+    return rows, hists, pools, agents
 
 
 def summary_table(frame, kept_only=()) -> str:
@@ -88,6 +141,44 @@ def summary_table(frame, kept_only=()) -> str:
                         f"{med:{fmt}} [{p10:{fmt}}, {p90:{fmt}}]")
         lines.append(f"| {label} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
+
+
+def _cell(med: float, p10: float, p90: float) -> str:
+    """``median [p10, p90]`` with decimals for the largest of the three."""
+    if np.isnan(med):
+        return "-"
+    scale = max(abs(med), abs(p10), abs(p90))
+    fmt = ".3f" if scale < 0.5 else ".2f" if scale < 10 else ".1f" if scale < 100 else ".0f"
+    return f"{med:{fmt}} [{p10:{fmt}}, {p90:{fmt}}]"
+
+
+def motion_tables(summary_frame, kept_only: Sequence[str] = ()) -> str:
+    """The motion tables (Markdown), one per group: median [p10, p90] (counts: mean) per data
+    set, then the Jensen-Shannon divergence of each other data set from the reference."""
+    names = list(dict.fromkeys(summary_frame["dataset"]))
+    reference = summary_frame["reference"].iloc[0]
+    others = [n for n in names if n != reference]
+    parts = []
+    for g in GROUPS:
+        sub = summary_frame[summary_frame["group"] == g].set_index(["dataset", "statistic"])
+        head = [f"{n} ({sub.loc[(n, MOTION_STATISTICS[0].key), 'agents']}"
+                f"{' in kept scenarios' if n in kept_only else ''})" for n in names]
+        head += [f"JS {n}" for n in others]
+        lines = [f"{GROUP_LABELS[g]} (n = agents; CV: constant velocity from t = 1.0 s; "
+                 f"JS: Jensen-Shannon divergence from {reference}, base 2)", "",
+                 "| statistic | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
+        for s in MOTION_STATISTICS:
+            cells = []
+            for n in names:
+                r = sub.loc[(n, s.key)]
+                cells.append(("-" if np.isnan(r["mean"]) else f"{r['mean']:.2f}") if s.count
+                             else _cell(r["median"], r["p10"], r["p90"]))
+            cells += ["-" if np.isnan(sub.loc[(n, s.key), "js"]) else
+                      f"{sub.loc[(n, s.key), 'js']:.3f}" for n in others]
+            label = f"{s.label} ({s.unit})" if s.unit else s.label
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts)
 
 
 def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
@@ -139,7 +230,8 @@ def stats_command(args: argparse.Namespace) -> int:
             raise ConfigError(f"no data set named {name!r}; data sets: {', '.join(datasets)}")
     if args.out is not None:
         require_folder(args.out)
-    rows, hists = collect(datasets, args.limit, not args.no_progress)
+    rows, hists, pools, agents = collect(datasets, args.limit, not args.no_progress,
+                                         args.kept_only)
     frame = pd.DataFrame(rows)
     table = summary_table(frame, args.kept_only)
     print(table)
@@ -148,10 +240,17 @@ def stats_command(args: argparse.Namespace) -> int:
     if len(div):
         print(f"\nJensen-Shannon divergence (base 2) from {reference}:")
         print(div.drop(columns="reference").to_string(index=False))
+    motion = pd.DataFrame(motion_summary(pools, reference))
+    motion_md = motion_tables(motion, args.kept_only)
+    print(f"\nMotion statistics, median [p10, p90]:\n\n{motion_md}")
     if args.out is not None:
         os.makedirs(args.out, exist_ok=True)
         atomic_write_csv(os.path.join(args.out, "stats.csv"), frame)
         atomic_write_csv(os.path.join(args.out, "divergence.csv"), div)
-        atomic_write_text(os.path.join(args.out, "stats.md"), table + "\n")
+        atomic_write_text(os.path.join(args.out, "stats.md"),
+                          f"{table}\n\n## Motion statistics, median [p10, p90]\n\n{motion_md}\n")
         plot(frame, os.path.join(args.out, "stats.png"), args.kept_only)
+        atomic_write_csv(os.path.join(args.out, "motion_stats.csv"), motion)
+        atomic_write_csv(os.path.join(args.out, "motion_agents.csv"), pd.DataFrame(agents))
+        plot_motion(pools, os.path.join(args.out, "motion_stats.png"))
     return 0
