@@ -247,10 +247,11 @@ def test_episode_metrics_jit_and_vmap():
 def test_evaluate_policy_with_episode_metrics_keeps_per_step_shapes(real_scene):
     from igdrivsim.observation import ObservationConfig
     from igdrivsim.policy.act import example_observation
-    from igdrivsim.policy.network import PolicyConfig, init_params_per_seed
+    from igdrivsim.policy.network import POOLED_NETWORK, PolicyConfig, init_params_per_seed
 
     scenarios, params = real_scene
-    tiny = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
+    tiny = PolicyConfig(**POOLED_NETWORK, object_hidden=(8,), point_hidden=(8,),
+                    roadgraph_hidden=(8,),
                         trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
     obs_config = ObservationConfig(4, 16)
     seeds = init_params_per_seed(tiny, jax.random.split(jax.random.key(0), 2),

@@ -18,7 +18,13 @@ import pytest
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.policy.act import choose_levels, example_observation, policy_actor
-from igdrivsim.policy.network import PolicyConfig, apply_step, init_params, initial_carry
+from igdrivsim.policy.network import (
+    POOLED_NETWORK,
+    PolicyConfig,
+    apply_step,
+    init_params,
+    initial_carry,
+)
 from igdrivsim.simulator import SimParams, dynamics, reset, step
 from igdrivsim.simulator.expert import expert_discrete_action
 from igdrivsim.simulator.metrics import reward, step_metrics
@@ -35,7 +41,8 @@ from igdrivsim.training.losses import action_log_prob
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd" / (
     "motion_data_one_example.tfrecord")
 PARAMS = SimParams()
-TINY = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
+TINY = PolicyConfig(**POOLED_NETWORK, object_hidden=(8,), point_hidden=(8,),
+                    roadgraph_hidden=(8,),
                     trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
 OBS = ObservationConfig(4, 16)
 

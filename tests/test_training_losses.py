@@ -12,7 +12,13 @@ import pytest
 
 from igdrivsim.observation import ObservationConfig
 from igdrivsim.policy.act import example_observation, policy_step
-from igdrivsim.policy.network import PolicyConfig, apply_step, init_params, init_params_per_seed
+from igdrivsim.policy.network import (
+    POOLED_NETWORK,
+    PolicyConfig,
+    apply_step,
+    init_params,
+    init_params_per_seed,
+)
 from igdrivsim.training.losses import (
     action_log_prob,
     bc_loss,
@@ -81,7 +87,8 @@ def test_cosine_schedule():
     assert cosine_lr(100, 100, 1e-3, 0.0) == pytest.approx(0.0, abs=1e-12)
 
 
-TINY = PolicyConfig(object_hidden=(8,), point_hidden=(8,), roadgraph_hidden=(8,),
+TINY = PolicyConfig(**POOLED_NETWORK, object_hidden=(8,), point_hidden=(8,),
+                    roadgraph_hidden=(8,),
                     trunk_hidden=(8,), gru_hidden=8, actor_hidden=(8,), value_hidden=(8,))
 
 

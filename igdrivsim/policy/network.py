@@ -1,4 +1,10 @@
-"""The driving policy: object MLP + PointNet roadgraph encoder -> MLP -> GRU -> 3x257 heads.
+"""The driving policy: object encoder + PointNet roadgraph encoder -> MLP -> GRU -> 3x257 heads.
+
+Two shapes of the same network, chosen by :class:`PolicyConfig`: the default pools the objects
+(a per-object MLP, a max over objects) and the road points (one max over the set); the
+original's (``object_encoder="flatten"``, ``roadgraph_pool="type"``, ``heads_see_features``;
+the ``paper`` profile) flattens the objects, pools the points per road type and feeds the heads
+the GRU output next to the encoded step.
 
 The network sees one observation step at a time (memory lives in the GRU state). For training,
 ``unroll`` scans it over a sequence; ``reset`` flags zero the GRU state at every episode start
@@ -10,6 +16,7 @@ The network sees one observation step at a time (memory lives in the GRU state).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,7 +24,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.data.scenario import DT
+from igdrivsim.data.scenario import DT, RG_NUM_TYPES
+from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE
 from igdrivsim.policy.gru import fused_gru_cell, gru_scan
 from igdrivsim.simulator.dynamics import DX_LEVEL, DYAW_LEVEL, constant_speed_offset
@@ -28,16 +36,36 @@ NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
 
 @dataclass(frozen=True)
 class PolicyConfig:
-    """Layer widths; the defaults are the paper's (4.15M parameters; the paper reports about
-    4.3M)."""
+    """Layer widths and the encoders' shape. The defaults are the original code's network
+    (github clemgris/IGDrivSim, ``feature_extractor.py`` and ``rnn_policy.py``): objects
+    flattened -> 512 -> 512; road points 8 -> 8 -> 8, a max per road type concatenated back,
+    8 -> 8 -> 8, a max per type again, 20 x 8 -> 512; LayerNorm on both, 1024 -> 512 -> 512;
+    GRU 512; actor [GRU, features] 1024 -> 512 -> 512 -> 512 -> 3 x 257; critic 1024 -> 256 ->
+    256 -> 1: 4,255,611 parameters without the critic (the original's 4,255,099 and one ego
+    speed input more), about 10.5 MFLOP forward per step at 32 objects and 1,500 road points.
+    ``POOLED_NETWORK`` is the other shape (pooled objects and road set; the laptop profile)."""
 
-    object_hidden: tuple[int, ...] = (512, 512)  # per-object MLP, then masked max-pool
-    point_hidden: tuple[int, ...] = (256, 256)  # per-point MLP of the polyline encoder
-    roadgraph_hidden: tuple[int, ...] = (512, 512)  # after concatenating the pooled feature
-    trunk_hidden: tuple[int, ...] = (512,)  # MLP on [objects, roadgraph, sdc_speed]
+    object_hidden: tuple[int, ...] = (512, 512)  # object encoder MLP
+    # "flatten": the MLP on all objects' features flattened with the ego speed (the
+    # original's); "pool": the MLP on each object, then a masked max over objects
+    object_encoder: str = "flatten"
+    point_hidden: tuple[int, ...] = (8, 8, 8)  # per-point MLP of the polyline encoder
+    roadgraph_hidden: tuple[int, ...] = (8, 8, 8)  # after concatenating the pooled feature
+    # "type": the points max-pooled per road type (20), broadcast back to the points of that
+    # type, and the encoder's output is the 20 pooled features side by side (the original's);
+    # "set": max-pooled over the whole set
+    roadgraph_pool: str = "type"
+    roadgraph_out: tuple[int, ...] = (512,)  # MLP after the pooled road feature
+    trunk_hidden: tuple[int, ...] = (512, 512)  # MLP on [objects, roadgraph, sdc_speed]
     gru_hidden: int = 512
-    actor_hidden: tuple[int, ...] = (512, 512)
-    value_hidden: tuple[int, ...] = (512,)
+    actor_hidden: tuple[int, ...] = (512, 512, 512)
+    value_hidden: tuple[int, ...] = (256, 256)
+    # the actor and value heads read [GRU output, trunk output] (the original's) rather than
+    # the GRU output alone
+    heads_see_features: bool = True
+    # a value head (the method decides: only methods that drive learn values; without one the
+    # network returns zeros as values)
+    value_head: bool = True
     num_bins: int = NUM_BINS
     remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
     # the dx head scores offsets from the constant-velocity displacement (speed x 0.1 s, read
@@ -64,6 +92,24 @@ class PolicyConfig:
     # quantisation walk too, its next level depending on its last ones, and a yaw rate is not
     # otherwise in view (the frame turns with the ego); 0: off (the paper's network)
     yaw_history: int = 0
+
+    def __post_init__(self):
+        if self.object_encoder not in OBJECT_ENCODERS:
+            raise ConfigError(f"policy.object_encoder must be one of {OBJECT_ENCODERS}, got "
+                              f"{self.object_encoder!r}")
+        if self.roadgraph_pool not in ROADGRAPH_POOLS:
+            raise ConfigError(f"policy.roadgraph_pool must be one of {ROADGRAPH_POOLS}, got "
+                              f"{self.roadgraph_pool!r}")
+
+
+OBJECT_ENCODERS = ("pool", "flatten")
+ROADGRAPH_POOLS = ("set", "type")
+
+# The other shape of the network: each object encoded then max-pooled, the road points
+# max-pooled over the whole set, the heads on the GRU output alone (the laptop profile; with
+# the widths 512 / 256-256 / 512-512 it was a 4.15M-parameter network of 1.42 GFLOP per step).
+POOLED_NETWORK = dict(object_encoder="pool", roadgraph_pool="set", roadgraph_out=(),
+                      heads_see_features=False)
 
 
 class MLP(nn.Module):
@@ -95,30 +141,69 @@ def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
     return jnp.where(jnp.any(valid, axis=axis), pooled, 0.0)
 
 
+def road_types(points: jax.Array, valid: jax.Array) -> jax.Array:
+    """Each point's road type ``int32[..., N]`` from the roadgraph feature's one-hot columns;
+    ``RG_NUM_TYPES`` (no type) for invalid points."""
+    kind = jnp.argmax(points[..., 4:4 + RG_NUM_TYPES], axis=-1)
+    return jnp.where(valid, kind, RG_NUM_TYPES).astype(jnp.int32)
+
+
+def max_per_type(x: jax.Array, types: jax.Array) -> jax.Array:
+    """Max of ``x [..., N, D]`` over the points of each road type (``types int[..., N]``, from
+    :func:`road_types`): ``[..., RG_NUM_TYPES, D]``, zeros for a type with no point.
+
+    One segment max over all sets at once (each set's types offset into its own segments):
+    a scatter of N x D values, rather than a masked max over N x types x D."""
+    lead, (n, d) = x.shape[:-2], x.shape[-2:]
+    sets = math.prod(lead)
+    slots = RG_NUM_TYPES + 1  # the last one collects the invalid points
+    ids = (types.reshape(sets, n) + slots * jnp.arange(sets)[:, None]).reshape(-1)
+    pooled = jax.ops.segment_max(x.reshape(-1, d), ids, num_segments=sets * slots)
+    pooled = pooled.reshape(*lead, slots, d)[..., :RG_NUM_TYPES, :]
+    return jnp.where(jnp.isfinite(pooled), pooled, 0.0)
+
+
+def own_type(pooled: jax.Array, types: jax.Array) -> jax.Array:
+    """Each point's row of ``pooled [..., T, F]`` (its road type's; zeros for no type):
+    ``[..., N, F]``."""
+    padded = jnp.concatenate([pooled, jnp.zeros_like(pooled[..., :1, :])], -2)
+    return jnp.take_along_axis(padded, types[..., None], axis=-2)
+
+
 class PolylineEncoder(nn.Module):
-    """PointNet/MTR-style set encoder: per-point MLP, max-pool, concat back, MLP, max-pool."""
+    """PointNet/MTR-style set encoder: per-point MLP, max-pool, concat back, MLP, max-pool.
+    ``by_type``: the pools are per road type and the output is the types' features side by
+    side, ``[..., 20 x D]`` (the original's)."""
 
     point_hidden: Sequence[int]
     hidden: Sequence[int]
+    by_type: bool = False
 
     @nn.compact
     def __call__(self, points, valid):
         h = MLP(self.point_hidden)(points)
-        h = PooledMLP(self.hidden, name="MLP_1")(h, masked_max(h, valid))
-        return masked_max(h, valid)
+        if not self.by_type:
+            h = PooledMLP(self.hidden, name="MLP_1")(h, masked_max(h, valid))
+            return masked_max(h, valid)
+        types = road_types(points, valid)
+        h = PooledMLP(self.hidden, name="MLP_1")(h, max_per_type(h, types), types)
+        pooled = max_per_type(h, types)
+        return pooled.reshape(*pooled.shape[:-2], -1)
 
 
 class PooledMLP(nn.Module):
     """An :class:`MLP` on ``[h, pooled]``, each point's feature ``h [..., N, D]`` next to its
     set's pooled feature ``pooled [..., D]``, without building the concatenation: the first
     layer is ``h @ W_h + pooled @ W_p``, the pooled half computed once per set rather than once
-    per point (the same parameters and values as the concatenated form, half its cost)."""
+    per point (the same parameters and values as the concatenated form, half its cost). With
+    ``types int[..., N]`` (:func:`road_types`), ``pooled [..., T, D]`` holds one feature per
+    road type and each point gets its own type's."""
 
     features: Sequence[int]
 
     @nn.compact
-    def __call__(self, h, pooled):
-        x = nn.relu(_SplitDense(self.features[0], name="Dense_0")(h, pooled))
+    def __call__(self, h, pooled, types=None):
+        x = nn.relu(_SplitDense(self.features[0], name="Dense_0")(h, pooled, types))
         for i, width in enumerate(self.features[1:], start=1):
             x = nn.relu(dense_2d(nn.Dense(width, name=f"Dense_{i}"), x))
         return x
@@ -130,13 +215,15 @@ class _SplitDense(nn.Module):
     features: int
 
     @nn.compact
-    def __call__(self, h, pooled):
+    def __call__(self, h, pooled, types=None):
         d = h.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (d + pooled.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
         per_set = pooled @ kernel[d:] + bias
         per_point = (h.reshape(-1, d) @ kernel[:d]).reshape(*h.shape[:-1], -1)
+        if types is not None:  # per_set [..., T, F]: each point takes its type's row
+            return per_point + own_type(per_set, types)
         return per_point + per_set[..., None, :]
 
 
@@ -149,14 +236,18 @@ class DrivingPolicy(nn.Module):
         c = self.config
         self.object_mlp = MLP(c.object_hidden)
         self.object_norm = nn.LayerNorm()
-        self.roadgraph_encoder = PolylineEncoder(c.point_hidden, c.roadgraph_hidden)
+        self.roadgraph_encoder = PolylineEncoder(c.point_hidden, c.roadgraph_hidden,
+                                                 by_type=c.roadgraph_pool == "type")
+        if c.roadgraph_out:
+            self.roadgraph_out = MLP(c.roadgraph_out)
         self.roadgraph_norm = nn.LayerNorm()
         self.trunk = MLP(c.trunk_hidden)
         self.gru = nn.GRUCell(features=c.gru_hidden)
         self.actor_mlp = MLP(c.actor_hidden)
         self.actor_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
-        self.value_mlp = MLP(c.value_hidden)
-        self.value_out = nn.Dense(1)
+        if c.value_head:
+            self.value_mlp = MLP(c.value_hidden)
+            self.value_out = nn.Dense(1)
         if c.aux_head:
             self.aux_mlp = MLP(c.actor_hidden)
             self.aux_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
@@ -169,8 +260,14 @@ class DrivingPolicy(nn.Module):
             k = self.config.speed_input_scale
             ego = jnp.broadcast_to(obs.sdc_speed[..., None, :], (*objects.shape[:-1], 1))
             objects = jnp.concatenate([objects.at[..., OBJECT_SPEED].multiply(k), ego * k], -1)
-        objects = masked_max(self.object_mlp(objects), obs.objects_valid)
+        if self.config.object_encoder == "flatten":
+            flat = objects.reshape(*objects.shape[:-2], -1)
+            objects = self.object_mlp(jnp.concatenate([flat, obs.sdc_speed], -1))
+        else:
+            objects = masked_max(self.object_mlp(objects), obs.objects_valid)
         roads = self.roadgraph_encoder(obs.roadgraph, obs.roadgraph_valid)
+        if self.config.roadgraph_out:
+            roads = self.roadgraph_out(roads)
         parts = [self.object_norm(objects), self.roadgraph_norm(roads),
                  obs.sdc_speed * self.config.speed_input_scale]
         if history is not None:
@@ -191,20 +288,30 @@ class DrivingPolicy(nn.Module):
         return logits
 
     def heads(self, y, sdc_speed=None):
-        """Actor logits ``[..., 3, bins]``, value ``[...]`` and the auxiliary head's logits
-        (``None`` without ``aux_head``) from GRU outputs (``sdc_speed [..., 1]``, the observed
-        feature, is needed when ``relative_dx``)."""
+        """Actor logits ``[..., 3, bins]``, value ``[...]`` (zeros without ``value_head``) and
+        the auxiliary head's logits (``None`` without ``aux_head``) from the heads' inputs
+        (:meth:`head_inputs`; ``sdc_speed [..., 1]``, the observed feature, is needed when
+        ``relative_dx``)."""
         logits = self._logits(self.actor_mlp, self.actor_out, y, sdc_speed)
         aux = (self._logits(self.aux_mlp, self.aux_out, y, sdc_speed)
                if self.config.aux_head else None)
-        return logits, dense_2d(self.value_out, self.value_mlp(y))[..., 0], aux
+        value = (dense_2d(self.value_out, self.value_mlp(y))[..., 0] if self.config.value_head
+                 else jnp.zeros(y.shape[:-1], y.dtype))
+        return logits, value, aux
 
     def __call__(self, carry, obs, reset):
         h, past = split_carry(self.config, carry)
         history, past = step_history(self.config, obs.sdc_speed, obs.sdc_yaw_rate, past, reset)
-        h, y = self.core(h, self.encode(obs, history), reset)
-        logits, value, _ = self.heads(y, obs.sdc_speed)
+        x = self.encode(obs, history)
+        h, y = self.core(h, x, reset)
+        logits, value, _ = self.heads(head_inputs(self.config, y, x), obs.sdc_speed)
         return jnp.concatenate([h, past], -1), logits, value
+
+
+def head_inputs(config: PolicyConfig, y: jax.Array, x: jax.Array) -> jax.Array:
+    """What the heads read: the GRU output ``y``, with the step's encoded features ``x`` beside
+    it when ``heads_see_features``."""
+    return jnp.concatenate([y, x], -1) if config.heads_see_features else y
 
 
 def history_width(config: PolicyConfig) -> int:
@@ -335,8 +442,9 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     they run once over all ``T x B`` observations (large matrix products) and only the
     recurrence is scanned (:func:`igdrivsim.policy.gru.gru_scan`, the cell's equations with a
     hand-written gradient); the same values as stepping :func:`apply_step`, several times
-    faster on CPU. With ``config.remat`` the
-    step-wise scan with rematerialisation is used instead (bounded activation memory).
+    faster on CPU. With ``config.remat`` the encoders run one step at a time and are
+    recomputed in the backward pass: their activation memory is one step's (the per-point
+    features of 1,500 road points over 90 steps would not fit at the paper's batch).
     """
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]
@@ -348,26 +456,20 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
             lambda p, xs: step_history(config, xs[0], xs[1], p, xs[2])[::-1], past,
             (obs_seq.sdc_speed, obs_seq.sdc_yaw_rate, resets))
 
-    def core(c, x_t, reset):
-        return model.apply(params, c, x_t, reset, method=DrivingPolicy.core)
-
     def heads(ys, speed):
         return model.apply(params, ys, speed, method=DrivingPolicy.heads)
 
-    if config.remat:
-        def step(c, xs):
-            obs, ch, reset = xs
-            c, y = core(c, model.apply(params, obs, ch, method=DrivingPolicy.encode), reset)
-            return c, heads(y, obs.sdc_speed)
+    def encode(obs, ch):
+        return model.apply(params, obs, ch, method=DrivingPolicy.encode)
 
-        h, (logits, values, aux) = jax.lax.scan(jax.checkpoint(step), h,
-                                                (obs_seq, changes, resets))
+    if config.remat:  # one step at a time, its activations recomputed in the backward pass
+        x = jax.lax.map(jax.checkpoint(lambda xs: encode(*xs)), (obs_seq, changes))
     else:
-        x = model.apply(params, obs_seq, changes, method=DrivingPolicy.encode)
-        w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"]["gru"])
-        x_proj = (x.reshape(-1, x.shape[-1]) @ w_i + b_i).reshape(*x.shape[:-1], -1)
-        h, ys = gru_scan(x_proj, resets, h, w_h, b_hn)
-        logits, values, aux = heads(ys, obs_seq.sdc_speed)
+        x = encode(obs_seq, changes)
+    w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"]["gru"])
+    x_proj = (x.reshape(-1, x.shape[-1]) @ w_i + b_i).reshape(*x.shape[:-1], -1)
+    h, ys = gru_scan(x_proj, resets, h, w_h, b_hn)
+    logits, values, aux = heads(head_inputs(config, ys, x), obs_seq.sdc_speed)
     carry = jnp.concatenate([h, past], -1)
     return (carry, logits, values, aux) if with_aux else (carry, logits, values)
 

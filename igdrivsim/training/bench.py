@@ -153,9 +153,9 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     if seeds or (profile == "paper" and cpu):
         sets.append(f"training.seeds={seeds or 1}")
     config = with_overrides(get_profile(profile), sets + list(overrides))
-    minibatches = min(config.training.ppo_minibatches, config.data.batch_size)
-    config = with_overrides(config, [f"training.ppo_minibatches={minibatches}",
-                                     "training.teacher=untrained"]).validate()
+    minibatches = [f"training.{k}={min(getattr(config.training, k), config.data.batch_size)}"
+                   for k in ("ppo_minibatches", "rollout_minibatches")]
+    config = with_overrides(config, [*minibatches, "training.teacher=untrained"]).validate()
     # methods with a privileged teacher are timed with an untrained one of the same network
     teacher_policy = dataclasses.replace(config.policy, aux_head=False)
     spec = update_spec(config, teacher_policy)
@@ -199,9 +199,10 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             jax.block_until_ready(params)
         traced = trace_summary(trace)
     t = config.training
+    epochs, minibatches = config.sgd_passes
     runs = len(run_settings(config)) * t.seeds
-    steps = runs * config.data.batch_size * 80 * t.ppo_epochs
-    grads = runs * t.ppo_epochs * t.ppo_minibatches
+    steps = runs * config.data.batch_size * 80 * epochs
+    grads = runs * epochs * minibatches
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
             "settings": len(run_settings(config)),

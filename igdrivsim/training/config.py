@@ -21,7 +21,7 @@ from typing import Any
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import stack_settings
-from igdrivsim.policy.network import NUM_BINS, PolicyConfig
+from igdrivsim.policy.network import NUM_BINS, POOLED_NETWORK, PolicyConfig
 from igdrivsim.training.methods import DEFAULT_METHOD, get_method, method_param_defaults
 
 
@@ -81,6 +81,11 @@ class TrainConfig:
     vf_coef: float = 0.5
     ppo_epochs: int = 4  # gradient passes over each batch (BC and PPO alike)
     ppo_minibatches: int = 4  # minibatches (of scenarios) per pass
+    # the same for the methods that drive (BC-RL, DAgger, ADVISOR; 0: ppo_epochs /
+    # ppo_minibatches): the paper profile's BC takes one Adam step per batch as the original
+    # did, its BC-RL real PPO epochs (the original's single step left the ratio at 1)
+    rollout_epochs: int = 0
+    rollout_minibatches: int = 0
     log_every: int = 10
     eval_every: int = 0  # closed-loop validation every N updates (0: never; needs val data)
     val_scenarios: int = 32  # the fixed validation subset of the learning curves
@@ -111,6 +116,15 @@ class RunConfig:
         """Static flag: every update drives the policy in closed loop (needs reset states)."""
         return get_method(self.training.method).rollout
 
+    @property
+    def sgd_passes(self) -> tuple[int, int]:
+        """``(epochs, minibatches)`` of this run's method: the gradient passes over each batch
+        and the minibatches per pass (one Adam step each)."""
+        t = self.training
+        if self.collects_rollout:
+            return (t.rollout_epochs or t.ppo_epochs, t.rollout_minibatches or t.ppo_minibatches)
+        return t.ppo_epochs, t.ppo_minibatches
+
     def _check_ranges(self) -> None:
         """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
         for (section, name), (low, high) in RANGES.items():
@@ -135,15 +149,18 @@ class RunConfig:
         method.with_params(dict(t.method_params))  # the method's own checks
         if t.seeds < 1:
             raise ConfigError(f"training.seeds must be >= 1, got {t.seeds}")
-        if d.batch_size < 1 or d.batch_size % t.ppo_minibatches:
+        epochs, minibatches = self.sgd_passes
+        if d.batch_size < 1 or d.batch_size % minibatches:
             raise ConfigError(f"data.batch_size ({d.batch_size}) must be a positive multiple of "
-                              f"training.ppo_minibatches ({t.ppo_minibatches})")
+                              f"the minibatches per pass ({minibatches}: "
+                              "training.ppo_minibatches, or rollout_minibatches for a method "
+                              "that drives)")
         if d.stream and d.record_teacher:
             raise ConfigError("data.stream needs data.record_teacher=false (the update records "
                               "each streamed batch)")
         if d.workers < 1 or d.buffer < 1 or d.shards < 0:
             raise ConfigError("data.workers and data.buffer must be >= 1, data.shards >= 0")
-        if t.ppo_epochs < 1:
+        if epochs < 1:
             raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
         self._check_ranges()
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
@@ -157,9 +174,9 @@ class RunConfig:
                               "cannot share one program (a model that is not a pytree or has "
                               "no neutral() form, or two orders of the same models; "
                               "docs/EXTENDING.md); train a custom setting on its own")
-        if self.policy.aux_head != method.aux_head:
-            return dataclasses.replace(self, policy=dataclasses.replace(
-                self.policy, aux_head=method.aux_head))
+        decided = {"aux_head": method.aux_head, "value_head": method.rollout}
+        if any(getattr(self.policy, k) != v for k, v in decided.items()):
+            return dataclasses.replace(self, policy=dataclasses.replace(self.policy, **decided))
         return self
 
 
@@ -184,6 +201,7 @@ RANGES: dict[tuple[str, str], tuple[float | None, float | None]] = {
     ("training", "gae_lambda"): (0, 1), ("training", "clip_eps"): (0, None),
     ("training", "ent_coef"): (0, None), ("training", "vf_coef"): (0, None),
     ("training", "ppo_minibatches"): (1, None), ("training", "log_every"): (1, None),
+    ("training", "rollout_epochs"): (0, None), ("training", "rollout_minibatches"): (0, None),
     ("training", "eval_every"): (0, None), ("training", "val_scenarios"): (0, None),
     ("training", "checkpoint_every"): (1, None), ("training", "max_checkpoints"): (1, None),
 }
@@ -193,9 +211,9 @@ def smoke() -> RunConfig:
     """Seconds on a CPU: tiny network, tiny capacities, a handful of updates."""
     return RunConfig(
         profile="smoke",
-        policy=PolicyConfig(object_hidden=(16,), point_hidden=(16,), roadgraph_hidden=(16,),
-                            trunk_hidden=(16,), gru_hidden=16, actor_hidden=(16,),
-                            value_hidden=(16,)),
+        policy=PolicyConfig(**POOLED_NETWORK, object_hidden=(16,), point_hidden=(16,),
+                            roadgraph_hidden=(16,), trunk_hidden=(16,), gru_hidden=16,
+                            actor_hidden=(16,), value_hidden=(16,)),
         data=DataConfig(batch_size=4, max_scenarios=16, max_objects=8,
                         max_roadgraph_points=256, prefetch=2),
         observation=ObsConfig(num_objects=4, num_roadgraph_points=32),
@@ -227,7 +245,7 @@ def laptop() -> RunConfig:
     the ego speed next to each object's."""
     return RunConfig(
         profile="laptop",
-        policy=PolicyConfig(object_hidden=(64, 64), point_hidden=(32,),
+        policy=PolicyConfig(**POOLED_NETWORK, object_hidden=(64, 64), point_hidden=(32,),
                             roadgraph_hidden=(64,), trunk_hidden=(128,), gru_hidden=128,
                             actor_hidden=(128,), value_hidden=(64,), relative_dx=True,
                             speed_input_scale=10.0, speed_history=8,
@@ -250,10 +268,18 @@ def quick() -> RunConfig:
 
 
 def paper() -> RunConfig:
-    """The paper: 4.15M-parameter network (the paper reports about 4.3M), 256 scenarios per
-    update, 200 epochs, 3 seeds."""
+    """The original code's network and sample budget: ``PolicyConfig``'s defaults (4,255,611
+    parameters for BC, 4,584,060 with BC-RL's critic: the original's 4,255,099 and 4,583,548
+    and one input more; about 10.5 MFLOP forward per step at 32 objects and 1,500 road
+    points), 256 scenarios per update, 200 epochs (over WOMD's 152,808 filtered training
+    scenarios: 119,382 updates, 2.45e9 scenario-steps per (setting, seed)), 3 seeds, gradient
+    norm clipped at 0.5. BC takes one Adam step per batch, as the original did; BC-RL 4 PPO
+    epochs of 4 minibatches (16 Adam steps per batch, 4x BC's forward and backward passes over
+    the batch; the original's single step left the PPO ratio at 1)."""
     return RunConfig(profile="paper", policy=PolicyConfig(remat=True),
-                     data=DataConfig(record_teacher=False, stream=True))
+                     data=DataConfig(record_teacher=False, stream=True),
+                     training=TrainConfig(grad_clip=0.5, ppo_epochs=1, ppo_minibatches=1,
+                                          rollout_epochs=4, rollout_minibatches=4))
 
 
 def gpu() -> RunConfig:
@@ -354,6 +380,9 @@ def from_dict(d: dict) -> RunConfig:
                 *values.get("method_params", []),
                 *[(LEGACY_METHOD_PARAMS[old][0], v) for old, v in moved.items()
                   if v != LEGACY_METHOD_PARAMS[old][1]]]
+        if section == "policy" and values and "object_encoder" not in values:
+            # runs written before the network had two shapes: the pooled one, with a value head
+            values = {**POOLED_NETWORK, "value_head": True, **values}
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(values) - names
         if unknown:

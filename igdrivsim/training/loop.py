@@ -241,8 +241,9 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         data_state = load_state(run.dir, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
     runs = len(settings_list) * t.seeds
-    steps_per_update = runs * config.data.batch_size * 80 * t.ppo_epochs
-    grads_per_update = runs * t.ppo_epochs * t.ppo_minibatches
+    epochs, minibatches = config.sgd_passes
+    steps_per_update = runs * config.data.batch_size * 80 * epochs
+    grads_per_update = runs * epochs * minibatches
     if progress:
         run.progress(start, num_updates)
     batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),

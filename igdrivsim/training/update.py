@@ -107,6 +107,7 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
     """The static part of a run's update; ``teacher_policy`` overrides the teacher run's
     network config (benchmarks use an untrained teacher)."""
     t, o = config.training, config.observation
+    epochs, minibatches = config.sgd_passes
     names = run_settings(config)
     static = None if settings_as_data(config) is not None else get_setting(names[0])
     return UpdateSpec(
@@ -114,7 +115,7 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
         obs=ObservationConfig(o.num_objects, o.num_roadgraph_points), sim=sim_params(config),
         method=t.method, w_bc=t.w_bc, w_rl=t.w_rl,
         gamma=t.gamma, gae_lambda=t.gae_lambda, clip_eps=t.clip_eps, ent_coef=t.ent_coef,
-        vf_coef=t.vf_coef, epochs=t.ppo_epochs, minibatches=t.ppo_minibatches,
+        vf_coef=t.vf_coef, epochs=epochs, minibatches=minibatches,
         grad_clip=t.grad_clip,
         record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
                                config.data.max_objects),
