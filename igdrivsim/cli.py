@@ -28,7 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stats": ("igdrivsim.data.stats_command", "scene statistics of any data, beside each other"),
     "replay": ("igdrivsim.observation.replay", "replay the discretised expert, report metrics"),
     "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
-    "train": ("igdrivsim.training.commands", "train BC / BC-RL policies"),
+    "train": ("igdrivsim.training.commands",
+              "train policies with a registered learning method (--method)"),
     "evaluate": ("igdrivsim.evaluation.commands", "evaluate a trained run on validation data"),
     "report": ("igdrivsim.report.commands", "aggregate evaluations into tables and figures"),
 }

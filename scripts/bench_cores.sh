@@ -5,6 +5,23 @@
 # the speed-up. Usage: bash scripts/bench_cores.sh WORK [N]   (WORK: a reproduce.sh --out
 # folder with filtered/ data, e.g. outputs/laptop; N defaults to 150)
 set -euo pipefail
+for arg in "$@"; do
+    if [ "$arg" = "--help" ] || [ "$arg" = "-h" ]; then
+        cat <<'EOF'
+usage: bash scripts/bench_cores.sh WORK [N]
+
+One core against two: BC on Full and Gauss (3 seeds, N updates of the laptop profile, one XLA
+thread per worker) as one worker on core 0, then as two workers on cores 0 and 1; prints both
+wall times and the speed-up. Needs taskset and two cores.
+
+  WORK  a reproduce.sh --out folder with filtered/ data, e.g. outputs/laptop (required; its
+        cache/ and jax_cache/ are reused)
+  N     training updates per run (default: 150)
+  -h, --help  print this help and exit (runs nothing)
+EOF
+        exit 0
+    fi
+done
 work=${1:?usage: bash scripts/bench_cores.sh WORK [N]}
 n=${2:-150}
 out=$(mktemp -d)

@@ -8,6 +8,26 @@
 #
 #   bash scripts/bench_gpu.sh OUT        # e.g. OUT=docs/bench; a few minutes on one H200
 set -euo pipefail
+for arg in "$@"; do
+    if [ "$arg" = "--help" ] || [ "$arg" = "-h" ]; then
+        cat <<'EOF'
+usage: bash scripts/bench_gpu.sh OUT
+
+The GPU speeds of docs/bench/ on this machine's accelerator, six JSON files in OUT named by the
+device (TAG, e.g. h200): train_laptop_bc_TAG and train_laptop_bc_rl_TAG (the laptop network, 5
+updates), train_paper_bc_TAG (the paper network at 256 scenarios x 3 seeds, 2 updates),
+train_paper_bc_bf16_TAG (bf16 products), train_paper_bc_trace_TAG (one more update traced into
+OUT/trace_TAG) and train_paper_bc_cublas_TAG (XLA's Triton matrix-product fusions off).
+
+  OUT     the folder to write, e.g. docs/bench (required)
+  PYTHON  environment variable: the Python with igdrivsim and JAX for the GPU (default: python3)
+  -h, --help  print this help and exit (runs nothing)
+
+Exits 2 without writing anything when JAX finds no accelerator.
+EOF
+        exit 0
+    fi
+done
 OUT="${1:?usage: bash scripts/bench_gpu.sh OUT}"
 PYTHON="${PYTHON:-python3}"
 if [ "$("$PYTHON" -c 'import jax; print(jax.default_backend())')" = cpu ]; then

@@ -11,6 +11,30 @@
 # RUN (default outputs/PROFILE, the default run's work folder; PROFILE default laptop) is the
 # reproduce.sh --out folder whose filtered data, teacher cache and reference evaluation are used.
 set -uo pipefail
+for arg in "$@"; do
+    if [ "$arg" = "--help" ] || [ "$arg" = "-h" ]; then
+        cat <<'EOF'
+usage: bash scripts/competence_sweep.sh WORK NAME[=SECTION.FIELD=VALUE,...] ...
+
+Full BC under training variants on a reproduce.sh run's data: each variant trained (3 seeds,
+closed-loop validation at every checkpoint) and evaluated as the pipeline does, then one table
+(python -m igdrivsim.report.sweep) in WORK/sweep.md. For example:
+  bash scripts/competence_sweep.sh /tmp/sweep base b32=data.batch_size=32 lr6e-3=training.lr=6e-3
+
+  WORK     the sweep's folder: runs/NAME, evals/NAME, logs/, sweep.md (required)
+  NAME     a variant: its name, then = and its config overrides, comma-separated (at least
+           one; a bare name trains the profile unchanged)
+Environment variables:
+  PROFILE  the training profile (default: laptop)
+  RUN      the reproduce.sh --out folder whose filtered data, teacher cache and reference
+           evaluation are used (default: outputs/PROFILE in this repository)
+  JOBS     variants trained side by side (default: the number of CPUs, nproc)
+  PYTHON   the Python with igdrivsim (default: python3)
+  -h, --help  print this help and exit (runs nothing)
+EOF
+        exit 0
+    fi
+done
 WORK="${1:?usage: bash scripts/competence_sweep.sh WORK NAME[=OVERRIDES] ...}"; shift
 [ $# -gt 0 ] || { echo "competence_sweep.sh: name at least one variant (e.g. base)" >&2; exit 2; }
 PROFILE="${PROFILE:-laptop}"; JOBS="${JOBS:-$(nproc)}"

@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Regenerate the report's tables and figures from a fresh clone.
 #
-#   bash scripts/reproduce.sh [--profile smoke|quick|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
-#                             [--out DIR] [--obs a,b] [--methods a,b] [--set SECTION.FIELD=VALUE ...]
-#                             [--samples DIR] [--workers N] [--in-process] [--no-progress] [--help]
-#
+# usage: bash scripts/reproduce.sh [--profile smoke|quick|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
+#                                  [--out DIR] [--obs a,b] [--methods a,b] [--set SECTION.FIELD=VALUE ...]
+#                                  [--samples DIR] [--workers N] [--in-process] [--no-progress] [--help]
+# Defaults: --profile laptop, synthetic data, --out outputs/<profile>/ (report in paper/), the
+# paper's six settings, --methods bc_rl,bc, --workers 0 (one per CPU core).
 # Stages: data (synthetic, unless --data) -> filter -> train -> evaluate -> speed walk -> maze
 # -> render Fig. 1 -> report (tables, figures, docs/results.md) -> real logs -> PDF (if latexmk).
 # --samples DIR: real scenarios (igdrivsim samples --out DIR fetches the public WOMD ones; else
@@ -31,7 +32,7 @@ for arg in "$@"; do
         if importable; then
             exec "$PYTHON" -m igdrivsim.pipeline --help
         fi
-        sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
+        sed -n '2,17p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
         echo "(igdrivsim is not installed for $PYTHON; the first run installs it)"
         exit 0
     fi

@@ -187,22 +187,38 @@ def test_every_result_macro_of_the_paper_is_generated_or_has_a_fallback():
 
 
 def test_runtime_lines_state_each_runs_measured_time(tmp_path):
-    """The README's two run-time lines come from ``provenance.json``: the default run's wall
-    time and machine, no GPU claimed without a gpu-profile entry, and the profiles' updates."""
+    """The README's run-time block comes from ``provenance.json``: the default run's wall time
+    and machine, no GPU claimed without a gpu-profile entry, and the profiles' updates; in
+    short lines, and with the same wall time as the results block's run line."""
     import json
 
     entry = dict(command="bash scripts/reproduce.sh", run="default", profile="laptop",
-                 updates=1000, commit="x", device="AMD EPYC, 2 cores", wall_s=9300.0,
+                 updates=1000, commit="x", device="AMD EPYC, 2 cores", wall_s=9330.0,
                  date="2026-11-27")
     (tmp_path / "provenance.json").write_text(json.dumps({"files": {"tables/table1.md": entry}}))
-    first, second = results_doc.runtime_markdown(tmp_path).splitlines()
-    assert "2 h 35 min on AMD EPYC, 2 cores" in first and "1,000 updates" in first
-    assert "no GPU run is recorded" in first and "Table II" not in first
-    assert "`quick` (300 updates" in second
+    block = results_doc.runtime_markdown(tmp_path)
+    runs, profiles = block.split("Profiles")
+    assert "2 h 35 min on AMD EPYC, 2 cores" in " ".join(runs.split())
+    assert "1,000 updates" in runs and "no GPU run is recorded" in runs
+    assert "Table II" not in runs
+    assert "`quick`: 300 updates" in profiles
+    assert all(len(line) <= 100 for line in block.splitlines() if "](" not in line)
+    # the results block states the same run with the same wall time and rounding
+    assert "2 h 35 min wall" in results_doc.run_line(tmp_path, commit=False)
     readme = tmp_path / "README.md"
     readme.write_text(f"# x\n{results_doc.RUNTIME_BEGIN}\nold\n{results_doc.RUNTIME_END}\n"
                       f"{results_doc.BEGIN}\n{results_doc.END}\n")
-    text = results_doc.fill_block(readme.read_text(), first, "README", results_doc.RUNTIME_BEGIN,
+    text = results_doc.fill_block(readme.read_text(), block, "README", results_doc.RUNTIME_BEGIN,
                                   results_doc.RUNTIME_END)
-    assert "old" not in text and first in text
+    assert "old" not in text and block in text
 
+
+def test_readme_generated_lines_are_short():
+    """Prose lines of both generated blocks fit 100 columns (tables and links excepted)."""
+    text = README.read_text(encoding="utf-8")
+    for begin, end in ((results_doc.RUNTIME_BEGIN, results_doc.RUNTIME_END),
+                       (results_doc.BEGIN, results_doc.END)):
+        block = text.split(begin)[1].split(end)[0]
+        long = [line for line in block.splitlines()
+                if len(line) > 100 and not line.startswith("|") and "](" not in line]
+        assert long == []

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.evaluation.schema import (
     BC_RL,
@@ -78,10 +79,12 @@ def compare_markdown(old: Path, new: Path, labels: tuple[str, str] = ("old", "ne
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.compare",
-                                     description=__doc__.splitlines()[0])
+                                     description=__doc__.splitlines()[0],
+                                     formatter_class=FORMATTER)
     parser.add_argument("old", type=Path, help="report tables folder (summary.csv, tests.csv)")
     parser.add_argument("new", type=Path, help="the same for the run compared with it")
-    parser.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"))
+    parser.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
+                        help="the two runs' names in the table (default: old new)")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
     try:

@@ -1,9 +1,10 @@
 """The report's markdown: ``results.md`` (the whole run) and the README's headline block.
 
-Both are read from the report's own files only (``PAPER/tables/*.csv`` and
-``PAPER/generated/provenance.tex``), so ``igdrivsim report --from-tables PAPER`` rewrites them
-without the evaluations, and no number in them is typed by hand. The README block lies between
-:data:`BEGIN` and :data:`END`, its run-time lines (when the README has them) between
+Both are read from the report's own files only (``PAPER/tables/*.csv``, Table II's
+``tables/table2.md``, ``PAPER/provenance.json`` and ``PAPER/generated/provenance.tex``), so
+``igdrivsim report --from-tables PAPER`` rewrites them without the evaluations, and no number
+in them is typed by hand. The README block lies between
+:data:`BEGIN` and :data:`END`, its run-time block (when the README has one) between
 :data:`RUNTIME_BEGIN` and :data:`RUNTIME_END`; :func:`fill_block` replaces only what is between.
 """
 
@@ -38,12 +39,35 @@ from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import table1_markdown
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
-# the README's two lines near the top: measured run times and the choice of profile (optional)
+# the README's block near the top: measured run times and the choice of profile (optional)
 RUNTIME_BEGIN, RUNTIME_END = "<!-- runtime:begin -->", "<!-- runtime:end -->"
 CURVES_SUMMARY = "curves_summary.csv"
 RUN_TIMES = "run_times.csv"
 _HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
              ("overlap", "overlap (%)"))
+# the width of the prose lines the report writes into the README
+WIDTH = 96
+# a word of markdown: code spans, links and durations whole (they hold spaces), else non-space
+# runs
+_WORD = re.compile(r"(?:\d+ h \d+ min|`[^`\n]*`|\[[^\]\n]*\]\([^)\s]*\)|\S)+")
+
+
+def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
+    """``text`` as lines of at most ``width`` characters, continuation lines prefixed by
+    ``indent``; a code span or a link is never split (a longer one stands on its own line)."""
+    lines, line = [], ""
+    for word in _WORD.findall(text):
+        if line.strip() and len(line) + 1 + len(word) > width:
+            lines.append(line)
+            line = indent + word
+        else:
+            line = f"{line} {word}" if line.strip() else line + word
+    return lines + [line] if line else lines
+
+
+def _bullet(text: str) -> list[str]:
+    return wrap("- " + text, indent="  ")
+
 
 
 def provenance(paper: Path) -> dict[str, str]:
@@ -74,7 +98,7 @@ def run_line(paper: Path, commit: bool = True) -> str:
     if commit:
         parts.append(f"commit {entry.get('commit', '?')}")
     parts += [str(entry.get("device", "device not recorded")),
-              f"{_duration(float(wall))} wall" if wall else "wall time not recorded",
+              f"{wall_text(float(wall))} wall" if wall else "wall time not recorded",
               str(entry.get("date", ""))]
     note = f"; {entry['note']}" if entry.get("note") else ""
     if not commit:  # no commit hash at all (the README)
@@ -135,11 +159,12 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
-    out = [f"Written by `igdrivsim report` from the run of {prov.get('Date', 'unknown date')} "
-           f"({_scope(prov, summary)}). Mean over seeds; BC-RL − BC with its 95% two-level "
-           "bootstrap interval, **bold** if significant after Holm.", "",
+    out = [*wrap(f"Written by `igdrivsim report` from the run of "
+                 f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
+                 "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
+                 "points of steps offroad, **bold** if significant after Holm."), "",
            "| setting | " + " | ".join(f"BC {label}" for _, label in _HEADLINE)
-           + " | BC-RL − BC offroad (points) | paper's BC-RL − BC offroad |",
+           + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
            "|---|" + "---|" * (len(_HEADLINE) + 2)]
     for setting in settings:
         cells = [_f(_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
@@ -150,16 +175,16 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     out.append("| constant velocity | " + " | ".join(_f(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
     k, n = _significant(tests)
-    out += ["", f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."]
+    closing = f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."
     wall = wall_seconds(read_table(paper / "tables" / RUN_TIMES))
     line = run_line(paper, commit=False)
     if line:
-        out[-1] += " " + line
+        closing += " " + line
     elif math.isfinite(wall):
-        out[-1] += (f" The run took {_duration(wall)} from its first stage's start to the "
+        closing += (f" The run took {wall_text(wall)} from its first stage's start to the "
                     "report (`tables/run_times.csv`).")
-    out[-1] += f" Full results: [{results_link}]({results_link})."
-    return "\n".join(out) + "\n"
+    closing += f" Full results: [{results_link}]({results_link})."
+    return "\n".join([*out, "", *wrap(closing)]) + "\n"
 
 
 def _competence(summary: pd.DataFrame) -> list[str]:
@@ -246,17 +271,12 @@ def wall_seconds(times: pd.DataFrame | None) -> float:
     return float((end.max() - start.min()).total_seconds())
 
 
-def _duration(seconds: float) -> str:
-    minutes = round(seconds / 60)
-    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
-
-
 def _run_times(times: pd.DataFrame | None) -> list[str]:
     if times is None or not len(times):
         return ["Not in these tables (`tables/run_times.csv` is written when the report runs "
                 "inside `scripts/reproduce.sh`).", ""]
     wall = wall_seconds(times)
-    out = [f"{_duration(wall)} from the first stage's start to the last stage's end."
+    out = [f"{wall_text(wall)} from the first stage's start to the last stage's end."
            if math.isfinite(wall) else "", "",
            "Seconds per stage (`WORK/stages/<stage>.json`; stages in two lanes overlap, so the "
            "wall time is below their sum).", "", "| stage | seconds | finished |", "|---|---|---|"]
@@ -277,6 +297,25 @@ def _maze(maze: pd.DataFrame | None) -> list[str]:
 
 def _demote(markdown: str) -> list[str]:
     return [("#" + line if line.startswith("#") else line) for line in markdown.splitlines()]
+
+
+def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
+    """Table II of the run that owns it (``tables/table2.md``, written with ``tests_all.csv``
+    from that run's own summary), else rebuilt from ``tests_all.csv``: each learned method the
+    comparisons name gets its rows, from ``summary`` where it has them, else from the
+    comparisons' means (no interval); nothing without ``tests_all.csv``."""
+    tests_all = read_table(tables / "tests_all.csv")
+    if tests_all is None:
+        return []
+    own = tables / "table2.md"
+    if own.is_file():
+        return _demote(own.read_text(encoding="utf-8").rstrip()) + [""]
+    missing = tests_all[~tests_all.method.isin(set(summary.method))]
+    extra = pd.DataFrame(dict(metric=missing.metric, setting=missing.setting,
+                              method=missing.method, mean=missing.mean_a, ci_low=math.nan,
+                              ci_high=math.nan, n_seeds=missing.n_seeds_a))
+    full = pd.concat([summary, extra], ignore_index=True) if len(extra) else summary
+    return _demote(methods_table.table2_markdown(full, tests_all, header)) + [""]
 
 
 def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
@@ -304,9 +343,7 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            "table alone: [power.md](PAPER/tables/power.md); metrics beyond Table I: "
            "[supplementary_metrics.md](PAPER/tables/supplementary_metrics.md).", "",
            "## Learning curves", "", *_curves(read_table(tables / CURVES_SUMMARY))]
-    tests_all = read_table(tables / "tests_all.csv")
-    if tests_all is not None:
-        out += _demote(methods_table.table2_markdown(summary, tests_all, header)) + [""]
+    out += _table2(tables, summary, header)
     out += ["## Maze (paper Fig. 2)", "", *_maze(read_table(tables / "maze_summary.csv"))]
     text = "\n".join(out).rstrip() + "\n"
     return text.replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
@@ -321,19 +358,22 @@ def fill_block(text: str, content: str, source: str = "README", begin: str = BEG
     return text[:start + len(begin)] + "\n" + content.rstrip() + "\n" + text[stop:]
 
 
-_RUNS = (("tables/table1.md", "default run (Table I)"),
-         ("tables/table2.md", "methods run (Table II)"))
+_RUNS = (("tables/table1.md", "Table I", "the default run"),
+         ("tables/table2.md", "Table II", "the methods run"))
+COMPETENCE_ANCHOR = "#competence-against-the-reference-actors"
 
 
-def runtime_markdown(paper: str | Path) -> str:
-    """Two lines: each published run's measured wall time and machine (from
-    ``paper/provenance.json``), and what each profile is for (from the training profiles)."""
+def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
+    """Short lines: each published run's measured wall time and machine (from
+    ``paper/provenance.json``), then what each profile is for (from the training profiles);
+    ``results_link``: ``results.md`` relative to the README (where the competence targets are
+    defined)."""
     # lazy: the training profiles pull in JAX; the rest of this module does not need it
     from igdrivsim.training.config import get_profile
 
     files = load_provenance(Path(paper))
     runs, gpu = [], False
-    for rel, label in _RUNS:
+    for rel, table, label in _RUNS:
         entry = files.get(rel)
         if not isinstance(entry, dict) or not entry.get("wall_s"):
             continue
@@ -341,20 +381,25 @@ def runtime_markdown(paper: str | Path) -> str:
         device = str(entry.get("device") or "")
         where = (f"on {device}" if device and "not recorded" not in device
                  else "(device not recorded)")
-        runs.append(f"the {label}, `{entry.get('command', '?')}` (profile "
-                    f"{entry.get('profile', '?')}{updates}): {wall_text(float(entry['wall_s']))} "
-                    f"{where}, {entry.get('date', '')}")
+        runs += _bullet(f"{table}, {label}: `{entry.get('command', '?')}` (profile "
+                        f"`{entry.get('profile', '?')}`{updates}) took "
+                        f"{wall_text(float(entry['wall_s']))} {where}, {entry.get('date', '')}.")
         gpu |= entry.get("profile") == "gpu"
-    measured = ("Measured (written by the report from `paper/provenance.json`): "
-                + ("; ".join(runs) if runs else "no run with a recorded wall time")
-                + ("." if gpu else "; no GPU run is recorded."))
+    out = ["Measured run times (the report writes them from `paper/provenance.json`"
+           + ("):" if gpu else "; no GPU run is recorded):"), "",
+           *(runs or ["- no run with a recorded wall time."]), ""]
     n = {name: get_profile(name).training.num_updates for name in ("laptop", "quick", "gpu")}
-    choice = (f"Profiles: `laptop` (the default, {n['laptop']:,} updates), `quick` "
-              f"({n['quick']:,} updates, a first look below the competence targets), `gpu` "
-              f"({n['gpu']:,} updates, more seeds and scenarios, one GPU), `smoke` (minutes: "
-              "everything runs, the numbers mean nothing); the plan printed first estimates the "
-              "time on your machine.")
-    return measured + "\n" + choice
+    targets = f"[competence targets]({results_link}{COMPETENCE_ANCHOR})"
+    out += [*wrap("Profiles (`--profile`; their sizes: `igdrivsim/training/config.py` and "
+                  "`igdrivsim/pipeline/profiles.py`; the plan printed first estimates the time "
+                  "on your machine):"), "",
+            *_bullet(f"`laptop`: the default, {n['laptop']:,} updates;"),
+            *_bullet(f"`quick`: {n['quick']:,} updates, a first look below the {targets};"),
+            *_bullet(f"`gpu`: {n['gpu']:,} updates, more seeds and validation scenarios, "
+                     "one GPU;"),
+            *_bullet("`paper`: the paper's network and batch, for GPUs and real WOMD;"),
+            *_bullet("`smoke`: minutes; everything runs, the numbers mean nothing.")]
+    return "\n".join(out) + "\n"
 
 
 def write_curves_summary(curves: pd.DataFrame, tables: Path) -> list[Path]:
@@ -398,7 +443,7 @@ def write_markdown(paper: str | Path, results: str | Path | None,
         text = readme.read_text(encoding="utf-8")
         text = fill_block(text, headline_markdown(paper, res_link), str(readme))
         if RUNTIME_BEGIN in text:
-            text = fill_block(text, runtime_markdown(paper), str(readme), RUNTIME_BEGIN,
-                              RUNTIME_END)
+            text = fill_block(text, runtime_markdown(paper, res_link), str(readme),
+                              RUNTIME_BEGIN, RUNTIME_END)
         written.append(atomic_write_text(readme, text))
     return written + write_macros(paper)

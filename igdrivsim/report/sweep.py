@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
@@ -104,10 +105,12 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.sweep",
-                                     description=__doc__.splitlines()[0])
+                                     description=" ".join(__doc__.split("\n\n")[0].split()),
+                                     formatter_class=FORMATTER)
     parser.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
     parser.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
-                        help="`igdrivsim evaluate --references` output on the same data")
+                        help="`igdrivsim evaluate --references` output on the same data "
+                             "(default: none, no ratio to constant velocity)")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
     try:

@@ -24,6 +24,8 @@ from igdrivsim.training.methods import METHODS
 
 
 def train_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = ("train policies with a registered learning method: "
+                          + ", ".join(f"{m.label} ({name})" for name, m in METHODS.items()))
     parser.add_argument("--profile", choices=list(PROFILES), default="laptop",
                         help="named configuration (default: laptop)")
     parser.add_argument("--obs", default=None, metavar="SETTING",
