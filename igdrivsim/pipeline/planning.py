@@ -23,6 +23,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.evaluation.schema import METHODS, SETTINGS
 from igdrivsim.training import cost
 from igdrivsim.training.config import get_profile
@@ -214,8 +215,9 @@ def hours_text(seconds: float) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Print the estimated wall time of a profile's default run per core count."""
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.pipeline.planning",
-                                     description=main.__doc__)
-    parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES)
+                                     description=main.__doc__, formatter_class=FORMATTER)
+    parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES,
+                        help="the profile to estimate")
     parser.add_argument("--cores", default="1,2,4,8,16", help="comma-separated core counts")
     args = parser.parse_args(argv)
     config = get_profile(args.profile)
