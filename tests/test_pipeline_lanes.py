@@ -232,3 +232,22 @@ def test_the_report_draws_the_learning_curves_of_this_runs_parts_only(tmp_path, 
     runs = argv[argv.index("--runs") + 1:]
     runs = runs[:next((i for i, a in enumerate(runs) if a.startswith("--")), len(runs))]
     assert runs == [str(pipe.work / "runs" / "bc"), str(pipe.work / "runs" / "bc_rl-1of2")]
+
+
+def test_the_paper_plan_prices_table_one_at_paper_scale(tmp_path, monkeypatch):
+    """The paper profile has no per-update price for the pipeline, but its plan states what
+    Table I at paper scale costs at the measured rates; on a GPU machine the gpu profile's
+    maze is priced at that machine's time."""
+    from igdrivsim.evaluation.schema import SETTINGS
+    from igdrivsim.training import cost
+
+    pipe = Pipeline(PROFILES["paper"], tmp_path / "work", tmp_path / "paper", workers=1)
+    monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))
+    lines = pipe.plan()
+    assert any("no time estimate" in line for line in lines)
+    (table,) = [line for line in lines if "Table I at paper scale" in line]
+    hours = cost.table1_hours(cost.CPU_SECONDS_PER_EPISODE, cost.CPU_SECONDS_PER_ROLLOUT_EPISODE)
+    assert f"~{hours['total']:,.0f} CPU-process-hours" in table
+    gpu = planning.estimate_seconds("gpu", ("bc", "bc_rl"), (), SETTINGS, 12, 1000, 2, gpu=True)
+    train = max(cost.laptop_train_seconds(1000, 6, 12, r, gpu=True) for r in (False, True))
+    assert gpu == pytest.approx(max(train, cost.GPU_MACHINE_MAZE_S) + cost.LAPTOP_OTHER_CPU_S)

@@ -168,14 +168,19 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
 def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     import io
 
+    from igdrivsim.training import cost
     from igdrivsim.training.cost import PAPER_SCENARIOS, num_updates, warn_if_cpu
 
     paper = with_overrides(get_profile("paper"), ["observation.setting=full"])
     assert num_updates(paper, PAPER_SCENARIOS) == 119_382  # 200 epochs of 256 scenarios
     out = io.StringIO()
     msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1, out)
-    assert msg and "years" in msg and out.getvalue().count("\n") == 1
-    assert "~499 h on one H200" in msg  # 119,382 updates x 768 episodes x 15.05 / 768 s
+    assert msg and out.getvalue().count("\n") == 1
+    hours = 119_382 * 256 * 3 * cost.CPU_SECONDS_PER_EPISODE / 3600  # one setting, 3 seeds
+    assert f"~{hours:,.0f} hours" in msg
+    table = cost.table1_hours(1.0, 2.0)  # 6 settings x 3 seeds x 256 scenarios per update
+    assert table["total"] == pytest.approx(119_382 * 6 * 3 * 256 * 3.0 / 3600)
+    assert "Table I at paper scale" in cost.table1_text(gpu=True)
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
     gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1, io.StringIO())

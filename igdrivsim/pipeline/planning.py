@@ -194,12 +194,14 @@ def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
                      gpu: bool = False) -> float | None:
     """Estimated wall seconds of the pipeline (None for a profile whose costs were not
     measured): the training parts and the maze over the workers (then the taught methods'
-    parts), plus the other stages' measured CPU-s taken as serial (an upper bound)."""
+    parts), plus the other stages' measured CPU-s on 2 cores taken as serial (an upper bound,
+    on a GPU machine too)."""
     if profile not in PRICED_PROFILES:
         return None
     seconds = part_seconds(profile, seeds, updates, gpu)
-    first = split_grid(plain, settings, workers, seconds, [cost.MAZE_CPU_S])
-    total = makespan([p.seconds for p in first] + [cost.MAZE_CPU_S], workers)
+    maze = cost.GPU_MACHINE_MAZE_S if gpu else cost.MAZE_CPU_S
+    first = split_grid(plain, settings, workers, seconds, [maze])
+    total = makespan([p.seconds for p in first] + [maze], workers)
     if taught:
         rest = [s for s in settings if s != "full"]
         second = split_grid(taught, rest, workers, seconds)
@@ -213,13 +215,17 @@ def hours_text(seconds: float) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the estimated wall time of a profile's default run per core count."""
+    """Print the estimated wall time of a profile's default run per core count (for
+    ``paper``: the cost of Table I at paper scale from the measured rates)."""
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.pipeline.planning",
                                      description=main.__doc__, formatter_class=FORMATTER)
-    parser.add_argument("--profile", default="laptop", choices=PRICED_PROFILES,
+    parser.add_argument("--profile", default="laptop", choices=(*PRICED_PROFILES, "paper"),
                         help="the profile to estimate")
     parser.add_argument("--cores", default="1,2,4,8,16", help="comma-separated core counts")
     args = parser.parse_args(argv)
+    if args.profile == "paper":
+        print(cost.table1_text(gpu=True))
+        return 0
     config = get_profile(args.profile)
     t = config.training
     print(f"profile {args.profile}: {t.num_updates} updates, {t.seeds} seeds, "

@@ -52,6 +52,7 @@ from igdrivsim.pipeline import lanes, planning
 from igdrivsim.pipeline.profiles import PipelineProfile
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError, StageRunner
 from igdrivsim.report import provenance
+from igdrivsim.training import cost
 from igdrivsim.training.config import QUICK_UPDATES, get_profile, with_overrides
 from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
@@ -479,8 +480,10 @@ class Pipeline(StageRunner):
         if wall is None:
             lines.append(f"plan: no measured per-update cost for profile {self.profile.name}; "
                          "no time estimate")
+            if self.profile.name == "paper":
+                lines.append("plan: " + cost.table1_text(self.machine.accelerator is not None))
         else:
-            where = ("training at the measured H200 rates, the other stages at their measured "
+            where = ("training at the measured H100 rates, the other stages at their measured "
                      "CPU costs" if self.machine.accelerator else "measured per-update costs")
             lines.append(f"plan: estimated wall time ~{planning.hours_text(wall)} ({where}: "
                          "igdrivsim/training/cost.py; stages already complete are skipped)")

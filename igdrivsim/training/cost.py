@@ -1,10 +1,12 @@
 """A cost model of a training run: episodes trained per second on one device -> hours.
 
-An *episode* is one (setting, seed, scenario) of an update: 90 steps forward and ``ppo_epochs``
+An *episode* is one (setting, seed, scenario) of an update: 90 steps forward and the method's
 passes backward. ``igdrivsim bench train --profiles paper --method bc`` measures the paper
 network's seconds per update on 1 seed x 1 scenario x ``settings``; dividing by ``settings``
 gives seconds per episode on one device. A run then costs ``updates x settings x seeds x
-batch x seconds per episode / devices`` (data parallel over devices, ignoring communication).
+batch x seconds per episode / devices`` (data parallel over devices, ignoring communication);
+:func:`table1_hours` prices the paper's Table I (6 settings x {BC, BC-RL} x 3 seeds, 200 epochs
+over 152,808 scenarios) that way.
 
 The laptop network (profiles laptop, quick, gpu) is priced per (setting x update) of one
 training process from whole measured runs (:func:`laptop_train_seconds`); the pipeline's plan
@@ -16,20 +18,18 @@ from __future__ import annotations
 import math
 import sys
 
-from igdrivsim.training.config import RunConfig
+from igdrivsim.training.config import RunConfig, get_profile
 
-# Paper network on an idle 2-core CPU: `igdrivsim bench train --profiles paper --method bc
-# --obs full --updates 2` = 9.78 s per update of one episode; a method that drives closed-loop
-# episodes (BC-RL and the taught methods), the same with `--method bc_rl` = 20.3 s. README
-# "Running at paper scale".
-CPU_SECONDS_PER_EPISODE = 9.78  # teacher-forced methods (BC)
-CPU_SECONDS_PER_ROLLOUT_EPISODE = 20.3  # methods that also drive (BC-RL, DAgger, ADVISOR)
-# Paper network on one NVIDIA H200 at the paper's batch: `igdrivsim bench train --profiles
-# paper --method bc --obs full --batch-size 256 --seeds 3` = 15.05 s per update of 768 episodes
-# (docs/bench/train_paper_bc_h200.json, 2026-11-27); with `--method bc_rl`, 30.3 s (measured
-# before bench wrote files; README "Running at paper scale").
-GPU_SECONDS_PER_EPISODE = 15.05 / 768
-GPU_SECONDS_PER_ROLLOUT_EPISODE = 30.3 / 768
+# Paper network (the original's) on the 2-core AMD EPYC, one episode per update:
+# `igdrivsim bench train --profiles paper --method bc --obs full --updates 5 --out
+# docs/bench/train_paper_bc_cpu.json` and the same with `--method bc_rl --updates 3`
+# (train_paper_bc_rl_cpu.json): seconds per update = per episode.
+CPU_SECONDS_PER_EPISODE = 0.3553  # teacher-forced methods (BC): one Adam step per batch
+CPU_SECONDS_PER_ROLLOUT_EPISODE = 4.8747  # methods that drive (BC-RL: 4 epochs x 4 minibatches)
+# The paper network has not been timed on a GPU yet (`bash scripts/bench_gpu.sh docs/bench` on
+# a machine with one writes train_paper_bc_<gpu>.json; set these from it): None, unmeasured.
+GPU_SECONDS_PER_EPISODE: float | None = None
+GPU_SECONDS_PER_ROLLOUT_EPISODE: float | None = None
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 # Laptop network, 3 seeds, 16 scenarios per update: seconds per update of ONE setting in one
 # one-XLA-thread worker process while another worker keeps the second core busy (the default
@@ -47,22 +47,27 @@ LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
 MAZE_CPU_S = 534.0
 LAPTOP_OTHER_CPU_S = 1211.0 - MAZE_CPU_S
-# One H200, laptop network, 6 settings x 3 seeds per update (`igdrivsim bench train --profiles
-# laptop --method M --updates 5`, 2026-11-27): BC 0.0262 s (docs/bench/train_laptop_bc_h200.json),
-# BC-RL 0.0907 s, compile 30.6 s (docs/bench/train_laptop_bc_rl_h200.json).
-GPU_S_PER_SETTING_UPDATE = 0.0262 / 6
-GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.0907 / 6
-GPU_COMPILE_S = 30.6
+# One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H100 (16 CPU
+# cores), `igdrivsim bench train --profiles gpu --method M`: BC 0.067 s per update, BC-RL 0.236 s,
+# after a first update (compile) of 63 s. The same network at 3 seeds on one H200 took 0.0262 /
+# 0.0907 s (docs/bench/train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU is not
+# filled by 3 seeds, so the 12-seed rates are the ones to scale from.
+GPU_SEEDS = 12
+GPU_S_PER_SETTING_UPDATE = 0.067 / 6
+GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.236 / 6
+GPU_COMPILE_S = 63.0
+# The maze study on that machine (16 cores): 64 s (against MAZE_CPU_S on 2 cores).
+GPU_MACHINE_MAZE_S = 64.0
 
 
 def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
                          gpu: bool = False) -> float:
     """Seconds of one training process of the laptop network: CPU-s on one core (``gpu``
-    False), or seconds on one H200 (compile included; seeds scale linearly, an upper bound
-    on a GPU)."""
+    False), or seconds on one H100 (compile included; seeds scale linearly from the measured
+    12, a lower bound for fewer seeds on a GPU that is not filled)."""
     if gpu:
         per = GPU_S_PER_SETTING_UPDATE_ROLLOUT if rollout else GPU_S_PER_SETTING_UPDATE
-        return GPU_COMPILE_S + updates * settings * per * seeds / LAPTOP_SEEDS
+        return GPU_COMPILE_S + updates * settings * per * seeds / GPU_SEEDS
     per = LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT if rollout else LAPTOP_CPU_S_PER_SETTING_UPDATE
     return updates * settings * per * seeds / LAPTOP_SEEDS
 
@@ -72,6 +77,37 @@ def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
     if t.num_updates > 0:
         return t.num_updates
     return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
+
+
+def table1_hours(bc_seconds: float, rollout_seconds: float,
+                 num_scenarios: int = PAPER_SCENARIOS) -> dict[str, float]:
+    """Device-hours of the paper's Table I at paper scale (6 settings x 3 seeds of BC and of
+    BC-RL, the paper profile's 200 epochs of 256-scenario batches over ``num_scenarios``) at
+    ``bc_seconds`` / ``rollout_seconds`` per episode: ``{"bc", "bc_rl", "total"}``."""
+    config = get_profile("paper")
+    t = config.training
+    episodes = num_updates(config, num_scenarios) * 6 * t.seeds * config.data.batch_size
+    out = {"bc": episodes * bc_seconds / 3600, "bc_rl": episodes * rollout_seconds / 3600}
+    return out | {"total": out["bc"] + out["bc_rl"]}
+
+
+def table1_text(gpu: bool) -> str:
+    """One line: what Table I at paper scale costs on this kind of machine, from the measured
+    rates (or that the GPU rate is not measured)."""
+    config = get_profile("paper")
+    updates = num_updates(config)
+    head = (f"Table I at paper scale (6 settings x {{BC, BC-RL}} x {config.training.seeds} "
+            f"seeds, {updates:,} updates of {config.data.batch_size} scenarios each, "
+            f"{PAPER_SCENARIOS:,} scenarios x {config.training.epochs:g} epochs)")
+    cpu = table1_hours(CPU_SECONDS_PER_EPISODE, CPU_SECONDS_PER_ROLLOUT_EPISODE)
+    text = (f"{head}: ~{cpu['total']:,.0f} CPU-process-hours at the rates measured on 2 CPU "
+            f"cores (BC {cpu['bc']:,.0f}, BC-RL {cpu['bc_rl']:,.0f}; "
+            "igdrivsim/training/cost.py)")
+    if GPU_SECONDS_PER_EPISODE is None or GPU_SECONDS_PER_ROLLOUT_EPISODE is None:
+        return text + ("; the GPU rate of this network is not measured yet (scripts/bench_gpu.sh)"
+                       if gpu else "")
+    g = table1_hours(GPU_SECONDS_PER_EPISODE, GPU_SECONDS_PER_ROLLOUT_EPISODE)
+    return text + f"; ~{g['total']:,.0f} GPU-hours at the measured GPU rate"
 
 
 def run_hours(config: RunConfig, seconds_per_episode: float, num_scenarios: int,
@@ -100,13 +136,12 @@ def _paper_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str:
     rollout = config.collects_rollout
     per = CPU_SECONDS_PER_ROLLOUT_EPISODE if rollout else CPU_SECONDS_PER_EPISODE
     hours = run_hours(config, per, num_scenarios, devices)
-    gpu = run_hours(config, GPU_SECONDS_PER_ROLLOUT_EPISODE if rollout
-                    else GPU_SECONDS_PER_EPISODE, num_scenarios, 1)
+    settings = len([s for s in config.observation.setting.split(",") if s.strip()])
     return (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
             f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
-            f"scenarios x {config.training.seeds} seed(s) at ~{per} s per episode (paper "
-            f"network, bench train) is ~{hours:,.1f} hours ({hours / 8766:,.1f} years); use GPUs "
-            f"(~{gpu:,.0f} h on one H200; docs/scaling.md) or --profile laptop")
+            f"scenarios x {config.training.seeds} seed(s) x {settings} setting(s) at ~{per} s "
+            f"per episode (paper network, bench train) is ~{hours:,.0f} hours; use GPUs "
+            "(docs/scaling.md) or --profile laptop")
 
 
 def _gpu_profile_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str | None:
