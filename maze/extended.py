@@ -19,7 +19,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.io import atomic_savefig
-from maze.report import CURVES, ci95
+from maze.report import CURVES, RETURN_LABEL, ci95
 
 MIXED_CURVES = {"bc_rl_partial_from_full": False, "advisor_partial_from_full": True}
 EXTENDED = ("dagger_partial_from_full", *MIXED_CURVES)
@@ -122,11 +122,23 @@ def run_mixed(study, experts: dict, bar: tqdm,
 
 def plot_baselines(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, converged: dict,
                    stem: Path) -> None:
-    """Fig. 2b: return vs environment steps per seed for the partial student (mean, 95% CI)."""
+    """Write Fig. 2b (:func:`baselines_figure`) to ``stem.{pdf,png}``."""
+    import matplotlib.pyplot as plt  # heavy: only when drawing
+
+    fig = baselines_figure(curves, summary, refs, converged)
+    for ext in ("pdf", "png"):
+        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
+    plt.close(fig)
+
+
+def baselines_figure(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, converged: dict):
+    """Fig. 2b: return vs environment steps per seed for the partial student (mean, 95% CI);
+    ``converged``: the partial RL curve's plateau test."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy: only when drawing
+    from matplotlib.ticker import StrMethodFormatter  # heavy: only when drawing
 
     fig, ax = plt.subplots(figsize=(8.6, 4.0))
     for name in ("rl_partial", *EXTENDED):
@@ -147,13 +159,12 @@ def plot_baselines(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, conv
             ax.axhline(final[name], color=CURVES[name][1], ls=ls, lw=1.1, label=text)
     ax.axhline(refs["planner_partial"][0], color="0.6", ls=":", lw=1.1,
                label="exploring planner (partial obs.)")
-    ax.set_xlabel("environment steps per seed")
-    ax.set_ylabel("mean episodic return")
+    ax.set_xlabel("environment steps per seed (steps)")
+    ax.xaxis.set_major_formatter(StrMethodFormatter("{x:,.0f}"))  # 600,000, not 600000
+    ax.set_ylabel(RETURN_LABEL)
     ax.set_ylim(0, 10.3)
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     ax.set_title("Full-obs. expert $\\to$ partial-obs. student: remedies (mean, 95% CI over "
                  "seeds)", fontsize=8)
     fig.tight_layout()
-    for ext in ("pdf", "png"):
-        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
-    plt.close(fig)
+    return fig

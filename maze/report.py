@@ -88,12 +88,25 @@ def summary_latex(summary: pd.DataFrame, refs: dict) -> str:
     return "\n".join(lines)
 
 
+# the reward is 10 - 9 t / max_steps on reaching the goal at step t, else 0 (maze.env.step)
+RETURN_LABEL = "mean episodic return (reward, max 10)"
 PAPER_CURVES = ("rl_full", "rl_partial", "bc_full_from_full", "bc_partial_from_full",
                 "bc_partial_from_partial")
 
 
 def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path,
          converged: dict[str, bool] | None = None) -> None:
+    """Write Fig. 2 (:func:`figure`) to ``stem.{pdf,png}``."""
+    import matplotlib.pyplot as plt  # heavy: only when drawing
+
+    fig = figure(curves, summary, refs, converged)
+    for ext in ("pdf", "png"):
+        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
+    plt.close(fig)
+
+
+def figure(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict,
+           converged: dict[str, bool] | None = None):
     """Fig. 2 (the paper's five curves): mean return vs training progress, t-based 95% CI bands,
     dashed final RL returns marked "converged" or "not converged" (``converged``: curve -> the
     plateau test of :func:`maze.extended.plateau`), dotted exact references."""
@@ -128,13 +141,11 @@ def plot(curves: pd.DataFrame, summary: pd.DataFrame, refs: dict, stem: Path,
                label="shortest-path oracle (full obs.)")
     ax.axhline(refs["planner_partial"][0], color="0.6", ls=":", lw=1.1,
                label="exploring planner (partial obs.)")
-    ax.set_xlabel("training progress (fraction of each run)")
-    ax.set_ylabel("mean episodic return")
+    ax.set_xlabel("training progress (fraction of each run's updates)")
+    ax.set_ylabel(RETURN_LABEL)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 10.3)
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     ax.set_title("13x13 maze, imitator receptive field 3 (mean, 95% CI over seeds)", fontsize=8)
     fig.tight_layout()
-    for ext in ("pdf", "png"):
-        atomic_savefig(fig, stem.with_suffix(f".{ext}"), dpi=200)
-    plt.close(fig)
+    return fig

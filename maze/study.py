@@ -10,7 +10,8 @@ evaluation episodes; the final point uses ``final_eval_rounds`` times more. The 
 tested for a plateau (:func:`maze.extended.plateau`) and drawn "converged" or "not converged".
 Outputs under ``--out`` (default ``outputs/maze/``): ``figures/fig2_maze.{pdf,png,csv}``,
 ``figures/fig2b_maze_baselines.{pdf,png}``, ``tables/maze_summary.{md,tex,csv}`` and
-``maze_config.json``. Deterministic for a given config.
+``maze_config.json``. Deterministic for a given config. ``--replot`` redraws Fig. 2 and 2b
+from ``--out``'s ``figures/fig2_maze.csv`` and ``maze_config.json`` without training.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.cli_args import DefaultsFormatter
-from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.errors import REPORTED, ConfigError, DataError, error_line
 from igdrivsim.io import (
     atomic_write_bytes,
     atomic_write_csv,
@@ -395,6 +396,28 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     return summary
 
 
+def replot(out: Path) -> list[Path]:
+    """Redraw Fig. 2 (and Fig. 2b when the curves hold the baselines) under ``out`` from the
+    study's curves and config, as :func:`run_study` draws them; the written paths."""
+    csv, config = out / "figures" / "fig2_maze.csv", out / "maze_config.json"
+    for path in (csv, config):
+        if not path.is_file():
+            raise DataError("missing: run the maze study first", file=str(path))
+    curves = pd.read_csv(csv)
+    meta = json.loads(config.read_text(encoding="utf-8"))
+    refs = {k: tuple(v) for k, v in meta["references"].items()}
+    plateaus = meta.get("plateau", {})
+    summary = report.summarise(curves)
+    report.plot(curves, summary, refs, out / "figures/fig2_maze",
+                {n: bool(p["converged"]) for n, p in plateaus.items()})
+    stems = ["fig2_maze"]
+    if set(extended.EXTENDED) & set(curves.curve):
+        extended.plot_baselines(curves, summary, refs, plateaus.get("rl_partial", {}),
+                                out / "figures/fig2b_maze_baselines")
+        stems.append("fig2b_maze_baselines")
+    return [out / "figures" / f"{stem}.{ext}" for stem in stems for ext in ("pdf", "png")]
+
+
 def study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", choices=sorted(PROFILES), default="default",
                         help="named study configuration")
@@ -420,6 +443,10 @@ def resolve(args: argparse.Namespace) -> StudyConfig:
 
 
 def study_command(args: argparse.Namespace) -> int:
+    if getattr(args, "replot", False):
+        for path in replot(args.out):
+            print(f"wrote {path}")
+        return 0
     run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress)
     return 0
 
@@ -428,6 +455,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.study", description=__doc__.split(
         "\n")[0], formatter_class=DefaultsFormatter)
     study_arguments(parser)
+    parser.add_argument("--replot", action="store_true",
+                        help="only redraw Fig. 2 and 2b from OUT's figures/fig2_maze.csv and "
+                             "maze_config.json (no training)")
     args = parser.parse_args(argv)
     try:
         return study_command(args)

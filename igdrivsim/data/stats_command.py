@@ -191,8 +191,10 @@ def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
     return pd.DataFrame(rows, columns=["dataset", "reference", *FEATURES])
 
 
-def plot(frame, path: str, kept_only=()) -> None:
-    """One panel per statistic, one box-and-points distribution per data set."""
+def plot(frame, path: str, kept_only=(), min_box: int = 10) -> None:
+    """One panel per statistic, one distribution per data set, its scenario count ``n`` in its
+    label: the points over a box from ``min_box`` scenarios on, the points and their median
+    (black tick) below, where a box would pretend to a distribution."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
@@ -201,19 +203,35 @@ def plot(frame, path: str, kept_only=()) -> None:
 
     keep = ~frame["dataset"].isin(list(kept_only)) | frame["kept"]
     frame = frame[keep]
+    counts = frame["dataset"].value_counts()
+    labels = {n: f"{n} (n={counts[n]})" for n in dict.fromkeys(frame["dataset"])}
+    frame = frame.assign(dataset=frame["dataset"].map(labels))
+    order = list(labels.values())
+    palette = dict(zip(order, sns.color_palette(n_colors=len(order)), strict=True))
+    boxed = [labels[n] for n in labels if counts[n] >= min_box]
     cols = 4
     rows = -(-len(STATISTICS) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.4 * rows))
     for ax, s in zip(axes.ravel(), STATISTICS, strict=False):
-        sns.boxplot(frame, x=s.key, y="dataset", hue="dataset", ax=ax, showfliers=False,
-                    legend=False, width=0.5, boxprops={"alpha": 0.4})
-        sns.stripplot(frame, x=s.key, y="dataset", hue="dataset", ax=ax, size=2.5, alpha=0.6,
-                      legend=False, jitter=0.2)
+        if boxed:
+            sns.boxplot(frame[frame["dataset"].isin(boxed)], x=s.key, y="dataset", order=order,
+                        hue="dataset", palette=palette, ax=ax, showfliers=False, legend=False,
+                        width=0.5, boxprops={"alpha": 0.4})
+        sns.stripplot(frame, x=s.key, y="dataset", order=order, hue="dataset", palette=palette,
+                      ax=ax, size=3, alpha=0.7, legend=False, jitter=0.2)
+        for row, name in enumerate(order):
+            if name not in boxed:
+                values = frame.loc[frame["dataset"] == name, s.key].dropna()
+                if len(values):
+                    ax.plot(values.median(), row, marker="|", ms=14, mew=1.5, color="black")
         ax.set_title(s.label, fontsize=9)
-        ax.set_xlabel(s.unit)
+        ax.set_xlabel(s.unit or ("fraction" if s.key.endswith("share") else "count"))
         ax.set_ylabel("")
     for ax in axes.ravel()[len(STATISTICS):]:
         ax.axis("off")
+    fig.text(0.99, 0.02, f"n: scenarios; a box (quartiles, whiskers 1.5 IQR) from n = {min_box} "
+             "on,\nbelow it the points and their median (black tick)", ha="right", va="bottom",
+             fontsize=8, color="0.3")
     fig.tight_layout()
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)

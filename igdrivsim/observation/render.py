@@ -7,6 +7,11 @@ observation reports: under Gaussian position noise these are shifted (the ego be
 elsewhere), so the coloured layer visibly slides off the grey truth. Objects the setting hides
 stay grey (dashed outline); fields of view are drawn as a dashed circle or cone.
 
+Fig. 1 has a block of panels per training profile (:data:`PROFILE_VIEWS`: the laptop profile
+the default drivers use, 16 objects and 64 roadgraph points of a map thinned to every 8th point,
+and the paper's 32 objects and 1,500 points of the full map), so it shows what each profile's
+policy observes. Axes are metres in the ego frame (x ahead, y to the left).
+
 Rendering is host-side NumPy + matplotlib (Agg backend); the observation itself comes from the
 same jitted :func:`igdrivsim.observation.observe_with_selection` that training uses.
 """
@@ -16,6 +21,8 @@ from __future__ import annotations
 import math
 import os
 import sys
+import textwrap
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,6 +32,8 @@ import numpy as np
 from tqdm import tqdm
 
 import igdrivsim.simulator as sim
+from igdrivsim.data.scenario import CURRENT_INDEX
+from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_savefig, atomic_write
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
@@ -41,7 +50,7 @@ from igdrivsim.observation.models import (
 )
 from igdrivsim.observation.observe import observe_with_selection
 from igdrivsim.simulator import current_objects
-from igdrivsim.simulator.state import log_sdc_at, sdc_pose
+from igdrivsim.simulator.state import log_sdc_at, sdc_pose, thin_roadgraph
 
 # Roadgraph categories for colouring (WOMD tf.Example type codes).
 ROAD_CATEGORIES: dict[str, tuple[tuple[int, ...], str]] = {
@@ -54,6 +63,38 @@ HIDDEN = "#d0d0d0"
 OBSERVED_OBJECT = "#55a868"
 EGO = "#c44e52"
 FOV = "#dd8452"
+MAP_SPACING = 0.5  # metres between a WOMD polyline's points
+
+
+@dataclass(frozen=True)
+class ProfileView:
+    """What a training profile's policy observes (the ``observation`` section of
+    :func:`igdrivsim.training.config.get_profile`, which this layer cannot import; a test keeps
+    them equal)."""
+
+    profile: str
+    num_objects: int
+    num_roadgraph_points: int
+    roadgraph_stride: int  # the observable map keeps every k-th point of each polyline
+
+    @property
+    def config(self) -> ObservationConfig:
+        return ObservationConfig(self.num_objects, self.num_roadgraph_points)
+
+    def describe(self) -> str:
+        """One line: the profile and its observation capacities."""
+        stride = self.roadgraph_stride
+        which = "every map point" if stride == 1 else f"every {stride}th map point"
+        return (f"{self.profile} profile: {self.num_objects} objects, "
+                f"{self.num_roadgraph_points:,} nearest road points ({which}, "
+                f"{MAP_SPACING * stride:g} m apart)")
+
+
+PROFILE_VIEWS: dict[str, ProfileView] = {
+    "laptop": ProfileView("laptop", 16, 64, 8),  # the default run's drivers
+    "paper": ProfileView("paper", 32, 1500, 1),  # the paper's observation
+}
+DEFAULT_PROFILES: tuple[str, ...] = ("laptop", "paper")
 
 
 @dataclass
@@ -85,11 +126,25 @@ def _to_frame(xy: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
 _observe_jit = jax.jit(observe_with_selection, static_argnums=(1, 4))
 
 
+def observable_state(state: Any, stride: int) -> Any:
+    """``state`` with the observable map a run with ``roadgraph_stride=stride`` has
+    (:func:`igdrivsim.simulator.state.thin_roadgraph` around the SDC at the current step, as
+    :func:`igdrivsim.simulator.reset` does); ``state`` must hold the full map."""
+    if stride == 1:
+        return state
+    ref = jnp.stack([state.sdc.x[CURRENT_INDEX], state.sdc.y[CURRENT_INDEX]])
+    return state.replace(roadgraph=thin_roadgraph(state.roadgraph, stride, ref))
+
+
 def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Array,
-             step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG) -> Snapshot:
-    """Observe ONE (unbatched) simulator state under ``setting`` and collect what to draw."""
+             step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG,
+             stride: int = 1) -> Snapshot:
+    """Observe ONE (unbatched) simulator state under ``setting`` with the capacities ``config``
+    of a map thinned to every ``stride``-th point, and collect what to draw (the grey scene
+    keeps the whole map)."""
     setting = get_setting(setting)
-    obs, sel = _observe_jit(state, setting, episode_key, step_key, config)
+    obs, sel = _observe_jit(observable_state(state, stride), setting, episode_key, step_key,
+                            config)
     obs, sel = jax.tree.map(np.asarray, (obs, sel))
     objs = jax.tree.map(np.asarray, current_objects(state))
     i = int(state.sdc_index)
@@ -167,9 +222,10 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
         _box(ax, xy, yaw, size, facecolor="none", edgecolor="#9a9a9a",
              ls="-" if seen else ":", lw=0.8, zorder=2)
     _draw_fov(ax, setting)
+    size = 2.5 if len(snap.seen_road_xy) > 300 else 6.0  # a sparse observation: larger dots
     for types, colour in ROAD_CATEGORIES.values():
         pick = np.isin(snap.seen_road_type, types)
-        ax.scatter(snap.seen_road_xy[pick, 0], snap.seen_road_xy[pick, 1], s=2.5 * marker,
+        ax.scatter(snap.seen_road_xy[pick, 0], snap.seen_road_xy[pick, 1], s=size * marker,
                    c=colour, lw=0, zorder=3, rasterized=True)
     for xy, yaw, size in zip(snap.seen_obj_xy, snap.seen_obj_yaw, snap.seen_obj_size,
                              strict=True):
@@ -187,6 +243,16 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
                     arrowprops=dict(arrowstyle="->", color=EGO, lw=1.2))
 
 
+def panel_note(snap: Snapshot, width: int = 44) -> str:
+    """What the panel's observation holds, in lines of at most ``width`` characters (so the
+    note stays inside a panel)."""
+    parts = [f"seen: {int(snap.obj_seen.sum())}/{len(snap.obj_seen)} objects, "
+             f"{len(snap.seen_road_xy):,} road points"]
+    if snap.noise_offset is not None:
+        parts.append(f"believed ego {np.hypot(*snap.noise_offset):.1f} m off (dashed box)")
+    return "\n".join(line for part in parts for line in textwrap.wrap(part, width))
+
+
 def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | None = None,
                view: float = 30.0, inset: bool = True) -> None:
     """Draw one observation panel on ``ax`` (see the module docstring).
@@ -199,13 +265,9 @@ def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | Non
     ax.set_ylim(-0.75 * view, 0.75 * view)
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
-    ax.set_title(title or setting.name, fontsize=10)
-    info = f"objects seen {int(snap.obj_seen.sum())}/{len(snap.obj_seen)}, " \
-           f"road points {len(snap.seen_road_xy)}"
-    if snap.noise_offset is not None:
-        info += f"; believed ego offset |ε| = {np.hypot(*snap.noise_offset):.1f} m (dashed)"
-    ax.text(0.01, 0.01, info, transform=ax.transAxes, fontsize=7, va="bottom", color="#333333",
-            bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1.5), zorder=7)
+    ax.set_title(title or setting.name, fontsize=9)
+    ax.text(0.01, 0.01, panel_note(snap), transform=ax.transAxes, fontsize=6, va="bottom",
+            color="#333333", bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1.5), zorder=7)
     r = fov_radius(setting)
     if inset and r is not None and r < view / 3:
         sub = ax.inset_axes([0.58, 0.52, 0.41, 0.46])
@@ -238,45 +300,66 @@ def legend_handles() -> list:
     ]
 
 
+X_LABEL, Y_LABEL = "x, ahead of the ego (m)", "y, left of the ego (m)"
+
+
+def profile_views(profiles: Sequence[str]) -> list[ProfileView]:
+    """The :data:`PROFILE_VIEWS` of ``profiles`` (ConfigError naming the known ones)."""
+    unknown = [p for p in profiles if p not in PROFILE_VIEWS]
+    if unknown or not profiles:
+        raise ConfigError(f"Fig. 1 profiles must be among {', '.join(PROFILE_VIEWS)}, got "
+                          f"{', '.join(unknown) or 'none'}")
+    return [PROFILE_VIEWS[p] for p in profiles]
+
+
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
-                       config: ObservationConfig = DEFAULT_CONFIG, source: str | None = None):
-    """Fig. 1: one panel per setting on the same (unbatched) state; returns the figure.
-    ``source`` (e.g. "real WOMD scenario ..." or "synthetic scenario ...") is said under the
-    title."""
+                       source: str | None = None,
+                       profiles: Sequence[str] = DEFAULT_PROFILES):
+    """Fig. 1: for each profile in ``profiles`` (a block titled with its capacities), one panel
+    per setting on the same (unbatched) state, which must hold the full map; returns the
+    figure. ``source`` (e.g. "real WOMD scenario ...") is said under the title."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy: only when drawing
 
+    views = profile_views(profiles)
     ncols = 3 if len(settings) > 2 else len(settings)
     nrows = math.ceil(len(settings) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.4 * nrows), squeeze=False)
+    fig = plt.figure(figsize=(3.3 * ncols, (2.75 * nrows + 0.35) * len(views) + 1.3),
+                     layout="constrained")
     episode_key, step_key = jax.random.split(key)
-    for ax, name in zip(axes.flat, settings, strict=False):
-        setting = get_setting(name)
-        snap = snapshot(state, setting, episode_key, step_key, config)
-        draw_panel(ax, snap, setting, PRESET_TITLES.get(setting.name, setting.name), view)
-    for ax in list(axes.flat)[len(settings):]:
-        ax.axis("off")
-    title = ("What the imitator observes, in the ego's frame (colour: in the observation; "
-             "grey: the true scene)")
+    for sub, profile in zip(fig.subfigures(len(views), 1, squeeze=False)[:, 0], views,
+                            strict=True):
+        axes = sub.subplots(nrows, ncols, squeeze=False)
+        for i, (ax, name) in enumerate(zip(axes.flat, settings, strict=False)):
+            setting = get_setting(name)
+            snap = snapshot(state, setting, episode_key, step_key, profile.config,
+                            profile.roadgraph_stride)
+            draw_panel(ax, snap, setting, PRESET_TITLES.get(setting.name, setting.name), view)
+            if i % ncols == 0:
+                ax.set_ylabel(Y_LABEL, fontsize=7)
+            if i + ncols >= len(settings):  # the lowest panel of its column
+                ax.set_xlabel(X_LABEL, fontsize=7)
+        for ax in list(axes.flat)[len(settings):]:
+            ax.axis("off")
+        sub.suptitle(profile.describe(), fontsize=10, fontweight="bold")
+    title = ("What each profile's policy observes, in the ego's frame (colour: in the "
+             "observation; grey: the true scene)")
     fig.suptitle(f"{title}\n{source}" if source else title, fontsize=11)
     handles = legend_handles()
-    legend_cols = 5 if ncols >= 3 else 2 * ncols  # about 0.8 inch of width per entry
-    legend_rows = math.ceil(len(handles) / legend_cols)
-    fig.legend(handles=handles, loc="lower center", ncol=legend_cols, fontsize=8, frameon=False)
-    height = fig.get_figheight()
-    fig.tight_layout(rect=(0, min(0.4, (0.1 + 0.2 * legend_rows) / height), 1, 1))
+    fig.legend(handles=handles, loc="outside lower center", ncol=5 if ncols >= 3 else 2 * ncols,
+               fontsize=7, frameon=False)
     return fig
 
 
 def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: list[str],
-                             key: jax.Array, view: float = 30.0,
-                             source: str | None = None) -> list[str]:
+                             key: jax.Array, view: float = 30.0, source: str | None = None,
+                             profiles: Sequence[str] = DEFAULT_PROFILES) -> list[str]:
     """Write ``out_dir/fig1_observations.{pdf,png}``; returns the paths."""
     import matplotlib.pyplot as plt  # heavy: only when drawing
 
-    fig = observation_figure(state, settings, key, view, source=source)
+    fig = observation_figure(state, settings, key, view, source=source, profiles=profiles)
     try:
         return [os.fspath(atomic_savefig(fig, os.path.join(out_dir, f"fig1_observations.{ext}"),
                                          dpi=200)) for ext in ("pdf", "png")]

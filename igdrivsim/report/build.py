@@ -149,7 +149,7 @@ def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, he
                           methods_table.table2_markdown(summary, tests_all, header)),
         atomic_write_text(tables / "table2.tex",
                           methods_table.table2_latex(summary, tests_all, caption)),
-        *save_figure(fig6_methods(seeds), figures, "fig6_methods"),
+        *save_figure(fig6_methods(seeds, tests=tests_all), figures, "fig6_methods"),
     ]
 
 
@@ -194,7 +194,7 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
         atomic_write_text(generated / "provenance.tex", provenance_tex(
             provenance, n_seeds, n_scenarios, date, git_commit())),
     ]
-    written += save_figure(fig3_metrics(seeds), figures, "fig3_metrics")
+    written += save_figure(fig3_metrics(seeds, tests), figures, "fig3_metrics")
     extra = registry.metrics()
     extra_summary = summarize(per_scenario, metrics=extra)
     written += [

@@ -1,20 +1,26 @@
-"""Fig. 3 (per-step metrics of BC versus BC-RL) and Fig. 4 (learning curves).
+"""Fig. 3 (per-step metrics of BC versus BC-RL), Fig. 4 (learning curves), Fig. 5
+(supplementary metrics) and Fig. 6 (every learned method).
 
-Fig. 3: three panels (log divergence, overlap %, offroad %), one group of bars per setting, BC
-in blue and BC-RL in orange as in the paper; bars are the mean over seeds and error bars the 95%
-t-interval over the seed means (the same numbers as Table I).
+Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`): settings on the x axis, a bar
+per method (BC blue, BC-RL orange as in the paper, other methods in their registry colour),
+mean over seeds with the 95% t-interval over seed means clipped to the metric's range (the
+numbers of the tables), an asterisk where a method differs from BC after the Holm correction
+(``tests``: the report's ``tests.csv`` / ``tests_all.csv``), constant velocity and the expert
+as labelled horizontal lines. The figure's ``marked`` attribute maps each panel's metric to its
+asterisked ``(setting, method)`` cells.
 
 Fig. 4: what each training run logged in its ``curves.jsonl`` (teacher-forced validation BC
 loss, closed-loop validation metrics every K updates) against the update, one column per
 setting, so a reader sees whether training converged; constant velocity and the expert replay
 are drawn as horizontal references when their evaluation is available.
 
-Fig. 6 (only with methods beyond BC and BC-RL): Fig. 3's panels with one bar per learned
-method in its registry colour, the constant-velocity and expert levels as dashed lines.
+``python -m igdrivsim.report.figures [PAPER]`` redraws Fig. 3, 5 (and 6 when its methods'
+numbers are there) from the report's tables (``PAPER/tables/*.csv``), without the evaluations.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from collections.abc import Iterable, Sequence
@@ -27,9 +33,9 @@ matplotlib.use("Agg")  # figures are files; never open a window
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
+from matplotlib.container import BarContainer  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.aggregate import CONFIDENCE, t_interval  # noqa: E402
 from igdrivsim.evaluation.schema import (  # noqa: E402
     BC,
     BC_RL,
@@ -41,7 +47,9 @@ from igdrivsim.evaluation.schema import (  # noqa: E402
     table_settings,
 )
 from igdrivsim.io import atomic_savefig  # noqa: E402
+from igdrivsim.report import plots  # noqa: E402
 from igdrivsim.report.methods_table import (  # noqa: E402
+    extended_methods,
     learned_methods,
     method_colours,
     method_label,
@@ -50,48 +58,75 @@ from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 
 PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange
 PANELS = ("log_divergence", "overlap", "offroad")
+CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
 
 
-def _t_errorbar(values) -> tuple[float, float]:
-    """seaborn error-bar callable: the t-interval over seed means (no bar for one seed)."""
-    mean, low, high = t_interval(values.to_numpy(), CONFIDENCE)
-    return (low, high) if pd.notna(low) else (mean, mean)
+def _metric_name(key: str) -> str:
+    """Table I's two-line label of a metric as one line, without its unit."""
+    return " ".join(METRIC_BY_KEY[key].label).replace("\\", "").replace(" (%)", "")
 
 
-def fig3_metrics(seed_level: pd.DataFrame):
-    """Build the figure from the long ``setting, method, seed, metric, value`` frame
-    (:func:`igdrivsim.evaluation.aggregate.seed_means`)."""
-    settings = table_settings(seed_level)
-    data = seed_level[seed_level.method.isin((BC, BC_RL)) & seed_level.metric.isin(PANELS)
-                      & seed_level.setting.isin(settings)].copy()
-    data["Method"] = data.method.map(METHOD_LABELS)
-    data["Setting"] = data.setting.map(setting_short)
-    order = [setting_short(s) for s in settings if s in set(data.setting)]
-    hue_order = [METHOD_LABELS[m] for m in (BC, BC_RL)]
-    sns.set_theme(style="whitegrid", context="paper")
-    fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.2, 6.4), sharex=True)
-    for ax, key in zip(axes, PANELS, strict=True):
-        metric = METRIC_BY_KEY[key]
-        panel = data[data.metric == key]
-        if panel.empty:
-            ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
-        else:
-            sns.barplot(data=panel, x="Setting", y="value", hue="Method", order=order,
-                        hue_order=hue_order, palette=PALETTE, errorbar=_t_errorbar,
-                        capsize=0.15, err_kws={"linewidth": 1.0}, ax=ax)
-        name = " ".join(metric.label).replace("\\", "").replace(" (%)", "")
-        ax.set_ylabel(f"{name} ({metric.unit})")
-        ax.set_xlabel("")
-        legend = ax.get_legend()
-        if legend is not None and ax is not axes[0]:
-            legend.remove()
-    if axes[0].get_legend() is not None:
-        axes[0].legend(title=None, frameon=False, ncols=2, loc="lower center",
-                       bbox_to_anchor=(0.5, 1.0))
-    axes[-1].tick_params(axis="x", rotation=30)
-    for label in axes[-1].get_xticklabels():
+def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[str],
+               methods: Sequence[str], tests: pd.DataFrame | None) -> list[plots.Cell]:
+    """One metric's bars, references and significance marks on ``ax``; the marked cells."""
+    cells = plots.cell_stats(frame, key, unit)
+    cells = cells[cells.method.isin(methods) & cells.setting.isin(settings)]
+    ax.set_xticks(range(len(settings)), [setting_short(s) for s in settings])
+    if cells.empty:
+        ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
+        return []
+    colours = method_colours(methods)
+    positions = plots.draw_bars(ax, cells, settings, methods, colours,
+                                {m: method_label(m) for m in methods})
+    plots.reference_lines(ax, plots.reference_levels(frame, key))
+    plots.floor_at_range(ax, unit)
+    return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
+
+
+def _present_settings(frame: pd.DataFrame) -> list[str]:
+    """The table's settings (Table I order) that ``frame`` holds."""
+    present = set(frame.setting.astype(str))
+    return [s for s in table_settings(frame) if s in present]
+
+
+def _rotate_settings(ax) -> None:
+    ax.tick_params(axis="x", labelbottom=True, rotation=30)
+    for label in ax.get_xticklabels():
         label.set_horizontalalignment("right")
-    fig.tight_layout()
+
+
+def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
+    """The figure's legend (methods, references, the asterisk when a panel is tested) above
+    (``top``) or below the panels; returns its number of rows."""
+    handles = plots.figure_handles(fig)  # the methods' bars first, then the lines
+    handles = dict(sorted(handles.items(), key=lambda kv: not isinstance(kv[1], BarContainer)))
+    if tested:
+        star = plots.significance_handle()
+        handles[star.get_label()] = star
+    if not handles:
+        return 0
+    fig.legend(list(handles.values()), list(handles), frameon=False, ncols=ncols,
+               loc="upper center" if top else "lower center",
+               bbox_to_anchor=(0.5, 1.0) if top else (0.5, 0.0), fontsize=7)
+    return math.ceil(len(handles) / ncols)
+
+
+def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
+    """Fig. 3 from the seed-level frame (:func:`igdrivsim.evaluation.aggregate.seed_means`) or
+    the summary (``tables/summary.csv``); ``tests``: BC-RL vs BC (``tables/tests.csv``)."""
+    settings = _present_settings(seed_level)
+    sns.set_theme(style="whitegrid", context="paper")
+    fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
+    marked = {}
+    for ax, key in zip(axes, PANELS, strict=True):
+        unit = METRIC_BY_KEY[key].unit
+        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, (BC, BC_RL), tests)
+        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
+    _rotate_settings(axes[-1])
+    fig.marked = marked
+    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=2)
+    fig.text(0.01, 0.005, CLIPPED, fontsize=6, color="0.35")
+    fig.tight_layout(rect=(0, 0.015, 1, 1 - 0.027 * rows))
     return fig
 
 
@@ -106,14 +141,12 @@ def save_figure(fig, out_dir: str | Path, stem: str) -> list[Path]:
 
 # Fig. 4 rows: (curves.jsonl key, y label, scale, per_scenario.csv column of the references).
 CURVE_ROWS: tuple[tuple[str, str, float, str | None], ...] = (
-    ("val_bc_loss", "validation BC loss", 1.0, None),
+    ("val_bc_loss", "validation BC loss (nats)", 1.0, None),
     ("log_divergence", "log divergence (m)", 1.0, "log_divergence"),
     ("offroad", "offroad (% steps)", 100.0, "offroad_steps"),
     ("overlap", "overlap (% steps)", 100.0, "overlap_steps"),
 )
 CURVES_FILE = "curves.jsonl"
-_REFERENCE_STYLE = {CONSTANT_VELOCITY: dict(color="0.45", linestyle="-.", linewidth=1.0),
-                    EXPERT: dict(color="0.1", linestyle=":", linewidth=1.2)}
 
 
 def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:
@@ -225,7 +258,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                              figsize=(1.2 + 2.3 * len(settings), 1.2 + 1.8 * len(CURVE_ROWS)))
     for col, setting in enumerate(settings):
         axes[0, col].set_title(setting_short(setting))
-        axes[-1, col].set_xlabel("update")
+        axes[-1, col].set_xlabel("training update (count)")
         for row, (key, label, scale, _) in enumerate(CURVE_ROWS):
             ax = axes[row, col]
             drawn = False
@@ -256,7 +289,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                 if key in values and math.isfinite(values[key]):
                     later.append(values[key])
                     ax.axhline(values[key], label=METHOD_LABELS[method],
-                               **_REFERENCE_STYLE[method])
+                               **plots.REFERENCE_STYLE[method])
             _zoom_past_start(ax, first, later)
             if not drawn:
                 ax.text(0.5, 0.5, "not logged", ha="center", va="center",
@@ -273,112 +306,125 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     return save_figure(fig, out_dir, stem)
 
 
-def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
+def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
+                         tests: pd.DataFrame | None = None):
     """Fig. 5: one panel per registry metric with ``figure=True`` (``metrics``), bars per
-    setting for every learned method present (mean over seeds, 95% t-interval), the expert
-    and constant velocity as horizontal lines when evaluated. ``seed_level``:
-    :func:`seed_means` over the registry's metrics."""
+    setting for every learned method present, the expert and constant velocity as lines.
+    ``seed_level``: :func:`seed_means` over the registry's metrics, or their summary
+    (``tables/supplementary_summary.csv``); ``tests``: significance of these metrics, if any
+    (without, the figure says they are descriptive)."""
     panels = [m for m in metrics if m.figure]
-    order = list(table_settings(seed_level))
+    order = _present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
-    data = seed_level[seed_level.method.isin(learned) & seed_level.setting.isin(order)]
-    data = data.assign(Method=data.method.map(METHOD_LABELS), Setting=data.setting)
-    refs = seed_level[seed_level.method.isin((EXPERT, CONSTANT_VELOCITY))]
     sns.set_theme(style="whitegrid", context="paper")
     ncols = 2 if len(panels) > 1 else 1
     nrows = max(1, math.ceil(len(panels) / ncols))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.0 * ncols, 2.2 * nrows + 0.4),
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.0 * ncols, 2.2 * nrows + 0.6),
                              squeeze=False, sharex=True)
-    hue_order = [METHOD_LABELS[m] for m in learned]
+    marked = {}
     for ax, metric in zip(axes.ravel(), panels, strict=False):
-        panel = data[data.metric == metric.key]
-        if panel.empty or panel.value.isna().all():
-            ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
-        else:
-            sns.barplot(data=panel, x="Setting", y="value", hue="Method", order=order,
-                        hue_order=hue_order, palette=PALETTE, errorbar=_t_errorbar,
-                        capsize=0.15, err_kws={"linewidth": 1.0}, ax=ax)
-        for method in (EXPERT, CONSTANT_VELOCITY):
-            level = refs[(refs.method == method) & (refs.metric == metric.key)].value.mean()
-            if pd.notna(level):
-                ax.axhline(level, label=METHOD_LABELS[method], **_REFERENCE_STYLE[method])
+        marked[metric.key] = _bar_panel(ax, seed_level, metric.key, metric.unit, order,
+                                        learned, tests)
         arrow = "↑" if metric.higher_is_better else "↓"
         ax.set_title(f"{metric.label} {arrow}", fontsize=9)
         ax.set_ylabel(metric.unit)
-        ax.set_xlabel("")
-        ax.set_xticks(range(len(order)), [setting_short(s) for s in order], rotation=30,
-                      ha="right")
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
     for col in range(ncols):  # setting names under the lowest drawn panel of each column
         drawn = [r for r in range(nrows) if r * ncols + col < len(panels)]
         if drawn:
-            axes[drawn[-1], col].tick_params(axis="x", labelbottom=True)
-    handles: dict[str, object] = {}
-    for ax in axes.ravel():
-        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(name, handle)
-    if handles:
-        fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
-                   ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
-    fig.tight_layout(rect=(0, 0.06 if handles else 0, 1, 1))
+            _rotate_settings(axes[drawn[-1], col])
+    tested = tests is not None and bool(set(tests.metric) & {m.key for m in panels})
+    fig.marked = marked
+    rows = _legend(fig, tested, ncols=4, top=False)
+    note = CLIPPED + ("" if tested else "; no significance tests on these metrics "
+                      "(descriptive)")
+    fig.text(0.01, 0.995, note, fontsize=7, color="0.35", va="top")
+    fig.tight_layout(rect=(0, 0.03 * rows + 0.01, 1, 0.985))
     return fig
 
 
-_FIG6_REFERENCES = {CONSTANT_VELOCITY: "0.45", EXPERT: "0.1"}
+def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequence[str]) -> str:
+    """Which methods a setting lacks, and why when known (a taught method has no run in the
+    setting of its privileged teacher, Full)."""
+    notes = []
+    for setting in settings:
+        here = set(frame[frame.setting == setting].method)
+        absent = [m for m in methods if m not in here]
+        if not absent:
+            continue
+        names = ", ".join(method_label(m) for m in absent)
+        why = ("not trained there: their teacher is the Full-setting policy"
+               if setting == "full" and all(getattr(METHOD_REGISTRY.get(m), "teacher", False)
+                                            for m in absent) else "not evaluated")
+        notes.append(f"{setting_short(setting)}: no {names} ({why})")
+    return "; ".join(notes)
 
 
-def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS):
+def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
+                 tests: pd.DataFrame | None = None):
     """Fig. 6: one panel per metric key in ``panels``, settings on the x axis, a bar per
-    learned method (mean over seeds, 95% t-interval over seed means), constant velocity and
-    the expert as dashed horizontal lines when evaluated. ``seed_level``: :func:`seed_means`."""
+    learned method present in the setting. ``seed_level``: :func:`seed_means` (or a summary);
+    ``tests``: every method vs BC (``tables/tests_all.csv``)."""
     methods = learned_methods(seed_level)
     learned = seed_level[seed_level.method.isin(methods)]
-    present = set(learned.setting.astype(str))
-    settings = [s for s in table_settings(learned) if s in present]
-    data = learned[learned.metric.isin(panels) & learned.setting.isin(settings)].copy()
-    data["Method"] = data.method.map(method_label)
-    data["Setting"] = data.setting.map(setting_short)
-    order = [setting_short(s) for s in settings]
-    hue_order = [method_label(m) for m in methods]
-    palette = {method_label(m): c for m, c in method_colours(methods).items()}
-    refs = seed_level[seed_level.method.isin(_FIG6_REFERENCES)]
+    settings = _present_settings(learned)
     sns.set_theme(style="whitegrid", context="paper")
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
-    fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.6),
+    fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),
                              sharex=True, squeeze=False)
+    marked = {}
     for ax, key in zip(axes[:, 0], panels, strict=True):
-        metric = METRIC_BY_KEY[key]
-        panel = data[data.metric == key]
-        if panel.empty or panel.value.isna().all():
-            ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
-        else:
-            sns.barplot(data=panel, x="Setting", y="value", hue="Method", order=order,
-                        hue_order=hue_order, palette=palette, errorbar=_t_errorbar,
-                        capsize=0.15, err_kws={"linewidth": 1.0}, ax=ax)
-        for method, colour in _FIG6_REFERENCES.items():
-            level = refs[(refs.method == method) & (refs.metric == key)].value.mean()
-            if pd.notna(level):
-                ax.axhline(level, color=colour, linestyle="--", linewidth=1.0,
-                           label=method_label(method))
-        ax.set_ylabel(f"{' '.join(metric.label).replace(chr(92), '').replace(' (%)', '')} "
-                      f"({metric.unit})")
-        ax.set_xlabel("")
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
-    axes[-1, 0].tick_params(axis="x", rotation=30)
-    for label in axes[-1, 0].get_xticklabels():
-        label.set_horizontalalignment("right")
-    handles: dict[str, object] = {}
-    for ax in axes.ravel():
-        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(name, handle)
-    ncols = 3 if width >= 6.5 else 2
-    if handles:
-        fig.legend(list(handles.values()), list(handles), loc="upper center", frameon=False,
-                   ncols=min(len(handles), ncols), bbox_to_anchor=(0.5, 1.0))
-    rows = math.ceil(len(handles) / ncols)
-    fig.tight_layout(rect=(0, 0, 1, 1 - (0.035 * rows if handles else 0)))
+        unit = METRIC_BY_KEY[key].unit
+        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, methods, tests)
+        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
+    _rotate_settings(axes[-1, 0])
+    ncols = 4 if width >= 6.5 else 2
+    fig.marked = marked
+    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+    note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
+    fig.text(0.01, 0.005, note, fontsize=7, color="0.35")
+    fig.tight_layout(rect=(0, 0.02, 1, 1 - 0.035 * rows))
     return fig
+
+
+def _read(path: Path) -> pd.DataFrame | None:
+    return pd.read_csv(path, dtype={"setting": str, "method": str}) if path.is_file() else None
+
+
+def redraw_from_tables(paper: str | Path) -> list[Path]:
+    """Fig. 3 and 5 (and Fig. 6 when the summary holds its methods) from ``paper/tables``:
+    the seed means (or summary) and tests the report wrote. Returns the written paths."""
+    from igdrivsim.evaluation import registry  # the supplementary metrics
+
+    tables, figures = Path(paper) / "tables", Path(paper) / "figures"
+    seeds = _read(tables / "seed_means.csv")
+    summary = _read(tables / "summary.csv")
+    main = seeds if seeds is not None else summary
+    if main is None:
+        raise DataError("no seed_means.csv or summary.csv: run `igdrivsim report` first",
+                        file=str(tables))
+    written = save_figure(fig3_metrics(main, _read(tables / "tests.csv")), figures,
+                          "fig3_metrics")
+    supplementary = _read(tables / "supplementary_summary.csv")
+    if supplementary is not None:
+        written += save_figure(supplementary_figure(supplementary, registry.metrics()),
+                               figures, "fig5_supplementary")
+    tests_all = _read(tables / "tests_all.csv")
+    if tests_all is not None and extended_methods(main):
+        written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
+    return written
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.figures",
+                                     description="redraw Fig. 3, 5 and 6 from the report's "
+                                                 "tables (PAPER/tables/*.csv)")
+    parser.add_argument("paper", nargs="?", default="paper", help="the report folder")
+    for path in redraw_from_tables(parser.parse_args(argv).paper):
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 
@@ -17,11 +18,33 @@ from igdrivsim.data.scenario import (
 from igdrivsim.io import atomic_savefig
 
 _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
+_GENERATED = re.compile(r"syn([0-9a-f]+)([a-z])(\d{8})")  # the generator's scenario names
+_SPLITS = {"t": "training", "v": "validation"}
 
 
-def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
+def readable_title(scenario_id: str) -> str:
+    """``syn0t00000003`` -> ``Synthetic training scenario 3 (seed 0)``; another id as it is."""
+    match = _GENERATED.fullmatch(scenario_id)
+    if match is None:
+        return f"Scenario {scenario_id}"
+    seed, split, index = match.groups()
+    return (f"Synthetic {_SPLITS.get(split, split)} scenario {int(index)} "
+            f"(seed {int(seed, 16)})")
+
+
+def add_scale_bar(ax, metres: float = 20.0) -> None:
+    """A ``metres``-long bar with its length, lower right inside the axes (data in metres)."""
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # heavy: drawing only
+
+    ax.add_artist(AnchoredSizeBar(ax.transData, metres, f"{metres:g} m", "lower right",
+                                  pad=0.4, sep=3, frameon=True, size_vertical=0.8,
+                                  fontproperties={"size": 7}))
+
+
+def draw_scenario(ax, scenario: Scenario, radius: float = 70.0, title: str | None = None) -> None:
     """Draw one (unbatched) scenario on a matplotlib axis: boxes at step 10, the whole logged
-    trajectories, the view centred on the middle of the SDC's log."""
+    trajectories, the view centred on the middle of the SDC's log, a scale bar; ``title``
+    (default: :func:`readable_title` of its id) above."""
     from matplotlib.patches import Polygon  # heavy: only when drawing
 
     rg, tr, md = scenario.roadgraph, scenario.trajectory, scenario.metadata
@@ -65,11 +88,12 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0) -> None:
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
-    ax.set_title(decode_scenario_id(scenario.scenario_id), fontsize=8)
+    ax.set_title(title or readable_title(decode_scenario_id(scenario.scenario_id)), fontsize=9)
+    add_scale_bar(ax)
 
 
 def add_legend(ax) -> None:
-    """Explain the colours of :func:`draw_scenario` (small, lower left)."""
+    """Explain the colours of :func:`draw_scenario` (below the axes, off the road)."""
     from matplotlib.lines import Line2D  # heavy: only when drawing
 
     items = [("SDC (box at t=1 s, log)", "tab:red", "-"), ("vehicles", "tab:blue", "-"),
@@ -78,11 +102,13 @@ def add_legend(ax) -> None:
              ("traffic light (stop point)", "red", "o")]
     handles = [Line2D([], [], color=c, ls="" if ls == "o" else ls, marker="o" if ls == "o" else
                       None, ms=3.5, lw=1.5) for _, c, ls in items]
-    ax.legend(handles, [n for n, _, _ in items], loc="lower left", fontsize=6, framealpha=0.85)
+    ax.legend(handles, [n for n, _, _ in items], loc="upper center", bbox_to_anchor=(0.5, -0.01),
+              ncols=3, fontsize=7, frameon=False)
 
 
 def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
-    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` (k from 1), written atomically."""
+    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` titled ``k: ...`` (k from 1), written
+    atomically."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
@@ -91,8 +117,9 @@ def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthe
     os.makedirs(out_dir, exist_ok=True)
     paths = []
     for k, scenario in enumerate(scenarios, 1):
-        fig, ax = plt.subplots(figsize=(5, 5), dpi=110)
-        draw_scenario(ax, scenario)
+        fig, ax = plt.subplots(figsize=(5, 5.7), dpi=110)
+        name = readable_title(decode_scenario_id(scenario.scenario_id))
+        draw_scenario(ax, scenario, title=f"{k}: {name[0].lower()}{name[1:]}")
         add_legend(ax)
         fig.tight_layout()
         path = os.path.join(out_dir, f"{prefix}_{k}.png")
