@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import pytest
 
 from igdrivsim.training.bench import matmul_flops
 
@@ -54,3 +55,18 @@ def test_trace_summary_sums_a_kernel_kind_per_timeline_line(tmp_path):
                                    "share": 0.8, "count": 2}
     assert [r["name"] for r in out["trace_top"]] == ["Stream #N: gemm_fusion_dot_N",
                                                       "Stream #N: loop_add_fusion"]
+
+
+def test_bench_train_times_the_update_and_its_parts():
+    """`bench train --parts`: the record counts one update's work from the method's passes and
+    times the update's parts alone."""
+    from igdrivsim.training.bench import bench_profile
+
+    r = bench_profile("smoke", "bc", updates=1, obs="full", parts=True)
+    assert r["params_per_seed"] > 0 and r["seconds_per_update"] > 0
+    # smoke: 2 seeds x 4 scenarios x 80 steps x 2 passes, 2 minibatches each
+    assert r["scenario_steps_per_s"] * r["seconds_per_update"] == pytest.approx(2 * 4 * 80 * 2,
+                                                                               rel=1e-2)
+    assert r["grad_steps_per_s"] * r["seconds_per_update"] == pytest.approx(2 * 2 * 2, rel=1e-2)
+    assert set(r["parts_s"]) == {"record", "observe", "collect", "forward_backward"}
+    assert all(v > 0 for v in r["parts_s"].values())

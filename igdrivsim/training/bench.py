@@ -52,8 +52,8 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings trained together, comma-separated (default: the "
                              "paper's six)")
     parser.add_argument("--batch-size", dest="batch", type=int, default=0,
-                        help="scenarios per update (0: the profile's; paper on CPU: 1, whose "
-                             "measured seconds per update are in igdrivsim/training/cost.py)")
+                        help="scenarios per update (0: the profile's; paper on CPU: 8, the "
+                             "batch of the CPU rates in igdrivsim/training/cost.py)")
     deprecated_alias(parser, "--batch", "batch", type=int)
     parser.add_argument("--seeds", type=int, default=0, help="seeds (0: the profile's)")
     parser.add_argument("--updates", type=int, default=3, help="timed updates (after compile)")
@@ -66,6 +66,11 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trace", default=None, metavar="DIR",
                         help="after timing, trace one more update with jax.profiler into DIR "
                              "(a Perfetto trace) and add its busiest operations to the record")
+    parser.add_argument("--parts", action="store_true",
+                        help="also time the update's parts alone, for the first setting and "
+                             "seed (recording the teacher-forced episodes, the setting's "
+                             "observations, the policy's rollout, one forward and backward "
+                             "pass) into the record's parts_s")
 
 
 def matmul_flops(fn, *args) -> int:
@@ -135,9 +140,46 @@ def trace_summary(trace_dir: str, top: int = 15) -> dict:
                            "count": count[n]} for n, t in rows]}
 
 
+def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> dict:
+    """Seconds of each part of one update of the first setting and seed on its batch, each
+    part jitted and timed alone (mean of ``repeats`` calls after one untimed): recording the
+    teacher-forced episodes from the reset states, the setting's observations of them, the
+    method's collection (with the policy's closed-loop rollout for a method that drives) and
+    one forward and backward pass of the loss over the collected batch."""
+    from functools import partial
+
+    from igdrivsim.observation import get_setting
+    from igdrivsim.training.update import _loss, collect, expert_sequences, record_episode
+
+    def timed(fn, *args):
+        out = fn(*args)
+        jax.block_until_ready(out)
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            out = fn(*args)
+        jax.block_until_ready(out)
+        return out, round((time.perf_counter() - t0) / repeats, 4)
+
+    first = lambda tree: jax.tree.map(lambda x: x[0], tree)  # noqa: E731
+    p, st, tp = first(first(params)), first(states), first(teacher_params)
+    setting = spec.setting or get_setting("full")
+    rec, record_s = timed(jax.jit(jax.vmap(lambda s: record_episode(s, spec.sim, spec.record))),
+                          st)
+    b = rec.sdc_yaw.shape[0]
+    episode_keys = jax.random.split(first(keys), b)
+    _, observe_s = timed(jax.jit(lambda r, k: expert_sequences(spec, r, setting, k)), rec,
+                         episode_keys)
+    data, collect_s = timed(jax.jit(lambda p, r, s, tp, k: collect(
+        spec, p, None, r, s, setting, tp, k)[0]), p, rec, st, tp, first(keys))
+    _, pass_s = timed(jax.jit(jax.value_and_grad(partial(_loss, spec), has_aux=True)), p, data)
+    return {"record": record_s, "observe": observe_s, "collect": collect_s,
+            "forward_backward": pass_s}
+
+
 def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 0, seeds: int = 0,
                   updates: int = 3, overrides: tuple[str, ...] = (),
-                  obs: str = ",".join(PAPER_SETTINGS), trace: str | None = None) -> dict:
+                  obs: str = ",".join(PAPER_SETTINGS), trace: str | None = None,
+                  parts: bool = False) -> dict:
     """Measure one profile; returns the JSON record."""
     # lazy: keeps `igdrivsim bench train --help` fast (the loop pulls in orbax, grain)
     from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
@@ -149,7 +191,7 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
         raise ConfigError("bench train times a method's update with an untrained teacher of the "
                           "same network; --set training.teacher is not taken")
     if batch or (profile == "paper" and cpu):
-        sets.append(f"data.batch_size={batch or 1}")
+        sets.append(f"data.batch_size={batch or 8}")
     if seeds or (profile == "paper" and cpu):
         sets.append(f"training.seeds={seeds or 1}")
     config = with_overrides(get_profile(profile), sets + list(overrides))
@@ -198,6 +240,10 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             params, opt_state, buffer, m = update(params, opt_state, buffer, *args, 0, 1e-3)
             jax.block_until_ready(params)
         traced = trace_summary(trace)
+    if parts:
+        with_states = inputs.Dataset.from_config(config, scenarios, spec.sim, need_states=True)
+        traced["parts_s"] = time_parts(spec, params, with_states.host_batch(0)[1], keys,
+                                       teacher_params)
     t = config.training
     epochs, minibatches = config.sgd_passes
     runs = len(run_settings(config)) * t.seeds
@@ -234,7 +280,7 @@ def bench_train_command(args: argparse.Namespace) -> int:
     for name in names:
         trace = os.path.join(args.trace, name) if args.trace else None
         records.append(bench_profile(name, args.method, args.batch, args.seeds, args.updates,
-                                     tuple(args.overrides), args.obs, trace))
+                                     tuple(args.overrides), args.obs, trace, args.parts))
         print(json.dumps(records[-1]), flush=True)
     if args.out:
         atomic_write_json(args.out, {"machine": machine_record(), "records": records}, indent=2)

@@ -20,12 +20,12 @@ import sys
 
 from igdrivsim.training.config import RunConfig, get_profile
 
-# Paper network (the original's) on the 2-core AMD EPYC, one episode per update:
-# `igdrivsim bench train --profiles paper --method bc --obs full --updates 5 --out
-# docs/bench/train_paper_bc_cpu.json` and the same with `--method bc_rl --updates 3`
-# (train_paper_bc_rl_cpu.json): seconds per update = per episode.
-CPU_SECONDS_PER_EPISODE = 0.3553  # teacher-forced methods (BC): one Adam step per batch
-CPU_SECONDS_PER_ROLLOUT_EPISODE = 4.8747  # methods that drive (BC-RL: 4 epochs x 4 minibatches)
+# Paper network (the original's) on the 2-core AMD EPYC, 8 scenarios x 1 seed per update (its
+# other core busy with other work): `igdrivsim bench train --profiles paper --method bc --obs
+# full --updates 3 --out docs/bench/train_paper_bc_cpu.json` and the same with `--method bc_rl
+# --updates 2` (train_paper_bc_rl_cpu.json); seconds per update / 8 = per episode.
+CPU_SECONDS_PER_EPISODE = 2.0966 / 8  # teacher-forced methods (BC): one Adam step per batch
+CPU_SECONDS_PER_ROLLOUT_EPISODE = 12.3355 / 8  # methods that drive (BC-RL: 4 x 4 PPO steps)
 # The paper network has not been timed on a GPU yet (`bash scripts/bench_gpu.sh docs/bench` on
 # a machine with one writes train_paper_bc_<gpu>.json; set these from it): None, unmeasured.
 GPU_SECONDS_PER_EPISODE: float | None = None
