@@ -247,3 +247,32 @@ def test_republishing_from_cached_stages_keeps_their_commits(tmp_path, monkeypat
     assert both in (third.paper / "tables" / "table1.md").read_text()
     assert both in (third.paper / "generated" / "run.tex").read_text()
     assert provenance.stage_check(provenance.load(third.paper))[0] == []
+
+
+def test_derived_files_name_their_command_and_the_code_of_both_steps(tmp_path, capsys):
+    """A figure redrawn from a run's tables outside the pipeline keeps the run's stages and
+    adds the redrawing code's: its entry says the stages ran under different commits."""
+    paper = tmp_path / "paper"
+    old = {k: v for k, v in provenance.Entry.record(_entry("default")).items()
+           if k != "stages"}  # a schema 1 source: only its recorded commit
+    (paper / "tables").mkdir(parents=True)
+    (paper / "figures").mkdir()
+    (paper / "tables" / "seed_means.csv").write_text("x\n")
+    (paper / "figures" / "fig3.png").write_text("png")
+    (paper / "tables" / "summary.md").write_text("# Summary\n\nrows\n")
+    (paper / provenance.FILE).write_text(json.dumps({
+        "schema": 1, "about": "old", "files": {"tables/seed_means.csv": old}}))
+    assert provenance.main(["derived", "figures/fig3.png", "tables/summary.md", "--from",
+                            "tables/seed_means.csv", "--command", "python -m redraw",
+                            "--paper", str(paper)]) == 0
+    files = provenance.load(paper)
+    fig = provenance.Entry.from_record(files["figures/fig3.png"])
+    assert fig.command == "python -m redraw" and set(fig.stages) == {"run", "derive"}
+    assert fig.stages["run"]["commit"] == old["commit"] and fig.mixed_commits
+    assert files["figures/fig3.png"]["mixed_commits"] is True
+    assert "derived from tables/seed_means.csv" in fig.note
+    assert provenance.stage_check(files)[0] == []
+    assert (paper / "tables" / "summary.md").read_text().splitlines()[2] == fig.line()
+    assert files["tables/seed_means.csv"] == old  # the source's entry untouched
+    assert provenance.main(["derived", "figures/fig3.png", "--paper", str(paper)]) == 2
+    assert "derived needs FILE" in capsys.readouterr().err

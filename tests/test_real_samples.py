@@ -206,6 +206,46 @@ def test_real_log_table_states_n_beside_every_number():
     assert r"\label{tab:real-logs}" in real_logs_latex(table, "3 logs", "synthetic")
 
 
+def test_real_log_summary_says_who_drifts_farther_than_constant_velocity(tmp_path):
+    """The abstract's sentence is computed from the table, and a written real_logs.md gives
+    back the table's numbers (``--from-markdown``)."""
+    from igdrivsim.report.real_logs import (
+        main,
+        real_logs_markdown,
+        real_logs_summary,
+        table_from_markdown,
+    )
+
+    table = pd.DataFrame([
+        dict(setting="full", method="bc", real_log_divergence=6.5, real_n=6,
+             validation_log_divergence=5.3, validation_n=323),
+        dict(setting="circular_r4", method="bc", real_log_divergence=9.0, real_n=6,
+             validation_log_divergence=6.4, validation_n=323),
+        dict(setting="full", method="bc_rl", real_log_divergence=4.0, real_n=6,
+             validation_log_divergence=5.4, validation_n=323),
+        dict(setting="none", method="constant_velocity", real_log_divergence=4.87, real_n=6,
+             validation_log_divergence=8.01, validation_n=323)])
+    for key in ("offroad", "overlap"):
+        for source in ("real", "validation"):
+            table[f"{source}_{key}"] = 1.0
+    sentence = real_logs_summary(table)
+    assert sentence.startswith("On 6 real scenarios, 2 of 3 learned")
+    assert "4.87 m for constant velocity" in sentence and "BC 6.50-9.00 m" in sentence
+    farther = table.assign(real_log_divergence=[6.5, 9.0, 5.0, 4.87])
+    assert "every learned driver drifts farther" in real_logs_summary(farther)
+    assert real_logs_summary(table[table.method != "constant_velocity"]) is None
+    md = tmp_path / "real_logs.md"
+    md.write_text(real_logs_markdown(table, "logs", "synthetic"))
+    back = table_from_markdown(md.read_text())
+    assert back.method.tolist() == table.method.tolist()
+    assert back.setting.tolist() == table.setting.tolist()
+    assert back.real_log_divergence.tolist() == [6.5, 9.0, 4.0, 4.87]
+    assert main(["--from-markdown", str(md), "--out", str(tmp_path)]) == 0
+    tex = (tmp_path / "real_logs_summary.tex").read_text()
+    assert r"Table~\ref{tab:real-logs}" in tex and "4.87~m" in tex
+    assert main(["--out", str(tmp_path)]) == 2  # neither --real nor --from-markdown
+
+
 def test_pipeline_skips_real_logs_without_samples(tmp_path, capsys):
     from igdrivsim.pipeline.profiles import PROFILES
     from igdrivsim.pipeline.stages import Pipeline

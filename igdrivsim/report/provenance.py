@@ -340,6 +340,34 @@ def backfill(paper: Path, repo: Path, stamp: bool = True) -> list[str]:
     return added
 
 
+def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
+            repo: Path) -> list[str]:
+    """Entries for ``files_rel`` written by ``command`` from the numbers of ``source`` (a file
+    of ``paper`` with an entry), outside the pipeline (a figure redrawn from its tables, a
+    table's numbers re-read): ``source``'s entry with the command, and its stages plus a
+    ``derive`` stage at this checkout's code (a schema 1 source's stages are its recorded
+    commit, as ``run``). Returns the files given an entry."""
+    files = load(paper)
+    if source not in files:
+        raise ConfigError(f"{FILE}: no entry for the source {source!r}")
+    base = Entry.from_record(files[source])
+    stages = dict(base.stages) if base.stages is not None else {
+        "run": {"commit": base.commit, "dirty": None, "diff_hash": None}}
+    note = f"derived from {source}" + (f"; {base.note}" if base.note else "")
+    entry = replace(base, command=command, date=today(), note=note).with_stages(
+        {**stages, "derive": code_state(repo)})
+    for rel in files_rel:
+        if not (paper / rel).is_file():
+            raise ConfigError(f"{paper / rel}: no such output to record")
+        files[rel] = entry.record()
+        if rel.endswith(".md"):
+            path = paper / rel
+            atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
+                                                   entry.line()))
+    save(paper, files)
+    return list(files_rel)
+
+
 def missing(paper: Path) -> list[str]:
     """Outputs under ``paper`` without an entry."""
     files = load(paper)
@@ -376,16 +404,30 @@ def today() -> str:
 def main(argv: Iterable[str] | None = None) -> int:
     """``backfill``: derive the missing entries from recorded metadata; ``check``: list the
     outputs without an entry and the entries without their stage commits (exit 1 when there is
-    one; entries published before per-stage provenance are counted, not failed)."""
+    one; entries published before per-stage provenance are counted, not failed); ``derived
+    FILE... --from SOURCE --command CMD``: record files that CMD wrote from SOURCE's numbers
+    outside the pipeline."""
     repo = Path(__file__).resolve().parents[2]
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.provenance",
                                      description=main.__doc__, formatter_class=FORMATTER)
-    parser.add_argument("action", choices=("backfill", "check"),
-                        help="backfill the missing entries, or check them")
+    parser.add_argument("action", choices=("backfill", "check", "derived"),
+                        help="backfill the missing entries, check them, or record derived "
+                             "files")
+    parser.add_argument("files", nargs="*", metavar="FILE",
+                        help="derived: the files written (relative to --paper)")
+    parser.add_argument("--from", dest="source", default=None, metavar="SOURCE",
+                        help="derived: the file (relative to --paper) whose numbers they hold")
+    parser.add_argument("--command", default=None, help="derived: the command that wrote them")
     parser.add_argument("--paper", default=str(repo / "paper"), help="the report folder")
     args = parser.parse_args(list(argv) if argv is not None else None)
     try:
         paper = Path(args.paper).resolve()
+        if args.action == "derived":
+            if not (args.files and args.source and args.command):
+                raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
+            for rel in derived(paper, args.files, args.source, args.command, repo):
+                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
+            return 0
         if args.action == "backfill":
             for rel in backfill(paper, repo):
                 print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")

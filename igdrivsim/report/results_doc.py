@@ -184,7 +184,8 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
         closing += (f" The run took {wall_text(wall)} from its first stage's start to the "
                     "report (`tables/run_times.csv`).")
     closing += f" Full results: [{results_link}]({results_link})."
-    return "\n".join([*out, "", *wrap(closing)]) + "\n"
+    real = _real_logs(paper / "tables", headline=results_link)
+    return "\n".join([*out, "", *wrap(closing), *(["", *real] if real else [])]) + "\n"
 
 
 def _competence(summary: pd.DataFrame) -> list[str]:
@@ -318,6 +319,47 @@ def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
     return _demote(methods_table.table2_markdown(full, tests_all, header)) + [""]
 
 
+def _real_logs(tables: Path, headline: str | None = None) -> list[str]:
+    """The drivers on real logs (``tables/real_logs.csv``, the ``real_logs`` stage): the
+    summary sentence, and (not ``headline``) each learned method's log divergence per setting
+    next to constant velocity's, on the real scenarios and on validation, with N; nothing
+    without real logs. ``headline``: the link to the full results (the README's block)."""
+    table = read_table(tables / "real_logs.csv")
+    if table is None or table.empty:
+        return []
+    from igdrivsim.report.real_logs import real_logs_summary  # lazy: reads evaluations' schema
+
+    sentence = real_logs_summary(table)
+    if sentence is None:
+        return []
+    sentence = sentence.replace(" (mean log divergence; Table {real-logs})", "")
+    if headline:
+        return wrap(sentence.rstrip(".") + " (mean log divergence per step; per setting: "
+                    f"[{headline}]({headline}#on-real-logs)).")
+    learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
+
+    def cell(row: pd.DataFrame, source: str) -> str:
+        if row.empty or pd.isna(row[f"{source}_log_divergence"].iloc[0]):
+            return "--"
+        value = row[f"{source}_log_divergence"].iloc[0]
+        return f"{value:.2f} (N={int(row[f'{source}_n'].iloc[0])})"
+
+    head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
+            for m in learned]
+    out = ["## On real logs", "", *wrap(sentence), "",
+           "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
+           "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
+           "| setting | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+    for setting in [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]:
+        rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
+        out.append(f"| {setting_short(setting)} | " + " | ".join(
+            cell(r, src) for src in ("real", "validation") for r in rows) + " |")
+    cv = table[table.method == CONSTANT_VELOCITY]
+    out.append("| constant velocity | " + " | ".join(
+        cell(cv, src) for src in ("real", "validation") for _ in learned) + " |")
+    return [*out, ""]
+
+
 def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
     """The whole run as one markdown page; ``paper_link``: the paper folder relative to the
     page (for its links)."""
@@ -336,6 +378,7 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            f"{_scope(prov, summary)}.", "", "## Run time", "",
            *([run_line(paper), ""] if run_line(paper) else []),
            *_run_times(read_table(tables / RUN_TIMES)),
+           *_real_logs(tables),
            "## Competence against the reference actors", "", *_competence(summary),
            *_demote(table1_markdown(summary, tests if tests is not None else
                                     pd.DataFrame(columns=["method"]), header)), "",
