@@ -39,6 +39,7 @@ def run_template(tmp_path_factory) -> Path:
     from igdrivsim.training.checkpoint import Checkpoints
     from igdrivsim.training.config import get_profile, to_dict
     from igdrivsim.training.loop import init_buffer, init_state, update_spec
+    from igdrivsim.training.run import CHECKPOINTS
 
     run = tmp_path_factory.mktemp("runs") / "run"
     run.mkdir()
@@ -51,7 +52,7 @@ def run_template(tmp_path_factory) -> Path:
     def zeros(tree):
         return jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), tree)
 
-    ckpt = Checkpoints(run)
+    ckpt = Checkpoints(run / CHECKPOINTS)
     ckpt.save(4, zeros(params), zeros(opt_state), None if buffer is None else zeros(buffer))
     ckpt.close()
     return run

@@ -139,7 +139,7 @@ def test_policy_episode_equals_the_previous_one(state, policy_params, setting, a
     assert tr.observation.objects.shape == (80, 4, 6) and tr.value.shape == (80,)
     assert (tr.log_prob is None) == (actions == "mean")
     # evaluation's episode is this one
-    from igdrivsim.training.closed_loop import _metrics, _policy_episode
+    from igdrivsim.policy.closed_loop import _metrics, _policy_episode
 
     outs, _ = jax.jit(lambda p, s, k: _policy_episode(
         p, s, k, policy_config=TINY, setting=setting, obs_config=OBS, params=PARAMS,

@@ -21,7 +21,8 @@ from conftest import write_toy_shard
 from igdrivsim.cli import main as cli_main
 from igdrivsim.training import inputs
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.loop import load_run, train
+from igdrivsim.training.loop import train
+from igdrivsim.training.run import Run
 
 CONFIG = with_overrides(get_profile("smoke"), ["training.method=bc_rl"])
 
@@ -64,10 +65,13 @@ def test_run_writes_config_metrics_checkpoints(full_run):
     assert any(not np.allclose(x[0, 0], x[0, 1]) for x in leaves)
 
 
-def test_load_run_and_complete_run_is_left_alone(full_run, data_dir, capsys):
+def test_open_run_and_complete_run_is_left_alone(full_run, data_dir, capsys):
     out, result = full_run
-    config, params = load_run(out)
-    assert config == CONFIG
+    run = Run.open(out)
+    config, params = run.config, run.params()
+    assert config == CONFIG and run.complete and run.latest_step() == 4
+    assert [line["update"] for line in run.metrics()] == [1, 2, 3, 4]
+    assert {line["update"] for line in run.curves()} == {1, 2, 3, 4}
     assert _max_diff(params, result.params) == 0.0
     code = cli_main(["train", "--profile", "smoke", "--method", "bc_rl", "--data", data_dir,
                      "--out", str(out), "--no-progress"])
@@ -123,7 +127,7 @@ def test_four_devices_match_one_device(full_run, data_dir, tmp_path):
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads((out / "config.json").read_text())["devices"] == 4
-    _, params = load_run(out)
+    params = Run.open(out).params()
     assert _max_diff(params, result.params) < 1e-4
 
 

@@ -151,9 +151,9 @@ def test_dagger_aggregates_the_students_states_and_learns(teacher_run, toy_data,
     assert lines[-1]["teacher_ce"] < lines[0]["teacher_ce"]
     assert lines[-1]["bc_loss"] < lines[0]["bc_loss"]
     # the run loads for evaluation (its checkpoints also hold the buffer)
-    from igdrivsim.training.loop import load_run
+    from igdrivsim.training.run import Run
 
-    config, params = load_run(run)
+    config, params = Run.open(run).config, Run.open(run).params()
     assert config.training.method == "dagger" and jax.tree.leaves(params)[0].shape[:2] == (2, 2)
 
 

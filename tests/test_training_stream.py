@@ -85,7 +85,7 @@ def test_resume_reaches_the_same_parameters(one_process, data_dir, tmp_path):
 WORKER = """
 import json, sys
 import numpy as np
-from igdrivsim.training.commands import maybe_init_distributed
+from igdrivsim.core.devices import maybe_init_distributed
 maybe_init_distributed()
 import jax
 from igdrivsim.training.config import get_profile, with_overrides
@@ -217,8 +217,8 @@ def test_kill_9_and_resume_reach_the_uninterrupted_parameters(data_dir, tmp_path
                              timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert "resuming from update" in resumed.stdout + resumed.stderr
-    from igdrivsim.training.loop import load_run
+    from igdrivsim.training.run import Run
 
-    _, params = load_run(tmp_path / "killed")
+    params = Run.open(tmp_path / "killed").params()
     whole = train(config, data_dir, tmp_path / "whole", **QUIET)
     assert _max_diff(params, whole.params) < 1e-6

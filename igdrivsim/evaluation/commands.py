@@ -12,16 +12,12 @@ import argparse
 from pathlib import Path
 
 from igdrivsim.cli_args import deprecated_alias
-from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.evaluate import (
-    data_capacities,
-    evaluate_references,
-    evaluate_run,
-    read_json,
-)
+from igdrivsim.core.devices import maybe_init_distributed
+from igdrivsim.errors import ConfigError
+from igdrivsim.evaluation.evaluate import data_capacities, evaluate_references, evaluate_run
 from igdrivsim.io import require_folder
 from igdrivsim.policy.act import ACTION_MODES
-from igdrivsim.training.config import from_dict
+from igdrivsim.training.run import Run
 from igdrivsim.training.update import sim_params
 
 
@@ -56,13 +52,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if not args.runs and not args.references:
         raise ConfigError("give at least one RUN_DIR, or --references")
     require_folder(args.out)
-    # lazy: with the training loop (orbax, grain), which `report` does not need
-    from igdrivsim.training.commands import maybe_init_distributed
-
     maybe_init_distributed()  # several hosts: the scenarios are spread over all their devices
     for run in args.runs:
-        if not (Path(run) / "config.json").is_file():
-            raise DataError("not a training run folder (no config.json)", file=run)
+        Run.open(run)  # every folder is a run before any is evaluated
     progress = not args.no_progress
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
@@ -73,8 +65,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         sim = caps = None
         like = args.runs[0] if args.runs else args.like
         if like:  # the same capacities and simulator settings as that run
-            record = read_json(Path(like) / "config.json")
-            config = from_dict(record.get("config", record))
+            config = Run.open(like).config
             caps, sim = data_capacities(config), sim_params(config)
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,

@@ -23,6 +23,7 @@ from igdrivsim.evaluation.rollout import (
 from igdrivsim.io import atomic_write_csv, atomic_write_json
 from igdrivsim.observation import ObservationConfig
 from igdrivsim.simulator import SimParams
+from igdrivsim.training.run import Run
 from igdrivsim.training.update import run_settings, sim_params
 
 EVAL_CONFIG = "eval_config.json"
@@ -30,13 +31,11 @@ EVAL_CONFIG = "eval_config.json"
 
 def load_trained(run_dir: str):
     """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
-    # lazy: the training loop pulls in orbax and grain; `report` needs neither
-    from igdrivsim.training.loop import load_run
-
-    config, params = load_run(run_dir)
+    run = Run.open(run_dir)
+    config = run.config
     seeds = list(range(config.training.seed_offset,
                        config.training.seed_offset + config.training.seeds))
-    return config, params, seeds
+    return config, run.params(), seeds
 
 
 def data_capacities(config):

@@ -39,18 +39,18 @@ from igdrivsim.evaluation.schema import (
     REFERENCE_SETTING,
     scenario_columns,
 )
-from igdrivsim.simulator import SimParams
-from igdrivsim.training import closed_loop
-from igdrivsim.training.closed_loop import (
+from igdrivsim.policy import closed_loop
+from igdrivsim.policy.closed_loop import (
     DEFAULT_SIM_PARAMS,
     EVAL_SEED,
     REFERENCE_ACTORS,
     StepOutputs,
 )
+from igdrivsim.simulator import SimParams
 
 
-# The engine (batches, devices, keys, the jitted episodes) is the training layer's
-# :mod:`igdrivsim.training.closed_loop`; evaluation adds the registry's per-episode metrics.
+# The engine (batches, devices, keys, the jitted episodes) is the policy layer's
+# :mod:`igdrivsim.policy.closed_loop`; evaluation adds the registry's per-episode metrics.
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
                        batch_size: int = 32, metrics_fn: Callable | None = None,
                        progress: Callable[[int], Any] | None = None,
@@ -73,7 +73,7 @@ def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
     setting), so results do not depend on the batch size or on which settings run together.
     ``episode_metrics=True`` adds the registry's per-episode metrics (``scenario``, ``[S, N]``
     or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
-    The other keyword ``options`` are :func:`igdrivsim.training.closed_loop.evaluate_policy`'s
+    The other keyword ``options`` are :func:`igdrivsim.policy.closed_loop.evaluate_policy`'s
     (``policy_config``, ``setting``, ``obs_config``, ``params``, ``actions``, ``batch_size``,
     ``seed``, ``metrics_fn``, ``progress``).
     """

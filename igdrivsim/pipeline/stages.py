@@ -57,6 +57,7 @@ from igdrivsim.training.config import QUICK_UPDATES, get_profile, with_overrides
 from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
+from igdrivsim.training.run import DONE, is_complete
 
 PAPER_SOURCES = ("main.tex", "findings.tex", "references.bib", "Makefile")
 # how often a running invocation writes its wall time so far to wall.json: an invocation killed
@@ -150,7 +151,7 @@ class Pipeline(StageRunner):
             "--val-data", val_manifest, "--cache-dir", self.work / "cache",
             "--out", run, "--resume", *[a for o in sets for a in ("--set", o)]]],
             depends=["filter_training", "filter_validation", *depends],
-            outputs=[run / "DONE"], echo=echo)
+            outputs=[run / DONE], echo=echo)
 
     @property
     def teacher_choice(self) -> Path:
@@ -233,7 +234,7 @@ class Pipeline(StageRunner):
         """Beyond the paper: every trained run and the reference actors on the real scenarios
         of ``--samples``, beside their validation numbers (tables/real_logs.{md,tex})."""
         runs = sorted(p.name for p in (self.work / "runs").glob("*")
-                      if (p / "DONE").is_file() and (self.work / "evals" / p.name).is_dir())
+                      if is_complete(p) and (self.work / "evals" / p.name).is_dir())
         if self.samples is None or not runs:
             why = "no evaluated run" if self.samples else (
                 "no real samples (igdrivsim samples fetches them; then --samples DIR)")

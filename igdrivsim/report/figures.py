@@ -55,6 +55,7 @@ from igdrivsim.report.methods_table import (  # noqa: E402
     method_label,
 )
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
+from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
 
 PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange
 PANELS = ("log_divergence", "overlap", "offroad")
@@ -146,7 +147,6 @@ CURVE_ROWS: tuple[tuple[str, str, float, str | None], ...] = (
     ("offroad", "offroad (% steps)", 100.0, "offroad_steps"),
     ("overlap", "overlap (% steps)", 100.0, "overlap_steps"),
 )
-CURVES_FILE = "curves.jsonl"
 
 
 def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:

@@ -15,7 +15,6 @@ when ``--references`` gives that actor's evaluation.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -25,7 +24,6 @@ from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import REPORTED, ConfigError, error_line
 from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
-from igdrivsim.training.config import from_dict, get_profile, to_dict
 
 # the fields a variant's compute per update scales with (and the updates it trained)
 _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
@@ -40,36 +38,37 @@ def _overrides(config: dict, base: dict) -> list[str]:
             if key not in skip and base.get(section, {}).get(key) != value]
 
 
-def _evaluated_update(run: Path, planned: int) -> int:
-    """The update a run's evaluation saw: its last closed-loop validation (a run validates at
-    each of its checkpoints), or the planned updates when the run finished."""
-    if (run / "DONE").exists():
+def _evaluated_update(run, planned: int) -> int:
+    """The update a run's evaluation saw (``run``: a
+    :class:`~igdrivsim.training.run.SavedRun`): its last closed-loop validation (a run
+    validates at each of its checkpoints), or the planned updates when the run finished."""
+    if run.complete:
         return planned
-    curves = run / "curves.jsonl"
-    updates = [json.loads(line).get("update", 0) for line in curves.read_text().splitlines()
-               if '"log_divergence"' in line] if curves.exists() else []
-    return max(updates, default=0)
+    return max((c.get("update", 0) for c in run.curves() if "log_divergence" in c), default=0)
 
 
 def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
     """One row per variant of ``sweep`` (see the module docstring)."""
-    runs = sorted(p for p in (sweep / "runs").glob("*") if (p / "config.json").exists())
+    # lazy: the run reader and the configuration import JAX, which this module's import (the
+    # report's names) does without
+    from igdrivsim.training.config import get_profile, to_dict
+    from igdrivsim.training.run import Run, is_run
+
+    runs = sorted(p for p in (sweep / "runs").glob("*") if is_run(p))
     if not runs:
-        raise ConfigError(f"{sweep}/runs: no trained run (config.json) found")
+        raise ConfigError(f"{sweep}/runs: no trained run found")
     cv = None
     if references is not None:
         ref = pd.read_csv(references / "per_scenario.csv")
         cv = ref[ref.method == CONSTANT_VELOCITY].set_index("scenario_id")["log_divergence"]
     rows = []
-    for run in runs:
-        try:
-            config = from_dict(json.loads((run / "config.json").read_text())["config"])
-        except (ValueError, KeyError, TypeError) as err:
-            raise ConfigError(f"{run / 'config.json'}: not a run's config ({err})") from err
+    for path in runs:
+        run = Run.open(path)
+        config = run.config
         saved, base = to_dict(config), to_dict(get_profile(config.profile))
-        scores = sweep / "evals" / run.name / "per_scenario.csv"
+        scores = sweep / "evals" / path.name / "per_scenario.csv"
         if not scores.exists():
-            raise ConfigError(f"{scores}: no evaluation of run {run.name}")
+            raise ConfigError(f"{scores}: no evaluation of run {path.name}")
         frame = pd.read_csv(scores)
         seeds = frame.groupby("seed")["log_divergence"].mean()
         planned = config.training.num_updates
@@ -77,7 +76,7 @@ def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
         compute = updates / base["training"]["num_updates"]
         for section, key in _PER_UPDATE:
             compute *= saved[section][key] / base[section][key]
-        row = {"variant": run.name, "overrides": " ".join(_overrides(saved, base)) or "-",
+        row = {"variant": path.name, "overrides": " ".join(_overrides(saved, base)) or "-",
                "updates": updates if updates == planned else f"{updates} of {planned}",
                "compute": round(compute, 2),
                "log_divergence": round(seeds.mean(), 2),

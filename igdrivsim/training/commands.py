@@ -14,8 +14,7 @@ import argparse
 import os
 import sys
 
-import jax
-
+from igdrivsim.core.devices import maybe_init_distributed
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
 from igdrivsim.observation import PRESETS, get_setting
@@ -89,26 +88,6 @@ def resolve_config(args: argparse.Namespace):
     for name in config.observation.setting.split(","):
         get_setting(name)  # fail early on an unknown setting
     return config.validate()
-
-
-# Every process must issue its collectives in one order. XLA:CPU's concurrency-optimised
-# scheduler may order independent ones (the gradients' all-reduces) differently in each process,
-# and Gloo then fails with "Received data size doesn't match expected size" (seen with two
-# processes: tests/test_training_stream.py); so several CPU processes use the plain scheduler.
-SEQUENTIAL_CPU_COLLECTIVES = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
-
-
-def maybe_init_distributed() -> None:
-    """``jax.distributed.initialize()`` when the multi-host environment variables are set
-    (before JAX's backend starts: XLA_FLAGS is read then)."""
-    if os.environ.get("JAX_COORDINATOR_ADDRESS") and os.environ.get("JAX_NUM_PROCESSES"):
-        flags = os.environ.get("XLA_FLAGS", "")
-        if "concurrency_optimized_scheduler" not in flags:
-            os.environ["XLA_FLAGS"] = f"{flags} {SEQUENTIAL_CPU_COLLECTIVES}".strip()
-        jax.distributed.initialize(
-            coordinator_address=os.environ["JAX_COORDINATOR_ADDRESS"],
-            num_processes=int(os.environ["JAX_NUM_PROCESSES"]),
-            process_id=int(os.environ.get("JAX_PROCESS_ID", "0")))
 
 
 def resolve_data(data: str) -> str:

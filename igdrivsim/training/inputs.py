@@ -26,9 +26,12 @@ from collections.abc import Iterator, Sequence
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, NamedSharding
 from tqdm.auto import tqdm
 
+# batch_sharding, make_mesh, replicated: training/bench.py reaches them through this module
+# (until it imports igdrivsim.core.devices)
+from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated  # noqa: F401
 from igdrivsim.data import read_scenarios
 from igdrivsim.data.manifest import count_scenarios, load_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
@@ -117,35 +120,6 @@ def batch_indices(num_scenarios: int, batch_size: int, seed: int, update: int) -
         perm = np.random.default_rng([int(seed), int(e)]).permutation(num_scenarios)
         out[epochs == e] = perm[offsets[epochs == e]]
     return out
-
-
-def make_mesh(devices: Sequence | None = None) -> Mesh:
-    """A 1-D mesh ``('data',)`` over all (global) devices: scenarios sharded, params replicated."""
-    return Mesh(np.asarray(list(devices) if devices is not None else jax.devices()), ("data",))
-
-
-def batch_sharding(mesh: Mesh) -> NamedSharding:
-    """Arrays ``[S, B, ...]``: the scenario axis ``B`` split over the mesh."""
-    return NamedSharding(mesh, PartitionSpec(None, "data"))
-
-
-def replicated(mesh: Mesh) -> NamedSharding:
-    return NamedSharding(mesh, PartitionSpec())
-
-
-def place(tree, sharding: NamedSharding):
-    """Host arrays -> global device arrays; every process holds the full host copy and hands
-    over the pieces its local devices own (works for one and for several hosts). Typed PRNG
-    keys travel as their raw data."""
-
-    def one(x):
-        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-            return jax.random.wrap_key_data(one(jax.random.key_data(x)),
-                                            impl=jax.random.key_impl(x))
-        x = np.asarray(x)
-        return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
-
-    return jax.tree.map(one, tree)
 
 
 class Dataset:

@@ -3,29 +3,13 @@ applied batch by batch, with :class:`~igdrivsim.training.run.Run` at its edges.
 
 ``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run: every
 setting of ``config.observation.setting`` (a comma list; settings as data, one compiled
-program) x ``config.training.seeds`` seeds. Layout of ``out_dir`` (written by ``Run``):
-
-- ``config.json``: the resolved :class:`RunConfig` (plus ``num_updates`` and the device count);
-- ``metrics.jsonl``: one line per logged update (``update`` = updates done, ``bc_loss``, ``lr``,
-  ``entropy``, ``grad_norm``, ``updates_per_s``, ``scenario_steps_per_s``,
-  ``grad_steps_per_s``; BC-RL adds ``mean_return``, ``ppo_loss``, ``value_loss``,
-  ``clip_frac``, ``ratio_dev``); each metric is the mean over settings and seeds, and
-  ``<metric>_seeds`` lists the per-seed values (mean over settings);
-- ``curves.jsonl``: learning curves, one line per (update, setting, seed): the training
-  ``bc_loss`` at every logged update and, every ``training.eval_every`` updates when
-  validation data is given, ``val_bc_loss`` (teacher-forced, fixed validation subset) and the
-  closed-loop ``log_divergence`` (m), ``offroad`` and ``overlap`` (fractions of steps) of the
-  policy driving that subset (sampled actions);
-- ``checkpoints/<updates done>/`` (orbax), every ``checkpoint_every`` updates and at the end;
-  with a streamed input (``data.stream``), ``checkpoints/data/<updates done>.p<process>.json``
-  holds each process's input iterator state, restored by ``--resume``;
-- ``DONE``: written when the last checkpoint is saved.
+program) x ``config.training.seeds`` seeds, into the run folder ``out_dir`` (its files:
+:mod:`igdrivsim.training.run`, which also reads a run back: ``Run.open(out_dir)``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 import time
@@ -37,17 +21,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from igdrivsim.core.devices import barrier, batch_sharding, make_mesh, place, replicated
 from igdrivsim.data.validation import load_validation
-from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.errors import ConfigError
 from igdrivsim.policy.act import example_observation
+from igdrivsim.policy.closed_loop import evaluate_policy
 from igdrivsim.policy.network import count_params, init_params_per_seed
 from igdrivsim.training import inputs
-from igdrivsim.training.checkpoint import Checkpoints
-from igdrivsim.training.closed_loop import evaluate_policy
-from igdrivsim.training.config import RunConfig, from_dict
+from igdrivsim.training.config import RunConfig
 from igdrivsim.training.cost import warn_if_cpu
 from igdrivsim.training.privileged import TEACHER_SETTING, teacher_config
-from igdrivsim.training.run import CONFIG, Hook, Run, barrier, is_complete
+from igdrivsim.training.run import Hook, Run
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
@@ -142,9 +126,10 @@ class Validation:
 def load_teacher(run_dir: str, student: RunConfig):
     """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
     teacher_config(run_dir, student)
-    if not is_complete(run_dir):
+    teacher = Run.open(run_dir)
+    if not teacher.complete:
         raise ConfigError(f"training.teacher: {run_dir} has not finished training")
-    config, params = load_run(run_dir)
+    config, params = teacher.config, teacher.params()
     g = run_settings(config).index(TEACHER_SETTING)
     seeds = config.training.seeds
     pick = np.arange(student.training.seeds) % seeds
@@ -198,7 +183,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     if run.complete_already():
         return TrainResult(None, -1, -1, True, 0.0)
     spec = update_spec(config)
-    mesh = inputs.make_mesh(devices)
+    mesh = make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
     if config.data.stream:  # paper scale: per-process shards decoded on demand
         from igdrivsim.training.stream import StreamDataset  # lazy: grain, only for data.stream
@@ -217,28 +202,28 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     if val_data is not None and t.eval_every > 0:
         run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
 
-    rep = inputs.replicated(mesh)
+    rep = replicated(mesh)
     teacher_params = None
     if spec.learner.teacher:
-        teacher_params = inputs.place(load_teacher(t.teacher, config), rep)
+        teacher_params = place(load_teacher(t.teacher, config), rep)
         log(f"privileged teacher: the full setting of {t.teacher}")
     settings = settings_as_data(config)
-    settings = None if settings is None else inputs.place(settings, rep)
-    keys = inputs.place(seed_keys(config), rep)
+    settings = None if settings is None else place(settings, rep)
+    keys = place(seed_keys(config), rep)
     fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
     state = fns.init()
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], state[0]))
     log(f"policy: {per_seed:,} parameters per run x {len(settings_list)} setting(s) x "
         f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
         f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
-    state = inputs.place(state, rep)
+    state = place(state, rep)
     barrier("start")
     start, state = run.restore(state)
     data_state = None
     if start and config.data.stream:
         from igdrivsim.training.stream import load_state  # lazy: grain, only for data.stream
 
-        data_state = load_state(run.dir, start)
+        data_state = load_state(run.data_states, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
     runs = len(settings_list) * t.seeds
     epochs, minibatches = config.sgd_passes
@@ -246,7 +231,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     grads_per_update = runs * epochs * minibatches
     if progress:
         run.progress(start, num_updates)
-    batches = inputs.prefetch(dataset, range(start, end), inputs.batch_sharding(mesh),
+    batches = inputs.prefetch(dataset, range(start, end), batch_sharding(mesh),
                               config.data.prefetch, data_state)
     last_log, last_time = start, time.perf_counter()
     with run:
@@ -278,37 +263,6 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 run.checkpoint(done, state, data_state)
     complete = run.finish(end, num_updates)
     return TrainResult(state[0], end, num_updates, complete, time.perf_counter() - start_time)
-
-
-def load_run(run_dir: str | os.PathLike, step: int | None = None):
-    """``(RunConfig, params stacked over settings and seeds [G, S])`` from a run folder
-    (latest checkpoint); the settings are :func:`~igdrivsim.training.update.run_settings`."""
-    run_dir = os.fspath(run_dir)
-    path = os.path.join(run_dir, CONFIG)
-    if not os.path.isfile(path):
-        raise ConfigError(f"{path}: not a training run (no {CONFIG})")
-    try:
-        with open(path) as f:
-            record = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DataError(f"cannot read the run's config ({err})", file=path) from err
-    if not isinstance(record, dict) or not isinstance(record.get("config"), dict):
-        raise DataError("not a run config (no \"config\" object)", file=path)
-    config = from_dict(record["config"])
-    spec = update_spec(config, teacher_policy=config.policy)  # shapes only: no teacher read
-    params_like, opt_like = jax.eval_shape(lambda: init_state(config, spec))
-    # the checkpoint's tree must be restored whole: DAgger's buffer too (then dropped)
-    buffer_like = jax.eval_shape(lambda: init_buffer(config, spec))
-    ckpt = Checkpoints(run_dir)
-    step = ckpt.latest_step() if step is None else step
-    if step is None:
-        ckpt.close()
-        raise ConfigError(f"{run_dir}: no checkpoint yet")
-    try:
-        params, _, _ = ckpt.restore(step, params_like, opt_like, buffer_like)
-    finally:
-        ckpt.close()
-    return config, params
 
 
 def replace_training(config: RunConfig, **changes) -> RunConfig:

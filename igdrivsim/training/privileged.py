@@ -12,25 +12,24 @@ the last update).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 
 import numpy as np
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_write_json
-from igdrivsim.training.config import RunConfig, from_dict
+from igdrivsim.training.config import RunConfig
+from igdrivsim.training.run import Run, is_run
 
 TEACHER_SETTING = "full"
 
 
 def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
     """The teacher run's config, checked against the student's observation capacities."""
-    path = os.path.join(os.fspath(run_dir), "config.json")
-    if not os.path.isfile(path):
-        raise ConfigError(f"training.teacher: {path} not found (train the full setting first)")
-    with open(path) as f:
-        config = from_dict(json.load(f)["config"])
+    if not is_run(run_dir):
+        raise ConfigError(f"training.teacher: {run_dir} holds no run (train the full setting "
+                          "first)")
+    config = Run.open(run_dir).config
     names = [s.strip() for s in config.observation.setting.split(",")]
     if TEACHER_SETTING not in names:
         raise ConfigError(f"training.teacher: {run_dir} was not trained with the "
@@ -47,12 +46,10 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
 def teacher_score(run_dir: str) -> dict | None:
     """Closed-loop validation metrics of a run's ``full`` setting at its last learning-curve
     point, averaged over seeds (``None`` without such a point)."""
-    path = os.path.join(os.fspath(run_dir), "curves.jsonl")
-    if not os.path.isfile(path):
+    if not is_run(run_dir):
         return None
-    with open(path) as f:
-        rows = [json.loads(ln) for ln in f if ln.strip()]
-    rows = [r for r in rows if r.get("setting") == TEACHER_SETTING and "offroad" in r]
+    rows = [r for r in Run.open(run_dir).curves()
+            if r.get("setting") == TEACHER_SETTING and "offroad" in r]
     if not rows:
         return None
     last = max(r["update"] for r in rows)

@@ -1,5 +1,25 @@
-"""A training run's folder and bookkeeping: ``config.json``, ``metrics.jsonl``,
-``curves.jsonl``, ``checkpoints/`` and ``DONE``; resume; logs; hooks.
+"""A training run's folder: what a run writes (:class:`Run`) and reads back
+(:meth:`Run.open`); every file name of the folder is spelled here, once.
+
+Layout of a run folder:
+
+- ``config.json`` (:data:`CONFIG`): the resolved :class:`RunConfig` under ``"config"``, plus
+  ``num_updates``, ``num_scenarios``, ``settings``, ``devices`` and ``processes``;
+- ``metrics.jsonl`` (:data:`METRICS`): one line per logged update (``update`` = updates done,
+  ``bc_loss``, ``lr``, ``entropy``, ``grad_norm``, ``updates_per_s``,
+  ``scenario_steps_per_s``, ``grad_steps_per_s``; BC-RL adds ``mean_return``, ``ppo_loss``,
+  ``value_loss``, ``clip_frac``, ``ratio_dev``); each metric is the mean over settings and
+  seeds, and ``<metric>_seeds`` lists the per-seed values (mean over settings);
+- ``curves.jsonl`` (:data:`CURVES`): learning curves, one line per (update, setting, seed):
+  the training ``bc_loss`` at every logged update and, every ``training.eval_every`` updates
+  when validation data is given, ``val_bc_loss`` (teacher-forced, fixed validation subset) and
+  the closed-loop ``log_divergence`` (m), ``offroad`` and ``overlap`` (fractions of steps) of
+  the policy driving that subset (sampled actions);
+- ``checkpoints/<updates done>/`` (:data:`CHECKPOINTS`, orbax), every ``checkpoint_every``
+  updates and at the end; with a streamed input (``data.stream``),
+  ``checkpoints/data/<updates done>.p<process>.json`` (:data:`DATA_STATES`) holds each
+  process's input iterator state, restored by ``--resume``;
+- ``DONE`` (:data:`DONE`): written when the last checkpoint is saved.
 
 :class:`Run` owns everything a run writes, so the training loop
 (:func:`igdrivsim.training.loop.train`) is the pure update of
@@ -8,11 +28,16 @@ edges. A *hook* (:class:`Hook`) is called with the parameters every ``every`` up
 the start and the end of the run); the values it returns (``{name: [G, S] array}``) go to
 ``curves.jsonl``. The learning-curve validation is one (:class:`igdrivsim.training.loop.
 Validation`); training never imports the evaluation package.
+
+:meth:`Run.open` is the read side (:class:`SavedRun`): the config, the parameters of a
+checkpoint, the curves and the metrics, for the evaluation, the privileged teacher, the report's
+sweep and the tests.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 from collections.abc import Callable
@@ -22,26 +47,25 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from igdrivsim.errors import ConfigError
+from igdrivsim.core.devices import barrier
+from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text
 from igdrivsim.training.checkpoint import Checkpoints
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
 
+# The files of a run folder (see the module docstring).
 CONFIG, METRICS, CURVES, DONE = "config.json", "metrics.jsonl", "curves.jsonl", "DONE"
+CHECKPOINTS = "checkpoints"
+DATA_STATES = os.path.join(CHECKPOINTS, "data")
+
+
+def is_run(out_dir: str | os.PathLike) -> bool:
+    """A run folder: training has written its ``config.json``."""
+    return os.path.isfile(os.path.join(out_dir, CONFIG))
 
 
 def is_complete(out_dir: str | os.PathLike) -> bool:
     return os.path.isfile(os.path.join(out_dir, DONE))
-
-
-def barrier(name: str, timeout_s: int = 3600) -> None:
-    """Wait until every process gets here (several processes only). Gloo's CPU collectives give
-    up after 30 s, so processes meet here before work whose duration differs between them
-    (compiling, loading) is followed by a collective."""
-    if jax.process_count() > 1:
-        from jax._src import distributed  # private JAX API: only for several processes
-
-        distributed.global_state.client.wait_at_barrier(f"igdrivsim-{name}", timeout_s * 1000)
 
 
 @dataclass(frozen=True)
@@ -70,6 +94,27 @@ def truncate_jsonl(path: str, upto: int) -> None:
         kept = [ln if ln.endswith("\n") else ln + "\n" for ln in f
                 if isinstance(u := update_of(ln), int) and u <= upto]
     atomic_write_text(path, "".join(kept))
+
+
+def read_jsonl(path: str | os.PathLike) -> list[dict]:
+    """The records of a ``.jsonl`` file of a run (``[]`` when it does not exist); a line that
+    is not a JSON object is a one-line :class:`DataError` naming the file and the line."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        return []
+    records = []
+    with open(path) as f:
+        for number, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except ValueError as err:
+                raise DataError(f"bad record on line {number} ({err})", file=path) from err
+            if not isinstance(record, dict):
+                raise DataError(f"bad record on line {number} (not a JSON object)", file=path)
+            records.append(record)
+    return records
 
 
 def log_line(update: int, lr: float, metrics: dict, rates: dict) -> dict:
@@ -120,9 +165,15 @@ class Run:
         t = config.training
         self.seeds = list(range(t.seed_offset, t.seed_offset + t.seeds))
         self.record = {"config": to_dict(config)}
+        self.data_states = os.path.join(self.dir, DATA_STATES)  # a streamed input's states
         self.ckpt: Checkpoints | None = None
         self._files = contextlib.ExitStack()
         self.bar = None
+
+    @staticmethod
+    def open(out_dir: str | os.PathLike) -> SavedRun:
+        """The read side: the run in ``out_dir`` as training left it (:class:`SavedRun`)."""
+        return SavedRun.read(out_dir)
 
     # ------------------------------------------------------------------------- the folder
     def complete_already(self) -> bool:
@@ -130,7 +181,7 @@ class Run:
         nothing is to be done); refuses another configuration, and an unfinished run without
         ``resume``."""
         os.makedirs(self.dir, exist_ok=True)
-        if os.path.isfile(os.path.join(self.dir, CONFIG)):
+        if is_run(self.dir):
             self._check_config()
             if is_complete(self.dir):
                 self.log(f"run {self.dir} is already complete; nothing to do")
@@ -169,7 +220,7 @@ class Run:
         """``(updates done, state)``: the latest checkpoint's when resuming, else ``(0,
         state)``; the logs are cut back to that update."""
         t = self.config.training
-        self.ckpt = Checkpoints(self.dir, t.max_checkpoints)
+        self.ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS), t.max_checkpoints)
         start = 0
         if self.resume and self.ckpt.latest_step() is not None:
             start = self.ckpt.latest_step()
@@ -184,7 +235,7 @@ class Run:
         if data_state is not None:  # the input iterator's state, saved first
             from igdrivsim.training.stream import save_state  # lazy: grain, data.stream only
 
-            save_state(self.dir, done, data_state, self.ckpt.manager.all_steps())
+            save_state(self.data_states, done, data_state, self.ckpt.manager.all_steps())
         barrier(f"save-{done}")
         self.ckpt.save(done, *state)
 
@@ -238,3 +289,68 @@ class Run:
                 self.curves(done, hook.fn(params))
                 ran = True
         return ran
+
+
+class SavedRun:
+    """A run folder read back (:meth:`Run.open`): ``record`` (its ``config.json``), the
+    config, the parameters of a checkpoint, the learning curves and the logged metrics."""
+
+    def __init__(self, out_dir: str | os.PathLike, record: dict):
+        self.dir, self.record = os.fspath(out_dir), record
+
+    @classmethod
+    def read(cls, out_dir: str | os.PathLike) -> SavedRun:
+        """Read ``config.json``; a one-line error when the folder holds no run or it cannot
+        be read."""
+        path = os.path.join(os.fspath(out_dir), CONFIG)
+        if not os.path.isfile(path):
+            raise ConfigError(f"{path}: not a training run (no {CONFIG})")
+        try:
+            with open(path) as f:
+                record = json.load(f)
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise DataError(f"cannot read the run's config ({err})", file=path) from err
+        if not isinstance(record, dict) or not isinstance(record.get("config"), dict):
+            raise DataError("not a run config (no \"config\" object)", file=path)
+        return cls(out_dir, record)
+
+    @functools.cached_property
+    def config(self) -> RunConfig:
+        try:
+            return from_dict(self.record["config"])
+        except (TypeError, KeyError) as err:  # a field of the wrong kind
+            raise DataError(f"not a run's config ({err})",
+                            file=os.path.join(self.dir, CONFIG)) from err
+
+    @property
+    def complete(self) -> bool:
+        """The run did its last update (``DONE``)."""
+        return is_complete(self.dir)
+
+    def latest_step(self) -> int | None:
+        """The updates done at the latest checkpoint (``None`` without one)."""
+        ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS))
+        try:
+            return ckpt.latest_step()
+        finally:
+            ckpt.close()
+
+    def params(self, step: int | None = None):
+        """The parameters stacked over settings and seeds ``[G, S]`` at checkpoint ``step``
+        (default: the latest), on this process's first device."""
+        ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS))
+        try:
+            step = ckpt.latest_step() if step is None else step
+            if step is None:
+                raise ConfigError(f"{self.dir}: no checkpoint yet")
+            return ckpt.restore_params(step)
+        finally:
+            ckpt.close()
+
+    def curves(self) -> list[dict]:
+        """The ``curves.jsonl`` records (one per update, setting and seed; ``[]`` without)."""
+        return read_jsonl(os.path.join(self.dir, CURVES))
+
+    def metrics(self) -> list[dict]:
+        """The ``metrics.jsonl`` records (one per logged update; ``[]`` without)."""
+        return read_jsonl(os.path.join(self.dir, METRICS))

@@ -198,15 +198,17 @@ class StreamDataset:
         return jax.tree.map(one, batch)
 
 
-def state_path(run_dir: str, step: int, process: int) -> str:
-    return os.path.join(run_dir, "checkpoints", "data", f"{step}.p{process}.json")
+def state_path(folder: str, step: int, process: int) -> str:
+    """Where ``process`` keeps its iterator state of checkpoint ``step`` in ``folder`` (a run's
+    :data:`~igdrivsim.training.run.DATA_STATES`)."""
+    return os.path.join(folder, f"{step}.p{process}.json")
 
 
-def save_state(run_dir: str, step: int, state: dict, keep: Sequence[int]) -> None:
-    """Save this process's iterator state for checkpoint ``step`` (atomic); prune the states
-    of checkpoints no longer kept."""
+def save_state(folder: str, step: int, state: dict, keep: Sequence[int]) -> None:
+    """Save this process's iterator state for checkpoint ``step`` (atomic) in ``folder``; prune
+    the states of checkpoints no longer kept."""
     process = jax.process_index()
-    path = state_path(run_dir, step, process)
+    path = state_path(folder, step, process)
     os.makedirs(os.path.dirname(path), exist_ok=True)
     atomic_write_json(path, {"step": step, "iterator": state})
     folder = os.path.dirname(path)
@@ -216,9 +218,9 @@ def save_state(run_dir: str, step: int, state: dict, keep: Sequence[int]) -> Non
             os.remove(os.path.join(folder, name))
 
 
-def load_state(run_dir: str, step: int) -> dict:
-    """The iterator state saved with checkpoint ``step`` by this process."""
-    path = state_path(run_dir, step, jax.process_index())
+def load_state(folder: str, step: int) -> dict:
+    """The iterator state saved with checkpoint ``step`` by this process in ``folder``."""
+    path = state_path(folder, step, jax.process_index())
     if not os.path.isfile(path):
         raise ConfigError(f"{path}: no input iterator state for checkpoint {step}; "
                           "cannot resume the streamed run exactly")

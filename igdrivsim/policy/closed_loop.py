@@ -2,8 +2,8 @@
 scenarios -> per-step metrics: the engine that both the training curves
 (:class:`igdrivsim.training.loop.Validation`) and the evaluation
 (:mod:`igdrivsim.evaluation.rollout`, which adds the metric registry's per-episode metrics and
-the tidy CSV frames) run. It lives in the training layer so that training never imports
-evaluation; semantics are documented in :mod:`igdrivsim.evaluation.rollout`.
+the tidy CSV frames) run. It lives in the policy layer, below both, so that neither imports the
+other; semantics are documented in :mod:`igdrivsim.evaluation.rollout`.
 
 ``episode_metrics``: ``None`` or a function ``(final_state, params) -> {key: f32[]}`` run once
 per episode inside the jitted rollout (a static argument: pass the same function object to
@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
+from igdrivsim.core.devices import make_mesh, place
 from igdrivsim.observation import (
     ObservationConfig,
     get_setting,
@@ -32,7 +33,6 @@ from igdrivsim.policy.network import PolicyConfig
 from igdrivsim.simulator import SimParams, reset
 from igdrivsim.simulator.metrics import step_metrics
 from igdrivsim.simulator.rollout import ACTORS, run_episode
-from igdrivsim.training import inputs
 
 EpisodeFn = Callable[[Any, SimParams], dict]
 
@@ -170,7 +170,7 @@ def _spread(tree, axis: int | None):
     if jax.device_count() == 1 or tree is None:
         return tree
     spec = PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), "data")
-    return inputs.place(tree, NamedSharding(inputs.make_mesh(), spec))
+    return place(tree, NamedSharding(make_mesh(), spec))
 
 
 def _device_multiple(size: int) -> int:
