@@ -15,7 +15,8 @@ from flax import struct
 
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, NUM_STEPS, Trajectory
 from igdrivsim.evaluation import aggregate, registry, rollout
-from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, SCENARIO_COLUMNS
+from igdrivsim.evaluation.registry import SCENARIO_COLUMNS
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS
 from igdrivsim.report import figures, tables
 from igdrivsim.simulator import episode_metrics as em
 from igdrivsim.simulator.state import SdcTrajectory

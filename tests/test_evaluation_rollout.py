@@ -12,7 +12,8 @@ import pytest
 
 from igdrivsim.cli import main as cli_main
 from igdrivsim.evaluation import rollout
-from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS, SCENARIO_COLUMNS
+from igdrivsim.evaluation.registry import SCENARIO_COLUMNS
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd" / (
     "motion_data_one_example.tfrecord")

@@ -17,7 +17,8 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.schema import PER_STEP_COLUMNS, SCENARIO_COLUMNS
+from igdrivsim.evaluation.registry import SCENARIO_COLUMNS
+from igdrivsim.evaluation.schema import PER_STEP_COLUMNS
 from igdrivsim.pipeline.cli import main as pipeline_main
 from igdrivsim.pipeline.profiles import PROFILES
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError

@@ -4,10 +4,11 @@ Each :class:`ScenarioMetric` names its ``per_scenario.csv`` column, its label an
 supplementary table and figure, its direction, its source, and how it is computed: either
 ``episode`` (``(final_state, params) -> f32[]``, run once per episode inside the jitted rollout)
 or ``derive`` (from the other per-scenario columns of a row, Table I's included). The rollout
-(:func:`episode_values`), the CSV columns (:data:`COLUMNS`), the supplementary table and the
-figure all iterate over :data:`REGISTRY`; adding a metric is one entry below (its function in
-:mod:`igdrivsim.simulator.episode_metrics`; docs/EXTENDING.md). :func:`register` adds one at run
-time, in the calling process only. Definitions and sources: ``docs/metrics.md``.
+(:func:`episode_values`), the CSV columns (:data:`SCENARIO_COLUMNS`), the supplementary table
+and the figure all iterate over :data:`REGISTRY`; adding a metric is one entry below (its
+function in :mod:`igdrivsim.simulator.episode_metrics`; docs/EXTENDING.md). :func:`register`
+adds one at run time, in the calling process only. Definitions and sources:
+``docs/metrics.md``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS
 from igdrivsim.simulator import episode_metrics as em
 
 EpisodeFn = Callable[..., object]  # (final SimState, SimParams) -> f32[]
@@ -99,6 +101,16 @@ def metrics() -> tuple[ScenarioMetric, ...]:
 def columns() -> tuple[str, ...]:
     """The registry's ``per_scenario.csv`` columns (after Table I's)."""
     return tuple(m.key for m in REGISTRY)
+
+
+def scenario_columns() -> tuple[str, ...]:
+    """The columns per_scenario.csv is written with: Table I's
+    (:data:`~igdrivsim.evaluation.schema.PER_SCENARIO_COLUMNS`), then this registry's (an older
+    CSV may lack them)."""
+    return PER_SCENARIO_COLUMNS + columns()
+
+
+SCENARIO_COLUMNS = scenario_columns()  # at import, before any later register() call
 
 
 def episode_keys() -> tuple[str, ...]:

@@ -33,12 +33,7 @@ import pandas as pd
 
 from igdrivsim.data.scenario import decode_scenario_id
 from igdrivsim.evaluation import registry
-from igdrivsim.evaluation.schema import (
-    PER_SCENARIO_COLUMNS,
-    PER_STEP_COLUMNS,
-    REFERENCE_SETTING,
-    scenario_columns,
-)
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS, REFERENCE_SETTING
 from igdrivsim.policy import closed_loop
 from igdrivsim.policy.closed_loop import (
     DEFAULT_SIM_PARAMS,
@@ -132,7 +127,7 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
                         for k in registry.episode_keys()})
             scen_rows.append(registry.derive_row(row))
     return (pd.DataFrame(step_rows, columns=list(PER_STEP_COLUMNS)),
-            pd.DataFrame(scen_rows, columns=list(scenario_columns())))
+            pd.DataFrame(scen_rows, columns=list(registry.scenario_columns())))
 
 
 def scenario_ids_of(scenarios) -> list[str]:

@@ -3,18 +3,23 @@
 The tidy CSVs written by :mod:`igdrivsim.evaluation.rollout` and read by
 :mod:`igdrivsim.evaluation.aggregate` use exactly these names, so a table or a figure never
 has to guess what a column means.
+
+This module imports no JAX (nor anything of igdrivsim), so the report's tables, the results
+page and the comparisons learn every name without loading JAX. The setting and method names,
+short names, labels and colours below are those of the registries'
+(:data:`igdrivsim.observation.models.PRESETS` and ``PRESET_SHORT``,
+:data:`igdrivsim.training.methods.METHODS`) shipped entries, repeated here;
+``tests/test_names.py`` checks that they agree, so a shipped setting or method is added in both
+places. One registered at run time only, in one process, is labelled by its name here.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from igdrivsim.evaluation import registry as _registry
-from igdrivsim.observation.models import PAPER_SETTINGS, PRESET_SHORT
-from igdrivsim.training import methods as _methods
-
 # The six observation settings of the paper, in Table I column order (observation PRESETS names).
-SETTINGS: tuple[str, ...] = PAPER_SETTINGS
+SETTINGS: tuple[str, ...] = ("full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4",
+                             "random_masking")
 SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the paper's Table I
     "full": ("Full obs", ""),
     "gaussian_noise": ("Gaussian", r"noise ($\sigma$=3)"),
@@ -23,7 +28,11 @@ SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the pa
     "conic_r4": ("Conic FoV", r"(r=4, $\alpha=\frac{2}{3}\pi$)"),
     "random_masking": ("Random", "masking (p=0.7)"),
 }
-SETTING_SHORT: dict[str, str] = PRESET_SHORT  # the observation registry's short names
+SETTING_SHORT: dict[str, str] = {  # the observation registry's short names (PRESET_SHORT)
+    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
+    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
+    "occlusion": "Occlusion",
+}
 
 # Competence targets of a learned driver against constant velocity on the same scenarios
 # (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
@@ -47,8 +56,8 @@ def table_settings(*frames) -> tuple[str, ...]:
 
 
 def setting_short(name: str) -> str:
-    """A setting's short column name (from the observation registry)."""
-    return PRESET_SHORT.get(name, name)
+    """A setting's short column name (the observation registry's; else the name)."""
+    return SETTING_SHORT.get(name, name)
 
 
 def setting_labels(name: str) -> tuple[str, str]:
@@ -61,8 +70,14 @@ BC, BC_RL = "bc", "bc_rl"
 EXPERT, CONSTANT_VELOCITY = "expert", "constant_velocity"
 METHODS: tuple[str, ...] = (BC_RL, BC)
 REFERENCES: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
-METHOD_LABELS: dict[str, str] = {  # the method registry's labels, then the references'
-    **{m.name: m.label for m in _methods.METHODS.values()},
+# Every shipped learning method, in the method registry's order, with its label and colour
+LEARNED: dict[str, tuple[str, str]] = {
+    BC: ("BC", "#4C9BE8"), BC_RL: ("BC-RL", "#F28E2B"), "dagger": ("DAgger", "#59A14F"),
+    "advisor": ("ADVISOR", "#B07AA1"),
+}
+METHOD_COLOURS: dict[str, str] = {name: colour for name, (_, colour) in LEARNED.items()}
+METHOD_LABELS: dict[str, str] = {  # the learned methods' labels, then the references'
+    **{name: label for name, (label, _) in LEARNED.items()},
     EXPERT: "Expert (discretised replay)", CONSTANT_VELOCITY: "Constant velocity",
 }
 # Reference rows do not depend on the observation: their CSV `setting` is this value.
@@ -76,15 +91,6 @@ PER_SCENARIO_COLUMNS = (
     "max_log_divergence", "overlap", "offroad",  # per-scenario: max, any overlap, any offroad
     "log_divergence", "overlap_steps", "offroad_steps",  # per-step values averaged over steps
 )
-
-
-def scenario_columns() -> tuple[str, ...]:
-    """The columns per_scenario.csv is written with: Table I's, then the metric registry's
-    (igdrivsim/evaluation/registry.py; an older CSV may lack them)."""
-    return PER_SCENARIO_COLUMNS + _registry.columns()
-
-
-SCENARIO_COLUMNS = scenario_columns()  # at import, before any later register() call
 
 
 @dataclass(frozen=True)

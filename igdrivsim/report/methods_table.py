@@ -22,6 +22,8 @@ from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_meth
 from igdrivsim.evaluation.schema import (
     BC,
     BC_RL,
+    LEARNED,
+    METHOD_COLOURS,
     METHOD_LABELS,
     METRICS,
     REFERENCE_SETTING,
@@ -40,7 +42,6 @@ from igdrivsim.report.tables import (
     _tex,
     setting_header,
 )
-from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
 
 PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
 
@@ -50,7 +51,7 @@ def learned_methods(frame: pd.DataFrame) -> list[str]:
     order: BC, BC-RL, the rest in the method registry's order, then unregistered names."""
     present = set(frame["method"].astype(str)) - set(REFERENCES) if len(frame) else set()
     first = [m for m in PAPER_METHODS if m in present]
-    registered = [m for m in METHOD_REGISTRY if m in present and m not in PAPER_METHODS]
+    registered = [m for m in LEARNED if m in present and m not in PAPER_METHODS]
     return first + registered + sorted(present - set(first) - set(registered))
 
 
@@ -61,8 +62,6 @@ def extended_methods(frame: pd.DataFrame) -> list[str]:
 
 def method_label(name: str) -> str:
     """A method's label: the registry's, a reference's, else the name itself."""
-    if name in METHOD_REGISTRY:
-        return METHOD_REGISTRY[name].label
     return METHOD_LABELS.get(name, name)
 
 
@@ -71,8 +70,8 @@ def method_colours(methods: Sequence[str]) -> dict[str, str]:
     (``C2`` onwards, so never the default blue/orange of BC and BC-RL)."""
     colours, spare = {}, 0
     for name in methods:
-        if name in METHOD_REGISTRY:
-            colours[name] = METHOD_REGISTRY[name].colour
+        if name in METHOD_COLOURS:
+            colours[name] = METHOD_COLOURS[name]
         else:
             colours[name] = f"C{2 + spare % 8}"
             spare += 1
