@@ -22,16 +22,20 @@ from igdrivsim.data.scenario import (
     TYPE_PEDESTRIAN,
     TYPE_VEHICLE,
 )
-from igdrivsim.data.synthetic.generator import generate_scenario
+from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
 
 N_TRAIN, N_VAL = 16, 4
 
 
-@pytest.fixture(scope="module")
-def generated(tmp_path_factory):
-    out = tmp_path_factory.mktemp("synthetic")
+@pytest.fixture(scope="module", params=["default", "calibrated"])
+def generated(request, tmp_path_factory):
+    """16 + 4 scenarios of seed 7, with each motion model (the default one written as before:
+    no ``--motion``)."""
+    out = tmp_path_factory.mktemp(f"synthetic_{request.param}")
     argv = ["generate", "--out", str(out), "--train", str(N_TRAIN), "--val", str(N_VAL),
             "--seed", "7", "--shards", "2", "--workers", "1"]
+    if request.param != "default":
+        argv += ["--motion", request.param]
     assert cli_main(argv) == 0
     return out, list(read_scenarios(out / "training")), argv
 
@@ -99,7 +103,9 @@ def test_shards_read_back_with_womd_shapes(generated):
     names = sorted(os.listdir(out / "training"))
     assert names == [f"training_tfexample.tfrecord-0000{k}-of-00002" for k in range(2)]
     assert sorted(os.listdir(out / "validation"))[0].startswith("validation_tfexample.tfrecord-")
-    assert json.loads((out / "generator_config.json").read_text())["generator"]["seed"] == 7
+    generator = json.loads((out / "generator_config.json").read_text())["generator"]
+    assert generator["seed"] == 7
+    config = GeneratorConfig(seed=7, motion=generator.get("motion", "default"))
     assert len(scenarios) == N_TRAIN
     assert len(list(read_scenarios(out / "validation"))) == N_VAL
     ids = set()
@@ -118,7 +124,7 @@ def test_shards_read_back_with_womd_shapes(generated):
         assert not s.trajectory.valid[~s.metadata.valid].any()
     assert len(ids) == N_TRAIN
     # Identical to generating in-process, and a re-run skips the complete shards.
-    direct = generate_scenario(7, 3)
+    direct = generate_scenario(7, 3, config=config)
     np.testing.assert_array_equal(direct.trajectory.x, scenarios[3].trajectory.x)
     before = os.path.getmtime(out / "training" / names[0])
     assert cli_main(argv) == 0

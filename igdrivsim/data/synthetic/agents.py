@@ -48,6 +48,8 @@ class Agent:
     start_step: int = 0  # walkers: first step in motion
     stop_window: tuple[int, int] | None = None  # braking leader: stop during these steps
     lateral: tuple[float, float, float] = (0.0, 60.0, 0.0)  # amplitude, wavelength, phase
+    offset: float = 0.0  # m: constant lateral offset from the route (left positive)
+    speed_wave: tuple[float, float, float] | None = None  # v_des x (1 + a sin(2 pi t / T + p))
     is_sdc: bool = False
     role: str = "background"
     # filled by plan()
@@ -217,6 +219,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         signal = None
     signal = signal.tolist() if signal is not None else None
     inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
+    wave = agent.speed_wave
     out = np.empty(T)
     for t in range(T):
         out[t] = pos
@@ -270,6 +273,8 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             v = min(v, _entry_speed(agent, gap, v_lead, sqrt_ab))
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
+        if wave is not None:  # a driver who does not hold the speed exactly
+            v_d *= 1.0 + wave[0] * np.sin(2 * np.pi * t * DT / wave[1] + wave[2])
         free = agent.accel * (1 - (v / v_d) ** 4)
         if v_lead < 0.3 and gap < LOOKAHEAD:
             acc = min(free, _stopping(agent, gap - agent.min_gap, v))
@@ -331,6 +336,8 @@ def _pose_at(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
     amp, wave, phase = agent.lateral
     k = 2 * np.pi / wave
     off = amp * np.sin(k * sc + phase)
+    if agent.offset:  # (0: the default's arithmetic, bit for bit)
+        off = off + agent.offset
     slope = amp * k * np.cos(k * sc + phase)
     nx, ny = -np.sin(yaw_r), np.cos(yaw_r)
     agent.s, agent.valid = s, valid

@@ -20,6 +20,7 @@ from tqdm.auto import tqdm
 from igdrivsim.data.reader import available_cpus
 from igdrivsim.data.scenario import trim_padding
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
+from igdrivsim.data.synthetic.motion import MOTIONS
 from igdrivsim.data.synthetic.plot import save_pictures
 from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.data.tfrecord import write_records
@@ -59,6 +60,9 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="N worker processes (1: in this process; default: all CPUs)")
     parser.add_argument("--p-intersection", type=float, default=GeneratorConfig.p_intersection,
                         help="fraction of intersection maps (others are curved roads)")
+    parser.add_argument("--motion", choices=MOTIONS, default=GeneratorConfig.motion,
+                        help="how the agents drive: as the generator always has, or 'calibrated' "
+                             "towards real logs (docs/synthetic.md, Calibrated motion)")
     parser.add_argument("--plot", type=int, default=0, metavar="N",
                         help="also draw the first N training scenarios to DIR/pictures/")
     parser.add_argument("--compact", action="store_true",
@@ -86,7 +90,8 @@ def generate_command(args: argparse.Namespace) -> int:
     """Generate the requested splits; print one JSON summary line."""
     _check(args)
     require_folder(args.out)
-    config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection)
+    config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection,
+                             motion=getattr(args, "motion", GeneratorConfig.motion))
     plan = {}
     for split, count in (("training", args.train), ("validation", args.val)):
         if count:

@@ -12,6 +12,7 @@ SDC log is checked: no overlap with any object and all four box corners inside t
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -30,6 +31,7 @@ from igdrivsim.data.scenario import (
 )
 from igdrivsim.data.synthetic import geometry as geo
 from igdrivsim.data.synthetic.agents import Agent, box_corners, collides, plan
+from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
     LIGHT_STOP,
@@ -38,6 +40,13 @@ from igdrivsim.data.synthetic.maps import (
     intersection_map,
     lane_change_route,
     road_map,
+)
+from igdrivsim.data.synthetic.motion import (
+    JUNCTION_SKEW,
+    ROAD_BEND,
+    calibrate_cast,
+    calibrate_map,
+    check_motion,
 )
 
 SPLITS = {"training": 0, "validation": 1, "testing": 2}
@@ -54,9 +63,14 @@ class GeneratorConfig:
     max_attempts: int = 8  # re-draws when the SDC log would collide or leave the road
     max_objects: int = 128
     max_roadgraph_points: int = 20_000
+    motion: Literal["default", "calibrated"] = "default"  # calibrated: towards real logs
+
+    def __post_init__(self) -> None:
+        check_motion(self.motion)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The fields (``motion`` only when not the default: older folders stay resumable)."""
+        return {k: v for k, v in asdict(self).items() if k != "motion" or v != "default"}
 
 
 def scenario_rng(seed: int, index: int, split: str = "training") -> np.random.Generator:
@@ -356,42 +370,21 @@ def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
 
 def plan_scenario(rng: np.random.Generator, config: GeneratorConfig = GeneratorConfig()):
     """Draw a map and a cast and plan them: ``(map, agents)`` with ``agents[i].is_sdc`` once."""
+    calibrated = config.motion == "calibrated"
+    bend, skew = (ROAD_BEND, JUNCTION_SKEW) if calibrated else (1.0, 1.0)
     for _ in range(config.max_attempts):
-        m = intersection_map(rng) if rng.random() < config.p_intersection else road_map(rng)
+        junction = rng.random() < config.p_intersection
+        m = intersection_map(rng, skew) if junction else road_map(rng, bend)
+        if calibrated:
+            calibrate_map(rng, m)
         edges = _edges(m)
         for _ in range(3):
             cast = _cast_intersection(rng, m) if m.kind == "intersection" else _cast_road(rng, m)
+            cast = calibrate_cast(rng, m, cast) if calibrated else cast
             planned = _stage(rng, m, cast, edges)
             if planned is not None:
                 return m, planned
     raise RuntimeError("synthetic generator: no valid scenario after max_attempts draws")
-
-
-def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
-                    valid_b: np.ndarray) -> bool:
-    """Whether two logged paths (segments between consecutive valid steps) cross or touch."""
-    def segments(xy, valid):
-        ok = valid[:-1] & valid[1:]
-        return xy[:-1][ok], xy[1:][ok]
-
-    a0, a1 = segments(xy_a, valid_a)
-    b0, b1 = segments(xy_b, valid_b)
-    if len(a0) == 0 or len(b0) == 0:
-        return False
-    lo_a, hi_a = np.minimum(a0, a1), np.maximum(a0, a1)
-    lo_b, hi_b = np.minimum(b0, b1), np.maximum(b0, b1)
-    if np.any(hi_a.max(0) < lo_b.min(0)) or np.any(hi_b.max(0) < lo_a.min(0)):
-        return False
-    p, r = a0[:, None], (a1 - a0)[:, None]
-    q, s = b0[None], (b1 - b0)[None]
-    cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731
-    den = cross(r, s)
-    qp = q - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = cross(qp, s) / den
-        u = cross(qp, r) / den
-    hit = (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    return bool(hit.any())
 
 
 def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scenario_id: str,

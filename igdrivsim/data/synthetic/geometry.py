@@ -106,3 +106,30 @@ def concat(*pieces: np.ndarray) -> np.ndarray:
 
 def rot(angle: float) -> np.ndarray:
     return np.array([np.cos(angle), np.sin(angle)])
+
+
+def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
+                    valid_b: np.ndarray) -> bool:
+    """Whether two logged paths (segments between consecutive valid steps) cross or touch."""
+    def segments(xy, valid):
+        ok = valid[:-1] & valid[1:]
+        return xy[:-1][ok], xy[1:][ok]
+
+    a0, a1 = segments(xy_a, valid_a)
+    b0, b1 = segments(xy_b, valid_b)
+    if len(a0) == 0 or len(b0) == 0:
+        return False
+    lo_a, hi_a = np.minimum(a0, a1), np.maximum(a0, a1)
+    lo_b, hi_b = np.minimum(b0, b1), np.maximum(b0, b1)
+    if np.any(hi_a.max(0) < lo_b.min(0)) or np.any(hi_b.max(0) < lo_a.min(0)):
+        return False
+    p, r = a0[:, None], (a1 - a0)[:, None]
+    q, s = b0[None], (b1 - b0)[None]
+    cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731
+    den = cross(r, s)
+    qp = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = cross(qp, s) / den
+        u = cross(qp, r) / den
+    hit = (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    return bool(hit.any())

@@ -177,8 +177,8 @@ def _crosswalk(m: MapData, centre, along, half_len: float, half_width: float) ->
     m.walk_steps.append(None)
 
 
-def _reference_curve(rng: np.random.Generator, length: float) -> np.ndarray:
-    """A smooth centre line: straight pieces and bends (radius >= 35 m), clothoid-like."""
+def _reference_curve(rng: np.random.Generator, length: float, bend: float = 1.0) -> np.ndarray:
+    """A smooth centre line: straight pieces and bends (radius >= 35 m / ``bend``)."""
     ds = 0.5
     n = int(length / ds) + 1
     kappa = np.zeros(n)
@@ -194,15 +194,18 @@ def _reference_curve(rng: np.random.Generator, length: float) -> np.ndarray:
         s += piece
     win = int(25 / ds)  # ~25 m transitions
     kappa = np.convolve(np.pad(kappa, win, mode="edge"), np.ones(win) / win, "same")[win:-win]
+    if bend != 1.0:  # (1: the default's arithmetic, bit for bit)
+        kappa = kappa * bend
     yaw = np.cumsum(kappa) * ds
     pts = np.stack([np.cos(yaw), np.sin(yaw)], 1).cumsum(0) * ds
     return geo.resample(pts - pts[0], 1.0)
 
 
-def road_map(rng: np.random.Generator) -> MapData:
-    """A curved road, 1-3 lanes each way (or one-way), sometimes divided, parking strips, a lane
-    drop (the rightmost lane ends and its traffic merges), maybe a crosswalk."""
-    ref = _reference_curve(rng, rng.uniform(340, 400))
+def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
+    """A curved road (curvature times ``bend``), 1-3 lanes each way (or one-way), sometimes
+    divided, parking strips, a lane drop (the rightmost lane ends and its traffic merges), maybe
+    a crosswalk."""
+    ref = _reference_curve(rng, rng.uniform(340, 400), bend)
     m = MapData(kind="road", ref=ref)
     n_fwd = int(rng.choice([1, 2, 3], p=[0.05, 0.4, 0.55]))
     n_back = int(rng.choice([0, 1, 2, 3], p=[0.05, 0.2, 0.45, 0.3]))
@@ -380,13 +383,13 @@ def _side_street(rng, m: MapData, ref: np.ndarray, i: int, right: np.ndarray, fw
         group += 1
 
 
-def intersection_map(rng: np.random.Generator) -> MapData:
-    """A 3- or 4-arm intersection of two-way roads (1-3 lanes per direction) with turn
-    connectors, crosswalks, sidewalks, kerbside parking on some arms and no control, stop signs
-    or traffic lights (two phases: opposite arms together)."""
+def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
+    """A 3- or 4-arm intersection of two-way roads (1-3 lanes per direction; arm angles off the
+    right angles by up to ``0.2 skew`` rad) with turn connectors, crosswalks, sidewalks, kerbside
+    parking on some arms and no control, stop signs or traffic lights (two phases)."""
     m = MapData(kind="intersection")
     n_arms = 3 if rng.random() < 0.3 else 4
-    angles = np.arange(4) * np.pi / 2 + rng.uniform(-0.2, 0.2, 4)
+    angles = np.arange(4) * np.pi / 2 + skew * rng.uniform(-0.2, 0.2, 4)
     if n_arms == 3:
         angles = np.delete(angles, rng.integers(4))
     u = np.stack([np.cos(angles), np.sin(angles)], 1)

@@ -1,0 +1,85 @@
+"""The motion calibration target (issue 43): the logged SDC's constant-velocity divergence.
+
+``python -m igdrivsim.data.synthetic.calibration [NAME=]PATH ... [--kept-only NAME] [--out F]``
+reads data sets as ``igdrivsim stats`` does and prints (and writes to ``F``) per data set the
+median [p10, p90] over SDCs of :func:`cv_divergence` and of its parts along and across the
+heading. ``igdrivsim stats`` reports the CV distance at single horizons; this is the mean over
+every step of the 8 s future, i.e. exactly a constant-velocity actor's log divergence.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+import numpy as np
+
+from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
+from igdrivsim.data.scenario import CURRENT_INDEX, DT, Scenario
+from igdrivsim.data.stats_command import iter_dataset, parse_datasets
+from igdrivsim.io import atomic_write_text
+
+HORIZON_STEPS = 80  # 8 s after the current step
+
+
+def cv_divergence(scenario: Scenario) -> tuple[float, float, float]:
+    """``(distance, |along|, |across|)``: the SDC's distance from its constant-velocity
+    extrapolation from the current step (logged position and velocity), averaged over the valid
+    steps of the next 8 s, and the means of its absolute parts along and across the heading."""
+    tr = scenario.trajectory
+    i = int(np.argmax(np.asarray(scenario.metadata.is_sdc)))
+    xy = np.stack([np.asarray(tr.x[i]), np.asarray(tr.y[i])], -1).astype(np.float64)
+    v = np.array([tr.vel_x[i, CURRENT_INDEX], tr.vel_y[i, CURRENT_INDEX]], np.float64)
+    k = np.arange(1, min(HORIZON_STEPS + 1, xy.shape[0] - CURRENT_INDEX))
+    k = k[np.asarray(tr.valid[i], bool)[CURRENT_INDEX + k]]
+    if not len(k) or not tr.valid[i, CURRENT_INDEX]:
+        return np.nan, np.nan, np.nan
+    e = xy[CURRENT_INDEX + k] - (xy[CURRENT_INDEX] + v * (k * DT)[:, None])
+    yaw = float(tr.yaw[i, CURRENT_INDEX])
+    along = e @ np.array([np.cos(yaw), np.sin(yaw)])
+    across = e[:, 1] * np.cos(yaw) - e[:, 0] * np.sin(yaw)
+    return (float(np.linalg.norm(e, axis=1).mean()), float(np.abs(along).mean()),
+            float(np.abs(across).mean()))
+
+
+def _cell(v: np.ndarray) -> str:
+    return f"{np.median(v):.2f} [{np.percentile(v, 10):.2f}, {np.percentile(v, 90):.2f}]"
+
+
+def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> str:
+    """The Markdown table of :func:`cv_divergence` per data set (filter-kept scenarios only for
+    the sets in ``kept_only``)."""
+    lines = ["| data set | SDCs | CV divergence over 8 s (m) | along (m) | across (m) |",
+             "|---|---|---|---|---|"]
+    for name, paths in datasets.items():
+        rows = []
+        for _, _, s in iter_dataset(paths):
+            if name in kept_only and not (intersecting_objects(s).any()
+                                          and sdc_mean_speed(s) >= 0.7):
+                continue
+            rows.append(cv_divergence(s))
+        v = np.array(rows).reshape(-1, 3)
+        v = v[np.isfinite(v).all(1)]
+        kept = " (kept)" if name in kept_only else ""
+        cells = " | ".join(_cell(v[:, j]) if len(v) else "-" for j in range(3))
+        lines.append(f"| {name}{kept} | {len(v)} | {cells} |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("files", nargs="+", metavar="[NAME=]PATH",
+                        help="data sets, as for igdrivsim stats")
+    parser.add_argument("--kept-only", action="append", default=[], metavar="NAME",
+                        help="only the filter-kept scenarios of data set NAME (repeatable)")
+    parser.add_argument("--out", default=None, help="also write the table to this file")
+    args = parser.parse_args(argv)
+    table = cv_table(parse_datasets(args.files), args.kept_only)
+    print(table)
+    if args.out:
+        atomic_write_text(args.out, table + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
