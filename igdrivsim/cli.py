@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
 import warnings
 
 from igdrivsim.cli_args import FORMATTER, DefaultsFormatter, deprecated_alias
-from igdrivsim.errors import REPORTED, error_line
+from igdrivsim.errors import run_command
 
 # re-exported for callers of the old place
 __all__ = ["FORMATTER", "DefaultsFormatter", "deprecated_alias", "main"]
@@ -76,14 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     # warnings (a skipped bad record, ...) as one line each, not with their source line
     warnings.formatwarning = lambda message, *_, **__: f"igdrivsim {name}: warning: {message}\n"
     try:
-        func = getattr(importlib.import_module(args._module), f"{args._name}_command")
-        return int(func(args) or 0)
-    except BrokenPipeError:  # the reader went away (``| head``): stop quietly
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
-    except REPORTED as err:
-        print(f"igdrivsim {name}: error: {error_line(err)}", file=sys.stderr)
-        return 2
+        return run_command(f"igdrivsim {name}", lambda: getattr(
+            importlib.import_module(args._module), f"{args._name}_command")(args))
     except KeyboardInterrupt:
         print(f"igdrivsim {args._name}: interrupted", file=sys.stderr)
         return 130

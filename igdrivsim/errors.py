@@ -1,6 +1,11 @@
-"""Errors that the command line reports as one clear line (what went wrong and where)."""
+"""Errors that the command line reports as one clear line (what went wrong and where), and
+:func:`run_command`, the one place a command turns them into that line and its exit status."""
 
 from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
 
 
 class IGDrivSimError(Exception):
@@ -39,6 +44,20 @@ def error_line(err: BaseException) -> str:
     paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
     what = err.strerror or type(err).__name__
     return f"{what}: {paths}" if paths else f"{what}: {err}"
+
+
+def run_command(prog: str, body: Callable[..., int | None], *args) -> int:
+    """``body(*args)`` as every command line runs it: its exit status (``None``: 0); one of
+    :data:`REPORTED` printed as one line ``<prog>: error: <what>`` on stderr, status 2; the
+    reader of stdout gone (``| head``), a quiet stop, status 141."""
+    try:
+        return int(body(*args) or 0)
+    except BrokenPipeError:  # stdout's reader went away: no error line, no flush error at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except REPORTED as err:
+        print(f"{prog}: error: {error_line(err)}", file=sys.stderr)
+        return 2
 
 
 def check_min(option: str, value: float | None, minimum: float) -> None:

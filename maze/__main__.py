@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from igdrivsim.cli_args import DefaultsFormatter
-from igdrivsim.errors import REPORTED, error_line
+from igdrivsim.errors import run_command
 from igdrivsim.io import atomic_write_csv
 from maze import study
 
@@ -24,14 +24,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.profile = "smoke"
-    try:
+
+    def body() -> None:
         summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
                                   progress=not args.no_progress)
         atomic_write_csv(args.out / "summary.csv", summary)
-    except REPORTED as err:
-        print(f"maze: error: {error_line(err)}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_command("maze", body)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.cli_args import DefaultsFormatter
-from igdrivsim.errors import REPORTED, ConfigError, DataError, error_line
+from igdrivsim.errors import ConfigError, DataError, run_command
 from igdrivsim.io import (
     atomic_write_bytes,
     atomic_write_csv,
@@ -459,11 +459,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only redraw Fig. 2 and 2b from OUT's figures/fig2_maze.csv and "
                              "maze_config.json (no training)")
     args = parser.parse_args(argv)
-    try:
-        return study_command(args)
-    except REPORTED as err:
-        print(f"maze study: error: {error_line(err)}", file=sys.stderr)
-        return 2
+    return run_command("maze study", study_command, args)
 
 
 if __name__ == "__main__":

@@ -128,3 +128,22 @@ def test_reproduce_checks_its_arguments_before_any_stage(extra, needle, tmp_path
     with pytest.raises((ConfigError, DataError), match=needle):
         pipeline_from_args(args)
     assert not (tmp_path / "work").exists()
+
+
+def test_every_command_line_reports_through_run_command(capsys):
+    """One helper turns a command's error into its line and exit status
+    (igdrivsim.errors.run_command); no other module catches the reported errors itself."""
+    from pathlib import Path
+
+    from igdrivsim.errors import run_command
+
+    def fails():
+        raise ConfigError("--x must be >= 1, got 0")
+
+    assert run_command("tool", fails) == 2
+    assert capsys.readouterr().err == "tool: error: --x must be >= 1, got 0\n"
+    assert run_command("tool", lambda: None) == 0 and run_command("tool", lambda n: n, 1) == 1
+    root = Path(__file__).resolve().parents[1]
+    catching = [p.relative_to(root).as_posix() for pkg in ("igdrivsim", "maze")
+                for p in (root / pkg).rglob("*.py") if "except REPORTED" in p.read_text()]
+    assert catching == ["igdrivsim/errors.py"]

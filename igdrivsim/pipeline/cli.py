@@ -12,7 +12,7 @@ from pathlib import Path
 
 from igdrivsim.cli_args import DefaultsFormatter, deprecated_alias
 from igdrivsim.data import expand_paths, samples
-from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.evaluation.schema import METHODS
 from igdrivsim.io import require_folder
 from igdrivsim.pipeline.profiles import PROFILES
@@ -153,18 +153,19 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the stages as Ctrl-C does
     pipeline = None
-    try:
+
+    def body() -> None:
+        nonlocal pipeline
         pipeline = pipeline_from_args(args)
         pipeline.run()
-    except REPORTED as err:
-        print(f"reproduce: error: {error_line(err)}", file=sys.stderr)
-        return 2
+
+    try:
+        return run_command("reproduce", body)
     except KeyboardInterrupt:
         if pipeline is not None:
             pipeline.stop()
         print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
-    return 0
 
 
 if __name__ == "__main__":

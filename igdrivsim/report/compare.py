@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.evaluation.schema import (
     BC_RL,
     CONSTANT_VELOCITY,
@@ -87,15 +87,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="the two runs' names in the table (default: old new)")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> None:
         text = compare_markdown(args.old, args.new, tuple(args.labels))
         if args.out:
             atomic_write_text(args.out, text)
-    except REPORTED as err:
-        print(f"compare: error: {error_line(err)}", file=sys.stderr)
-        return 2
-    print(text)
-    return 0
+        print(text)
+
+    return run_command("compare", body)
 
 
 if __name__ == "__main__":

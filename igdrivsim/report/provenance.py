@@ -32,13 +32,12 @@ import json
 import re
 import shlex
 import subprocess
-import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text
 
 FILE = "provenance.json"
@@ -420,7 +419,8 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser.add_argument("--command", default=None, help="derived: the command that wrote them")
     parser.add_argument("--paper", default=str(repo / "paper"), help="the report folder")
     args = parser.parse_args(list(argv) if argv is not None else None)
-    try:
+
+    def body() -> int:
         paper = Path(args.paper).resolve()
         if args.action == "derived":
             if not (args.files and args.source and args.command):
@@ -439,9 +439,8 @@ def main(argv: Iterable[str] | None = None) -> int:
         if legacy:
             print(f"{len(legacy)} file(s): {LEGACY}")
         return 1 if lacking or problems else 0
-    except REPORTED as err:
-        print(f"provenance: error: {error_line(err)}", file=sys.stderr)
-        return 2
+
+    return run_command("provenance", body)
 
 
 if __name__ == "__main__":

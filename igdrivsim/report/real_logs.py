@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import REPORTED, ConfigError, DataError, error_line
+from igdrivsim.errors import ConfigError, DataError, run_command
 from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
 from igdrivsim.evaluation.schema import (
     CONSTANT_VELOCITY,
@@ -220,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
                         default="synthetic validation scenarios",
                         help="what the validation data are")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> None:
         if args.from_markdown:
             text = Path(args.from_markdown).read_text(encoding="utf-8")
             paths = write_numbers(table_from_markdown(text), Path(args.out))
@@ -229,11 +230,9 @@ def main(argv: list[str] | None = None) -> int:
                                  args.validation_label)
         else:
             raise ConfigError("give --real DIR (evaluations) or --from-markdown FILE")
-    except REPORTED as err:
-        print(f"real_logs: error: {error_line(err)}", file=sys.stderr)
-        return 2
-    print("wrote " + ", ".join(map(str, paths)))
-    return 0
+        print("wrote " + ", ".join(map(str, paths)))
+
+    return run_command("real_logs", body)
 
 
 if __name__ == "__main__":

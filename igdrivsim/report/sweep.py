@@ -21,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import REPORTED, ConfigError, error_line
+from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
 
@@ -112,15 +112,14 @@ def main(argv: list[str] | None = None) -> int:
                              "(default: none, no ratio to constant velocity)")
     parser.add_argument("--out", type=Path, help="also write the markdown here")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> None:
         text = sweep_markdown(args.sweep, args.references)
         if args.out:
             atomic_write_text(args.out, text)
-    except REPORTED as err:
-        print(f"sweep: error: {error_line(err)}", file=sys.stderr)
-        return 2
-    print(text)
-    return 0
+        print(text)
+
+    return run_command("sweep", body)
 
 
 if __name__ == "__main__":

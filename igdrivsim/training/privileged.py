@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.io import atomic_write_json
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.run import Run, is_run
@@ -79,18 +79,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", nargs="+", required=True, help="candidate run folders")
     parser.add_argument("--out", required=True, help="where to write the choice (JSON)")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> None:
         choice = choose_teacher(args.runs)
-    except ConfigError as err:
-        print(f"error: {err}")
-        return 2
-    atomic_write_json(args.out, choice, indent=2)
-    for s in choice["candidates"]:
-        print(f"{s['run']}: full setting at update {s['update']}: offroad "
-              f"{100 * s['offroad']:.2f}%, overlap {100 * s['overlap']:.2f}%, log divergence "
-              f"{s['log_divergence']:.2f} m")
-    print(f"teacher: {choice['run']}")
-    return 0
+        atomic_write_json(args.out, choice, indent=2)
+        for s in choice["candidates"]:
+            print(f"{s['run']}: full setting at update {s['update']}: offroad "
+                  f"{100 * s['offroad']:.2f}%, overlap {100 * s['overlap']:.2f}%, log "
+                  f"divergence {s['log_divergence']:.2f} m")
+        print(f"teacher: {choice['run']}")
+
+    return run_command("teacher", body)
 
 
 if __name__ == "__main__":
