@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, Scenario
 from igdrivsim.data.stats_command import iter_dataset, parse_datasets
@@ -67,7 +68,7 @@ def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> s
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=FORMATTER)
     parser.add_argument("files", nargs="+", metavar="[NAME=]PATH",
                         help="data sets, as for igdrivsim stats")
     parser.add_argument("--kept-only", action="append", default=[], metavar="NAME",
