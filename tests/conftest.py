@@ -10,9 +10,8 @@ def write_toy_shard(folder: Path, config, count: int = 8) -> str:
     ``config``, as ``folder/train.tfrecord``; returns the folder."""
     from igdrivsim.data import write_tfexample
     from igdrivsim.simulator import toy
-    from igdrivsim.training import inputs
 
-    caps = inputs.capacities(config)
+    caps = config.capacities
     scenarios = [toy.straight_road(caps, speed=3.0 + 1.5 * i, scenario_id=f"toy-{i}")
                  for i in range(count)]
     write_tfexample(Path(folder) / "train.tfrecord", scenarios)

@@ -70,7 +70,6 @@ def test_type_pooled_mlp_is_the_mlp_of_each_point_next_to_its_types_pool():
 def _paper_network(method: str):
     import dataclasses
 
-    from igdrivsim.observation import ObservationConfig
     from igdrivsim.policy.act import example_observation
     from igdrivsim.policy.network import apply_step, count_params, init_params, initial_carry
     from igdrivsim.training.bench import matmul_flops
@@ -79,8 +78,7 @@ def _paper_network(method: str):
     base = get_profile("paper")
     config = dataclasses.replace(base, training=dataclasses.replace(
         base.training, method=method)).validate()
-    obs = example_observation(ObservationConfig(config.observation.num_objects,
-                                                config.observation.num_roadgraph_points))
+    obs = example_observation(config.obs_config)
     params = init_params(config.policy, jax.random.PRNGKey(0), obs)
     flops = matmul_flops(lambda p, o: apply_step(config.policy, p, initial_carry(
         config.policy), o, jnp.zeros((), bool)), params, obs)

@@ -149,3 +149,24 @@ def test_evaluation_on_four_devices_matches_one_device(full_run, data_dir, tmp_p
         assert len(one) == len(four) > 0 and list(one.columns) == list(four.columns)
         numeric = one.select_dtypes("number").columns
         np.testing.assert_allclose(four[numeric], one[numeric], atol=1e-4)
+
+
+def test_a_runs_derived_values_are_its_configs():
+    """Settings, seeds, capacities, observation and simulator settings are computed in one
+    place (RunConfig), and the update, the input and the evaluation take them from there."""
+    from igdrivsim.data.scenario import Capacities
+    from igdrivsim.observation import ObservationConfig
+    from igdrivsim.training.update import update_spec
+
+    config = with_overrides(CONFIG, ["observation.setting=full, circular_r4",
+                                     "training.seed_offset=3", "observation.roadgraph_stride=2"])
+    assert config.settings == ("full", "circular_r4") and config.seeds == (3, 4)
+    assert config.capacities == Capacities(max_objects=config.data.max_objects,
+                                           max_roadgraph_points=config.data.max_roadgraph_points)
+    o = config.observation
+    assert config.obs_config == ObservationConfig(o.num_objects, o.num_roadgraph_points)
+    assert config.sim_params.roadgraph_stride == 2
+    spec = update_spec(config.validate())
+    assert (spec.obs, spec.sim, spec.record) == (config.obs_config, config.sim_params,
+                                                 config.record_config)
+    assert config.record_config.num_objects >= config.obs_config.num_objects

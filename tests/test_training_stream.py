@@ -18,7 +18,6 @@ import pytest
 
 from igdrivsim.data import write_tfexample
 from igdrivsim.simulator import toy
-from igdrivsim.training import inputs
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.loop import train
 from igdrivsim.training.stream import ScenarioIndex, StreamDataset
@@ -37,7 +36,7 @@ def _max_diff(a, b) -> float:
 
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory):
-    caps = inputs.capacities(CONFIG)
+    caps = CONFIG.capacities
     path = tmp_path_factory.mktemp("stream") / "train.tfrecord"
     write_tfexample(path, [toy.straight_road(caps, speed=3.0 + i, scenario_id=f"s{i}")
                            for i in range(8)])
@@ -51,7 +50,7 @@ def one_process(data_dir, tmp_path_factory):
 
 
 def test_shards_are_disjoint_and_each_epoch_a_permutation(data_dir):
-    source = ScenarioIndex.from_path(data_dir, inputs.capacities(CONFIG))
+    source = ScenarioIndex.from_path(data_dir, CONFIG.capacities)
     assert len(source) == 8 and source.refs.nbytes == 8 * 8  # 8 bytes per scenario
     sim = update_spec(CONFIG).sim
     parts = [StreamDataset(source, 4, [0, 1], sim, 2, process=p, processes=2) for p in (0, 1)]

@@ -19,7 +19,6 @@ from igdrivsim.observation import (
     superset_config,
 )
 from igdrivsim.simulator import SimParams, reset, toy
-from igdrivsim.training import inputs
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.teacher import compute_teacher
 from igdrivsim.training.update import update_spec
@@ -89,7 +88,7 @@ def test_settings_train_together_as_they_would_alone(tmp_path):
 
     base = with_overrides(get_profile("smoke"), ["training.method=bc", "training.num_updates=2",
                                                  "training.seeds=1"])
-    caps = inputs.capacities(base)
+    caps = base.capacities
     write_tfexample(tmp_path / "d" / "train.tfrecord",
                     [toy.straight_road(caps, speed=3.0 + i, scenario_id=f"t{i}")
                      for i in range(4)])

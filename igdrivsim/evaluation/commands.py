@@ -14,11 +14,10 @@ from pathlib import Path
 from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.core.devices import maybe_init_distributed
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.evaluate import data_capacities, evaluate_references, evaluate_run
+from igdrivsim.evaluation.evaluate import evaluate_references, evaluate_run
 from igdrivsim.io import require_folder
 from igdrivsim.policy.act import ACTION_MODES
 from igdrivsim.training.run import Run
-from igdrivsim.training.update import sim_params
 
 
 def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +65,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         like = args.runs[0] if args.runs else args.like
         if like:  # the same capacities and simulator settings as that run
             config = Run.open(like).config
-            caps, sim = data_capacities(config), sim_params(config)
+            caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
                             progress)

@@ -21,10 +21,8 @@ from igdrivsim.evaluation.rollout import (
     tidy_frames,
 )
 from igdrivsim.io import atomic_write_csv, atomic_write_json
-from igdrivsim.observation import ObservationConfig
 from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
-from igdrivsim.training.update import run_settings, sim_params
 
 EVAL_CONFIG = "eval_config.json"
 
@@ -32,15 +30,7 @@ EVAL_CONFIG = "eval_config.json"
 def load_trained(run_dir: str):
     """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
     run = Run.open(run_dir)
-    config = run.config
-    seeds = list(range(config.training.seed_offset,
-                       config.training.seed_offset + config.training.seeds))
-    return config, run.params(), seeds
-
-
-def data_capacities(config):
-    return Capacities(max_objects=config.data.max_objects,
-                      max_roadgraph_points=config.data.max_roadgraph_points)
+    return run.config, run.params(), list(run.config.seeds)
 
 
 def _bar(total: int, desc: str, enabled: bool):
@@ -68,16 +58,14 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     _check_sizes(max_scenarios, batch_size)
     config, params, seeds = load_trained(run_dir)
     if scenarios is None:
-        scenarios = load_validation(data, data_capacities(config), max_scenarios, progress)
+        scenarios = load_validation(data, config.capacities, max_scenarios, progress)
     ids = scenario_ids_of(scenarios)
-    settings, method = run_settings(config), config.training.method
-    obs_config = ObservationConfig(config.observation.num_objects,
-                                   config.observation.num_roadgraph_points)
+    settings, method = list(config.settings), config.training.method
     label = ",".join(settings)
     with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
-                                  setting=settings, obs_config=obs_config,
-                                  params=sim_params(config), actions=actions,
+                                  setting=settings, obs_config=config.obs_config,
+                                  params=config.sim_params, actions=actions,
                                   batch_size=batch_size, seed=seed, progress=bar.update,
                                   episode_metrics=True)
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
@@ -87,7 +75,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     return _write(out, per_step, per_scenario, dict(
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
-        num_scenarios=len(ids), sim=dataclasses.asdict(sim_params(config))))
+        num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params)))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,

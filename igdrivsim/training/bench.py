@@ -29,6 +29,7 @@ import numpy as np
 from jax.extend.core import ClosedJaxpr, Jaxpr
 
 from igdrivsim.cli_args import deprecated_alias
+from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_file_target
 from igdrivsim.machine import machine_record
@@ -40,7 +41,7 @@ from igdrivsim.training import inputs
 from igdrivsim.training.commands import refuse_contradictions
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
-from igdrivsim.training.update import run_settings, settings_as_data, update_spec
+from igdrivsim.training.update import settings_as_data, update_spec
 
 
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -201,24 +202,24 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     # methods with a privileged teacher are timed with an untrained one of the same network
     teacher_policy = dataclasses.replace(config.policy, aux_head=False)
     spec = update_spec(config, teacher_policy)
-    mesh = inputs.make_mesh()
+    mesh = make_mesh()
     inputs.check_batch(config.data.batch_size, mesh)
-    caps = inputs.capacities(config)
+    caps = config.capacities
     scenarios = [toy.straight_road(caps, speed=4.0 + i % 8) for i in range(config.data.batch_size)]
     dataset = inputs.Dataset.from_config(config, scenarios, spec.sim,
                                          need_states=config.collects_rollout)
-    rep = inputs.replicated(mesh)
+    rep = replicated(mesh)
     params, opt_state = init_state(config, spec)
     n_params = int(sum(x[0, 0].size for x in jax.tree.leaves(params)))
-    params, opt_state = inputs.place(params, rep), inputs.place(opt_state, rep)
-    buffer = inputs.place(init_buffer(config, spec), rep)
+    params, opt_state = place(params, rep), place(opt_state, rep)
+    buffer = place(init_buffer(config, spec), rep)
     teacher_params = None
     if spec.learner.teacher:
         teacher_params = init_params_per_seed(
             teacher_policy, list(seed_keys(config)), example_observation(spec.obs))
-    keys = inputs.place(seed_keys(config), rep)
+    keys = place(seed_keys(config), rep)
     settings = settings_as_data(config)
-    teacher, states = inputs.place(dataset.host_batch(0), inputs.batch_sharding(mesh))
+    teacher, states = place(dataset.host_batch(0), batch_sharding(mesh))
     args = (teacher, states, settings, teacher_params, keys)
     t0 = time.perf_counter()
     update = get_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
@@ -246,12 +247,12 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
                                        teacher_params)
     t = config.training
     epochs, minibatches = config.sgd_passes
-    runs = len(run_settings(config)) * t.seeds
+    runs = len(config.settings) * t.seeds
     steps = runs * config.data.batch_size * 80 * epochs
     grads = runs * epochs * minibatches
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
-            "settings": len(run_settings(config)),
+            "settings": len(config.settings),
             "batch": config.data.batch_size, "compile_s": round(compile_s, 2),
             "first_update_s": round(first_s, 2),
             "seconds_per_update": round(per_update, 4),

@@ -19,9 +19,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from igdrivsim.data.scenario import Capacities
 from igdrivsim.errors import ConfigError
-from igdrivsim.observation import stack_settings
+from igdrivsim.observation import ObservationConfig, stack_settings, superset_config
 from igdrivsim.policy.network import NUM_BINS, POOLED_NETWORK, PolicyConfig
+from igdrivsim.simulator import SimParams
 from igdrivsim.training.methods import DEFAULT_METHOD, get_method, method_param_defaults
 
 
@@ -125,6 +127,41 @@ class RunConfig:
             return (t.rollout_epochs or t.ppo_epochs, t.rollout_minibatches or t.ppo_minibatches)
         return t.ppo_epochs, t.ppo_minibatches
 
+    @property
+    def settings(self) -> tuple[str, ...]:
+        """The observation settings this run trains (``observation.setting``, a comma list)."""
+        return tuple(s.strip() for s in self.observation.setting.split(",") if s.strip())
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """This run's seeds: ``training.seed_offset`` and the ``training.seeds - 1`` after it."""
+        t = self.training
+        return tuple(range(t.seed_offset, t.seed_offset + t.seeds))
+
+    @property
+    def capacities(self) -> Capacities:
+        """What a scenario keeps when it is loaded (object slots, roadgraph points)."""
+        return Capacities(max_objects=self.data.max_objects,
+                          max_roadgraph_points=self.data.max_roadgraph_points)
+
+    @property
+    def obs_config(self) -> ObservationConfig:
+        """The imitator's observation capacities (objects, roadgraph points)."""
+        o = self.observation
+        return ObservationConfig(o.num_objects, o.num_roadgraph_points)
+
+    @property
+    def record_config(self) -> ObservationConfig:
+        """What a teacher-forced record holds: a superset of :attr:`obs_config`, from which
+        every setting's observation is cut."""
+        return superset_config(self.obs_config, self.data.max_objects)
+
+    @property
+    def sim_params(self) -> SimParams:
+        """Simulator settings of this run (the observable map's resolution; the offroad
+        metric's road-edge selection keeps its defaults)."""
+        return SimParams(roadgraph_stride=self.observation.roadgraph_stride)
+
     def _check_ranges(self) -> None:
         """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
         for (section, name), (low, high) in RANGES.items():
@@ -165,7 +202,7 @@ class RunConfig:
         self._check_ranges()
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
             raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
-        names = [s.strip() for s in self.observation.setting.split(",") if s.strip()]
+        names = list(self.settings)
         if not names or len(set(names)) != len(names):
             raise ConfigError("observation.setting must name distinct settings, got "
                               f"{self.observation.setting!r}")

@@ -29,14 +29,12 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from tqdm.auto import tqdm
 
-# batch_sharding, make_mesh, replicated: training/bench.py reaches them through this module
-# (until it imports igdrivsim.core.devices)
-from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated  # noqa: F401
+from igdrivsim.core.devices import place
 from igdrivsim.data import read_scenarios
 from igdrivsim.data.manifest import count_scenarios, load_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.observation import ObservationConfig, ObservationRecord, superset_config
+from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.teacher import (
@@ -47,11 +45,6 @@ from igdrivsim.training.teacher import (
 )
 
 MANIFEST = "manifest.jsonl"
-
-
-def capacities(config: RunConfig) -> Capacities:
-    return Capacities(max_objects=config.data.max_objects,
-                      max_roadgraph_points=config.data.max_roadgraph_points)
 
 
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
@@ -142,14 +135,14 @@ class Dataset:
         the teacher-forced records come from ``cache_dir`` when they were computed before.
         ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
         update records each batch itself."""
-        d, t = config.data, config.training
+        d = config.data
         limit = d.max_scenarios if max_scenarios is None else max_scenarios
 
         def chunks():
             if isinstance(data, (str, os.PathLike)):
                 if not os.path.exists(data):
                     raise DataError("training data not found", file=os.fspath(data))
-                return iter_scenarios(data, capacities(config), limit, chunk)
+                return iter_scenarios(data, config.capacities, limit, chunk)
             scenarios = list(data)[: limit or None]
             return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
 
@@ -162,9 +155,7 @@ class Dataset:
             return reset_all(chunks(), params, chunk, progress, total)
 
         states = None
-        rec = superset_config(ObservationConfig(config.observation.num_objects,
-                                                config.observation.num_roadgraph_points),
-                              d.max_objects)
+        rec = config.record_config
 
         def compute():
             nonlocal states
@@ -173,17 +164,15 @@ class Dataset:
 
         if not (d.record_teacher if record is None else record):
             states = load()
-            seeds = range(t.seed_offset, t.seed_offset + t.seeds)
-            return cls(None, states, d.batch_size, seeds)
+            return cls(None, states, d.batch_size, config.seeds)
         key = None
         if cache_dir and isinstance(data, (str, os.PathLike)):
-            key = cache_key(data_identity(data), caps=capacities(config), rec=rec, sim=params,
+            key = cache_key(data_identity(data), caps=config.capacities, rec=rec, sim=params,
                             limit=limit)
         teacher = load_or_compute(cache_dir if key else None, key or "", compute)
         if need_states and states is None:
             states = load()
-        seeds = range(t.seed_offset, t.seed_offset + t.seeds)
-        return cls(teacher, states if need_states else None, d.batch_size, seeds)
+        return cls(teacher, states if need_states else None, d.batch_size, config.seeds)
 
     def indices(self, update: int) -> np.ndarray:
         """Scenario indices ``[S, B]`` of update ``update``."""

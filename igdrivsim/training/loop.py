@@ -39,7 +39,6 @@ from igdrivsim.training.update import (
     make_update,
     make_validation_loss,
     optimizer,
-    run_settings,
     settings_as_data,
     update_spec,
 )
@@ -64,8 +63,7 @@ def total_updates(config: RunConfig, num_scenarios: int) -> int:
 
 
 def seed_keys(config: RunConfig) -> jax.Array:
-    t = config.training
-    return jax.vmap(jax.random.PRNGKey)(np.arange(t.seed_offset, t.seed_offset + t.seeds))
+    return jax.vmap(jax.random.PRNGKey)(np.asarray(config.seeds))
 
 
 def init_state(config: RunConfig, spec: UpdateSpec):
@@ -74,7 +72,7 @@ def init_state(config: RunConfig, spec: UpdateSpec):
     keys = seed_keys(config)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(keys)
     params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
-    groups = len(run_settings(config))
+    groups = len(config.settings)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x[None], (groups, *x.shape)), params)
     opt_state = jax.vmap(jax.vmap(optimizer(spec).init))(params)
     return params, opt_state
@@ -85,7 +83,7 @@ def init_buffer(config: RunConfig, spec: UpdateSpec):
     one = empty_aggregate(spec, config.data.batch_size)
     if one is None:
         return None
-    shape = (len(run_settings(config)), config.training.seeds)
+    shape = (len(config.settings), config.training.seeds)
     return jax.tree.map(lambda x: jnp.broadcast_to(x, (*shape, *x.shape)), one)
 
 
@@ -105,7 +103,7 @@ class Validation:
         self.config, self.spec = config, spec
         self.teacher = inputs.Dataset.from_config(
             config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
-        self.scenarios = load_validation(data, inputs.capacities(config), n)
+        self.scenarios = load_validation(data, config.capacities, n)
         self.loss = make_validation_loss(spec)
         self.settings = settings_as_data(config)
 
@@ -114,7 +112,7 @@ class Validation:
         val_bc = self.loss(params, jax.tree.map(jnp.asarray, self.teacher), self.settings,
                            jax.random.key(0))
         out = evaluate_policy(params, self.scenarios, policy_config=c.policy,
-                              setting=run_settings(c), obs_config=self.spec.obs,
+                              setting=c.settings, obs_config=self.spec.obs,
                               params=self.spec.sim, batch_size=c.training.val_scenarios)
         valid = out.valid
         count = np.maximum(valid.sum(axis=(2, 3)), 1)
@@ -130,7 +128,7 @@ def load_teacher(run_dir: str, student: RunConfig):
     if not teacher.complete:
         raise ConfigError(f"training.teacher: {run_dir} has not finished training")
     config, params = teacher.config, teacher.params()
-    g = run_settings(config).index(TEACHER_SETTING)
+    g = config.settings.index(TEACHER_SETTING)
     seeds = config.training.seeds
     pick = np.arange(student.training.seeds) % seeds
     return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
@@ -178,7 +176,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     config = config.validate()
     start_time = time.perf_counter()
     t = config.training
-    settings_list = run_settings(config)
+    settings_list = config.settings
     run = Run(out_dir, config, settings_list, resume, log)
     if run.complete_already():
         return TrainResult(None, -1, -1, True, 0.0)

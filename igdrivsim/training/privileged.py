@@ -30,10 +30,9 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
         raise ConfigError(f"training.teacher: {run_dir} holds no run (train the full setting "
                           "first)")
     config = Run.open(run_dir).config
-    names = [s.strip() for s in config.observation.setting.split(",")]
-    if TEACHER_SETTING not in names:
+    if TEACHER_SETTING not in config.settings:
         raise ConfigError(f"training.teacher: {run_dir} was not trained with the "
-                          f"{TEACHER_SETTING!r} setting (it has {', '.join(names)})")
+                          f"{TEACHER_SETTING!r} setting (it has {', '.join(config.settings)})")
     o, t = student.observation, config.observation
     mine = (o.num_objects, o.num_roadgraph_points, o.roadgraph_stride)
     theirs = (t.num_objects, t.num_roadgraph_points, t.roadgraph_stride)

@@ -162,8 +162,7 @@ class Run:
         self.config, self.settings, self.resume, self.log = config, settings, resume, log
         self.hooks = hooks
         self.main = jax.process_index() == 0
-        t = config.training
-        self.seeds = list(range(t.seed_offset, t.seed_offset + t.seeds))
+        self.seeds = list(config.seeds)
         self.record = {"config": to_dict(config)}
         self.data_states = os.path.join(self.dir, DATA_STATES)  # a streamed input's states
         self.ckpt: Checkpoints | None = None

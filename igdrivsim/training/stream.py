@@ -33,7 +33,6 @@ from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
-from igdrivsim.training.inputs import capacities
 
 MANIFEST = "manifest.jsonl"
 
@@ -135,15 +134,14 @@ class StreamDataset:
 
     @classmethod
     def from_config(cls, config: RunConfig, data, params: SimParams) -> StreamDataset:
-        d, t = config.data, config.training
+        d = config.data
         if isinstance(data, (str, os.PathLike)):
             if not os.path.exists(data):
                 raise DataError("training data not found", file=os.fspath(data))
-            source = ScenarioIndex.from_path(data, capacities(config), d.max_scenarios)
+            source = ScenarioIndex.from_path(data, config.capacities, d.max_scenarios)
         else:
             source = list(data)[: d.max_scenarios or None]
-        seeds = range(t.seed_offset, t.seed_offset + t.seeds)
-        return cls(source, d.batch_size, seeds, params, d.shards, workers=d.workers,
+        return cls(source, d.batch_size, config.seeds, params, d.shards, workers=d.workers,
                    buffer=d.buffer)
 
     def indices(self, update: int) -> np.ndarray:

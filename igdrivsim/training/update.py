@@ -42,7 +42,6 @@ from igdrivsim.observation import (
     episode_observations,
     get_setting,
     stack_settings,
-    superset_config,
 )
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
@@ -85,40 +84,26 @@ class UpdateSpec:
         return get_method(self.method)
 
 
-def sim_params(config: RunConfig) -> SimParams:
-    """Simulator settings of a run (the observable map's resolution; the offroad metric's
-    road-edge selection keeps its defaults)."""
-    return SimParams(roadgraph_stride=config.observation.roadgraph_stride)
-
-
-def run_settings(config: RunConfig) -> list[str]:
-    """The observation settings a run trains (``observation.setting`` is a comma list)."""
-    return [s.strip() for s in config.observation.setting.split(",") if s.strip()]
-
-
 def settings_as_data(config: RunConfig) -> ObservationSetting | None:
     """The run's settings stacked ``[G]`` (:func:`~igdrivsim.observation.stack_settings`), or
     ``None`` when they cannot share a program (then the run has exactly one setting, compiled
     static)."""
-    return stack_settings(run_settings(config))
+    return stack_settings(config.settings)
 
 
 def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
     """The static part of a run's update; ``teacher_policy`` overrides the teacher run's
     network config (benchmarks use an untrained teacher)."""
-    t, o = config.training, config.observation
+    t = config.training
     epochs, minibatches = config.sgd_passes
-    names = run_settings(config)
-    static = None if settings_as_data(config) is not None else get_setting(names[0])
+    static = None if settings_as_data(config) is not None else get_setting(config.settings[0])
     return UpdateSpec(
-        policy=config.policy, setting=static,
-        obs=ObservationConfig(o.num_objects, o.num_roadgraph_points), sim=sim_params(config),
+        policy=config.policy, setting=static, obs=config.obs_config, sim=config.sim_params,
         method=t.method, w_bc=t.w_bc, w_rl=t.w_rl,
         gamma=t.gamma, gae_lambda=t.gae_lambda, clip_eps=t.clip_eps, ent_coef=t.ent_coef,
         vf_coef=t.vf_coef, epochs=epochs, minibatches=minibatches,
         grad_clip=t.grad_clip,
-        record=superset_config(ObservationConfig(o.num_objects, o.num_roadgraph_points),
-                               config.data.max_objects),
+        record=config.record_config,
         teacher_policy=teacher_policy or teacher_policy_config(config),
         params=get_method(t.method).with_params(dict(t.method_params)))
 
