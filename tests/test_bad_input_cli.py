@@ -12,7 +12,7 @@ from igdrivsim.cli import main
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.teacher import data_identity
+from igdrivsim.training.records import data_identity
 
 
 def one_line_error(capsys, *needles: str) -> str:

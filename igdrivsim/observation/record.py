@@ -3,7 +3,7 @@
 The logged (expert-driven) episode of a scenario is deterministic, so what the ego sees along it
 *before* the partial-observability model is the same for every setting, seed and method.
 :class:`ObservationRecord` holds it (computed once per dataset by
-:func:`igdrivsim.training.teacher.compute_teacher` and cached), in the TRUE ego frame, with more
+:func:`igdrivsim.training.records.compute_teacher` and cached), in the TRUE ego frame, with more
 than the observation's capacities (:func:`superset_config`): every other object slot (``K``)
 and the ``M = 4 N`` nearest roadgraph points. :func:`igdrivsim.observation.observe` takes such a
 record (one step of it) as its source as it takes a simulator state, and applies the setting:

@@ -3,7 +3,7 @@
 Scenarios come from a filter manifest (``manifest.jsonl`` in the data folder, kept rows) or,
 without one, from every TFRecord file of the folder. Each is fitted to the profile's capacities
 while decoding, then ``reset`` ONCE; the teacher-forced records of BC
-(:mod:`igdrivsim.training.teacher`) are computed from those states, or read from the on-disk
+(:mod:`igdrivsim.training.records`) are computed from those states, or read from the on-disk
 cache, and kept in host memory (NumPy) with the states (BC-RL only). A batch is then a gather.
 
 Order: seed ``s`` walks through the data in epochs, each a permutation drawn from
@@ -37,7 +37,7 @@ from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
-from igdrivsim.training.teacher import (
+from igdrivsim.training.records import (
     cache_key,
     compute_teacher,
     data_identity,

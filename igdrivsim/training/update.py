@@ -1,7 +1,7 @@
 """The jitted training update (PureJaxRL style), generic over the learning methods.
 
 One update consumes, per seed, a batch of ``B`` scenarios: their teacher-forced records
-(:mod:`igdrivsim.training.teacher`; computed once per dataset) and, for methods that drive,
+(:mod:`igdrivsim.training.records`; computed once per dataset) and, for methods that drive,
 their simulator states at reset. Settings are data (stacked
 :class:`~igdrivsim.observation.ObservationSetting`, axis ``G``) and seeds a batch axis (``S``):
 one compiled program trains every (setting, seed) pair of a method.
@@ -52,7 +52,7 @@ from igdrivsim.training.env import WARMUP_STEPS
 from igdrivsim.training.losses import bc_loss, gae, normalize
 from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
 from igdrivsim.training.privileged import teacher_config
-from igdrivsim.training.teacher import EPISODE_STEPS, record_episode
+from igdrivsim.training.records import EPISODE_STEPS, record_episode
 
 
 @dataclass(frozen=True)

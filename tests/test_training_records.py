@@ -20,7 +20,7 @@ from igdrivsim.observation import (
 )
 from igdrivsim.simulator import SimParams, reset, toy
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.teacher import compute_teacher
+from igdrivsim.training.records import compute_teacher
 from igdrivsim.training.update import update_spec
 
 SAMPLE = (Path(__file__).resolve().parents[1]
