@@ -23,6 +23,7 @@ import optax
 from flax import struct
 
 from igdrivsim.core.losses import log_prob
+from igdrivsim.core.sgd import clipped_adam, sgd_epochs
 from maze.env import MazeParams
 from maze.network import GRUPolicy
 from maze.rollout import run_stream, start_stream
@@ -77,30 +78,31 @@ def nll(model: GRUPolicy, net_params, demos: Demos) -> jax.Array:
     return -log_prob(logits, demos.action).mean()
 
 
+def take_streams(data, idx):
+    """The streams ``idx`` of time-major ``[T, E, ...]`` arrays."""
+    return jax.tree.map(lambda x: x[:, idx], data)
+
+
 def make_bc(model: GRUPolicy, cfg: BCConfig, chunk_epochs: int):
     """``(init, train_chunk)``: ``train_chunk`` runs ``chunk_epochs`` epochs, returns the loss."""
-    tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr))
-    grad_fn = jax.value_and_grad(lambda p, d: nll(model, p, d))
+    tx = clipped_adam(cfg.max_grad_norm)
+
+    def loss_fn(net_params, demos: Demos):
+        loss = nll(model, net_params, demos)
+        return loss, loss
 
     def init(key: jax.Array, net_params, demos: Demos) -> BCState:
         return BCState(net_params, tx.init(net_params), key, demos)
 
-    def epoch(state: BCState, _):
-        key, key_perm = jax.random.split(state.key)
-        perm = jax.random.permutation(key_perm, cfg.num_envs).reshape(cfg.num_minibatches, -1)
-
-        def minibatch(carry, idx):
-            net_params, opt_state = carry
-            loss, grads = grad_fn(net_params, jax.tree.map(lambda x: x[:, idx], state.demos))
-            updates, opt_state = tx.update(grads, opt_state, net_params)
-            return (optax.apply_updates(net_params, updates), opt_state), loss
-
-        (net_params, opt_state), losses = jax.lax.scan(
-            minibatch, (state.params, state.opt_state), perm)
-        return state.replace(params=net_params, opt_state=opt_state, key=key), losses.mean()
-
     def train_chunk(state: BCState):
-        state, losses = jax.lax.scan(epoch, state, None, length=chunk_epochs)
-        return state, losses[-1]
+        def next_key(key, _):
+            key, key_perm = jax.random.split(key)
+            return key, key_perm
+
+        key, epoch_keys = jax.lax.scan(next_key, state.key, None, length=chunk_epochs)
+        net_params, opt_state, losses = sgd_epochs(
+            state.params, state.opt_state, state.demos, loss_fn, tx, epoch_keys,
+            cfg.num_minibatches, cfg.lr, size=cfg.num_envs, select=take_streams)
+        return state.replace(params=net_params, opt_state=opt_state, key=key), losses[-1].mean()
 
     return init, train_chunk

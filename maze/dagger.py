@@ -19,6 +19,7 @@ import optax
 from flax import struct
 
 from igdrivsim.core.losses import soft_cross_entropy
+from igdrivsim.core.sgd import clipped_adam, sgd_steps
 from maze.env import MazeParams
 from maze.network import GRUPolicy
 from maze.rollout import run_labelled, start_stream
@@ -54,7 +55,7 @@ def make_dagger(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: D
     """``(init, iteration)``: ``iteration(state, teacher_params) -> (state, metrics)`` collects
     one slot and trains; metrics: ``loss_before`` / ``loss_after`` (CE on the aggregate's
     sampled minibatches, first and last step) and ``dataset`` (transitions held)."""
-    tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr))
+    tx = clipped_adam(cfg.max_grad_norm)
     d, a = params.obs_dim, model.num_actions
     shape = (cfg.iterations, cfg.num_steps, cfg.num_envs)
 
@@ -63,12 +64,12 @@ def make_dagger(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: D
                            jnp.zeros(shape, bool), jnp.zeros((*shape, a)),
                            jnp.zeros((), jnp.int32))
 
-    def loss_fn(net_params, obs, first, label):
+    def loss_fn(net_params, minibatch):
+        obs, first, label = minibatch
         h0 = jnp.zeros((obs.shape[1], model.hidden))
         logits = model.apply(net_params, h0, obs, first)[1]
-        return soft_cross_entropy(label, logits).mean()
-
-    grad_fn = jax.value_and_grad(loss_fn)
+        loss = soft_cross_entropy(label, logits).mean()
+        return loss, loss
 
     def iteration(state: DAggerState, teacher_params):
         key, key_env, key_roll, key_train = jax.random.split(state.key, 4)
@@ -82,19 +83,15 @@ def make_dagger(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: D
         label = state.label.at[slot].set(traj.label)
         filled = slot + 1
 
-        def step(carry, key):
-            net_params, opt_state = carry
+        def draw(data, key):  # batch_streams streams drawn from the filled slots, [T, B, ...]
             k_slot, k_env = jax.random.split(key)
             slots = jax.random.randint(k_slot, (cfg.batch_streams,), 0, filled)
             envs = jax.random.randint(k_env, (cfg.batch_streams,), 0, cfg.num_envs)
-            pick = lambda x: jnp.swapaxes(x[slots, :, envs], 0, 1)  # noqa: E731  [T, B, ...]
-            loss, grads = grad_fn(net_params, pick(obs), pick(first), pick(label))
-            updates, opt_state = tx.update(grads, opt_state, net_params)
-            return (optax.apply_updates(net_params, updates), opt_state), loss
+            return jax.tree.map(lambda x: jnp.swapaxes(x[slots, :, envs], 0, 1), data)
 
-        (net_params, opt_state), losses = jax.lax.scan(
-            step, (state.params, state.opt_state),
-            jax.random.split(key_train, cfg.steps_per_iteration))
+        net_params, opt_state, losses = sgd_steps(
+            state.params, state.opt_state, (obs, first, label), loss_fn, tx, cfg.lr,
+            jax.random.split(key_train, cfg.steps_per_iteration), select=draw)
         k = max(1, cfg.steps_per_iteration // 8)
         metrics = {"loss_before": losses[:k].mean(), "loss_after": losses[-k:].mean(),
                    "dataset": filled * cfg.steps_per_collection,

@@ -27,19 +27,20 @@ import optax
 from flax import struct
 
 from igdrivsim.core.losses import gae, kl_divergence, soft_cross_entropy
+from igdrivsim.core.params import AdvisorParams, MixWeights
+from igdrivsim.core.sgd import sgd_epochs
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
-from maze.ppo import PPOConfig, make_optimizer, ppo_terms
+from maze.ppo import PPOConfig, make_optimizer, ppo_terms, take_envs
 from maze.rollout import Stream, run_labelled, start_stream
 
 
 @dataclasses.dataclass(frozen=True)
-class MixedConfig:
-    """Loss weights (paper's BC+PPO: ``w_bc = 1``, ``w_rl = 0.05``) and ADVISOR's ``alpha``."""
-
-    w_bc: float = 1.0
-    w_rl: float = 0.05
-    alpha: float = 4.0
+class MixedConfig(MixWeights, AdvisorParams):
+    """BC+PPO's loss weights (the paper's ``w_bc = 1``, ``w_rl = 0.05``) and ADVISOR's
+    ``alpha``: the driving benchmark's parameters with their defaults
+    (:mod:`igdrivsim.core.params`); the maze study sets its own ``alpha``
+    (``maze.study.MAZE_ADVISOR_ALPHA``)."""
 
 
 @struct.dataclass
@@ -73,7 +74,8 @@ def make_mixed(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: PP
                           jnp.asarray(adaptive, bool), jnp.zeros((), jnp.int32),
                           jnp.asarray(total_updates, jnp.int32))
 
-    def loss_fn(net_params, h0, batch, adv, targets, adaptive):
+    def loss_fn(net_params, minibatch, adaptive):
+        h0, batch, adv, targets = minibatch
         _, logits, value, aux = model.apply(net_params, h0, batch.obs, batch.first)
         pg, value_loss, entropy = ppo_terms(logits, value, batch, adv, targets, cfg)
         ce = soft_cross_entropy(batch.label, logits)
@@ -86,8 +88,6 @@ def make_mixed(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: PP
                 + rl_scale * (cfg.vf_coef * value_loss - cfg.ent_coef * entropy)
                 + jnp.where(adaptive, aux_ce.mean(), 0.0))
         return loss, (ce.mean(), w_il.mean())
-
-    grad_fn = jax.grad(loss_fn, has_aux=True)
 
     def update(carry, _):
         state, teacher_params = carry
@@ -103,22 +103,11 @@ def make_mixed(model: GRUPolicy, teacher: GRUPolicy, params: MazeParams, cfg: PP
         adv, targets = gae(traj.value, traj.reward, traj.done, last_value[0], cfg.gamma,
                            cfg.gae_lambda)
 
-        def epoch(carry, key):
-            perm = jax.random.permutation(key, cfg.num_envs).reshape(cfg.num_minibatches, -1)
-
-            def minibatch(carry, idx):
-                net_params, opt_state = carry
-                take = lambda x: x[:, idx]  # noqa: E731  (env axis is 1)
-                grads, stats = grad_fn(net_params, h0[idx], jax.tree.map(take, traj), take(adv),
-                                       take(targets), state.adaptive)
-                updates, opt_state = tx.update(grads, opt_state, net_params)
-                updates = jax.tree.map(lambda u: -lr * u, updates)
-                return (optax.apply_updates(net_params, updates), opt_state), stats
-
-            return jax.lax.scan(minibatch, carry, perm)
-
-        (net_params, opt_state), (ce, weight) = jax.lax.scan(
-            epoch, (state.params, state.opt_state), jax.random.split(key_perm, cfg.update_epochs))
+        net_params, opt_state, (ce, weight) = sgd_epochs(
+            state.params, state.opt_state, (h0, traj, adv, targets),
+            lambda p, mb: loss_fn(p, mb, state.adaptive), tx,
+            jax.random.split(key_perm, cfg.update_epochs), cfg.num_minibatches, lr,
+            size=cfg.num_envs, select=take_envs)
         episodes = traj.done.sum()
         metrics = {"loss": ce[0].mean(), "weight": weight.mean(),
                    "return": traj.reward.sum() / jnp.maximum(episodes, 1)}

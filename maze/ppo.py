@@ -1,7 +1,8 @@
 """Recurrent PPO (PureJaxRL style): rollout, GAE and minibatch epochs in one jitted function.
 
 The rollout is the shared runner (:mod:`maze.rollout`), GAE and the loss terms the shared ones
-(:mod:`igdrivsim.core.losses`), as in the driving benchmark's BC-RL.
+(:mod:`igdrivsim.core.losses`) and the minibatch epochs the shared loop
+(:func:`igdrivsim.core.sgd.sgd_epochs`), as in the driving benchmark's BC-RL.
 
 ``make_ppo(...)`` returns ``init(key, net_params, partial, total_updates) -> PPOState`` and
 ``train_chunk(PPOState) -> (PPOState, metrics)``, a ``lax.scan`` over ``chunk_updates`` PPO
@@ -30,16 +31,20 @@ from igdrivsim.core.losses import (
     normalize,
     surrogate_terms,
 )
+from igdrivsim.core.params import PPOParams
+from igdrivsim.core.sgd import clipped_adam, sgd_epochs
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
 from maze.rollout import Stream, run_stream, start_stream
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(PPOParams):
     """Paper (PureJaxRL) defaults except ``lr``: at 2.5e-4 the partial agent stalls within a
     laptop's budget; 2e-3 against 1e-3 (10 seeds, measured) reached partial return 6.16 in 80
-    updates where 1e-3 reached 5.27 in 120, and full return 9.62 in 50 updates (9.60 in 80)."""
+    updates where 1e-3 reached 5.27 in 120, and full return 9.62 in 50 updates (9.60 in 80).
+    ``gamma``, ``gae_lambda``, ``clip_eps``, ``ent_coef`` and ``vf_coef`` are the driving
+    benchmark's PPO parameters (:class:`igdrivsim.core.params.PPOParams`, their defaults)."""
 
     lr: float = 2e-3
     anneal_lr: bool = True
@@ -47,11 +52,6 @@ class PPOConfig:
     num_steps: int = 128
     update_epochs: int = 4
     num_minibatches: int = 4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_eps: float = 0.2
-    ent_coef: float = 0.01
-    vf_coef: float = 0.5
     max_grad_norm: float = 0.5
 
     @property
@@ -71,8 +71,16 @@ class PPOState:
 
 
 def make_optimizer(max_grad_norm: float):
-    """Global-norm clipping then Adam's scaling; the (annealed) step size is applied by hand."""
-    return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.scale_by_adam(eps=1e-5))
+    """Global-norm clipping then Adam's scaling (PureJaxRL's eps 1e-5); the (annealed) step size
+    is the loop's."""
+    return clipped_adam(max_grad_norm, eps=1e-5)
+
+
+def take_envs(data, idx):
+    """The streams ``idx`` of ``(h0 [E, H], *arrays [T, E, ...])``: minibatches of whole
+    streams, each unrolled from its hidden state at the start of the rollout."""
+    h0, *rest = data
+    return (h0[idx], *jax.tree.map(lambda x: x[:, idx], rest))
 
 
 def ppo_terms(logits, value, batch, adv, targets, cfg: PPOConfig):
@@ -95,12 +103,11 @@ def make_ppo(model: GRUPolicy, params: MazeParams, cfg: PPOConfig, chunk_updates
                         jnp.asarray(partial, bool), jnp.zeros((), jnp.int32),
                         jnp.asarray(total_updates, jnp.int32))
 
-    def loss_fn(net_params, h0, batch, adv, targets):
+    def loss_fn(net_params, minibatch):
+        h0, batch, adv, targets = minibatch
         _, logits, value = model.apply(net_params, h0, batch.obs, batch.first)
         pg, value_loss, ent = ppo_terms(logits, value, batch, adv, targets, cfg)
-        return pg.mean() + cfg.vf_coef * value_loss - cfg.ent_coef * ent
-
-    grad_fn = jax.grad(loss_fn)
+        return pg.mean() + cfg.vf_coef * value_loss - cfg.ent_coef * ent, None
 
     def update(state: PPOState, _):
         key, key_roll, key_perm = jax.random.split(state.key, 3)
@@ -115,23 +122,10 @@ def make_ppo(model: GRUPolicy, params: MazeParams, cfg: PPOConfig, chunk_updates
         adv, targets = gae(traj.value, traj.reward, traj.done, last_value[0], cfg.gamma,
                            cfg.gae_lambda)
 
-        def epoch(carry, key):
-            net_params, opt_state = carry
-            perm = jax.random.permutation(key, cfg.num_envs).reshape(cfg.num_minibatches, -1)
-
-            def minibatch(carry, idx):
-                net_params, opt_state = carry
-                take = lambda x: x[:, idx]  # noqa: E731  (env axis is 1)
-                grads = grad_fn(net_params, h0[idx], jax.tree.map(take, traj), take(adv),
-                                take(targets))
-                updates, opt_state = tx.update(grads, opt_state, net_params)
-                updates = jax.tree.map(lambda u: -lr * u, updates)
-                return (optax.apply_updates(net_params, updates), opt_state), None
-
-            return jax.lax.scan(minibatch, (net_params, opt_state), perm)[0], None
-
-        (net_params, opt_state), _ = jax.lax.scan(
-            epoch, (state.params, state.opt_state), jax.random.split(key_perm, cfg.update_epochs))
+        net_params, opt_state, _ = sgd_epochs(
+            state.params, state.opt_state, (h0, traj, adv, targets), loss_fn, tx,
+            jax.random.split(key_perm, cfg.update_epochs), cfg.num_minibatches, lr,
+            size=cfg.num_envs, select=take_envs)
         episodes = traj.done.sum()
         metrics = {
             "return": traj.reward.sum() / jnp.maximum(episodes, 1),

@@ -40,7 +40,8 @@ from igdrivsim.io import (
     atomic_write_text,
     require_folder,
 )
-from maze import extended, lanes, report
+from igdrivsim.lanes import Job, run_jobs
+from maze import extended, report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.dagger import DAggerConfig, make_dagger
 from maze.env import make_params
@@ -57,6 +58,13 @@ BC_CURVES = {  # name -> (expert curve, expert partial?, imitator partial?)
     "bc_partial_from_full": ("rl_full", False, True),
     "bc_partial_from_partial": ("rl_partial", True, True),
 }
+
+
+# ADVISOR's alpha in the maze study, its profiles' value of the driving benchmark's parameter
+# (igdrivsim.core.params.AdvisorParams.alpha, default 1.0): the report's Fig. 2b, its numbers
+# and its text ("exp(-4 KL)", paper/main.tex) were made with 4. (The maze's KL is over 4
+# actions, the driving one a sum over 3 x 257 bins: one alpha need not suit both.)
+MAZE_ADVISOR_ALPHA = 4.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +88,7 @@ class StudyConfig:
     final_eval_rounds: int = 4
     baselines: bool = True  # Fig. 2b: DAgger, BC+PPO, ADVISOR (full expert -> partial student)
     dagger: DAggerConfig = DAggerConfig()
-    mixed: MixedConfig = MixedConfig()
+    mixed: MixedConfig = MixedConfig(alpha=MAZE_ADVISOR_ALPHA)
     mixed_updates: int = 60
     plateau_tol: float = 0.1  # RL "converged": return rose < this over the last quarter
     lanes: int = 2  # stages run in 2 threads (1: one after another); results are the same
@@ -323,31 +331,31 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     with tqdm(total=sum(ticks.values()), desc="maze study", unit="chunk",
               dynamic_ncols=True, disable=not progress) as bar:
 
-        def stage(name: str, inputs: tuple[str, ...], fn) -> lanes.Stage:
-            def cached(results: dict):
+        results: dict = {}
+
+        def stage(name: str, inputs: tuple[str, ...], fn) -> Job:
+            def cached(_echo: bool):
                 experts = {n: results[n]["params"] for n in inputs}
                 out, hit = _cached(stage_dirs[name] / f"{name}.pkl", lambda: fn(experts))
                 bar.update(ticks[name] if hit else 0)
-                return out
-            return name, inputs, cached
+                results[name] = out
+            return Job(name, cached, inputs)
 
         full_bc = tuple(c for c in BC_CURVES if BC_CURVES[c][0] == "rl_full")
-        lane_a = [stage("rl_full", (), lambda _: run_rl(study, "rl_full", False, bar)),
-                  stage("bc_full", ("rl_full",), lambda e: run_bc(study, e, bar, full_bc))]
-        lane_b = [stage("rl_partial", (), lambda _: run_rl(study, "rl_partial", True, bar)),
-                  stage("bc_partial", ("rl_partial",), lambda e: run_bc(
-                      study, e, bar, tuple(c for c in BC_CURVES if c not in full_bc)))]
+        # the first ready stage in this order starts in the first free lane
+        jobs = [stage("rl_full", (), lambda _: run_rl(study, "rl_full", False, bar)),
+                stage("rl_partial", (), lambda _: run_rl(study, "rl_partial", True, bar)),
+                stage("bc_full", ("rl_full",), lambda e: run_bc(study, e, bar, full_bc)),
+                stage("bc_partial", ("rl_partial",), lambda e: run_bc(
+                    study, e, bar, tuple(c for c in BC_CURVES if c not in full_bc)))]
         if cfg.baselines:
             bc_rl, advisor = extended.MIXED_CURVES
-            lane_a += [stage(advisor, ("rl_full",),
-                             lambda e: extended.run_mixed(study, e, bar, (advisor,))),
-                       stage("dagger", ("rl_full",),
-                             lambda e: extended.run_dagger(study, e, bar))]
-            lane_b += [stage(bc_rl, ("rl_full",),
-                             lambda e: extended.run_mixed(study, e, bar, (bc_rl,)))]
-        plan = [lane_a, lane_b] if cfg.lanes > 1 else [[*lane_a[:1], *lane_b[:1], *lane_a[1:],
-                                                        *lane_b[1:]]]
-        results = lanes.run_lanes(plan)
+            jobs += [stage(advisor, ("rl_full",),
+                           lambda e: extended.run_mixed(study, e, bar, (advisor,))),
+                     stage(bc_rl, ("rl_full",),
+                           lambda e: extended.run_mixed(study, e, bar, (bc_rl,))),
+                     stage("dagger", ("rl_full",), lambda e: extended.run_dagger(study, e, bar))]
+        run_jobs(jobs, cfg.lanes)
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     order = ["rl_full", "rl_partial", "bc_full", "bc_partial", "dagger", *extended.MIXED_CURVES]
     curves = pd.DataFrame([r for n in order if n in results for r in results[n]["records"]])

@@ -1,13 +1,17 @@
-"""The shared core: the episode runner and GAE on hand-made environments, and that the maze and
-the driving benchmark train through the same runner and loss terms."""
+"""The shared core: the episode runner, GAE and the SGD loop on hand-made problems, and that the
+maze and the driving benchmark train through the same runner, loss terms, SGD loop, network
+parts, method parameters and lane scheduler (and the maze loads no driving package)."""
 
 from __future__ import annotations
+
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from igdrivsim.core import episode, losses
+from igdrivsim.core import episode, losses, sgd
 from igdrivsim.core.episode import Actor, StepInfo, run_episode
 
 
@@ -86,3 +90,82 @@ def test_maze_and_driving_share_the_runner_and_the_loss_terms():
         assert getattr(driving_losses, name) is getattr(losses, name)
     assert ppo.gae is mixed.gae is losses.gae
     assert ppo.surrogate_terms is losses.surrogate_terms
+
+
+def test_sgd_epochs_is_a_loop_over_shuffled_minibatches():
+    """Adam (no clipping) on a least-squares problem: the core loop's parameters
+    and per-step losses equal a Python loop over the same permutations."""
+    x = jax.random.normal(jax.random.PRNGKey(0), (12, 3))
+    y = x @ jnp.array([1.0, -2.0, 0.5])
+    data = {"x": x, "y": y}
+
+    def loss_fn(w, mb):
+        loss = jnp.mean((mb["x"] @ w - mb["y"]) ** 2)
+        return loss, {"loss": loss}
+
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    w0 = jnp.zeros(3)
+    tx = sgd.clipped_adam(1e9)
+    w, _, aux = jax.jit(lambda w, o: sgd.sgd_epochs(w, o, data, loss_fn, tx, keys, 4, 0.1,
+                                                    grad_norm=True))(w0, tx.init(w0))
+    assert aux["loss"].shape == (3, 4) and aux["grad_norm"].shape == (3, 4)
+    ref, opt, losses_ = w0, tx.init(w0), []
+    for k in keys:
+        for idx in jax.random.permutation(k, 12).reshape(4, -1):
+            mb = {"x": x[idx], "y": y[idx]}
+            (loss, _), g = jax.value_and_grad(loss_fn, has_aux=True)(ref, mb)
+            u, opt = tx.update(g, opt, ref)
+            ref, _ = ref - 0.1 * u, losses_.append(loss)
+    np.testing.assert_allclose(w, ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(aux["loss"].ravel(), losses_, rtol=1e-5, atol=1e-6)
+    assert float(aux["loss"][-1].mean()) < float(aux["loss"][0].mean())
+
+
+def test_every_learner_trains_through_the_core():
+    """The maze's four learners and the driving update share the SGD loop and its optimiser,
+    the network parts, the method parameters and the lane scheduler."""
+    from igdrivsim import lanes
+    from igdrivsim.core import gru, layers, params
+    from igdrivsim.pipeline import stages
+    from igdrivsim.policy import network
+    from igdrivsim.training import update
+    from igdrivsim.training.config import TrainConfig
+    from igdrivsim.training.methods import advisor
+    from maze import bc, dagger, mixed, ppo, study
+    from maze import network as maze_network
+
+    for module in (ppo, mixed, bc, update):
+        assert module.sgd_epochs is sgd.sgd_epochs
+    assert dagger.sgd_steps is sgd.sgd_steps
+    assert ppo.clipped_adam is bc.clipped_adam is dagger.clipped_adam is update.clipped_adam
+    assert maze_network.gru_scan is network.gru_scan is gru.gru_scan
+    assert maze_network.dense_2d is network.dense_2d is layers.dense_2d
+    assert study.run_jobs is stages.lanes.run_jobs is lanes.run_jobs
+    # one default per shared parameter; the maze study sets its own ADVISOR alpha explicitly
+    assert issubclass(ppo.PPOConfig, params.PPOParams)
+    assert issubclass(mixed.MixedConfig, params.MixWeights)
+    assert issubclass(mixed.MixedConfig, params.AdvisorParams)
+    assert issubclass(advisor.Params, params.AdvisorParams)
+    t, p, m = TrainConfig(), ppo.PPOConfig(), mixed.MixedConfig()
+    for name in ("gamma", "gae_lambda", "clip_eps", "ent_coef", "vf_coef"):
+        assert getattr(t, name) == getattr(p, name) == getattr(params.PPO, name)
+    assert (t.w_bc, t.w_rl) == (m.w_bc, m.w_rl) == (params.MIX.w_bc, params.MIX.w_rl)
+    assert m.alpha == advisor.Params().alpha == params.AdvisorParams().alpha
+    assert study.PROFILES["default"].mixed.alpha == study.MAZE_ADVISOR_ALPHA
+    assert study.PROFILES["smoke"].mixed.alpha == study.MAZE_ADVISOR_ALPHA
+
+
+def test_importing_the_maze_loads_no_driving_package():
+    """Every maze module imports without the driving layers (data, simulator, observation,
+    policy, training, ...): a fresh interpreter imports them all and lists what it loaded."""
+    driving = ("igdrivsim.data", "igdrivsim.simulator", "igdrivsim.observation",
+               "igdrivsim.policy", "igdrivsim.envs", "igdrivsim.training",
+               "igdrivsim.evaluation", "igdrivsim.report", "igdrivsim.pipeline")
+    code = ("import importlib, pkgutil, sys, maze\n"
+            "for m in pkgutil.iter_modules(maze.__path__):\n"
+            "    importlib.import_module('maze.' + m.name)\n"
+            f"loaded = sorted(m for m in sys.modules if m.startswith({driving!r}))\n"
+            "assert 'maze.study' in sys.modules and not loaded, loaded\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -251,3 +251,34 @@ def test_the_paper_plan_prices_table_one_at_paper_scale(tmp_path, monkeypatch):
     gpu = planning.estimate_seconds("gpu", ("bc", "bc_rl"), (), SETTINGS, 12, 1000, 2, gpu=True)
     train = max(cost.laptop_train_seconds(1000, 6, 12, r, gpu=True) for r in (False, True))
     assert gpu == pytest.approx(max(train, cost.GPU_MACHINE_MAZE_S) + cost.LAPTOP_OTHER_CPU_S)
+
+
+def test_the_lanes_run_jobs_after_their_inputs_and_stop_at_the_first_failure():
+    """The one lane scheduler (igdrivsim/lanes.py, the pipeline's and the maze study's): a job
+    starts after the jobs it needs, two lanes run side by side, and after a failure no new job
+    starts (a job that needs the failed one never runs) and the failure is raised."""
+    from igdrivsim.lanes import Job, run_jobs
+
+    events, lock = [], threading.Lock()
+
+    def job(name, seconds=0.05, fail=False):
+        def run(echo):
+            with lock:
+                events.append(("start", name))
+            time.sleep(seconds)
+            with lock:
+                events.append(("end", name))
+            if fail:
+                raise RuntimeError(f"{name} failed")
+        return run
+
+    run_jobs([Job("a", job("a", 0.3)), Job("b", job("b")), Job("c", job("c"), ("a", "b"))], 2)
+    assert events.index(("start", "b")) < events.index(("end", "a"))  # side by side
+    assert events[-2:] == [("start", "c"), ("end", "c")]  # after both inputs
+    events.clear()
+    with pytest.raises(RuntimeError, match="b failed"):
+        run_jobs([Job("a", job("a", 0.3)), Job("b", job("b", fail=True)),
+                  Job("c", job("c"), ("b",)), Job("d", job("d"), ("a",))], 2)
+    assert ("start", "c") not in events and ("start", "d") not in events
+    with pytest.raises(ValueError, match="cycle"):
+        run_jobs([Job("a", job("a"), ("b",)), Job("b", job("b"), ("a",))], 2)

@@ -1,6 +1,10 @@
-"""What the maze and the driving benchmark share: the episode runner and the RL loss terms.
+"""What the maze and the driving benchmark share: the episode runner, the RL loss terms, the SGD
+loop, the network parts and the method parameters.
 
 :mod:`igdrivsim.core.episode` runs an :class:`~igdrivsim.core.episode.Actor` in an environment
 (``lax.scan``); :mod:`igdrivsim.core.losses` holds GAE, the PPO terms and the imitation terms of
-categorical policies. Both depend on JAX alone, so any environment can build on them.
+categorical policies; :mod:`igdrivsim.core.sgd` is every learner's epochs of minibatch steps;
+:mod:`igdrivsim.core.gru` and :mod:`igdrivsim.core.layers` are the recurrent and dense parts of
+both networks; :mod:`igdrivsim.core.params` the hyper-parameters both read, with one default
+each. All depend on JAX alone (no other igdrivsim module), so any environment can build on them.
 """

@@ -42,13 +42,14 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import METHODS
 from igdrivsim.io import atomic_copy, atomic_write_json
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
-from igdrivsim.pipeline import lanes, planning
+from igdrivsim.pipeline import planning
 from igdrivsim.pipeline.profiles import PipelineProfile
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError, StageRunner
 from igdrivsim.report import provenance

@@ -24,10 +24,11 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.core.gru import fused_gru_cell, gru_scan
+from igdrivsim.core.layers import dense_2d
 from igdrivsim.data.scenario import DT, RG_NUM_TYPES
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE
-from igdrivsim.policy.gru import fused_gru_cell, gru_scan
 from igdrivsim.simulator.dynamics import DX_LEVEL, DYAW_LEVEL, constant_speed_offset
 
 NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
@@ -122,16 +123,6 @@ class MLP(nn.Module):
         for width in self.features:
             x = nn.relu(dense_2d(nn.Dense(width), x))
         return x
-
-
-def dense_2d(layer: nn.Module, x: jax.Array) -> jax.Array:
-    """``layer`` on ``x[..., D]`` as one 2-D matrix product (leading axes flattened).
-
-    Under ``vmap`` over seeds, a dense layer on ``[T, B, N, D]`` inputs has a weight gradient
-    that contracts over all leading axes at once, several times slower on XLA:CPU than the same
-    contraction over one flattened axis.
-    """
-    return layer(x.reshape(-1, x.shape[-1])).reshape(*x.shape[:-1], -1)
 
 
 def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
@@ -440,7 +431,7 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
 
     The per-step encoders and the GRU's input projection do not depend on the recurrence, so
     they run once over all ``T x B`` observations (large matrix products) and only the
-    recurrence is scanned (:func:`igdrivsim.policy.gru.gru_scan`, the cell's equations with a
+    recurrence is scanned (:func:`igdrivsim.core.gru.gru_scan`, the cell's equations with a
     hand-written gradient); the same values as stepping :func:`apply_step`, several times
     faster on CPU. With ``config.remat`` the encoders run one step at a time and are
     recomputed in the backward pass: their activation memory is one step's (the per-point

@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from igdrivsim.core.params import MIX, PPO
 from igdrivsim.data.scenario import Capacities
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import ObservationConfig, stack_settings, superset_config
@@ -74,13 +75,14 @@ class TrainConfig:
     lr: float = 1e-3
     lr_end: float = 0.0
     grad_clip: float = 1.0  # global gradient-norm clip
-    w_bc: float = 1.0
-    w_rl: float = 0.05
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_eps: float = 0.2
-    ent_coef: float = 0.01
-    vf_coef: float = 0.5
+    # the loss weights and PPO's coefficients: the maze's too (igdrivsim.core.params)
+    w_bc: float = MIX.w_bc
+    w_rl: float = MIX.w_rl
+    gamma: float = PPO.gamma
+    gae_lambda: float = PPO.gae_lambda
+    clip_eps: float = PPO.clip_eps
+    ent_coef: float = PPO.ent_coef
+    vf_coef: float = PPO.vf_coef
     ppo_epochs: int = 4  # gradient passes over each batch (BC and PPO alike)
     ppo_minibatches: int = 4  # minibatches (of scenarios) per pass
     # the same for the methods that drive (BC-RL, DAgger, ADVISOR; 0: ppo_epochs /

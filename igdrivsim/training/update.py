@@ -13,8 +13,9 @@ one compiled program trains every (setting, seed) pair of a method.
    90, so V = 0 there); a privileged teacher's labels of the states it visits (the teacher
    sees them fully observed); the buffer of the last labelled episodes (DAgger);
 2. ``epochs`` passes over ``minibatches`` random minibatches of scenarios, each one Adam step
-   on the method's loss. The recurrent network is re-run over every episode of the minibatch
-   with the current parameters in one pass (encoders batched over time, see
+   on the method's loss (the maze's loop too: :func:`igdrivsim.core.sgd.sgd_epochs`). The
+   recurrent network is re-run over every episode of the minibatch with the current
+   parameters in one pass (encoders batched over time, see
    :func:`~igdrivsim.policy.network.unroll_sequence`), so after the first step the PPO ratio
    differs from 1.
 
@@ -34,6 +35,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from igdrivsim.core.sgd import clipped_adam, sgd_epochs
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -118,7 +120,7 @@ def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
 def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
     """Global-norm clipping + Adam moments; the (scheduled) learning rate is applied in the
     update, so the compiled program does not depend on the run length."""
-    return optax.chain(optax.clip_by_global_norm(spec.grad_clip), optax.scale_by_adam())
+    return clipped_adam(spec.grad_clip)
 
 
 def cosine_lr(update: int, num_updates: int, lr: float, lr_end: float) -> float:
@@ -286,24 +288,10 @@ def update_one(spec: UpdateSpec, params, opt_state, buffer: Aggregate | None,
     k_collect, k_perm = jax.random.split(key)
     data, buffer, metrics = collect(spec, params, buffer, rec, states, setting, teacher_params,
                                     k_collect)
-    tx = optimizer(spec)
-    grad_fn = jax.value_and_grad(partial(_loss, spec), has_aux=True)
-    per_mb = b // spec.minibatches
-
-    def minibatch_step(carry, idx):
-        params, opt_state = carry
-        (_, aux), grads = grad_fn(params, _take(data, idx))
-        updates, opt_state = tx.update(grads, opt_state, params)
-        params = optax.apply_updates(params, jax.tree.map(lambda u: -lr * u, updates))
-        aux["grad_norm"] = optax.tree.norm(grads)
-        return (params, opt_state), aux
-
-    def epoch(carry, k):
-        perm = jax.random.permutation(k, b).reshape(spec.minibatches, per_mb)
-        return jax.lax.scan(minibatch_step, carry, perm)
-
-    (params, opt_state), aux = jax.lax.scan(
-        epoch, (params, opt_state), jax.random.split(k_perm, spec.epochs))
+    params, opt_state, aux = sgd_epochs(
+        params, opt_state, data, partial(_loss, spec), optimizer(spec),
+        jax.random.split(k_perm, spec.epochs), spec.minibatches, lr, size=b, select=_take,
+        grad_norm=True)
     metrics |= jax.tree.map(jnp.mean, aux)
     return params, opt_state, buffer, metrics
 

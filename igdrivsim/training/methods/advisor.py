@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.core.params import AdvisorParams
 from igdrivsim.errors import ConfigError
 from igdrivsim.training.losses import (
     action_log_prob,
@@ -37,8 +38,9 @@ from igdrivsim.training.methods import Method, register_method
 
 
 @dataclass(frozen=True)
-class Params:
-    alpha: float = 1.0  # imitation weight exp(-alpha KL(teacher || aux)); 0: imitation only
+class Params(AdvisorParams):
+    """``alpha``: the maze's ADVISOR parameter too (:class:`igdrivsim.core.params.AdvisorParams`,
+    its one default)."""
 
     def __post_init__(self):
         if not 0.0 <= self.alpha < float("inf"):

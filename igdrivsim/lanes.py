@@ -1,6 +1,12 @@
-"""A local pool of lanes for the pipeline's stages: each lane is a thread driving one stage's
-processes at a time; a stage starts once the stages it needs are done, the first ready one in
-the given order. One machine only (several machines: ``jax.distributed``, igdrivsim train)."""
+"""A local pool of lanes: each lane is a thread running one job at a time; a job starts once the
+jobs it needs are done, the first ready one in the given order. One machine only (several
+machines: ``jax.distributed``, igdrivsim train).
+
+It runs the pipeline's stages (each lane drives one stage's processes) and the maze study's
+stages (:mod:`maze.study`: a jitted JAX call releases the GIL and an XLA CPU program of the
+maze's size runs on one core, so two lanes keep both cores of a 2-core machine busy). A job's
+result must not depend on the lane it ran in or on timing.
+"""
 
 from __future__ import annotations
 
@@ -18,11 +24,13 @@ class Job:
     after: tuple[str, ...] = field(default_factory=tuple)
 
 
-def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event,
+def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None = None,
              echo_alone: bool = False) -> None:
     """Run ``jobs`` on ``lanes`` threads in dependency order. The first failure sets
-    ``stopping`` (the stages running beside it stop) and is raised once every lane is idle.
-    ``lanes`` 1 (or ``echo_alone``): one job at a time, in this thread, echoing its output."""
+    ``stopping`` (jobs running beside it may watch it and stop; no new job starts) and is
+    raised once every lane is idle. ``lanes`` 1 (or ``echo_alone``): one job at a time, in this
+    thread, echoing its output."""
+    stopping = stopping if stopping is not None else threading.Event()
     names = {j.name for j in jobs}
     unknown = {a for j in jobs for a in j.after} - names
     if unknown:
