@@ -64,6 +64,7 @@ def test_bench_train_times_the_update_and_its_parts():
 
     r = bench_profile("smoke", "bc", updates=1, obs="full", parts=True)
     assert r["params_per_seed"] > 0 and r["seconds_per_update"] > 0
+    assert r["forward_matmul_flops_per_step"] > 0
     # smoke: 2 seeds x 4 scenarios x 80 steps x 2 passes, 2 minibatches each
     assert r["scenario_steps_per_s"] * r["seconds_per_update"] == pytest.approx(2 * 4 * 80 * 2,
                                                                                rel=1e-2)

@@ -35,7 +35,7 @@ from igdrivsim.io import atomic_write_json, require_file_target
 from igdrivsim.machine import machine_record
 from igdrivsim.observation.models import PAPER_SETTINGS
 from igdrivsim.policy.act import example_observation
-from igdrivsim.policy.network import init_params_per_seed
+from igdrivsim.policy.network import apply_step, init_params_per_seed, initial_carry
 from igdrivsim.simulator import toy
 from igdrivsim.training import inputs
 from igdrivsim.training.commands import refuse_contradictions
@@ -141,6 +141,14 @@ def trace_summary(trace_dir: str, top: int = 15) -> dict:
                            "count": count[n]} for n, t in rows]}
 
 
+def forward_flops_per_step(policy, obs_config, params) -> int:
+    """Matrix-product FLOPs of the network's forward pass over one observation (one scenario
+    at one step; :func:`matmul_flops`)."""
+    obs = example_observation(obs_config)
+    return matmul_flops(lambda p, o: apply_step(policy, p, initial_carry(policy), o,
+                                                jax.numpy.zeros((), bool)), params, obs)
+
+
 def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> dict:
     """Seconds of each part of one update of the first setting and seed on its batch, each
     part jitted and timed alone (mean of ``repeats`` calls after one untimed): recording the
@@ -211,6 +219,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     rep = replicated(mesh)
     params, opt_state = init_state(config, spec)
     n_params = int(sum(x[0, 0].size for x in jax.tree.leaves(params)))
+    step_flops = forward_flops_per_step(config.policy, spec.obs,
+                                        jax.tree.map(lambda x: x[0, 0], params))
     params, opt_state = place(params, rep), place(opt_state, rep)
     buffer = place(init_buffer(config, spec), rep)
     teacher_params = None
@@ -251,7 +261,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     steps = runs * config.data.batch_size * 80 * epochs
     grads = runs * epochs * minibatches
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
-            "devices": mesh.size, "params_per_seed": n_params, "seeds": t.seeds,
+            "devices": mesh.size, "params_per_seed": n_params,
+            "forward_matmul_flops_per_step": step_flops, "seeds": t.seeds,
             "settings": len(config.settings),
             "batch": config.data.batch_size, "compile_s": round(compile_s, 2),
             "first_update_s": round(first_s, 2),
