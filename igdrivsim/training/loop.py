@@ -176,8 +176,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     config = config.validate()
     start_time = time.perf_counter()
     t = config.training
-    settings_list = config.settings
-    run = Run(out_dir, config, settings_list, resume, log)
+    run = Run(out_dir, config, resume, log)
     if run.complete_already():
         return TrainResult(None, -1, -1, True, 0.0)
     spec = update_spec(config)
@@ -195,7 +194,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     if run.main:  # the paper profile without an accelerator: say how long it would take
         warn_if_cpu(config, dataset.num, jax.default_backend(), mesh.size)
     run.write_config(num_updates=num_updates, num_scenarios=dataset.num,
-                     settings=settings_list, devices=mesh.size,
+                     settings=config.settings, devices=mesh.size,
                      processes=jax.process_count())
     if val_data is not None and t.eval_every > 0:
         run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
@@ -211,7 +210,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
     state = fns.init()
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], state[0]))
-    log(f"policy: {per_seed:,} parameters per run x {len(settings_list)} setting(s) x "
+    log(f"policy: {per_seed:,} parameters per run x {len(config.settings)} setting(s) x "
         f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
         f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
     state = place(state, rep)
@@ -223,7 +222,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
         data_state = load_state(run.data_states, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
-    runs = len(settings_list) * t.seeds
+    runs = len(config.settings) * t.seeds
     epochs, minibatches = config.sgd_passes
     steps_per_update = runs * config.data.batch_size * 80 * epochs
     grads_per_update = runs * epochs * minibatches

@@ -155,11 +155,10 @@ class Run:
     """The folder of one run of ``config`` (every setting x seed), on every process; only
     process 0 writes. Use as a context manager around the update loop."""
 
-    def __init__(self, out_dir: str | os.PathLike, config: RunConfig, settings: list[str],
-                 resume: bool = False, log: Callable[[str], None] = print,
-                 hooks: tuple[Hook, ...] = ()):
+    def __init__(self, out_dir: str | os.PathLike, config: RunConfig, resume: bool = False,
+                 log: Callable[[str], None] = print, hooks: tuple[Hook, ...] = ()):
         self.dir = os.fspath(out_dir)
-        self.config, self.settings, self.resume, self.log = config, settings, resume, log
+        self.config, self.settings, self.resume, self.log = config, config.settings, resume, log
         self.hooks = hooks
         self.main = jax.process_index() == 0
         self.seeds = list(config.seeds)
