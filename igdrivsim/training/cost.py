@@ -83,12 +83,14 @@ def table1_hours(bc_seconds: float, rollout_seconds: float,
                  num_scenarios: int = PAPER_SCENARIOS) -> dict[str, float]:
     """Device-hours of the paper's Table I at paper scale (6 settings x 3 seeds of BC and of
     BC-RL, the paper profile's 200 epochs of 256-scenario batches over ``num_scenarios``) at
-    ``bc_seconds`` / ``rollout_seconds`` per episode: ``{"bc", "bc_rl", "total"}``."""
+    ``bc_seconds`` / ``rollout_seconds`` per episode: ``{"teacher_forced", "rollout",
+    "total"}`` (BC's runs, BC-RL's runs, both)."""
     config = get_profile("paper")
     t = config.training
     episodes = num_updates(config, num_scenarios) * 6 * t.seeds * config.data.batch_size
-    out = {"bc": episodes * bc_seconds / 3600, "bc_rl": episodes * rollout_seconds / 3600}
-    return out | {"total": out["bc"] + out["bc_rl"]}
+    out = {"teacher_forced": episodes * bc_seconds / 3600,
+           "rollout": episodes * rollout_seconds / 3600}
+    return out | {"total": out["teacher_forced"] + out["rollout"]}
 
 
 def table1_text(gpu: bool) -> str:
@@ -101,7 +103,7 @@ def table1_text(gpu: bool) -> str:
             f"{PAPER_SCENARIOS:,} scenarios x {config.training.epochs:g} epochs)")
     cpu = table1_hours(CPU_SECONDS_PER_EPISODE, CPU_SECONDS_PER_ROLLOUT_EPISODE)
     text = (f"{head}: ~{cpu['total']:,.0f} CPU-process-hours at the rates measured on 2 CPU "
-            f"cores (BC {cpu['bc']:,.0f}, BC-RL {cpu['bc_rl']:,.0f}; "
+            f"cores (BC {cpu['teacher_forced']:,.0f}, BC-RL {cpu['rollout']:,.0f}; "
             "igdrivsim/training/cost.py)")
     if GPU_SECONDS_PER_EPISODE is None or GPU_SECONDS_PER_ROLLOUT_EPISODE is None:
         return text + ("; the GPU rate of this network is not measured yet (scripts/bench_gpu.sh)"
