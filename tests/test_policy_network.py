@@ -142,14 +142,27 @@ def test_dropping_the_value_head_leaves_the_other_parameters_as_they_were():
 def test_a_run_config_written_before_the_two_shapes_reads_as_the_pooled_network():
     import dataclasses
 
+    import pytest
+
+    from igdrivsim.errors import ConfigError
     from igdrivsim.policy.network import POOLED_NETWORK
-    from igdrivsim.training.config import from_dict, get_profile, to_dict
+    from igdrivsim.training.config import from_dict, get_profile, to_dict, with_overrides
 
     laptop = get_profile("laptop")
     old = to_dict(laptop)
     for name in (*POOLED_NETWORK, "value_head"):
         del old["policy"][name]
-    assert from_dict(old) == laptop  # its network as it was trained
+    # its network as it was trained, a value head included (a BC run's checkpoint holds one)
+    assert from_dict(old) == dataclasses.replace(laptop, policy=dataclasses.replace(
+        laptop.policy, value_head=True))
+    # resuming it: the method would drop the head, unless the command keeps it
+    bc = with_overrides(laptop, ["training.method=bc"])
+    assert not bc.validate().policy.value_head
+    kept = with_overrides(bc, ["policy.value_head=true"]).validate()
+    assert kept.policy.value_head and to_dict(kept)["policy"] == to_dict(from_dict(
+        to_dict(kept)))["policy"]
+    with pytest.raises(ConfigError, match="learns values"):
+        with_overrides(laptop, ["training.method=bc_rl", "policy.value_head=false"]).validate()
     paper = get_profile("paper")
     assert from_dict(to_dict(paper)) == paper
     assert dataclasses.replace(paper.policy, remat=False) == type(paper.policy)()

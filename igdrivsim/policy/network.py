@@ -43,7 +43,7 @@ class PolicyConfig:
     8 -> 8 -> 8, a max per type again, 20 x 8 -> 512; LayerNorm on both, 1024 -> 512 -> 512;
     GRU 512; actor [GRU, features] 1024 -> 512 -> 512 -> 512 -> 3 x 257; critic 1024 -> 256 ->
     256 -> 1: 4,255,611 parameters without the critic (the original's 4,255,099 and one ego
-    speed input more), about 10.5 MFLOP forward per step at 32 objects and 1,500 road points.
+    speed input more), about 10.1 MFLOP forward per step at 32 objects and 1,500 road points.
     ``POOLED_NETWORK`` is the other shape (pooled objects and road set; the laptop profile)."""
 
     object_hidden: tuple[int, ...] = (512, 512)  # object encoder MLP
@@ -64,9 +64,10 @@ class PolicyConfig:
     # the actor and value heads read [GRU output, trunk output] (the original's) rather than
     # the GRU output alone
     heads_see_features: bool = True
-    # a value head (the method decides: only methods that drive learn values; without one the
-    # network returns zeros as values)
-    value_head: bool = True
+    # a value head: None, the method decides (``RunConfig.validate``: only the methods that
+    # drive learn values; a network built from an undecided config has one); without one the
+    # network returns zeros as values
+    value_head: bool | None = None
     num_bins: int = NUM_BINS
     remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
     # the dx head scores offsets from the constant-velocity displacement (speed x 0.1 s, read
@@ -236,7 +237,7 @@ class DrivingPolicy(nn.Module):
         self.gru = nn.GRUCell(features=c.gru_hidden)
         self.actor_mlp = MLP(c.actor_hidden)
         self.actor_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
-        if c.value_head:
+        if c.value_head is not False:
             self.value_mlp = MLP(c.value_hidden)
             self.value_out = nn.Dense(1)
         if c.aux_head:
@@ -286,8 +287,8 @@ class DrivingPolicy(nn.Module):
         logits = self._logits(self.actor_mlp, self.actor_out, y, sdc_speed)
         aux = (self._logits(self.aux_mlp, self.aux_out, y, sdc_speed)
                if self.config.aux_head else None)
-        value = (dense_2d(self.value_out, self.value_mlp(y))[..., 0] if self.config.value_head
-                 else jnp.zeros(y.shape[:-1], y.dtype))
+        value = (dense_2d(self.value_out, self.value_mlp(y))[..., 0]
+                 if self.config.value_head is not False else jnp.zeros(y.shape[:-1], y.dtype))
         return logits, value, aux
 
     def __call__(self, carry, obs, reset):

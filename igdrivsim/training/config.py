@@ -213,7 +213,12 @@ class RunConfig:
                               "cannot share one program (a model that is not a pytree or has "
                               "no neutral() form, or two orders of the same models; "
                               "docs/EXTENDING.md); train a custom setting on its own")
-        decided = {"aux_head": method.aux_head, "value_head": method.rollout}
+        value_head = self.policy.value_head
+        if value_head is False and method.rollout:
+            raise ConfigError(f"method {t.method!r} learns values: policy.value_head must not "
+                              "be false")
+        decided = {"aux_head": method.aux_head,
+                   "value_head": method.rollout if value_head is None else value_head}
         if any(getattr(self.policy, k) != v for k, v in decided.items()):
             return dataclasses.replace(self, policy=dataclasses.replace(self.policy, **decided))
         return self
@@ -309,7 +314,7 @@ def quick() -> RunConfig:
 def paper() -> RunConfig:
     """The original code's network and sample budget: ``PolicyConfig``'s defaults (4,255,611
     parameters for BC, 4,584,060 with BC-RL's critic: the original's 4,255,099 and 4,583,548
-    and one input more; about 10.5 MFLOP forward per step at 32 objects and 1,500 road
+    and one input more; about 10.1 MFLOP forward per step at 32 objects and 1,500 road
     points), 256 scenarios per update, 200 epochs (over WOMD's 152,808 filtered training
     scenarios: 119,382 updates, 2.45e9 scenario-steps per (setting, seed)), 3 seeds, gradient
     norm clipped at 0.5. BC takes one Adam step per batch, as the original did; BC-RL 4 PPO
@@ -344,6 +349,8 @@ def get_profile(name: str) -> RunConfig:
 def _parse_value(text: str, current: Any, where: str) -> Any:
     """Parse ``text`` to the type of the current value (JSON syntax for tuples and lists)."""
     try:
+        if current is None:  # a field the method decides unless set: a bool
+            current = False
         if isinstance(current, bool):
             low = text.strip().lower()
             if low not in ("true", "false", "1", "0", "yes", "no"):
