@@ -69,7 +69,7 @@ def test_open_run_and_complete_run_is_left_alone(full_run, data_dir, capsys):
     out, result = full_run
     run = Run.open(out)
     config, params = run.config, run.params()
-    assert config == CONFIG and run.complete and run.latest_step() == 4
+    assert config == CONFIG.validate() and run.complete and run.latest_step() == 4
     assert [line["update"] for line in run.metrics()] == [1, 2, 3, 4]
     assert {line["update"] for line in run.curves()} == {1, 2, 3, 4}
     assert _max_diff(params, result.params) == 0.0
