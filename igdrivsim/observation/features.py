@@ -36,6 +36,8 @@ SPEED_SCALE = 50.0  # m/s -> feature units
 OBJECT_FEATURES = 6  # x, y, cos and sin of the relative yaw, speed, valid
 OBJECT_SPEED = 4  # the speed's column
 ROADGRAPH_FEATURES = 4 + RG_NUM_TYPES + 1  # xy, dir xy, one-hot type, valid = 25
+ROADGRAPH_GEOMETRY = slice(0, 4)  # x/100, y/100, dir_x, dir_y
+ROADGRAPH_TYPES = slice(4, 4 + RG_NUM_TYPES)  # the one-hot type
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,22 @@ def roadgraph_features(x: jax.Array, y: jax.Array, dir_x: jax.Array, dir_y: jax.
         col == 1, e(y / POSITION_SCALE), jnp.where(
             col == 2, e(dir_x), jnp.where(col == 3, e(dir_y), onehot.astype(jnp.float32)))))
     return jnp.where(e(valid), rg, 0.0)
+
+
+def roadgraph_rows(geometry: jax.Array, kind: jax.Array, valid: jax.Array) -> jax.Array:
+    """The ``f32[..., N, 25]`` roadgraph features from their first four columns ``geometry
+    [..., N, 4]`` (already scaled and in the frame), the type ``kind int[..., N]`` and
+    ``valid [..., N]``: the same layout as :func:`roadgraph_features`, built by concatenation
+    (a record's rows, gathered from stored geometry)."""
+    onehot = jax.nn.one_hot(kind, RG_NUM_TYPES, dtype=jnp.float32)
+    rg = jnp.concatenate([geometry, onehot, jnp.ones_like(geometry[..., :1])], -1)
+    return jnp.where(valid[..., None], rg, 0.0)
+
+
+def roadgraph_kind(roadgraph: jax.Array) -> jax.Array:
+    """Each row's road type ``int32[..., N]`` from the one-hot columns of roadgraph features
+    (0 for an invalid, all-zero row)."""
+    return jnp.argmax(roadgraph[..., ROADGRAPH_TYPES], axis=-1)
 
 
 def object_features(sdc_xy: jax.Array, sdc_yaw: jax.Array, objects: Any, sdc_index: jax.Array,

@@ -25,12 +25,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from igdrivsim.data.scenario import RG_NUM_TYPES
 from igdrivsim.observation.features import (
     POSITION_SCALE,
     Observation,
     ObservationConfig,
     nearest,
+    roadgraph_rows,
     rotate_to_frame,
 )
 from igdrivsim.observation.models import apply_setting, perceive_pose
@@ -89,10 +89,7 @@ def observe_record(rec: ObservationRecord, setting, episode_key: jax.Array,
     objects = jnp.where(ov[:, None], objects, 0.0)
     ri, rv = pick(rec.roadgraph[:, :2], rec.roadgraph_valid, config.num_roadgraph_points)
     rg4 = rec.roadgraph[ri].at[:, :2].add(-shift)
-    kind = rec.roadgraph_type[ri].astype(jnp.int32)
-    onehot = jax.nn.one_hot(kind, RG_NUM_TYPES, dtype=jnp.float32)
-    rg = jnp.concatenate([rg4, onehot, jnp.ones_like(rg4[:, :1])], -1)
-    rg = jnp.where(rv[:, None], rg, 0.0)
+    rg = roadgraph_rows(rg4, rec.roadgraph_type[ri].astype(jnp.int32), rv)
     obs = Observation(objects=objects, objects_valid=ov, roadgraph=rg, roadgraph_valid=rv,
                       sdc_speed=rec.sdc_speed, sdc_yaw_rate=rec.sdc_yaw_rate)
     return apply_setting(setting, obs, episode_key, step_key)

@@ -28,7 +28,7 @@ from igdrivsim.core.gru import fused_gru_cell, gru_scan
 from igdrivsim.core.layers import dense_2d
 from igdrivsim.data.scenario import DT, RG_NUM_TYPES
 from igdrivsim.errors import ConfigError
-from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE
+from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE, roadgraph_kind
 from igdrivsim.simulator.dynamics import DX_LEVEL, DYAW_LEVEL, constant_speed_offset
 
 NUM_BINS = 257  # 256 bins per action dimension, 257 levels from min to max inclusive
@@ -136,7 +136,7 @@ def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
 def road_types(points: jax.Array, valid: jax.Array) -> jax.Array:
     """Each point's road type ``int32[..., N]`` from the roadgraph feature's one-hot columns;
     ``RG_NUM_TYPES`` (no type) for invalid points."""
-    kind = jnp.argmax(points[..., 4:4 + RG_NUM_TYPES], axis=-1)
+    kind = roadgraph_kind(points)
     return jnp.where(valid, kind, RG_NUM_TYPES).astype(jnp.int32)
 
 

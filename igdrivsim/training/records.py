@@ -33,6 +33,7 @@ from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS
 from igdrivsim.errors import DataError
 from igdrivsim.io import atomic_path
 from igdrivsim.observation import ObservationConfig, ObservationRecord, get_setting, observe
+from igdrivsim.observation.features import ROADGRAPH_GEOMETRY, roadgraph_kind
 from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose
 from igdrivsim.simulator.expert import expert_action
 from igdrivsim.simulator.rollout import Actor, run_episode
@@ -46,9 +47,9 @@ def _record(state: SimState, rec: ObservationConfig):
     key = jax.random.key(0)  # full observability draws nothing
     obs = observe(state, get_setting("full"), key, key, rec)
     rg = obs.roadgraph
-    kind = jnp.argmax(rg[..., 4:-1], axis=-1).astype(jnp.int8)
+    kind = roadgraph_kind(rg).astype(jnp.int8)
     _, _, yaw, _ = sdc_pose(state)
-    return (obs.objects, obs.objects_valid, rg[..., :4], kind, obs.roadgraph_valid,
+    return (obs.objects, obs.objects_valid, rg[..., ROADGRAPH_GEOMETRY], kind, obs.roadgraph_valid,
             obs.sdc_speed, obs.sdc_yaw_rate, yaw)
 
 
