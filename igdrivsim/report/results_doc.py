@@ -332,7 +332,6 @@ def _real_logs(tables: Path, headline: str | None = None) -> list[str]:
     sentence = real_logs_summary(table)
     if sentence is None:
         return []
-    sentence = sentence.replace(" (mean log divergence; Table {real-logs})", "")
     if headline:
         return wrap(sentence.rstrip(".") + " (mean log divergence per step; per setting: "
                     f"[{headline}]({headline}#on-real-logs)).")
