@@ -6,29 +6,13 @@ import argparse
 import importlib
 
 import pytest
+from conftest import run_help
 
 from igdrivsim import cli
 
 COMMANDS = [[name] for name in cli.COMMANDS] + [["bench"]] + [["bench", n] for n in cli.BENCHES]
 MAZE = ["maze.__main__", "maze.bench", "maze.render", "maze.study",
         "igdrivsim.pipeline.cli"]  # the last: scripts/reproduce.sh
-
-
-def _run_help(main, argv: list[str], monkeypatch, capsys) -> list[argparse.ArgumentParser]:
-    """Call ``main(argv + ['--help'])``; return the parsers that parsed (to check their options)."""
-    seen: list[argparse.ArgumentParser] = []
-    original = argparse.ArgumentParser.parse_args
-
-    def recording(self, *a, **k):
-        seen.append(self)
-        return original(self, *a, **k)
-
-    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", recording)
-    with pytest.raises(SystemExit) as exc:
-        main(argv + ["--help"])
-    assert exc.value.code == 0, argv
-    assert "usage:" in capsys.readouterr().out
-    return seen
 
 
 def _options(parser: argparse.ArgumentParser):
@@ -47,7 +31,7 @@ def _check_help_texts(parser: argparse.ArgumentParser, where: str) -> None:
 
 @pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
 def test_igdrivsim_help(argv, monkeypatch, capsys):
-    _run_help(cli.main, argv, monkeypatch, capsys)
+    run_help(cli.main, argv, monkeypatch, capsys)
     # The same parser with the command's options configured, as main() builds it.
     parser = cli.build_parser()
     if argv != ["bench"]:
@@ -57,7 +41,7 @@ def test_igdrivsim_help(argv, monkeypatch, capsys):
 
 @pytest.mark.parametrize("module", MAZE)
 def test_maze_help(module, monkeypatch, capsys):
-    seen = _run_help(importlib.import_module(module).main, [], monkeypatch, capsys)
+    seen = run_help(importlib.import_module(module).main, [], monkeypatch, capsys)
     assert seen
     _check_help_texts(seen[0], module)
 

@@ -18,6 +18,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from conftest import run_help
 
 from igdrivsim import cli
 
@@ -88,17 +89,7 @@ def test_every_python_module_the_docs_name_shows_its_defaults(module, monkeypatc
     main = importlib.import_module(module)
     if not hasattr(main, "main"):
         main = importlib.import_module(module + ".__main__")
-    seen: list[argparse.ArgumentParser] = []
-    original = argparse.ArgumentParser.parse_args
-
-    def recording(self, *args, **kwargs):
-        seen.append(self)
-        return original(self, *args, **kwargs)
-
-    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", recording)
-    with pytest.raises(SystemExit) as exc:
-        main.main(["--help"])
-    assert exc.value.code == 0 and "usage:" in capsys.readouterr().out
+    seen = run_help(main.main, [], monkeypatch, capsys)
     assert seen and _undocumented_defaults(seen[0]) == [], module
 
 
