@@ -36,10 +36,9 @@ def run_template(tmp_path_factory) -> Path:
     import jax
     import numpy as np
 
-    from igdrivsim.training.checkpoint import Checkpoints
     from igdrivsim.training.config import get_profile, to_dict
     from igdrivsim.training.loop import init_buffer, init_state, update_spec
-    from igdrivsim.training.run import CHECKPOINTS
+    from igdrivsim.training.run import CHECKPOINTS, Checkpoints
 
     run = tmp_path_factory.mktemp("runs") / "run"
     run.mkdir()

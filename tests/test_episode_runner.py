@@ -18,6 +18,8 @@ import pytest
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.policy.act import choose_levels, example_observation, policy_actor
+from igdrivsim.policy.closed_loop import policy_rollout
+from igdrivsim.policy.distribution import action_log_prob
 from igdrivsim.policy.network import (
     POOLED_NETWORK,
     PolicyConfig,
@@ -26,17 +28,15 @@ from igdrivsim.policy.network import (
     initial_carry,
 )
 from igdrivsim.simulator import SimParams, dynamics, reset, step
-from igdrivsim.simulator.expert import expert_discrete_action
 from igdrivsim.simulator.metrics import reward, step_metrics
 from igdrivsim.simulator.rollout import (
     ACTORS,
     Actor,
     action_defined,
+    expert_discrete_action,
     rollout,
     run_episode,
 )
-from igdrivsim.training.env import policy_rollout
-from igdrivsim.training.losses import action_log_prob
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "womd" / (
     "motion_data_one_example.tfrecord")
@@ -149,7 +149,7 @@ def test_policy_episode_equals_the_previous_one(state, policy_params, setting, a
 
 
 def _previous_policy_rollout(params, carry, state, setting, episode_keys, key):
-    """The old ``training.env.policy_rollout`` on a batch ``[B]`` (one draw per step)."""
+    """The old ``policy_rollout`` on a batch ``[B]`` (one draw per step)."""
 
     def observe_batch(s):
         return jax.vmap(lambda st, k: observe(st, setting, k, jax.random.fold_in(

@@ -9,11 +9,12 @@ import pytest
 
 from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS, stack_scenarios
 from igdrivsim.simulator import SimParams, reset
-from igdrivsim.simulator.expert import expert_action, expert_discrete_action
 from igdrivsim.simulator.metrics import scenario_metrics
 from igdrivsim.simulator.rollout import (
     constant_velocity_actor,
+    expert_action,
     expert_actor,
+    expert_discrete_action,
     jit_rollout,
     log_metrics,
     rollout,

@@ -12,14 +12,7 @@ import pytest
 
 from igdrivsim.observation import ObservationConfig
 from igdrivsim.policy.act import example_observation, policy_step
-from igdrivsim.policy.network import (
-    POOLED_NETWORK,
-    PolicyConfig,
-    apply_step,
-    init_params,
-    init_params_per_seed,
-)
-from igdrivsim.training.losses import (
+from igdrivsim.policy.distribution import (
     action_log_prob,
     bc_loss,
     clipped_surrogate,
@@ -27,6 +20,13 @@ from igdrivsim.training.losses import (
     gae,
     normalize,
     value_loss,
+)
+from igdrivsim.policy.network import (
+    POOLED_NETWORK,
+    PolicyConfig,
+    apply_step,
+    init_params,
+    init_params_per_seed,
 )
 from igdrivsim.training.update import cosine_lr
 

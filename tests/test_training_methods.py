@@ -174,8 +174,8 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     labels are its network on those full observations."""
     from igdrivsim.observation import get_setting
     from igdrivsim.policy.act import example_observation
+    from igdrivsim.policy.closed_loop import policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
-    from igdrivsim.training import env
     from igdrivsim.training.loop import init_buffer, load_teacher
     from igdrivsim.training.update import (
         WARMUP_STEPS,
@@ -207,7 +207,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], expert_sequences(spec, rec, setting, keys))
     carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)), warm)
     full = get_setting("full")
-    roll = env.policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
+    roll = policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
                               keys, k_act, privileged=full)
     student = np.swapaxes(np.asarray(data["rollout_obs"].roadgraph_valid), 0, 1)
     np.testing.assert_array_equal(np.asarray(roll.obs.roadgraph_valid), student)

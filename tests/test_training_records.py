@@ -20,7 +20,7 @@ from igdrivsim.observation import (
 )
 from igdrivsim.simulator import SimParams, reset, toy
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.records import compute_teacher
+from igdrivsim.training.records import compute_records
 from igdrivsim.training.update import update_spec
 
 SAMPLE = (Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ def recorded():
         pytest.skip("real WOMD sample not present")
     sc = load_scenario(str(SAMPLE), caps=Capacities(max_objects=32, max_roadgraph_points=20_000))
     states = jax.vmap(lambda s: reset(s, SimParams()))(stack_scenarios([sc]))
-    rec = compute_teacher(jax.device_get(states), SimParams(), superset_config(OBS, 32))
+    rec = compute_records(jax.device_get(states), SimParams(), superset_config(OBS, 32))
     return states, rec
 
 

@@ -1,7 +1,7 @@
 """RL and imitation loss terms of categorical policies, on explicit arrays (no network).
 
 One place for what the maze (one categorical over 4 moves) and the driving policy (three
-categoricals over 257 levels, see :mod:`igdrivsim.training.losses`) both train with: GAE, the
+categoricals over 257 levels, see :mod:`igdrivsim.policy.distribution`) both train with: GAE, the
 clipped PPO terms, and the log-probability, entropy, cross-entropy and KL of a categorical.
 Per-categorical functions reduce the last (class) axis only; sequences are time-major
 (``[T, ...]``).

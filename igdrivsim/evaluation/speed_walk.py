@@ -39,8 +39,7 @@ from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import IGDrivSimError
 from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, dynamics, reset
-from igdrivsim.simulator.expert import expert_action
-from igdrivsim.simulator.rollout import Actor, run_episode
+from igdrivsim.simulator.rollout import Actor, expert_action, run_episode
 
 MIDDLE = dynamics.NUM_BINS // 2
 PARAMS = SimParams()

@@ -42,13 +42,15 @@ from igdrivsim.observation.models import (
     stack_settings,
 )
 from igdrivsim.observation.observe import (
+    ObservationRecord,
+    episode_observations,
     observe,
     observe_setting_arrays,
     observe_with_selection,
     sdc_pose,
+    superset_config,
 )
 from igdrivsim.observation.occlusion import LineOfSightOcclusion, line_of_sight  # registers
-from igdrivsim.observation.record import ObservationRecord, episode_observations, superset_config
 
 __all__ = [
     "OBJECT_FEATURES", "POSITION_SCALE", "ROADGRAPH_FEATURES", "SPEED_SCALE",

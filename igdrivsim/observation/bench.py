@@ -45,9 +45,9 @@ from igdrivsim.machine import machine_record
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.commands import _data_path
 from igdrivsim.simulator import dynamics
-from igdrivsim.simulator.expert import expert_discrete_action
 from igdrivsim.simulator.metrics import step_metrics
 from igdrivsim.simulator.roadgraph import road_edges_from_roadgraph
+from igdrivsim.simulator.rollout import expert_discrete_action
 from igdrivsim.simulator.state import SimParams, SimState, reset, step
 
 DEFAULT_PARAMS = SimParams()

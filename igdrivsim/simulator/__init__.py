@@ -18,7 +18,6 @@ from igdrivsim.simulator.dynamics import (
     undiscretize,
     validate_actions,
 )
-from igdrivsim.simulator.expert import expert_action, expert_discrete_action
 from igdrivsim.simulator.metrics import (
     ScenarioMetrics,
     StepMetrics,
@@ -37,7 +36,9 @@ from igdrivsim.simulator.rollout import (
     StepInfo,
     Transition,
     constant_velocity_actor,
+    expert_action,
     expert_actor,
+    expert_discrete_action,
     jit_rollout,
     log_metrics,
     rollout,

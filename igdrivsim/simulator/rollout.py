@@ -1,5 +1,12 @@
 """The simulator's episode runner (``run_episode``) and the reference actors.
 
+The expert (:func:`expert_action`) is inverse dynamics from the *simulated* SDC pose to its next
+logged pose: starting from the simulated pose at ``t`` (not the logged one) corrects the
+quantisation error of earlier discretised actions at every step, so replaying the discretised
+expert stays within a few centimetres of the log. The action is clipped to the bounds; when the
+logged pose at ``t + 1`` is invalid it is the zero action (the SDC waits; during a gap in the
+log it keeps its last pose and rejoins the log at the first valid step, within the bounds).
+
 Every closed-loop episode in the package (evaluation, BC-RL's rollout, replay) is
 :func:`run_episode`: the shared runner of :mod:`igdrivsim.core.episode` (the maze's too) with
 the simulator's step, driving the SDC for ``params.num_controlled_steps`` steps from a state at
@@ -40,7 +47,6 @@ from igdrivsim.core import episode
 from igdrivsim.core.episode import Actor, StepInfo
 from igdrivsim.data.scenario import DT, NUM_STEPS
 from igdrivsim.simulator import dynamics
-from igdrivsim.simulator.expert import expert_action, expert_discrete_action
 from igdrivsim.simulator.metrics import StepMetrics, reward, step_metrics
 from igdrivsim.simulator.state import (
     SdcTrajectory,
@@ -54,6 +60,22 @@ from igdrivsim.simulator.state import (
 
 DEFAULT_PARAMS = SimParams()
 PolicyFn = Callable[[SimState, Any, jax.Array], tuple[jax.Array, Any, Any]]
+
+
+def expert_action(state: SimState, params: SimParams = DEFAULT_PARAMS):
+    """``f32[..., 3]``: the (clipped) action that moves the simulated SDC onto its next log pose."""
+    _, inverse = dynamics.DYNAMICS[params.dynamics]
+    x, y, yaw, _ = sdc_pose(state)
+    t1 = jnp.minimum(state.timestep + 1, NUM_STEPS - 1)
+    lx, ly, lyaw, lvalid = log_sdc_at(state, t1)
+    action = inverse(x, y, yaw, lx, ly, lyaw)
+    ok = (lvalid & (state.timestep < NUM_STEPS - 1))[..., None]
+    return jnp.where(ok, action, 0.0).astype(jnp.float32)
+
+
+def expert_discrete_action(state: SimState, params: SimParams = DEFAULT_PARAMS):
+    """``int32[..., 3]``: the expert action on the 257-level grid (see ``dynamics.discretize``)."""
+    return dynamics.discretize(expert_action(state, params))
 
 
 class Transition(NamedTuple):

@@ -39,7 +39,7 @@ from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.records import (
     cache_key,
-    compute_teacher,
+    compute_records,
     data_identity,
     load_or_compute,
 )
@@ -160,7 +160,7 @@ class Dataset:
         def compute():
             nonlocal states
             states = load()
-            return compute_teacher(states, params, rec, progress=progress)
+            return compute_records(states, params, rec, progress=progress)
 
         if not (d.record_teacher if record is None else record):
             states = load()

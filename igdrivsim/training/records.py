@@ -2,9 +2,9 @@
 every run.
 
 BC is trained on the logged (expert-driven) episode: the warm-up steps 0..9 replayed from the
-log, then the discretised expert driving steps 10..89. :func:`compute_teacher` records what the
+log, then the discretised expert driving steps 10..89. :func:`compute_records` records what the
 ego sees along it before any setting, with the expert's labels, as an
-:class:`~igdrivsim.observation.record.ObservationRecord` (its docstring says what is recorded and
+:class:`~igdrivsim.observation.observe.ObservationRecord` (its docstring says what is recorded and
 how a setting is applied to it: ``observe(record step, setting, ...)``).
 
 The cache file is keyed by a hash of the data's identity (the manifest's bytes, or the files'
@@ -35,8 +35,7 @@ from igdrivsim.io import atomic_path
 from igdrivsim.observation import ObservationConfig, ObservationRecord, get_setting, observe
 from igdrivsim.observation.features import ROADGRAPH_GEOMETRY, roadgraph_kind
 from igdrivsim.simulator import SimParams, SimState, dynamics, sdc_pose
-from igdrivsim.simulator.expert import expert_action
-from igdrivsim.simulator.rollout import Actor, run_episode
+from igdrivsim.simulator.rollout import Actor, expert_action, run_episode
 
 FORMAT_VERSION = 4
 EPISODE_STEPS = NUM_STEPS - 1  # 10 warm-up + 80 controlled observations per episode
@@ -75,7 +74,7 @@ def _jit_episodes(sim: SimParams, rec: ObservationConfig):
     return jax.jit(jax.vmap(lambda s: record_episode(s, sim, rec)))
 
 
-def compute_teacher(states: SimState, sim: SimParams, rec: ObservationConfig,
+def compute_records(states: SimState, sim: SimParams, rec: ObservationConfig,
                     chunk: int = 32, progress: bool = False) -> ObservationRecord:
     """Teacher-forced records of host states ``[N]`` (chunks of ``chunk``), as NumPy."""
     n = int(np.shape(states.timestep)[0])

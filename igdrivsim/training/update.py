@@ -46,12 +46,11 @@ from igdrivsim.observation import (
     stack_settings,
 )
 from igdrivsim.policy.act import example_observation
+from igdrivsim.policy.closed_loop import WARMUP_STEPS, policy_rollout
+from igdrivsim.policy.distribution import bc_loss, gae, normalize
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
 from igdrivsim.simulator import SimParams, SimState
-from igdrivsim.training import env
 from igdrivsim.training.config import RunConfig
-from igdrivsim.training.env import WARMUP_STEPS
-from igdrivsim.training.losses import bc_loss, gae, normalize
 from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
 from igdrivsim.training.privileged import teacher_config
 from igdrivsim.training.records import EPISODE_STEPS, record_episode
@@ -252,7 +251,7 @@ def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: Observation
     carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
                                   warm, True)
     full = get_setting("full") if method.teacher else None
-    roll = env.policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
+    roll = policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
                               episode_keys, k_act, privileged=full)
     roll = jax.tree.map(jax.lax.stop_gradient, roll)
     # Episodes end at step 90 (terminal): the value after the last step is 0.

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from igdrivsim.core.params import AdvisorParams
 from igdrivsim.errors import ConfigError
-from igdrivsim.training.losses import (
+from igdrivsim.policy.distribution import (
     action_log_prob,
     entropy,
     kl_divergence,

@@ -3,7 +3,7 @@ logged episodes (the paper's BC; ``w_BC BC + w_RL PPO`` with ``w_RL = 0``)."""
 
 from __future__ import annotations
 
-from igdrivsim.training.losses import bc_loss, entropy, masked_mean
+from igdrivsim.policy.distribution import bc_loss, entropy, masked_mean
 from igdrivsim.training.methods import Method, register_method
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from igdrivsim.training.losses import (
+from igdrivsim.policy.distribution import (
     action_log_prob,
     clipped_surrogate,
     entropy,

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.training.losses import masked_mean, soft_cross_entropy
+from igdrivsim.policy.distribution import masked_mean, soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
 
