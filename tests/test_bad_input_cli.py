@@ -56,7 +56,7 @@ def test_train_refuses_an_output_file(a_file, capsys):
 @pytest.mark.parametrize("override, field", [
     ("policy.gru_hidden=0", "policy.gru_hidden"), ("data.max_objects=0", "data.max_objects"),
     ("training.log_every=0", "training.log_every"), ("training.lr=nan", "training.lr"),
-    ("training.lr=-1", "training.lr"), ("training.gamma=1.5", "training.gamma"),
+    ("training.lr=-1", "training.lr"), ("loss.gamma=1.5", "loss.gamma"),
     ("policy.object_hidden=[64,0]", "policy.object_hidden"),
     ("policy.num_bins=1", "policy.num_bins")])
 def test_config_values_out_of_range_are_refused(override, field):

@@ -80,7 +80,7 @@ def test_categorical_terms_by_hand():
 def test_maze_and_driving_share_the_runner_and_the_loss_terms():
     import importlib
 
-    from igdrivsim.training import losses as driving_losses
+    from igdrivsim.policy import distribution as driving_losses
     from maze import mixed, ppo, rollout
 
     driving = importlib.import_module("igdrivsim.simulator.rollout")
@@ -129,7 +129,7 @@ def test_every_learner_trains_through_the_core():
     from igdrivsim.pipeline import stages
     from igdrivsim.policy import network
     from igdrivsim.training import update
-    from igdrivsim.training.config import TrainConfig
+    from igdrivsim.training.config import LossConfig
     from igdrivsim.training.methods import advisor
     from maze import bc, dagger, mixed, ppo, study
     from maze import network as maze_network
@@ -146,7 +146,8 @@ def test_every_learner_trains_through_the_core():
     assert issubclass(mixed.MixedConfig, params.MixWeights)
     assert issubclass(mixed.MixedConfig, params.AdvisorParams)
     assert issubclass(advisor.Params, params.AdvisorParams)
-    t, p, m = TrainConfig(), ppo.PPOConfig(), mixed.MixedConfig()
+    assert issubclass(LossConfig, params.PPOParams) and issubclass(LossConfig, params.MixWeights)
+    t, p, m = LossConfig(), ppo.PPOConfig(), mixed.MixedConfig()
     for name in ("gamma", "gae_lambda", "clip_eps", "ent_coef", "vf_coef"):
         assert getattr(t, name) == getattr(p, name) == getattr(params.PPO, name)
     assert (t.w_bc, t.w_rl) == (m.w_bc, m.w_rl) == (params.MIX.w_bc, params.MIX.w_rl)

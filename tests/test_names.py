@@ -11,7 +11,7 @@ from igdrivsim.evaluation import schema
 
 LIGHT_MODULES = ("igdrivsim.evaluation.schema", "igdrivsim.report.tables",
                  "igdrivsim.report.results_doc", "igdrivsim.report.compare",
-                 "igdrivsim.report.sweep")
+                 "igdrivsim.report.sweep", "igdrivsim.report.transfer")
 
 
 def test_the_light_names_equal_the_registries():

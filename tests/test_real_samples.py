@@ -164,6 +164,16 @@ def test_samples_fetch_verify_and_reuse_offline(tmp_path, monkeypatch):
         samples.fetch(tmp_path / "other", wheel, bad, digest)
 
 
+def test_a_samples_folder_names_its_scenario_files(tmp_path):
+    """``--data`` given the folder of ``igdrivsim samples`` reads the scenarios under it, not
+    its record file."""
+    from igdrivsim.data import expand_paths
+
+    wheel, files, digest = _fake_wheel(tmp_path)
+    paths, _ = samples.fetch(tmp_path / "cache", wheel, files, digest)
+    assert expand_paths(tmp_path / "cache") == [str(p) for p in paths]
+
+
 def test_samples_command_prints_place_and_terms(tmp_path, monkeypatch, capsys):
     from igdrivsim.cli import main
 

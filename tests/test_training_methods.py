@@ -69,7 +69,7 @@ def test_the_registry_is_the_only_place_a_method_is_named():
 
 def test_configuration_reads_the_registry(extra_method):
     assert not with_overrides(SMOKE, ["training.method=bc"]).collects_rollout
-    config = with_overrides(SMOKE, ["training.method=bc_rl_strong", "training.w_rl=0.5"])
+    config = with_overrides(SMOKE, ["training.method=bc_rl_strong", "loss.w_rl=0.5"])
     assert config.validate().collects_rollout
     with pytest.raises(ConfigError, match="unknown learning method"):
         with_overrides(SMOKE, ["training.method=nope"]).validate()

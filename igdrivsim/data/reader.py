@@ -21,7 +21,7 @@ from typing import NamedTuple
 from google.protobuf.message import DecodeError
 from tqdm.auto import tqdm
 
-from igdrivsim.data import scenarionet, tfrecord
+from igdrivsim.data import samples, scenarionet, tfrecord
 from igdrivsim.data.protos import example_class
 from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
@@ -79,13 +79,16 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
 def expand_paths(spec: PathSpec) -> list[str]:
     """Files named by a path, a directory (its files), a glob, ``name@N``, or a list of those.
 
-    ``name@N`` is WOMD's sharded notation: ``name-00000-of-0000N`` ... ``name-0000(N-1)-of-...``.
+    A folder written by ``igdrivsim samples`` names its scenario files. ``name@N`` is WOMD's
+    sharded notation: ``name-00000-of-0000N`` ... ``name-0000(N-1)-of-...``.
     Raises :class:`DataError` if something names no file.
     """
     if not isinstance(spec, str | os.PathLike):
         return [p for s in spec for p in expand_paths(s)]
     spec = os.fspath(spec)
     if os.path.isdir(spec):
+        if os.path.isfile(os.path.join(spec, samples.RECORD)):  # igdrivsim samples' folder
+            return expand_paths(samples.scenario_dir(spec))
         listed = scenarionet.dataset_files(spec)  # a ScenarioNet dataset folder
         if listed is not None:
             return listed

@@ -50,7 +50,7 @@ from igdrivsim.policy.closed_loop import WARMUP_STEPS, policy_rollout
 from igdrivsim.policy.distribution import bc_loss, gae, normalize
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
 from igdrivsim.simulator import SimParams, SimState
-from igdrivsim.training.config import RunConfig
+from igdrivsim.training.config import LossConfig, RunConfig
 from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
 from igdrivsim.training.privileged import teacher_config
 from igdrivsim.training.records import EPISODE_STEPS, record_episode
@@ -66,13 +66,7 @@ class UpdateSpec:
     obs: ObservationConfig
     sim: SimParams
     method: str  # a registered method (what the update collects, its loss)
-    w_bc: float
-    w_rl: float
-    gamma: float
-    gae_lambda: float
-    clip_eps: float
-    ent_coef: float
-    vf_coef: float
+    loss: LossConfig  # the loss's weights and PPO's coefficients
     epochs: int
     minibatches: int
     grad_clip: float
@@ -100,9 +94,7 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
     static = None if settings_as_data(config) is not None else get_setting(config.settings[0])
     return UpdateSpec(
         policy=config.policy, setting=static, obs=config.obs_config, sim=config.sim_params,
-        method=t.method, w_bc=t.w_bc, w_rl=t.w_rl,
-        gamma=t.gamma, gae_lambda=t.gae_lambda, clip_eps=t.clip_eps, ent_coef=t.ent_coef,
-        vf_coef=t.vf_coef, epochs=epochs, minibatches=minibatches,
+        method=t.method, loss=config.loss, epochs=epochs, minibatches=minibatches,
         grad_clip=t.grad_clip,
         record=config.record_config,
         teacher_policy=teacher_policy or teacher_policy_config(config),
@@ -256,7 +248,7 @@ def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: Observation
     roll = jax.tree.map(jax.lax.stop_gradient, roll)
     # Episodes end at step 90 (terminal): the value after the last step is 0.
     adv, ret = gae(roll.values.T, roll.rewards.T, jnp.zeros((b, roll.valid.shape[0]), bool),
-                   jnp.zeros((b,)), spec.gamma, spec.gae_lambda, axis=-1)  # [b, 80]
+                   jnp.zeros((b,)), spec.loss.gamma, spec.loss.gae_lambda, axis=-1)  # [b, 80]
     adv = normalize(adv.T, roll.valid)
     bm = _time_major  # time-major -> scenario-major
     data |= {"rollout_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),

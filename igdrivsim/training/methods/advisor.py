@@ -53,12 +53,12 @@ def loss(spec, out, batch):
     weight = jnp.exp(-spec.params.alpha * jax.lax.stop_gradient(
         kl_divergence(teacher, roll.aux_logits)))
     pg = surrogate_terms(action_log_prob(roll.logits, batch["actions"]), batch["log_probs"],
-                         batch["advantages"], spec.clip_eps)
+                         batch["advantages"], spec.loss.clip_eps)
     vl = value_loss(roll.values, batch["returns"], mask)
     ent = masked_mean(entropy(roll.logits), mask)
     aux_ce = masked_mean(soft_cross_entropy(teacher, roll.aux_logits), mask)
     total = (masked_mean(weight * ce + (1.0 - weight) * pg, mask)
-             + spec.w_rl * (spec.vf_coef * vl - spec.ent_coef * ent) + aux_ce)
+             + spec.loss.w_rl * (spec.loss.vf_coef * vl - spec.loss.ent_coef * ent) + aux_ce)
     return total, {"teacher_ce": masked_mean(ce, mask), "aux_teacher_ce": aux_ce,
                    "imitation_weight": masked_mean(weight, mask), "value_loss": vl,
                    "policy_entropy": ent, "policy_loss": masked_mean(pg, mask)}

@@ -16,7 +16,7 @@ def logged_bc(spec, out, batch):
 
 def loss(spec, out, batch):
     bc, metrics = logged_bc(spec, out, batch)
-    return spec.w_bc * bc, metrics
+    return spec.loss.w_bc * bc, metrics
 
 
 register_method(Method("bc", "BC", "#4C9BE8", loss, episodes=("logged",), baseline=None))

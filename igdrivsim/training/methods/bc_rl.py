@@ -21,13 +21,13 @@ def ppo(spec, rollout, batch):
     """``(PPO loss, metrics)`` of the rollout outputs against the collected batch."""
     mask = batch["valid"]
     logp = action_log_prob(rollout.logits, batch["actions"])
-    pg = clipped_surrogate(logp, batch["log_probs"], batch["advantages"], spec.clip_eps, mask)
+    pg = clipped_surrogate(logp, batch["log_probs"], batch["advantages"], spec.loss.clip_eps, mask)
     vl = value_loss(rollout.values, batch["returns"], mask)
     ent = masked_mean(entropy(rollout.logits), mask)
     ratio = jnp.exp(logp - batch["log_probs"])
-    return pg + spec.vf_coef * vl - spec.ent_coef * ent, {
+    return pg + spec.loss.vf_coef * vl - spec.loss.ent_coef * ent, {
         "policy_loss": pg, "value_loss": vl, "policy_entropy": ent,
-        "clip_frac": masked_mean((jnp.abs(ratio - 1) > spec.clip_eps).astype(jnp.float32),
+        "clip_frac": masked_mean((jnp.abs(ratio - 1) > spec.loss.clip_eps).astype(jnp.float32),
                                  mask),
         "ratio_dev": masked_mean(jnp.abs(ratio - 1.0), mask)}
 
@@ -35,7 +35,7 @@ def ppo(spec, rollout, batch):
 def loss(spec, out, batch):
     bc, metrics = logged_bc(spec, out, batch)
     rl, rl_metrics = ppo(spec, out["rollout"], batch)
-    return spec.w_bc * bc + spec.w_rl * rl, metrics | rl_metrics | {"ppo_loss": rl}
+    return spec.loss.w_bc * bc + spec.loss.w_rl * rl, metrics | rl_metrics | {"ppo_loss": rl}
 
 
 register_method(Method("bc_rl", "BC-RL", "#F28E2B", loss, episodes=("logged", "rollout")))

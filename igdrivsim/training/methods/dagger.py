@@ -35,7 +35,7 @@ def loss(spec, out, batch):
     mask = batch["aggregate_valid"]
     imitation = masked_mean(soft_cross_entropy(batch["aggregate_logp"],
                                                out["aggregate"].logits), mask)
-    return spec.w_bc * bc + imitation, metrics | {"teacher_ce": imitation}
+    return spec.loss.w_bc * bc + imitation, metrics | {"teacher_ce": imitation}
 
 
 register_method(Method("dagger", "DAgger", "#59A14F", loss, episodes=("logged", "aggregate"),

@@ -1,0 +1,172 @@
+"""Do drivers trained on a synthetic motion model hold up on real logs? The table of
+``scripts/transfer_check.sh``.
+
+Input: a folder ``WORK`` with one sub-folder per motion model (``WORK/<motion>/``), each holding
+``evals_<data set>/bc`` and ``evals_<data set>/references`` (``igdrivsim evaluate`` on the
+synthetic validation set and on real sets). For every (data set, motion) the table gives Full
+BC's and constant velocity's per-step metrics (mean over seeds of each seed's mean over
+scenarios) and BC - constant velocity with its 95% interval and the smallest difference the
+comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
+scenarios (:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
+which every motion model is evaluated on, a second table compares the motion models' BC
+directly (paired scenarios).
+
+``python -m igdrivsim.report.transfer WORK --out WORK/transfer.md``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.evaluation.aggregate import (
+    CONFIDENCE,
+    bootstrap_p_value,
+    hierarchical_bootstrap,
+    load_evaluations,
+    minimum_detectable_effect,
+)
+from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, METRIC_BY_KEY
+from igdrivsim.io import atomic_write_text
+
+METRICS = ("log_divergence", "offroad", "overlap")
+VALIDATION = "validation"  # the synthetic validation set's name (evals_validation)
+
+
+def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
+    """``{(data set, motion): per-scenario rows of BC and the references}``."""
+    found = {}
+    for folder in sorted(work.glob("*/evals_*")):
+        if (folder / BC / "per_scenario.csv").is_file() and \
+                (folder / "references" / "per_scenario.csv").is_file():
+            _, per_scenario = load_evaluations([folder / BC, folder / "references"])
+            found[(folder.name.removeprefix("evals_"), folder.parent.name)] = per_scenario
+    if not found:
+        raise ConfigError(f"no evals_*/{{bc,references}}/per_scenario.csv under {work}/*/: "
+                          "run bash scripts/transfer_check.sh first")
+    return found
+
+
+def _matrix(frame: pd.DataFrame, method: str, scenarios: pd.Index) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` of one method (Table I's scale: percent for rates)."""
+    rows = frame[frame.method == method]
+    columns = [METRIC_BY_KEY[k].column for k in METRICS]
+    scale = np.array([METRIC_BY_KEY[k].scale for k in METRICS])
+    cube = [rows[rows.seed == s].set_index("scenario_id").loc[scenarios, columns].to_numpy()
+            for s in sorted(rows.seed.unique())]
+    return np.stack(cube) * scale
+
+
+def compare(a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
+    """Means of ``a`` and ``b`` ``(seeds, scenarios, metrics)``, ``a - b`` with its interval,
+    bootstrap p-value and minimum detectable effect, per metric."""
+    reps = hierarchical_bootstrap(a, b)
+    tail = (1 - CONFIDENCE) / 2 * 100
+    return dict(a=a.mean((0, 1)), b=b.mean((0, 1)), diff=a.mean((0, 1)) - b.mean((0, 1)),
+                lo=np.percentile(reps, tail, axis=0), hi=np.percentile(reps, 100 - tail, axis=0),
+                p=bootstrap_p_value(reps), mde=minimum_detectable_effect(reps.std(0, ddof=1)))
+
+
+def _scenarios(*frames: pd.DataFrame) -> pd.Index:
+    """The scenarios every frame evaluated (sorted)."""
+    common = set.intersection(*(set(f.scenario_id) for f in frames))
+    return pd.Index(sorted(common), name="scenario_id")
+
+
+def against_constant_velocity(found: dict) -> pd.DataFrame:
+    """One row per (data set, motion): BC against constant velocity."""
+    rows = []
+    for (data, motion), frame in sorted(found.items(), key=lambda kv: (kv[0][0] != VALIDATION,
+                                                                      kv[0])):
+        scen = _scenarios(frame[frame.method == BC], frame[frame.method == CONSTANT_VELOCITY])
+        c = compare(_matrix(frame, BC, scen), _matrix(frame, CONSTANT_VELOCITY, scen))
+        row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
+                   .nunique())
+        for i, key in enumerate(METRICS):
+            row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def between_motions(found: dict) -> pd.DataFrame:
+    """On each data set every motion was evaluated on (the real sets): BC of each motion
+    against BC of the first (alphabetical), paired scenarios."""
+    rows = []
+    for data in sorted({d for d, _ in found} - {VALIDATION}):
+        motions = sorted(m for d, m in found if d == data)
+        frames = {m: found[(data, m)] for m in motions}
+        for motion in motions[1:]:
+            a, b = frames[motion], frames[motions[0]]
+            scen = _scenarios(a[a.method == BC], b[b.method == BC])
+            c = compare(_matrix(a, BC, scen), _matrix(b, BC, scen))
+            row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
+            for i, key in enumerate(METRICS):
+                row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _diff(row: pd.Series, key: str) -> str:
+    return (f"{row[f'{key}_diff']:+.2f} [{row[f'{key}_lo']:+.2f}, {row[f'{key}_hi']:+.2f}] "
+            f"p={row[f'{key}_p']:.2f}, MDE {row[f'{key}_mde']:.2f}")
+
+
+def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame) -> str:
+    lines = [
+        "# Full BC trained on each synthetic motion model, against constant velocity",
+        "",
+        "Written by `bash scripts/transfer_check.sh WORK MOTION` "
+        "(`python -m igdrivsim.report.transfer`). Laptop profile, 3 seeds, 1,000 updates. "
+        "Means are over seeds of each seed's mean over the N scenarios; differences with a "
+        "95% hierarchical-bootstrap interval (seeds, then paired scenarios), its p-value and "
+        "the minimum detectable effect (MDE, 80% power). Log divergence in m, offroad and "
+        "overlap in % of steps.",
+        "",
+        "| data | motion | N | BC log div. | CV log div. | BC / CV | BC - CV log div. "
+        "| BC offroad | CV offroad | BC overlap | CV overlap |",
+        "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for _, r in vs_cv.iterrows():
+        lines.append(
+            f"| {r.data} | {r.motion} | {r.n} | {r.log_divergence_a:.2f} | "
+            f"{r.log_divergence_b:.2f} | {r.log_divergence_a / r.log_divergence_b:.2f} | "
+            f"{_diff(r, 'log_divergence')} | {r.offroad_a:.1f} | {r.offroad_b:.1f} | "
+            f"{r.overlap_a:.1f} | {r.overlap_b:.1f} |")
+    if not motions.empty:
+        lines += ["", "BC of one motion model against BC of another, on the same real scenarios:",
+                  "", "| data | motion - baseline | N | log divergence (m) | offroad (%) |",
+                  "|---|---|---|---|---|"]
+        for _, r in motions.iterrows():
+            lines.append(f"| {r.data} | {r.motion} - {r.baseline} | {r.n} | "
+                         f"{_diff(r, 'log_divergence')} | {_diff(r, 'offroad')} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m igdrivsim.report.transfer",
+        description="Full BC of each synthetic motion model against constant velocity, on "
+                    "synthetic validation and real logs (scripts/transfer_check.sh's table).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("work", type=Path, help="the folder holding one sub-folder per motion")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="the markdown file (default: print only)")
+    args = parser.parse_args(argv)
+
+    def body() -> int:
+        found = evaluations(args.work)
+        text = markdown(against_constant_velocity(found), between_motions(found))
+        if args.out is not None:
+            atomic_write_text(args.out, text)
+        print(text, end="")
+        return 0
+
+    return run_command("python -m igdrivsim.report.transfer", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,57 @@
+"""`python -m igdrivsim.report.transfer`: Full BC against constant velocity per (data set,
+motion model), and the motion models' BC against each other on the shared real scenarios, with
+bootstrap intervals that contain the true difference."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from igdrivsim.errors import ConfigError
+from igdrivsim.report.transfer import against_constant_velocity, between_motions, evaluations, main
+
+COLUMNS = ["setting", "method", "seed", "scenario_id", "log_divergence", "offroad_steps",
+           "overlap_steps", "max_log_divergence", "overlap", "offroad"]
+
+
+def _evals(root, motion, data, bc_log_div, cv_log_div, n=8):
+    """BC (two seeds, ``bc_log_div`` plus a per-scenario wobble) and constant velocity."""
+    folder = root / motion / f"evals_{data}"
+    for who, rows in (("bc", [["full", "bc", s, f"s{i}", bc_log_div + (-1) ** i * 0.5 + s * 0.1,
+                               0.1, 0.0, 9.0, 0, 1] for s in range(2) for i in range(n)]),
+                      ("references", [["none", "constant_velocity", 0, f"s{i}", cv_log_div,
+                                       0.2, 0.0, 9.0, 0, 1] for i in range(n)])):
+        (folder / who).mkdir(parents=True)
+        pd.DataFrame(rows, columns=COLUMNS).to_csv(folder / who / "per_scenario.csv",
+                                                   index=False)
+
+
+def test_transfer_tables_measure_bc_against_cv_and_the_motions(tmp_path, capsys):
+    _evals(tmp_path, "default", "validation", 5.0, 8.0)
+    _evals(tmp_path, "default", "real", 6.0, 5.0)
+    _evals(tmp_path, "calibrated", "real", 4.0, 5.0)
+    found = evaluations(tmp_path)
+    assert set(found) == {("validation", "default"), ("real", "default"), ("real", "calibrated")}
+    vs_cv = against_constant_velocity(found).set_index(["data", "motion"])
+    assert list(vs_cv.index)[0] == ("validation", "default")  # validation first
+    row = vs_cv.loc[("real", "default")]
+    assert row.n == 8 and row.seeds == 2
+    assert row.log_divergence_a == pytest.approx(6.05) and row.log_divergence_b == 5.0
+    assert row.log_divergence_lo <= 1.05 <= row.log_divergence_hi
+    assert row.offroad_a == pytest.approx(10.0) and row.offroad_b == pytest.approx(20.0)
+    motions = between_motions(found).set_index("data")
+    assert motions.loc["real", "motion"] == "default" and motions.loc["real", "baseline"] == (
+        "calibrated")
+    assert motions.loc["real", "log_divergence_diff"] == pytest.approx(2.0)
+    assert motions.loc["real", "log_divergence_p"] < 0.05
+    assert main([str(tmp_path), "--out", str(tmp_path / "transfer.md")]) == 0
+    text = (tmp_path / "transfer.md").read_text()
+    assert "| real | default | 8 | 6.05 | 5.00 | 1.21 |" in text
+    assert "| real | default - calibrated | 8 | +2.00" in text
+
+
+def test_transfer_without_evaluations_is_one_line(tmp_path, capsys):
+    with pytest.raises(ConfigError, match="transfer_check.sh"):
+        evaluations(tmp_path)
+    assert main([str(tmp_path)]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
