@@ -28,13 +28,13 @@ Layout: work files (data, filtered manifests, runs, evaluations, logs, the repor
 report files under ``PAPER`` (the repository's ``paper/`` by default, ``OUT/paper`` with
 ``--out``), published there with their provenance (:mod:`igdrivsim.report.provenance`):
 a run never deletes or overwrites the files of another kind of run (Table II and Fig. 6 of the
-``--methods`` run survive the default run, and the other way round).
+``--methods`` run survive the default run, and the other way round;
+:mod:`igdrivsim.pipeline.publish`).
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import threading
 import time
@@ -51,6 +51,7 @@ from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
 from igdrivsim.pipeline import planning
 from igdrivsim.pipeline.profiles import PipelineProfile
+from igdrivsim.pipeline.publish import Publisher
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError, StageRunner
 from igdrivsim.report import provenance
 from igdrivsim.training import cost
@@ -60,14 +61,9 @@ from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 from igdrivsim.training.run import DONE, is_complete
 
-PAPER_SOURCES = ("main.tex", "findings.tex", "references.bib", "Makefile")
-# how often a running invocation writes its wall time so far to wall.json: an invocation killed
-# outright (out of memory, a closed session) still counts, up to this much, in the provenance
-WALL_EVERY_S = 60.0
-
 
 @dataclass
-class Pipeline(StageRunner):
+class Pipeline(Publisher, StageRunner):
     """One reproduction: profile, locations, and how commands run."""
 
     profile: PipelineProfile
@@ -272,111 +268,13 @@ class Pipeline(StageRunner):
                                "--work", self.work, "--runs", *runs, *page]],
                    depends=upstream, outputs=[self.staged / "tables" / "table1.tex"])
 
-    def write_results(self) -> None:
-        """The default run (report in the repository's paper/): docs/results.md and the
-        README's results block, from the published tables and their provenance."""
-        if self.default_paper and (self.paper / "tables" / "summary.csv").is_file():
-            from igdrivsim.report.results_doc import write_markdown  # lazy: pandas
-
-            write_markdown(self.paper, REPO_ROOT / "docs" / "results.md", REPO_ROOT / "README.md")
-
-    @property
-    def staged(self) -> Path:
-        """Where the report stages write; :meth:`publish` copies it into ``PAPER``."""
-        return self.work / "report"
-
-    @property
-    def kind(self) -> str:
-        """``methods`` for a run with taught methods (it owns Table II), else ``default``."""
-        return "methods" if any(get_method(m).teacher for m in self.methods) else "default"
-
-    def command_text(self) -> str:
-        """The ``reproduce.sh`` command line that gives this pipeline (canonical order)."""
-        args: list[str] = []
-        if self.profile.name != "laptop":
-            args += ["--profile", self.profile.name]
-        if self.train_data is not None:
-            args += ["--data", str(self.train_data), str(self.val_data)]
-        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
-            args += ["--out", str(self.work)]
-        if tuple(self.settings) != tuple(self.profile.settings):
-            args += ["--obs", ",".join(self.settings)]
-        if tuple(self.methods) != tuple(METHODS):
-            args += ["--methods", ",".join(self.methods)]
-        for override in self.overrides:
-            args += ["--set", override]
-        if self.samples_given and self.samples is not None:
-            args += ["--samples", str(self.samples)]
-        return provenance.command_line(args)
-
     def training_config(self):
         return with_overrides(get_profile(self.profile.name), list(self.overrides))
-
-    def publish(self) -> list[str]:
-        """Copy the report into ``PAPER`` with its provenance (when the report ran or a file
-        is missing there): this run's files, and another run's only where they are missing.
-        Each file names the code of the stages behind it as their stamps recorded it (a
-        republish from cached stages keeps their commits)."""
-        missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
-        if not {"report", "real_logs"} & self.ran and not missing:
-            return []
-        updates = self.training_config().training.num_updates
-        entry = provenance.Entry(
-            command=self.command_text(), run=self.kind, profile=self.profile.name,
-            updates=updates, commit="unknown",  # each file's: its stages' (with_stages)
-            device=self.trained_on(), wall_s=round(self.wall_seconds()), date=provenance.today(),
-            note=provenance.competence_note(self.profile.name, updates))
-        stamped = [s for s in self.stamped_stages() if self.of_this_run(s)]
-        code = {s: self.stamped_code(s) for s in stamped}
-        published = provenance.publish(self.staged, self.paper, entry, lambda rel: {
-            s: code[s] for s in provenance.stages_behind(rel, stamped)})
-        self._say(f"publish: {len(published)} files in {self.paper} (provenance: "
-                  f"{self.paper / provenance.FILE})")
-        return published
-
-    def wall_seconds(self) -> float:
-        """This run's wall time: this invocation's and those of the interrupted ones before,
-        kept per kind of run (the default run and the taught methods' run share a work folder;
-        a file from before the kinds were told apart counts as the default run's)."""
-        if self._walls_before is None:  # read once: this invocation rewrites the file
-            self._walls_before = self._walls()
-        return self._walls_before.get(self.kind, 0.0) + time.time() - self.started
-
-    def _walls(self) -> dict[str, float]:
-        try:
-            record = json.loads((self.work / "wall.json").read_text(encoding="utf-8"))
-            if "seconds" in record:  # the older single-run form
-                record = {"default": record.pop("seconds"), **record}
-            return {str(k): float(v) for k, v in record.items()}
-        except (OSError, ValueError, TypeError, AttributeError):
-            return {}
-
-    def _record_wall(self) -> None:
-        walls = self._walls() | {self.kind: round(self.wall_seconds(), 1)}
-        atomic_write_json(self.work / "wall.json", walls)
 
     @property
     def device_text(self) -> str:
         """This machine and its worker processes, as stamps and provenance state it."""
         return f"{self.machine.label()}, {self.lanes} worker process(es)"
-
-    def trained_on(self) -> str:
-        """Where this run's training stages ran: one machine, or each machine with its parts
-        (a run resumed elsewhere, e.g. the taught methods trained on a GPU)."""
-        where: dict[str, list[str]] = {}
-        for path in sorted((self.work / "stages").glob("train_*.json")):
-            if self.of_this_run(path.stem):
-                where.setdefault(self.stamped_device(path.stem), []).append(
-                    path.stem.removeprefix("train_"))
-        if len(where) <= 1:
-            return next(iter(where), self.device_text)
-        return "; ".join(f"{device} ({', '.join(parts)})" for device, parts in where.items())
-
-    def of_this_run(self, stage: str) -> bool:
-        """A stage of this run: not the training or evaluation of another run's methods."""
-        part = stage.removeprefix("train_").removeprefix("evaluate_")
-        return part in (stage, "references") or any(
-            part == m or part.startswith(f"{m}-") for m in self.methods)
 
     @property
     def machine(self) -> planning.Machine:
@@ -396,26 +294,6 @@ class Pipeline(StageRunner):
     def one_thread(self) -> bool:
         """Workers get one XLA thread each: several of them on a CPU."""
         return self.lanes > 1 and self.machine.accelerator is None
-
-    def run_pdf(self) -> None:
-        """Build the PDF with latexmk (or pdflatex + bibtex). A LaTeX failure is reported with
-        its log but does not fail the pipeline: every table and figure is already written."""
-        if shutil.which("latexmk"):
-            target = "pdf"
-        elif shutil.which("pdflatex") and shutil.which("bibtex"):
-            target = "plain"
-        else:
-            self._say("pdf: neither latexmk nor pdflatex found, skipping the PDF build (the "
-                      "tables and figures are written)")
-            return
-        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
-            for name in PAPER_SOURCES:  # a self-contained paper folder under --out
-                atomic_copy(REPO_ROOT / "paper" / name, self.paper / name)
-        try:
-            self.stage("pdf", [["make", "-C", self.paper, target]], depends=["report"],
-                       outputs=[self.paper / "main.pdf"])
-        except StageError as err:
-            self._say(f"pdf: WARNING, the PDF was not built: {err}")
 
     def check_work_folder(self) -> None:
         """Record the options in ``WORK/pipeline.json``; refuse a folder made with other data,
@@ -515,10 +393,6 @@ class Pipeline(StageRunner):
             finally:
                 stop.set()
                 self._record_wall()
-
-    def _keep_wall(self, stop: threading.Event) -> None:
-        while not stop.wait(WALL_EVERY_S):
-            self._record_wall()
 
     def _run_stages(self) -> None:
         self._say(f"profile {self.profile.name}; work files in {self.work}; report in "
