@@ -1,12 +1,18 @@
-"""Where and when a measurement ran: the ``machine`` record every ``igdrivsim bench --out`` file
-carries, so a speed cited in the docs names its machine, date and load."""
+"""Where, when and with which code something ran: the ``machine`` record every ``igdrivsim
+bench --out`` file carries, so a speed cited in the docs names its machine, date and load; and
+the code's state (commit, dirty tree, diff hash) that training runs, evaluations and the
+pipeline's stage stamps record, so a number names the code that produced it."""
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import os
 import platform
+import subprocess
 import sys
+from collections.abc import Mapping
+from pathlib import Path
 
 
 def machine_record() -> dict:
@@ -27,3 +33,39 @@ def machine_record() -> dict:
             # JAX_DEFAULT_MATMUL_PRECISION changes what a float32 product costs on a GPU
             "matmul_precision": jax.config.jax_default_matmul_precision,
             "command": " ".join(["igdrivsim", *sys.argv[1:]]) if sys.argv else None}
+
+
+PACKAGE_REPO = Path(__file__).resolve().parents[1]  # the checkout holding this package
+CODE_KEYS = ("commit", "dirty", "diff_hash")
+UNKNOWN_CODE = dict.fromkeys(CODE_KEYS)  # not a git checkout (an installed package), or no git
+# what the pipeline itself writes into the checkout: not code, so it does not make it dirty
+OWN_OUTPUTS = ("paper", "docs/results.md", "README.md")
+
+
+def code_state(repo: str | Path = PACKAGE_REPO) -> dict:
+    """The code of git checkout ``repo`` (its top level; default: this package's checkout):
+    ``{"commit", "dirty", "diff_hash"}``, ``diff_hash`` the first 12 hex digits of the sha256
+    of ``git diff HEAD`` when dirty (None when clean). The pipeline's own outputs
+    (:data:`OWN_OUTPUTS`) do not count. All None outside a git checkout or without git."""
+    repo = Path(repo).resolve()
+
+    def git(*args: str) -> bytes:
+        return subprocess.run(["git", *args], cwd=repo, capture_output=True, check=True,
+                              timeout=60).stdout
+
+    try:
+        if Path(git("rev-parse", "--show-toplevel").decode().strip()).resolve() != repo:
+            return dict(UNKNOWN_CODE)  # e.g. an installed package inside another checkout
+        commit = git("rev-parse", "--short", "HEAD").decode().strip()
+        diff = git("diff", "--no-ext-diff", "--no-color", "--binary", "HEAD", "--", ".",
+                   *(f":(exclude){path}" for path in OWN_OUTPUTS))
+    except (OSError, subprocess.SubprocessError, UnicodeDecodeError):
+        return dict(UNKNOWN_CODE)
+    return {"commit": commit, "dirty": bool(diff),
+            "diff_hash": hashlib.sha256(diff).hexdigest()[:12] if diff else None}
+
+
+def code_label(state: Mapping) -> str:
+    """``abc1234``, ``abc1234-dirty (diff 0123456789ab)`` or ``unknown``."""
+    commit = state.get("commit") or "unknown"
+    return f"{commit}-dirty (diff {state.get('diff_hash')})" if state.get("dirty") else commit

@@ -32,14 +32,23 @@ def test_transfer_tables_measure_bc_against_cv_and_the_motions(tmp_path, capsys)
     _evals(tmp_path, "calibrated", "real", 4.0, 5.0)
     found = evaluations(tmp_path)
     assert set(found) == {("validation", "default"), ("real", "default"), ("real", "calibrated")}
+    for motion in ("default", "calibrated"):  # a second real set: pooled with the first
+        (tmp_path / motion / "evals_real").rename(tmp_path / motion / "evals_other")
+        _evals(tmp_path, motion, "real", 6.0 if motion == "default" else 4.0, 5.0)
+    found = evaluations(tmp_path)
+    pooled = found[("real, pooled", "default")]
+    assert len(pooled) == 2 * len(found[("real", "default")])
+    assert ("real, pooled", "calibrated") in found and ("real, pooled", "validation") not in found
     vs_cv = against_constant_velocity(found).set_index(["data", "motion"])
-    assert list(vs_cv.index)[0] == ("validation", "default")  # validation first
+    assert list(vs_cv.index)[0] == ("validation", "default")  # validation first, pooled last
+    assert list(vs_cv.index)[-1] == ("real, pooled", "default")
     row = vs_cv.loc[("real", "default")]
     assert row.n == 8 and row.seeds == 2
     assert row.log_divergence_a == pytest.approx(6.05) and row.log_divergence_b == 5.0
     assert row.log_divergence_lo <= 1.05 <= row.log_divergence_hi
     assert row.offroad_a == pytest.approx(10.0) and row.offroad_b == pytest.approx(20.0)
     motions = between_motions(found).set_index("data")
+    assert list(motions.index) == ["other", "real", "real, pooled"]
     assert motions.loc["real", "motion"] == "default" and motions.loc["real", "baseline"] == (
         "calibrated")
     assert motions.loc["real", "log_divergence_diff"] == pytest.approx(2.0)

@@ -52,3 +52,26 @@ def test_learning_curves_merge_the_training_and_validation_lines_of_an_update(tm
     curves = load_curves([run])
     assert len(curves) == 1
     assert curves.loc[0, "bc_loss"] == 1.4 and curves.loc[0, "val_bc_loss"] == 1.5
+
+
+def test_a_run_names_the_code_that_trained_it_and_the_code_that_resumed_it(tmp_path,
+                                                                           monkeypatch):
+    from igdrivsim.machine import code_state
+    from igdrivsim.training import run as run_module
+    from igdrivsim.training.config import get_profile
+    from igdrivsim.training.run import Run
+
+    config = get_profile("smoke")
+    first = Run(tmp_path, config)
+    assert not first.complete_already()
+    first.write_config(num_updates=2)
+    started = json.loads((tmp_path / "config.json").read_text())["code"]
+    assert started == code_state() and set(started) == {"commit", "dirty", "diff_hash"}
+    other = {"commit": "0123abc", "dirty": True, "diff_hash": "feedfeedfeed"}
+    monkeypatch.setattr(run_module, "code_state", lambda: dict(other))
+    for _ in range(2):  # resumed twice under the other code: listed once
+        again = Run(tmp_path, config, resume=True)
+        assert not again.complete_already()
+        again.write_config(num_updates=2)
+    record = json.loads((tmp_path / "config.json").read_text())
+    assert record["code"] == started and record["code_resumed"] == [other]

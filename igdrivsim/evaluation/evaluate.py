@@ -21,6 +21,7 @@ from igdrivsim.evaluation.rollout import (
     tidy_frames,
 )
 from igdrivsim.io import atomic_write_csv, atomic_write_json
+from igdrivsim.machine import code_state
 from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
 
@@ -110,7 +111,8 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
         return out
     atomic_write_csv(out / "per_step.csv", per_step.round(6))
     atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
-    atomic_write_json(out / EVAL_CONFIG, info, indent=2, sort_keys=True)
+    atomic_write_json(out / EVAL_CONFIG, {**info, "code": code_state()}, indent=2,
+                      sort_keys=True)
     return out
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import fnmatch
-import hashlib
 import json
 import re
 import shlex
@@ -39,6 +38,13 @@ from pathlib import Path
 from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text
+from igdrivsim.machine import (  # noqa: F401 (re-exported: the stamps' code)
+    CODE_KEYS,
+    OWN_OUTPUTS,
+    UNKNOWN_CODE,
+    code_label,
+    code_state,
+)
 
 FILE = "provenance.json"
 SCHEMA = 2  # 2: per-stage code (``stages``, ``mixed_commits``); 1: no ``stages``
@@ -63,41 +69,6 @@ STAGE_SOURCES = (
     (("tables/real_logs",), ("data", "filter_*", "teacher", "train_*", "real_logs")),
 )
 REPORT_STAGES = ("data", "filter_*", "teacher", "train_*", "evaluate_*", "report")
-CODE_KEYS = ("commit", "dirty", "diff_hash")
-UNKNOWN_CODE = dict.fromkeys(CODE_KEYS)  # not a git checkout (an installed package), or no git
-# what the pipeline itself writes into the checkout: not code, so it does not make it dirty
-OWN_OUTPUTS = ("paper", "docs/results.md", "README.md")
-
-
-def code_state(repo: str | Path) -> dict:
-    """The code of git checkout ``repo`` (its top level): ``{"commit", "dirty", "diff_hash"}``,
-    ``diff_hash`` the first 12 hex digits of the sha256 of ``git diff HEAD`` when dirty (None
-    when clean). The pipeline's own outputs (:data:`OWN_OUTPUTS`) do not count. All None
-    outside a git checkout or without git."""
-    repo = Path(repo).resolve()
-
-    def git(*args: str) -> bytes:
-        return subprocess.run(["git", *args], cwd=repo, capture_output=True, check=True,
-                              timeout=60).stdout
-
-    try:
-        if Path(git("rev-parse", "--show-toplevel").decode().strip()).resolve() != repo:
-            return dict(UNKNOWN_CODE)  # e.g. an installed package inside another checkout
-        commit = git("rev-parse", "--short", "HEAD").decode().strip()
-        diff = git("diff", "--no-ext-diff", "--no-color", "--binary", "HEAD", "--", ".",
-                   *(f":(exclude){path}" for path in OWN_OUTPUTS))
-    except (OSError, subprocess.SubprocessError, UnicodeDecodeError):
-        return dict(UNKNOWN_CODE)
-    return {"commit": commit, "dirty": bool(diff),
-            "diff_hash": hashlib.sha256(diff).hexdigest()[:12] if diff else None}
-
-
-def code_label(state: Mapping) -> str:
-    """``abc1234``, ``abc1234-dirty (diff 0123456789ab)`` or ``unknown``."""
-    commit = state.get("commit") or "unknown"
-    return f"{commit}-dirty (diff {state.get('diff_hash')})" if state.get("dirty") else commit
-
-
 def stages_behind(rel: str, stamped: Sequence[str]) -> list[str]:
     """The stages among ``stamped`` (kept in their order) whose numbers file ``rel`` holds."""
     patterns = next((p for prefixes, p in STAGE_SOURCES if rel.startswith(prefixes)),

@@ -9,7 +9,8 @@ scenarios) and BC - constant velocity with its 95% interval and the smallest dif
 comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
 scenarios (:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
 which every motion model is evaluated on, a second table compares the motion models' BC
-directly (paired scenarios).
+directly (paired scenarios). Where there are several real sets, they are also pooled (``real,
+pooled``): the comparison with the most power.
 
 ``python -m igdrivsim.report.transfer WORK --out WORK/transfer.md``
 """
@@ -17,6 +18,7 @@ directly (paired scenarios).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -33,9 +35,11 @@ from igdrivsim.evaluation.aggregate import (
 )
 from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, METRIC_BY_KEY
 from igdrivsim.io import atomic_write_text
+from igdrivsim.machine import code_label, code_state
 
 METRICS = ("log_divergence", "offroad", "overlap")
 VALIDATION = "validation"  # the synthetic validation set's name (evals_validation)
+POOLED = "real, pooled"  # every real set of a motion model together
 
 
 def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
@@ -49,7 +53,18 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
     if not found:
         raise ConfigError(f"no evals_*/{{bc,references}}/per_scenario.csv under {work}/*/: "
                           "run bash scripts/transfer_check.sh first")
-    return found
+    return found | pooled(found)
+
+
+def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], pd.DataFrame]:
+    """``{(POOLED, motion): every real set of that motion}`` where a motion has several real
+    sets (their scenarios are distinct): the comparison with the most power."""
+    out = {}
+    for motion in sorted({m for _, m in found}):
+        real = [f for (d, m), f in sorted(found.items()) if m == motion and d != VALIDATION]
+        if len(real) > 1:
+            out[(POOLED, motion)] = pd.concat(real, ignore_index=True)
+    return out
 
 
 def _matrix(frame: pd.DataFrame, method: str, scenarios: pd.Index) -> np.ndarray:
@@ -81,7 +96,8 @@ def _scenarios(*frames: pd.DataFrame) -> pd.Index:
 def against_constant_velocity(found: dict) -> pd.DataFrame:
     """One row per (data set, motion): BC against constant velocity."""
     rows = []
-    for (data, motion), frame in sorted(found.items(), key=lambda kv: (kv[0][0] != VALIDATION,
+    order = {VALIDATION: 0, POOLED: 2}  # validation first, the pooled real sets last
+    for (data, motion), frame in sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1),
                                                                       kv[0])):
         scen = _scenarios(frame[frame.method == BC], frame[frame.method == CONSTANT_VELOCITY])
         c = compare(_matrix(frame, BC, scen), _matrix(frame, CONSTANT_VELOCITY, scen))
@@ -97,8 +113,10 @@ def between_motions(found: dict) -> pd.DataFrame:
     """On each data set every motion was evaluated on (the real sets): BC of each motion
     against BC of the first (alphabetical), paired scenarios."""
     rows = []
-    for data in sorted({d for d, _ in found} - {VALIDATION}):
+    for data in sorted({d for d, _ in found} - {VALIDATION, POOLED}) + [POOLED]:
         motions = sorted(m for d, m in found if d == data)
+        if len(motions) < 2:
+            continue
         frames = {m: found[(data, m)] for m in motions}
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
@@ -116,7 +134,28 @@ def _diff(row: pd.Series, key: str) -> str:
             f"p={row[f'{key}_p']:.2f}, MDE {row[f'{key}_mde']:.2f}")
 
 
-def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame) -> str:
+def code_lines(work: Path) -> list[str]:
+    """Per motion folder, the code that trained its BC run and the code of its evaluations
+    (:func:`igdrivsim.machine.code_state`, as ``config.json`` and ``eval_config.json`` recorded
+    it; ``unknown`` where they did not)."""
+
+    def label(path: Path) -> str:
+        try:
+            code = json.loads(path.read_text(encoding="utf-8")).get("code")
+        except (OSError, ValueError):
+            code = None
+        return code_label(code) if isinstance(code, dict) else "unknown"
+
+    lines = []
+    for folder in sorted(p for p in work.iterdir() if (p / "runs" / BC).is_dir()):
+        trained = label(folder / "runs" / BC / "config.json")
+        evaluated = sorted({label(f) for f in folder.glob("evals_*/*/eval_config.json")})
+        lines.append(f"- {folder.name}: trained at {trained}; evaluated at "
+                     f"{', '.join(evaluated) or 'unknown'}")
+    return lines
+
+
+def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = ()) -> str:
     lines = [
         "# Full BC trained on each synthetic motion model, against constant velocity",
         "",
@@ -143,6 +182,9 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame) -> str:
         for _, r in motions.iterrows():
             lines.append(f"| {r.data} | {r.motion} - {r.baseline} | {r.n} | "
                          f"{_diff(r, 'log_divergence')} | {_diff(r, 'offroad')} |")
+    if code:
+        lines += ["", "The code (commit) behind each motion model's numbers:", "", *code,
+                  f"- this table: written at {code_label(code_state())}"]
     return "\n".join(lines) + "\n"
 
 
@@ -159,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         found = evaluations(args.work)
-        text = markdown(against_constant_velocity(found), between_motions(found))
+        text = markdown(against_constant_velocity(found), between_motions(found),
+                        code_lines(args.work))
         if args.out is not None:
             atomic_write_text(args.out, text)
         print(text, end="")

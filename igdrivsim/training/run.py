@@ -4,7 +4,9 @@
 Layout of a run folder:
 
 - ``config.json`` (:data:`CONFIG`): the resolved :class:`RunConfig` under ``"config"``, plus
-  ``num_updates``, ``num_scenarios``, ``settings``, ``devices`` and ``processes``;
+  ``num_updates``, ``num_scenarios``, ``settings``, ``devices``, ``processes`` and the code
+  that trained (``code``: commit, dirty tree, diff hash; ``code_resumed``: other code that
+  continued the run);
 - ``metrics.jsonl`` (:data:`METRICS`): one line per logged update (``update`` = updates done,
   ``bc_loss``, ``lr``, ``entropy``, ``grad_norm``, ``updates_per_s``,
   ``scenario_steps_per_s``, ``grad_steps_per_s``; BC-RL adds ``mean_return``, ``ppo_loss``,
@@ -60,6 +62,7 @@ from tqdm.auto import tqdm
 from igdrivsim.core.devices import barrier
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text
+from igdrivsim.machine import code_state
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
 
 # The files of a run folder (see the module docstring).
@@ -271,7 +274,9 @@ class Run:
         self.hooks = hooks
         self.main = jax.process_index() == 0
         self.seeds = list(config.seeds)
-        self.record = {"config": to_dict(config)}
+        # the code that trains (igdrivsim.machine.code_state); a resumed run keeps the code it
+        # started with under "code" and lists any other code that continued it
+        self.record = {"config": to_dict(config), "code": code_state()}
         self.data_states = os.path.join(self.dir, DATA_STATES)  # a streamed input's states
         self.ckpt: Checkpoints | None = None
         self._files = contextlib.ExitStack()
@@ -315,6 +320,13 @@ class Run:
         if _computed(old_config) != _computed(self.record["config"]):
             raise ConfigError(f"{path}: the run was started with a different configuration; "
                               "use another --out or the same options")
+        if isinstance(old.get("code"), dict):
+            now, resumed = self.record["code"], list(old.get("code_resumed", []))
+            self.record["code"] = old["code"]
+            if now != old["code"] and now not in resumed:
+                resumed.append(now)
+            if resumed:
+                self.record["code_resumed"] = resumed
 
     def write_config(self, **facts) -> None:
         """``config.json``: the resolved config and ``facts`` (updates, scenarios, devices)."""
