@@ -31,7 +31,7 @@ from igdrivsim.training.methods import get_method
 
 TOLERANCE = 1.05  # a split within 5% of the ideal wall time is not split further
 # Memory of one CPU worker: the peak RSS of the default run at 6ae8db5 (two training processes
-# side by side, `/usr/bin/time`: 5.2 GB; issue 32), taken whole for one worker (an upper bound:
+# side by side, `/usr/bin/time`: 5.2 GB), taken whole for one worker (an upper bound:
 # each process holds the training records whatever its settings).
 WORKER_MEMORY_GB = 5.2
 # profiles whose network is the laptop's: the measured per-update costs apply

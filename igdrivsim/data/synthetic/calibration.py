@@ -1,4 +1,4 @@
-"""The motion calibration target (issue 43): the logged SDC's constant-velocity divergence.
+"""The motion calibration target: the logged SDC's constant-velocity divergence.
 
 ``python -m igdrivsim.data.synthetic.calibration [NAME=]PATH ... [--kept-only NAME] [--out F]``
 reads data sets as ``igdrivsim stats`` does and prints (and writes to ``F``) per data set the

@@ -1,7 +1,7 @@
 """Calibrated motion (``GeneratorConfig(motion="calibrated")``): the map and the cast drawn as
 by default, then the driving retuned towards real logs (docs/synthetic.md, "Calibrated motion").
 
-Measured on the default (issue 43), the SDC's distance from its constant-velocity (CV)
+Measured on the default, the SDC's distance from its constant-velocity (CV)
 extrapolation comes from: the route geometry (bends of radius 35-140 m on road maps, junction
 arms up to 0.4 rad off straight, a turn on 20% of the kept SDCs); a start at 60-100% of the
 desired speed, so that IDM accelerates over the whole log; and braking to a stop or to a slower
