@@ -64,6 +64,11 @@ def test_config_values_out_of_range_are_refused(override, field):
         with_overrides(get_profile("smoke"), [override]).validate()
 
 
+def test_a_loss_term_under_training_names_its_section():
+    with pytest.raises(ConfigError, match=r"--set loss\.w_rl=0\.1"):
+        with_overrides(get_profile("smoke"), ["training.w_rl=0.1"])
+
+
 def test_every_profile_is_within_range():
     for name in ("smoke", "laptop", "gpu", "paper"):
         get_profile(name).validate()

@@ -387,6 +387,8 @@ def with_overrides(config: RunConfig, overrides: list[str]) -> RunConfig:
                               f"choose from {', '.join(SECTIONS)} (or method.NAME)")
         sub = getattr(config, section)
         names = {f.name for f in dataclasses.fields(sub)}
+        if section == "training" and name in {f.name for f in dataclasses.fields(LossConfig)}:
+            raise ConfigError(f"{key!r} is in the loss section: --set loss.{name}={text}")
         if name not in names:
             raise ConfigError(f"unknown field {key!r}; {section} has {', '.join(sorted(names))}")
         value = _parse_value(text, getattr(sub, name), key)
