@@ -139,18 +139,24 @@ def code_lines(work: Path) -> list[str]:
     (:func:`igdrivsim.machine.code_state`, as ``config.json`` and ``eval_config.json`` recorded
     it; ``unknown`` where they did not)."""
 
-    def label(path: Path) -> str:
+    def read(path: Path) -> dict:
         try:
-            code = json.loads(path.read_text(encoding="utf-8")).get("code")
+            record = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
-            code = None
+            record = None
+        return record if isinstance(record, dict) else {}
+
+    def label(record: dict) -> str:
+        code = record.get("code")
         return code_label(code) if isinstance(code, dict) else "unknown"
 
     lines = []
     for folder in sorted(p for p in work.iterdir() if (p / "runs" / BC).is_dir()):
-        trained = label(folder / "runs" / BC / "config.json")
-        evaluated = sorted({label(f) for f in folder.glob("evals_*/*/eval_config.json")})
-        lines.append(f"- {folder.name}: trained at {trained}; evaluated at "
+        run = read(folder / "runs" / BC / "config.json")
+        evaluated = sorted({label(read(f)) for f in folder.glob("evals_*/*/eval_config.json")})
+        scenarios = run.get("num_scenarios")
+        trained_on = f"{scenarios:,} training scenarios; " if scenarios else ""
+        lines.append(f"- {folder.name}: {trained_on}trained at {label(run)}; evaluated at "
                      f"{', '.join(evaluated) or 'unknown'}")
     return lines
 
@@ -183,7 +189,8 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = ()) -
             lines.append(f"| {r.data} | {r.motion} - {r.baseline} | {r.n} | "
                          f"{_diff(r, 'log_divergence')} | {_diff(r, 'offroad')} |")
     if code:
-        lines += ["", "The code (commit) behind each motion model's numbers:", "", *code,
+        lines += ["", "Each motion model's training set and the code (commit) behind its numbers:",
+                  "", *code,
                   f"- this table: written at {code_label(code_state())}"]
     return "\n".join(lines) + "\n"
 
