@@ -37,7 +37,9 @@ REPO="$(cd "$(dirname "$0")/.." && pwd)"; SHARED="$REPO/../shared/data/scenarion
 REAL=("$@")
 if [ ${#REAL[@]} -eq 0 ]; then
     CACHE=$("$PYTHON" -c "from igdrivsim.data import samples; print(samples.find_samples() or '')")
-    [ -n "$CACHE" ] && REAL+=("womd_samples=$CACHE")
+    if [ -n "$CACHE" ]; then REAL+=("womd_samples=$CACHE"); else
+        echo "transfer_check.sh: no public WOMD samples (igdrivsim samples fetches them):" \
+             "evaluating on the other real sets only" >&2; fi
     compgen -G "$SHARED/sd_nuscenes*.pkl" >/dev/null && REAL+=("nuscenes=$SHARED/sd_nuscenes*.pkl")
     compgen -G "$SHARED/sd_waymo*.pkl" >/dev/null && REAL+=("womd_scenario=$SHARED/sd_waymo*.pkl")
 fi
