@@ -216,6 +216,28 @@ def test_real_log_table_states_n_beside_every_number():
     assert r"\label{tab:real-logs}" in real_logs_latex(table, "3 logs", "synthetic")
 
 
+def test_real_log_table_measures_each_driver_against_constant_velocity():
+    """On the same real scenarios: the difference from constant velocity, an interval that
+    holds it, and the smallest difference the scenarios detect, in the table and the summary."""
+    from igdrivsim.report.real_logs import real_log_table, real_logs_markdown, real_logs_summary
+
+    rows = [dict(setting="full", method="bc", seed=seed, scenario_id=f"s{i}",
+                 log_divergence=5.0 + i % 2 + 0.1 * seed, overlap_steps=0.0, offroad_steps=0.0,
+                 max_log_divergence=9.0, overlap=0, offroad=0) for seed in (0, 1)
+            for i in range(8)]
+    rows += [dict(setting="none", method="constant_velocity", seed=0, scenario_id=f"s{i}",
+                  log_divergence=4.0 + i % 2, overlap_steps=0.0, offroad_steps=0.0,
+                  max_log_divergence=9.0, overlap=0, offroad=0) for i in range(8)]
+    table = real_log_table(pd.DataFrame(rows)).set_index("method")
+    bc = table.loc["bc"]
+    assert bc.real_vs_cv_diff == pytest.approx(1.05)
+    assert bc.real_vs_cv_lo <= 1.05 <= bc.real_vs_cv_hi and bc.real_vs_cv_mde > 0
+    assert pd.isna(table.loc["constant_velocity", "real_vs_cv_diff"])
+    md = real_logs_markdown(table.reset_index(), "logs", "synthetic")
+    assert "| +1.05 [" in md and "MDE" in md
+    assert "detect only differences of" in real_logs_summary(table.reset_index())
+
+
 def test_real_log_summary_says_who_drifts_farther_than_constant_velocity(tmp_path):
     """The abstract's sentence is computed from the table, and a written real_logs.md gives
     back the table's numbers (``--from-markdown``)."""

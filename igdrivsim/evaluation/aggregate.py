@@ -43,6 +43,7 @@ from scipy import stats
 from igdrivsim.errors import DataError
 from igdrivsim.evaluation.schema import (
     BC,
+    METRIC_BY_KEY,
     METRICS,
     PER_SCENARIO_COLUMNS,
     PER_STEP_COLUMNS,
@@ -231,6 +232,31 @@ def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
     low = ((replicates <= 0).sum(axis=0) + 1) / (b + 1)
     high = ((replicates >= 0).sum(axis=0) + 1) / (b + 1)
     return np.minimum(1.0, 2 * np.minimum(low, high))
+
+
+def scenario_cube(per_scenario: pd.DataFrame, method: str, scenarios: pd.Index,
+                  keys: Sequence[str]) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` of one method's rows (Table I's scale: percent for the
+    rates), the scenarios in the given order."""
+    rows = per_scenario[per_scenario.method == method]
+    metrics = [METRIC_BY_KEY[k] for k in keys]
+    scale = np.array([m.scale for m in metrics])
+    columns = [m.column for m in metrics]
+    return np.stack([rows[rows.seed == s].set_index("scenario_id").loc[scenarios, columns]
+                     .to_numpy(float) for s in sorted(rows.seed.unique())]) * scale
+
+
+def paired_difference(a: np.ndarray, b: np.ndarray, confidence: float = CONFIDENCE
+                      ) -> dict[str, np.ndarray]:
+    """``a - b`` over the same scenarios (``(seeds, scenarios, metrics)`` each): the means,
+    the difference, its interval (:func:`hierarchical_bootstrap`: seeds, then paired
+    scenarios), the bootstrap p-value and the minimum detectable effect (80% power), per
+    metric."""
+    reps = hierarchical_bootstrap(a, b)
+    tail = (1 - confidence) / 2 * 100
+    return dict(a=a.mean((0, 1)), b=b.mean((0, 1)), diff=a.mean((0, 1)) - b.mean((0, 1)),
+                lo=np.percentile(reps, tail, axis=0), hi=np.percentile(reps, 100 - tail, axis=0),
+                p=bootstrap_p_value(reps), mde=minimum_detectable_effect(reps.std(0, ddof=1)))
 
 
 def holm_adjust(p_values: Sequence[float] | np.ndarray) -> np.ndarray:

@@ -5,7 +5,9 @@ policies and reference actors on real scenarios (the public WOMD samples of ``ig
 samples``, or the user's WOMD / ScenarioNet data) and the same on the synthetic validation set.
 Each cell is the mean over seeds of each seed's mean over scenarios (Table I's per-step metrics:
 log divergence, offroad and overlap as percent of steps), with the number of scenarios beside
-it. No confidence interval or test is given: on a handful of real scenarios none would mean much.
+it, and each learned driver's real log divergence minus constant velocity's with its 95%
+interval and the smallest difference the real scenarios detect (80% power): on a handful of
+real scenarios, the check's power is part of its result.
 
 ``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
 ``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` and a one-sentence
@@ -22,7 +24,12 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError, run_command
-from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
+from igdrivsim.evaluation.aggregate import (
+    load_evaluations,
+    paired_difference,
+    scenario_cube,
+    seed_means,
+)
 from igdrivsim.evaluation.schema import (
     CONSTANT_VELOCITY,
     METHOD_LABELS,
@@ -37,6 +44,9 @@ from igdrivsim.io import atomic_write_text
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
+# real log divergence minus constant velocity's: difference, interval, detectable effect
+VS_CV = ["real_vs_cv_diff", "real_vs_cv_lo", "real_vs_cv_hi", "real_vs_cv_mde"]
+VS_CV_HEADER = "log divergence - constant velocity (m), real [95% CI], MDE"
 HEADERS = {"log_divergence": "log divergence (m)", "offroad": "offroad (%)",
            "overlap": "overlap (%)"}
 
@@ -62,8 +72,10 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
                     row[f"{source}_{key}"] = float(means.mean().loc[(setting, method, key)])
                 except KeyError:
                     row[f"{source}_{key}"] = float("nan")
+    for row in rows.values():
+        row |= _against_constant_velocity(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
-                                        for x in ("n", "seeds", *METRIC_KEYS)]
+                                        for x in ("n", "seeds", *METRIC_KEYS)] + VS_CV
     table = pd.DataFrame(list(rows.values()), columns=columns)
     methods = {m: i for i, m in enumerate(METHOD_LABELS)}
     settings = {s: i for i, s in enumerate(table_settings(table))}
@@ -72,6 +84,27 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
         "s": table.setting.map(lambda s: settings.get(s, len(settings))),
         "m": table.method.map(lambda m: methods.get(m, len(methods)))})
     return table.loc[keys.sort_values(["ref", "s", "m"]).index].reset_index(drop=True)
+
+
+def _against_constant_velocity(real: pd.DataFrame, setting: str, method: str) -> dict:
+    """A learned driver's real log divergence minus constant velocity's on the same scenarios:
+    the difference, its 95% interval (seeds, then paired scenarios) and the minimum detectable
+    effect (80% power); NaN for the references or without constant velocity."""
+    ours = real[(real.setting == setting) & (real.method == method)]
+    cv = real[real.method == CONSTANT_VELOCITY]
+    if method in REFERENCES or ours.empty or cv.empty:
+        return dict.fromkeys(VS_CV, float("nan"))
+    scenarios = pd.Index(sorted(set(ours.scenario_id) & set(cv.scenario_id)))
+    c = paired_difference(scenario_cube(ours, method, scenarios, ["log_divergence"]),
+                          scenario_cube(cv, CONSTANT_VELOCITY, scenarios, ["log_divergence"]))
+    return {f"real_vs_cv_{k}": float(c[k][0]) for k in ("diff", "lo", "hi", "mde")}
+
+
+def _vs_cv_cell(row: pd.Series) -> str:
+    if pd.isna(row.get("real_vs_cv_diff")):
+        return "--"
+    return (f"{row.real_vs_cv_diff:+.2f} [{row.real_vs_cv_lo:+.2f}, {row.real_vs_cv_hi:+.2f}], "
+            f"MDE {row.real_vs_cv_mde:.2f}")
 
 
 def _cell(row: pd.Series, source: str, key: str) -> str:
@@ -91,15 +124,19 @@ def _label(row: pd.Series) -> tuple[str, str]:
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str) -> str:
     """The table as Markdown: per metric a validation and a real column, N beside each value."""
     head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
-                                     for s in SOURCES]
+                                     for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
              f"Real: {real_label}. Validation: {validation_label}. Each value is the mean "
              "over seeds of each seed's mean over scenarios; N is the number of scenarios. "
-             "No significance is claimed: a few real scenarios cannot separate the methods.",
+             "The last column: a learned driver's real log divergence minus constant "
+             "velocity's on the same scenarios, its 95% interval (hierarchical bootstrap over "
+             "seeds, then paired scenarios) and the smallest difference these scenarios detect "
+             "at 80% power (MDE); a few real scenarios cannot separate the methods.",
              "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for _, row in table.iterrows():
-        cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS for s in SOURCES]
+        cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS
+                                  for s in SOURCES] + [_vs_cv_cell(row)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -124,16 +161,23 @@ def real_logs_latex(table: pd.DataFrame, real_label: str, validation_label: str)
     lines += [r"\bottomrule", r"\end{tabular}",
               r"\caption{Synthetic-trained drivers on real logs (beyond the paper). Real: "
               + _tex(real_label) + ". Validation: " + _tex(validation_label) + ". Mean over seeds "
-              r"of each seed's mean over scenarios; N: scenarios. No significance is claimed "
-              r"on so few real scenarios.}", r"\label{tab:real-logs}", r"\end{table}"]
+              r"of each seed's mean over scenarios; N: scenarios. Differences from constant "
+              r"velocity with their intervals and detectable effects: "
+              r"\texttt{tables/real\_logs.md}.}", r"\label{tab:real-logs}", r"\end{table}"]
     return "\n".join(lines) + "\n"
+
+
+def _span(values: pd.Series, digits: int) -> str:
+    """``lo-hi``, or one value when they agree at ``digits``."""
+    lo, hi = f"{values.min():.{digits}f}", f"{values.max():.{digits}f}"
+    return lo if lo == hi else f"{lo}-{hi}"
 
 
 def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
     """One sentence for the report's summary: the real logs' log divergence of the learned
-    drivers (range per method) against constant velocity's, with N and how many drive farther
-    than it (``metre``: how a value and its unit are joined); ``None`` without a
-    constant-velocity row."""
+    drivers (range per method) against constant velocity's, with N, how many drive farther
+    than it and, when measured, the differences the scenarios can detect (``metre``: how a
+    value and its unit are joined); ``None`` without a constant-velocity row."""
     cv = table[table.method == CONSTANT_VELOCITY]
     learned = table[~table.method.isin(REFERENCES)].dropna(subset=["real_log_divergence"])
     if cv.empty or learned.empty or pd.isna(cv.real_log_divergence.iloc[0]):
@@ -141,15 +185,19 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
     ref, n = float(cv.real_log_divergence.iloc[0]), int(cv.real_n.iloc[0])
     farther = int((learned.real_log_divergence > ref).sum())
     ranges = "; ".join(
-        f"{METHOD_LABELS.get(m, m)} {g.real_log_divergence.min():.2f}-"
-        f"{g.real_log_divergence.max():.2f}{metre}" for m, g in learned.groupby("method",
-                                                                              sort=False))
+        f"{METHOD_LABELS.get(m, m)} {_span(g.real_log_divergence, 2)}{metre}"
+        for m, g in learned.groupby("method", sort=False))
     verdict = ("every learned driver drifts farther from the log than constant velocity"
                if farther == len(learned) else
                f"{farther} of {len(learned)} learned (setting, method) drivers drift farther "
                "from the log than constant velocity")
+    power = ""
+    if "real_vs_cv_mde" in learned and learned.real_vs_cv_mde.notna().any():
+        mde = learned.real_vs_cv_mde.dropna()
+        power = (f"; at 80% power these scenarios detect only differences of "
+                 f"{_span(mde, 1)}{metre} or more")
     return (f"On {n} real scenarios, {verdict}: {ref:.2f}{metre} for constant velocity "
-            f"against {ranges} over the settings.")
+            f"against {ranges} over the settings{power}.")
 
 
 def _summary_tex(table: pd.DataFrame) -> str:
@@ -188,7 +236,8 @@ def table_from_markdown(text: str) -> pd.DataFrame:
     rows = []
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) != 2 + 2 * len(METRIC_KEYS) or cells[0] in ("setting", "---"):
+        if len(cells) not in (2 + 2 * len(METRIC_KEYS), 3 + 2 * len(METRIC_KEYS)) \
+                or cells[0] in ("setting", "---"):
             continue
         method = methods.get(cells[1], cells[1])
         row = {"setting": "none" if method in REFERENCES else settings.get(cells[0], cells[0]),

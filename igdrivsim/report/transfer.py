@@ -22,18 +22,11 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.aggregate import (
-    CONFIDENCE,
-    bootstrap_p_value,
-    hierarchical_bootstrap,
-    load_evaluations,
-    minimum_detectable_effect,
-)
-from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, METRIC_BY_KEY
+from igdrivsim.evaluation.aggregate import load_evaluations, paired_difference, scenario_cube
+from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
 from igdrivsim.machine import code_label, code_state
 
@@ -67,26 +60,6 @@ def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], 
     return out
 
 
-def _matrix(frame: pd.DataFrame, method: str, scenarios: pd.Index) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` of one method (Table I's scale: percent for rates)."""
-    rows = frame[frame.method == method]
-    columns = [METRIC_BY_KEY[k].column for k in METRICS]
-    scale = np.array([METRIC_BY_KEY[k].scale for k in METRICS])
-    cube = [rows[rows.seed == s].set_index("scenario_id").loc[scenarios, columns].to_numpy()
-            for s in sorted(rows.seed.unique())]
-    return np.stack(cube) * scale
-
-
-def compare(a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
-    """Means of ``a`` and ``b`` ``(seeds, scenarios, metrics)``, ``a - b`` with its interval,
-    bootstrap p-value and minimum detectable effect, per metric."""
-    reps = hierarchical_bootstrap(a, b)
-    tail = (1 - CONFIDENCE) / 2 * 100
-    return dict(a=a.mean((0, 1)), b=b.mean((0, 1)), diff=a.mean((0, 1)) - b.mean((0, 1)),
-                lo=np.percentile(reps, tail, axis=0), hi=np.percentile(reps, 100 - tail, axis=0),
-                p=bootstrap_p_value(reps), mde=minimum_detectable_effect(reps.std(0, ddof=1)))
-
-
 def _scenarios(*frames: pd.DataFrame) -> pd.Index:
     """The scenarios every frame evaluated (sorted)."""
     common = set.intersection(*(set(f.scenario_id) for f in frames))
@@ -100,7 +73,8 @@ def against_constant_velocity(found: dict) -> pd.DataFrame:
     for (data, motion), frame in sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1),
                                                                       kv[0])):
         scen = _scenarios(frame[frame.method == BC], frame[frame.method == CONSTANT_VELOCITY])
-        c = compare(_matrix(frame, BC, scen), _matrix(frame, CONSTANT_VELOCITY, scen))
+        c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
+                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS))
         row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
                    .nunique())
         for i, key in enumerate(METRICS):
@@ -121,7 +95,8 @@ def between_motions(found: dict) -> pd.DataFrame:
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
             scen = _scenarios(a[a.method == BC], b[b.method == BC])
-            c = compare(_matrix(a, BC, scen), _matrix(b, BC, scen))
+            c = paired_difference(scenario_cube(a, BC, scen, METRICS),
+                              scenario_cube(b, BC, scen, METRICS))
             row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
             for i, key in enumerate(METRICS):
                 row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
