@@ -234,29 +234,20 @@ def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
     return np.minimum(1.0, 2 * np.minimum(low, high))
 
 
-def scenario_cube(per_scenario: pd.DataFrame, method: str, scenarios: pd.Index,
-                  keys: Sequence[str]) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` of one method's rows (Table I's scale: percent for the
-    rates), the scenarios in the given order."""
-    rows = per_scenario[per_scenario.method == method]
-    metrics = [METRIC_BY_KEY[k] for k in keys]
-    scale = np.array([m.scale for m in metrics])
-    columns = [m.column for m in metrics]
-    return np.stack([rows[rows.seed == s].set_index("scenario_id").loc[scenarios, columns]
-                     .to_numpy(float) for s in sorted(rows.seed.unique())]) * scale
-
-
-def paired_difference(a: np.ndarray, b: np.ndarray, confidence: float = CONFIDENCE
+def paired_difference(a: np.ndarray, b: np.ndarray, n_resamples: int = N_RESAMPLES,
+                      seed: int | Sequence[int] = TEST_SEED, confidence: float = CONFIDENCE
                       ) -> dict[str, np.ndarray]:
     """``a - b`` over the same scenarios (``(seeds, scenarios, metrics)`` each): the means,
     the difference, its interval (:func:`hierarchical_bootstrap`: seeds, then paired
-    scenarios), the bootstrap p-value and the minimum detectable effect (80% power), per
-    metric."""
-    reps = hierarchical_bootstrap(a, b)
-    tail = (1 - confidence) / 2 * 100
+    scenarios), its standard error, the bootstrap p-value and the minimum detectable effect
+    (level ``ALPHA``, power ``POWER``), per metric."""
+    reps = hierarchical_bootstrap(a, b, n_resamples, seed)
+    lo, hi = np.percentile(reps, [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2],
+                           axis=0)
+    se = reps.std(axis=0, ddof=1)
     return dict(a=a.mean((0, 1)), b=b.mean((0, 1)), diff=a.mean((0, 1)) - b.mean((0, 1)),
-                lo=np.percentile(reps, tail, axis=0), hi=np.percentile(reps, 100 - tail, axis=0),
-                p=bootstrap_p_value(reps), mde=minimum_detectable_effect(reps.std(0, ddof=1)))
+                lo=lo, hi=hi, se=se, p=bootstrap_p_value(reps),
+                mde=minimum_detectable_effect(se))
 
 
 def holm_adjust(p_values: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -285,10 +276,14 @@ def _setting_seed(setting: str) -> list[int]:
     return [TEST_SEED, zlib.crc32(setting.encode())]
 
 
-def _matrices(sub: pd.DataFrame, method: str, scenarios: pd.Index) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` array of one method's scaled metric values."""
-    cols = [m.column for m in METRICS]
-    scale = np.array([m.scale for m in METRICS])
+def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
+                  keys: Sequence[str] | None = None) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` array of one method's metric values at Table I's scale
+    (percent for the rates), the scenarios in the given order (NaN where a seed lacks one);
+    ``keys``: the metrics (default: Table I's)."""
+    metrics = METRICS if keys is None else [METRIC_BY_KEY[k] for k in keys]
+    cols = [m.column for m in metrics]
+    scale = np.array([m.scale for m in metrics])
     part = sub[sub.method == method].set_index(["seed", "scenario_id"])[cols]
     seeds = sorted(part.index.get_level_values(0).unique())
     full = pd.MultiIndex.from_product([seeds, scenarios], names=["seed", "scenario_id"])
@@ -327,19 +322,17 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
         methods = sorted(m for m in present if m != baseline and m not in REFERENCES)
     means = seed_means(per_scenario)
     rows = []
-    lo_q, hi_q = 100 * (1 - CONFIDENCE) / 2, 100 * (1 + CONFIDENCE) / 2
     for method in methods:
         settings = sorted(set(per_scenario.loc[per_scenario.method == method, "setting"])
                           & set(per_scenario.loc[per_scenario.method == baseline, "setting"]))
         for setting in settings:
             sub = per_scenario[per_scenario.setting == setting]
             scenarios = _complete_scenarios(sub, (method, baseline))
-            xa, xb = _matrices(sub, method, scenarios), _matrices(sub, baseline, scenarios)
+            xa = scenario_cube(sub, method, scenarios)
+            xb = scenario_cube(sub, baseline, scenarios)
             if scenarios.size:
-                reps = hierarchical_bootstrap(xa, xb, n_resamples, _setting_seed(setting))
-                diffs = xa.mean(axis=(0, 1)) - xb.mean(axis=(0, 1))
-                lows, highs = np.percentile(reps, [lo_q, hi_q], axis=0)
-                ses, ps = reps.std(axis=0, ddof=1), bootstrap_p_value(reps)
+                c = paired_difference(xa, xb, n_resamples, _setting_seed(setting))
+                diffs, lows, highs, ses, ps = c["diff"], c["lo"], c["hi"], c["se"], c["p"]
             else:
                 diffs = lows = highs = ses = ps = np.full(len(METRICS), np.nan)
             for i, metric in enumerate(METRICS):
