@@ -51,10 +51,11 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
 
 def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], pd.DataFrame]:
     """``{(POOLED, motion): every real set of that motion}`` where a motion has several real
-    sets (their scenarios are distinct): the comparison with the most power."""
+    sets (each scenario named by its set, ``set/id``): the comparison with the most power."""
     out = {}
     for motion in sorted({m for _, m in found}):
-        real = [f for (d, m), f in sorted(found.items()) if m == motion and d != VALIDATION]
+        real = [f.assign(scenario_id=d + "/" + f.scenario_id)
+                for (d, m), f in sorted(found.items()) if m == motion and d != VALIDATION]
         if len(real) > 1:
             out[(POOLED, motion)] = pd.concat(real, ignore_index=True)
     return out
