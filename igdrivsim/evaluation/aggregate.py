@@ -290,7 +290,7 @@ def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
     return part.reindex(full).to_numpy(float).reshape(len(seeds), len(scenarios), -1) * scale
 
 
-def _complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
+def complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
     """Scenarios with every metric for every seed of every method in ``methods``."""
     cols = [m.column for m in METRICS]
     keep = None
@@ -327,7 +327,7 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
                           & set(per_scenario.loc[per_scenario.method == baseline, "setting"]))
         for setting in settings:
             sub = per_scenario[per_scenario.setting == setting]
-            scenarios = _complete_scenarios(sub, (method, baseline))
+            scenarios = complete_scenarios(sub, (method, baseline))
             xa = scenario_cube(sub, method, scenarios)
             xb = scenario_cube(sub, baseline, scenarios)
             if scenarios.size:

@@ -25,6 +25,7 @@ import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError, run_command
 from igdrivsim.evaluation.aggregate import (
+    complete_scenarios,
     load_evaluations,
     paired_difference,
     scenario_cube,
@@ -94,7 +95,8 @@ def _against_constant_velocity(real: pd.DataFrame, setting: str, method: str) ->
     cv = real[real.method == CONSTANT_VELOCITY]
     if method in REFERENCES or ours.empty or cv.empty:
         return dict.fromkeys(VS_CV, float("nan"))
-    scenarios = pd.Index(sorted(set(ours.scenario_id) & set(cv.scenario_id)))
+    scenarios = complete_scenarios(real[real.setting.isin([setting, cv.setting.iloc[0]])],
+                                   (method, CONSTANT_VELOCITY))
     c = paired_difference(scenario_cube(ours, method, scenarios, ["log_divergence"]),
                           scenario_cube(cv, CONSTANT_VELOCITY, scenarios, ["log_divergence"]))
     return {f"real_vs_cv_{k}": float(c[k][0]) for k in ("diff", "lo", "hi", "mde")}

@@ -25,7 +25,12 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.aggregate import load_evaluations, paired_difference, scenario_cube
+from igdrivsim.evaluation.aggregate import (
+    complete_scenarios,
+    load_evaluations,
+    paired_difference,
+    scenario_cube,
+)
 from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY
 from igdrivsim.io import atomic_write_text
 from igdrivsim.machine import code_label, code_state
@@ -61,19 +66,13 @@ def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], 
     return out
 
 
-def _scenarios(*frames: pd.DataFrame) -> pd.Index:
-    """The scenarios every frame evaluated (sorted)."""
-    common = set.intersection(*(set(f.scenario_id) for f in frames))
-    return pd.Index(sorted(common), name="scenario_id")
-
-
 def against_constant_velocity(found: dict) -> pd.DataFrame:
     """One row per (data set, motion): BC against constant velocity."""
     rows = []
     order = {VALIDATION: 0, POOLED: 2}  # validation first, the pooled real sets last
     for (data, motion), frame in sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1),
                                                                       kv[0])):
-        scen = _scenarios(frame[frame.method == BC], frame[frame.method == CONSTANT_VELOCITY])
+        scen = complete_scenarios(frame, (BC, CONSTANT_VELOCITY))
         c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
                               scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS))
         row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
@@ -95,7 +94,7 @@ def between_motions(found: dict) -> pd.DataFrame:
         frames = {m: found[(data, m)] for m in motions}
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
-            scen = _scenarios(a[a.method == BC], b[b.method == BC])
+            scen = complete_scenarios(a, (BC,)).intersection(complete_scenarios(b, (BC,)))
             c = paired_difference(scenario_cube(a, BC, scen, METRICS),
                               scenario_cube(b, BC, scen, METRICS))
             row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
