@@ -22,8 +22,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.losses import log_prob
-from igdrivsim.core.sgd import clipped_adam, sgd_epochs
+from igdrivsim.core.learn import clipped_adam, log_prob, sgd_epochs
 from maze.env import MazeParams
 from maze.network import GRUPolicy
 from maze.rollout import run_stream, start_stream

@@ -18,8 +18,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.losses import soft_cross_entropy
-from igdrivsim.core.sgd import clipped_adam, sgd_steps
+from igdrivsim.core.learn import clipped_adam, sgd_steps, soft_cross_entropy
 from maze.env import MazeParams
 from maze.network import GRUPolicy
 from maze.rollout import run_labelled, start_stream

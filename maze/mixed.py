@@ -26,9 +26,8 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.losses import gae, kl_divergence, soft_cross_entropy
+from igdrivsim.core.learn import gae, kl_divergence, sgd_epochs, soft_cross_entropy
 from igdrivsim.core.params import AdvisorParams, MixWeights
-from igdrivsim.core.sgd import sgd_epochs
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
 from maze.ppo import PPOConfig, make_optimizer, ppo_terms, take_envs

@@ -1,6 +1,6 @@
 """Recurrent actor-critic: a GRU on the raw observation, a linear actor (4 logits) and critic.
 
-The GRU is :func:`igdrivsim.core.gru.gru_scan` (fused gates, the input projection of a whole
+The GRU is :func:`igdrivsim.core.nn.gru_scan` (fused gates, the input projection of a whole
 sequence before the time scan, a hand-written gradient): the recurrent step loop is the
 bottleneck on a CPU, so it does as little as possible. The hidden state is zeroed
 at every episode start (``first``), unlike the original code whose state was never reset.
@@ -14,8 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.core.gru import gru_scan
-from igdrivsim.core.layers import dense_2d
+from igdrivsim.core.nn import dense_2d, gru_scan
 from maze.env import MazeParams
 
 

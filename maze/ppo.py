@@ -1,8 +1,8 @@
 """Recurrent PPO (PureJaxRL style): rollout, GAE and minibatch epochs in one jitted function.
 
 The rollout is the shared runner (:mod:`maze.rollout`), GAE and the loss terms the shared ones
-(:mod:`igdrivsim.core.losses`) and the minibatch epochs the shared loop
-(:func:`igdrivsim.core.sgd.sgd_epochs`), as in the driving benchmark's BC-RL.
+(:mod:`igdrivsim.core.learn`) and the minibatch epochs the shared loop
+(:func:`igdrivsim.core.learn.sgd_epochs`), as in the driving benchmark's BC-RL.
 
 ``make_ppo(...)`` returns ``init(key, net_params, partial, total_updates) -> PPOState`` and
 ``train_chunk(PPOState) -> (PPOState, metrics)``, a ``lax.scan`` over ``chunk_updates`` PPO
@@ -23,16 +23,17 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.losses import (
+from igdrivsim.core.learn import (
+    clipped_adam,
     clipped_value_loss,
     entropy,
     gae,
     log_prob,
     normalize,
+    sgd_epochs,
     surrogate_terms,
 )
 from igdrivsim.core.params import PPOParams
-from igdrivsim.core.sgd import clipped_adam, sgd_epochs
 from maze.env import MazeParams, observe
 from maze.network import GRUPolicy
 from maze.rollout import Stream, run_stream, start_stream
@@ -85,7 +86,7 @@ def take_envs(data, idx):
 
 def ppo_terms(logits, value, batch, adv, targets, cfg: PPOConfig):
     """Per-state clipped policy loss, the clipped value loss and the entropy of a minibatch
-    (the shared terms of :mod:`igdrivsim.core.losses`; the advantages normalised here)."""
+    (the shared terms of :mod:`igdrivsim.core.learn`; the advantages normalised here)."""
     pg = surrogate_terms(log_prob(logits, batch.action), batch.log_prob, normalize(adv),
                          cfg.clip_eps)
     return (pg, clipped_value_loss(value, batch.value, targets, cfg.clip_eps),

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from igdrivsim.core.episode import Actor, StepInfo, run_episode
-from igdrivsim.core.losses import log_prob
+from igdrivsim.core.learn import log_prob
 from maze import env as maze_env
 from maze.env import MazeParams
 from maze.network import GRUPolicy

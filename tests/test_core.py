@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from igdrivsim.core import episode, losses, sgd
+from igdrivsim.core import episode, learn
 from igdrivsim.core.episode import Actor, StepInfo, run_episode
 
 
@@ -53,7 +53,7 @@ def test_gae_cuts_at_episode_ends():
         np.float32)
     dones = np.zeros(12, np.float32)
     dones[[3, 8]] = 1.0
-    adv, ret = losses.gae(jnp.asarray(values), jnp.asarray(rewards), jnp.asarray(dones, bool),
+    adv, ret = learn.gae(jnp.asarray(values), jnp.asarray(rewards), jnp.asarray(dones, bool),
                           jnp.float32(0.7), 0.9, 0.8)
     np.testing.assert_allclose(adv, _gae_by_loop(values, rewards, dones, 0.7, 0.9, 0.8),
                                rtol=1e-5, atol=1e-6)
@@ -64,16 +64,16 @@ def test_gae_cuts_at_episode_ends():
 
 def test_categorical_terms_by_hand():
     logits = jnp.log(jnp.array([[0.5, 0.25, 0.25], [0.1, 0.1, 0.8]]))
-    np.testing.assert_allclose(losses.log_prob(logits, jnp.array([1, 2])),
+    np.testing.assert_allclose(learn.log_prob(logits, jnp.array([1, 2])),
                                np.log([0.25, 0.8]), rtol=1e-6)
-    np.testing.assert_allclose(losses.entropy(logits)[0], -(0.5 * np.log(0.5) + 0.5 * np.log(
+    np.testing.assert_allclose(learn.entropy(logits)[0], -(0.5 * np.log(0.5) + 0.5 * np.log(
         0.25)), rtol=1e-6)
     target = jax.nn.log_softmax(logits[::-1])
-    np.testing.assert_allclose(losses.kl_divergence(target, logits),
-                               losses.soft_cross_entropy(target, logits) - losses.entropy(
+    np.testing.assert_allclose(learn.kl_divergence(target, logits),
+                               learn.soft_cross_entropy(target, logits) - learn.entropy(
                                    logits[::-1]), rtol=1e-5, atol=1e-6)
     # clipped value loss: a value moved past the clip range is held at it when that is worse
-    v = losses.clipped_value_loss(jnp.array([2.0]), jnp.array([0.0]), jnp.array([0.0]), 0.5)
+    v = learn.clipped_value_loss(jnp.array([2.0]), jnp.array([0.0]), jnp.array([0.0]), 0.5)
     assert float(v) == 0.5 * 4.0
 
 
@@ -87,9 +87,9 @@ def test_maze_and_driving_share_the_runner_and_the_loss_terms():
     assert rollout.run_episode is driving.episode.run_episode is episode.run_episode
     assert rollout.Actor is driving.Actor is episode.Actor
     for name in ("gae", "surrogate_terms", "normalize", "masked_mean"):
-        assert getattr(driving_losses, name) is getattr(losses, name)
-    assert ppo.gae is mixed.gae is losses.gae
-    assert ppo.surrogate_terms is losses.surrogate_terms
+        assert getattr(driving_losses, name) is getattr(learn, name)
+    assert ppo.gae is mixed.gae is learn.gae
+    assert ppo.surrogate_terms is learn.surrogate_terms
 
 
 def test_sgd_epochs_is_a_loop_over_shuffled_minibatches():
@@ -105,8 +105,8 @@ def test_sgd_epochs_is_a_loop_over_shuffled_minibatches():
 
     keys = jax.random.split(jax.random.PRNGKey(1), 3)
     w0 = jnp.zeros(3)
-    tx = sgd.clipped_adam(1e9)
-    w, _, aux = jax.jit(lambda w, o: sgd.sgd_epochs(w, o, data, loss_fn, tx, keys, 4, 0.1,
+    tx = learn.clipped_adam(1e9)
+    w, _, aux = jax.jit(lambda w, o: learn.sgd_epochs(w, o, data, loss_fn, tx, keys, 4, 0.1,
                                                     grad_norm=True))(w0, tx.init(w0))
     assert aux["loss"].shape == (3, 4) and aux["grad_norm"].shape == (3, 4)
     ref, opt, losses_ = w0, tx.init(w0), []
@@ -125,7 +125,7 @@ def test_every_learner_trains_through_the_core():
     """The maze's four learners and the driving update share the SGD loop and its optimiser,
     the network parts, the method parameters and the lane scheduler."""
     from igdrivsim import lanes
-    from igdrivsim.core import gru, layers, params
+    from igdrivsim.core import nn, params
     from igdrivsim.pipeline import stages
     from igdrivsim.policy import network
     from igdrivsim.training import update
@@ -135,11 +135,11 @@ def test_every_learner_trains_through_the_core():
     from maze import network as maze_network
 
     for module in (ppo, mixed, bc, update):
-        assert module.sgd_epochs is sgd.sgd_epochs
-    assert dagger.sgd_steps is sgd.sgd_steps
+        assert module.sgd_epochs is learn.sgd_epochs
+    assert dagger.sgd_steps is learn.sgd_steps
     assert ppo.clipped_adam is bc.clipped_adam is dagger.clipped_adam is update.clipped_adam
-    assert maze_network.gru_scan is network.gru_scan is gru.gru_scan
-    assert maze_network.dense_2d is network.dense_2d is layers.dense_2d
+    assert maze_network.gru_scan is network.gru_scan is nn.gru_scan
+    assert maze_network.dense_2d is network.dense_2d is nn.dense_2d
     assert study.run_jobs is stages.lanes.run_jobs is lanes.run_jobs
     # one default per shared parameter; the maze study sets its own ADVISOR alpha explicitly
     assert issubclass(ppo.PPOConfig, params.PPOParams)

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from igdrivsim.core.gru import _gru_forward, gru_scan
+from igdrivsim.core.nn import _gru_forward, gru_scan
 
 
 def test_gru_scan_gradient_matches_autodiff():
@@ -43,7 +43,7 @@ def test_gru_scan_is_flax_gru_cell_stepped():
     zeroed at the flagged steps), over two batch axes."""
     import flax.linen as nn
 
-    from igdrivsim.core.gru import fused_gru_cell
+    from igdrivsim.core.nn import fused_gru_cell
 
     t, batch, d, h = 7, (2, 3), 5, 4
     keys = jax.random.split(jax.random.PRNGKey(1), 4)

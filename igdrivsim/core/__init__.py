@@ -2,9 +2,9 @@
 loop, the network parts and the method parameters.
 
 :mod:`igdrivsim.core.episode` runs an :class:`~igdrivsim.core.episode.Actor` in an environment
-(``lax.scan``); :mod:`igdrivsim.core.losses` holds GAE, the PPO terms and the imitation terms of
-categorical policies; :mod:`igdrivsim.core.sgd` is every learner's epochs of minibatch steps;
-:mod:`igdrivsim.core.gru` and :mod:`igdrivsim.core.layers` are the recurrent and dense parts of
-both networks; :mod:`igdrivsim.core.params` the hyper-parameters both read, with one default
-each. All depend on JAX alone (no other igdrivsim module), so any environment can build on them.
+(``lax.scan``); :mod:`igdrivsim.core.learn` holds GAE, the PPO terms, the imitation terms of
+categorical policies and every learner's epochs of minibatch steps; :mod:`igdrivsim.core.nn`
+the recurrent and dense parts of both networks; :mod:`igdrivsim.core.params` the
+hyper-parameters both read, with one default each. All depend on JAX alone (no other igdrivsim
+module), so any environment can build on them.
 """

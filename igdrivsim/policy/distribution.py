@@ -1,6 +1,6 @@
 """The policy's action distribution, three independent categoricals (dx, dy, dyaw bins), and the
 loss terms over it that the learning methods sum: the shared categorical terms of
-:mod:`igdrivsim.core.losses` summed over the three action dimensions.
+:mod:`igdrivsim.core.learn` summed over the three action dimensions.
 
 Shapes: ``logits [..., 3, bins]`` and actions ``[..., 3]`` (bin indices). It lives with the
 policy (acting needs the log-probability) so that ``policy`` does not import ``training``. GAE,
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import jax
 
-from igdrivsim.core import losses as core
-from igdrivsim.core.losses import gae, log_prob, masked_mean, normalize, surrogate_terms, value_loss
+from igdrivsim.core import learn as core
+from igdrivsim.core.learn import gae, log_prob, masked_mean, normalize, surrogate_terms, value_loss
 
 __all__ = ["action_log_prob", "bc_loss", "clipped_surrogate", "entropy", "gae", "kl_divergence",
            "masked_mean", "normalize", "soft_cross_entropy", "surrogate_terms", "value_loss"]

@@ -24,8 +24,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.core.gru import fused_gru_cell, gru_scan
-from igdrivsim.core.layers import dense_2d
+from igdrivsim.core.nn import dense_2d, fused_gru_cell, gru_scan
 from igdrivsim.data.scenario import DT, RG_NUM_TYPES
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation.features import OBJECT_SPEED, SPEED_SCALE, roadgraph_kind
@@ -432,7 +431,7 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
 
     The per-step encoders and the GRU's input projection do not depend on the recurrence, so
     they run once over all ``T x B`` observations (large matrix products) and only the
-    recurrence is scanned (:func:`igdrivsim.core.gru.gru_scan`, the cell's equations with a
+    recurrence is scanned (:func:`igdrivsim.core.nn.gru_scan`, the cell's equations with a
     hand-written gradient); the same values as stepping :func:`apply_step`, several times
     faster on CPU. With ``config.remat`` the encoders run one step at a time and are
     recomputed in the backward pass: their activation memory is one step's (the per-point

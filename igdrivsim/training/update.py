@@ -13,7 +13,7 @@ one compiled program trains every (setting, seed) pair of a method.
    90, so V = 0 there); a privileged teacher's labels of the states it visits (the teacher
    sees them fully observed); the buffer of the last labelled episodes (DAgger);
 2. ``epochs`` passes over ``minibatches`` random minibatches of scenarios, each one Adam step
-   on the method's loss (the maze's loop too: :func:`igdrivsim.core.sgd.sgd_epochs`). The
+   on the method's loss (the maze's loop too: :func:`igdrivsim.core.learn.sgd_epochs`). The
    recurrent network is re-run over every episode of the minibatch with the current
    parameters in one pass (encoders batched over time, see
    :func:`~igdrivsim.policy.network.unroll_sequence`), so after the first step the PPO ratio
@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.sgd import clipped_adam, sgd_epochs
+from igdrivsim.core.learn import clipped_adam, sgd_epochs
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
