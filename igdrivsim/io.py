@@ -1,4 +1,5 @@
-"""Atomic file writers: write to a temp file in the target's folder, then ``os.replace`` it.
+"""Atomic file writers (write to a temp file in the target's folder, then ``os.replace`` it),
+and the one reader of the JSON records they write (:func:`read_json`).
 
 Every output of the package (data shards, manifests, configs, metrics, tables, figures, GIFs)
 goes through these helpers, so a reader or a resumed pipeline never sees a half-written file:
@@ -19,10 +20,27 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, DataError
 
 __all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes",
-           "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode"]
+           "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode", "read_json"]
+
+_REQUIRED = object()
+
+
+def read_json(path: str | os.PathLike[str], default: Any = _REQUIRED) -> dict:
+    """The JSON object (a dict) in ``path``. Missing, unreadable, not JSON or not an object: a
+    one-line :class:`~igdrivsim.errors.DataError` naming the file, or ``default`` when one is
+    given (a stamp or a cache that is then redone)."""
+    try:
+        record = json.loads(Path(path).read_text(encoding="utf-8"))
+        if not isinstance(record, dict):
+            raise ValueError(f"a JSON {type(record).__name__}, not an object")
+    except (OSError, ValueError) as err:  # ValueError: JSON and UTF-8 decoding too
+        if default is not _REQUIRED:
+            return default
+        raise DataError(f"not readable JSON ({err})", file=str(path)) from err
+    return record
 
 
 def require_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:

@@ -38,6 +38,7 @@ from igdrivsim.io import (
     atomic_write_csv,
     atomic_write_json,
     atomic_write_text,
+    read_json,
     require_folder,
 )
 from igdrivsim.lanes import Job, run_jobs
@@ -294,7 +295,7 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
     resolved = config_dict(cfg)
     config_path = out / "maze_config.json"
     if not force and all((out / p).exists() for p in outputs(cfg)):
-        if json.loads(config_path.read_text()).get("config") == resolved:
+        if read_json(config_path, {}).get("config") == resolved:
             print(f"maze study: outputs in {out} are up to date with this config; skipping "
                   "(--force to rerun)")
             return pd.read_csv(out / "tables/maze_summary.csv")
@@ -412,7 +413,7 @@ def replot(out: Path) -> list[Path]:
         if not path.is_file():
             raise DataError("missing: run the maze study first", file=str(path))
     curves = pd.read_csv(csv)
-    meta = json.loads(config.read_text(encoding="utf-8"))
+    meta = read_json(config)
     refs = {k: tuple(v) for k, v in meta["references"].items()}
     plateaus = meta.get("plateau", {})
     summary = report.summarise(curves)

@@ -74,7 +74,7 @@ def test_intact_run_gets_past_the_checkpoint(run, tmp_path, capsys):
 
 def test_malformed_run_config_names_the_file(run, tmp_path, capsys):
     (run / "config.json").write_text('{"config": ')
-    _fails(capsys, _evaluate(run, tmp_path), str(run / "config.json"), "cannot read")
+    _fails(capsys, _evaluate(run, tmp_path), str(run / "config.json"), "not readable JSON")
 
 
 def test_garbage_checkpoint_metadata_is_one_line(run, tmp_path, capsys):

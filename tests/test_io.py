@@ -7,6 +7,7 @@ import stat
 
 import pytest
 
+from igdrivsim.errors import DataError
 from igdrivsim.io import (
     atomic_path,
     atomic_savefig,
@@ -15,6 +16,7 @@ from igdrivsim.io import (
     atomic_write_csv,
     atomic_write_json,
     atomic_write_text,
+    read_json,
 )
 
 
@@ -85,3 +87,19 @@ def test_csv_round_trip(tmp_path):
     frame = pd.DataFrame({"setting": ["full", "noisy"], "value": [0.5, 1.25], "n": [1, 2]})
     path = atomic_write_csv(tmp_path / "t.csv", frame)
     pd.testing.assert_frame_equal(pd.read_csv(path), frame)
+
+
+@pytest.mark.parametrize("content", [None, '{"a": ', '[1, 2]', b"\xff\xfe"])
+def test_read_json_names_the_file_or_gives_the_default(tmp_path, content):
+    """Missing, truncated, not an object or not UTF-8: one DataError naming the file, or the
+    default where the caller redoes what the file held."""
+    path = tmp_path / "record.json"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content is not None:
+        path.write_text(content)
+    with pytest.raises(DataError, match=f"file {path}: not readable JSON"):
+        read_json(path)
+    assert read_json(path, {}) == {}
+    atomic_write_json(path, {"a": [1]})
+    assert read_json(path) == {"a": [1]}

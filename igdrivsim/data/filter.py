@@ -33,7 +33,7 @@ from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
 from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
 from igdrivsim.data.scenario import Scenario, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_path
+from igdrivsim.io import atomic_path, read_json
 
 CRITERIA = ("paper", "objects_of_interest")
 
@@ -224,12 +224,8 @@ def _signature(file: str) -> dict:
 def _read_shard_result(path: str, file: str | None = None) -> dict | None:
     """A finished partial result, or None if it is absent, unreadable or (given the input
     ``file``) made from a different version of that file; then it is redone."""
-    try:
-        with open(path) as f:
-            result = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    if not isinstance(result, dict) or "entries" not in result:
+    result = read_json(path, {})
+    if "entries" not in result:
         return None
     if file is not None:
         try:
@@ -330,11 +326,10 @@ def stored_config(dirs) -> FilterConfig | None:
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
             if name.startswith("filter_config") and name.endswith(".json"):
                 path = os.path.join(d, name)
+                c = read_json(path)
                 try:
-                    with open(path) as f:
-                        c = json.load(f)
                     found.add((c["criterion"], float(c["min_speed"])))
-                except (OSError, ValueError, TypeError, KeyError) as err:
+                except (ValueError, TypeError, KeyError) as err:
                     raise DataError(f"unreadable filter settings ({type(err).__name__}: {err})",
                                     file=path) from err
     if len(found) > 1:

@@ -4,7 +4,6 @@ write the tidy ``per_step.csv``, ``per_scenario.csv`` and ``eval_config.json``."
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from tqdm import tqdm
 
 from igdrivsim.data import Capacities
 from igdrivsim.data.validation import load_validation
-from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.rollout import (
     evaluate_policy,
     reference_frames,
@@ -94,13 +93,6 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
                                                   progress=bar.update)
     return _write(out, per_step, per_scenario, dict(
         references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim)))
-
-
-def read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DataError(f"cannot read JSON ({err})", file=str(path)) from err
 
 
 def _write(out, per_step, per_scenario, info: dict) -> Path:

@@ -12,14 +12,13 @@ methods.
 
 from __future__ import annotations
 
-import json
 import shutil
 import threading
 import time
 from pathlib import Path
 
 from igdrivsim.evaluation.schema import METHODS
-from igdrivsim.io import atomic_copy, atomic_write_json
+from igdrivsim.io import atomic_copy, atomic_write_json, read_json
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError
 from igdrivsim.report import provenance
 from igdrivsim.training.methods import get_method
@@ -101,12 +100,12 @@ class Publisher:
         return self._walls_before.get(self.kind, 0.0) + time.time() - self.started
 
     def _walls(self) -> dict[str, float]:
+        record = read_json(self.work / "wall.json", {})
         try:
-            record = json.loads((self.work / "wall.json").read_text(encoding="utf-8"))
             if "seconds" in record:  # the older single-run form
                 record = {"default": record.pop("seconds"), **record}
             return {str(k): float(v) for k, v in record.items()}
-        except (OSError, ValueError, TypeError, AttributeError):
+        except (ValueError, TypeError):
             return {}
 
     def _record_wall(self) -> None:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError, IGDrivSimError
-from igdrivsim.io import atomic_write_text
+from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.report import provenance
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -50,19 +50,12 @@ class StageRunner:
             return False
         if commands is None:
             return True
-        try:
-            stamped = json.loads(path.read_text(encoding="utf-8")).get("commands")
-        except (OSError, ValueError):
-            return False
+        stamped = read_json(path, {}).get("commands")
         return stamped == [list(map(str, c)) for c in commands]
 
     def stamp(self, stage: str) -> dict:
         """A complete stage's stamp (empty when there is none or it is unreadable)."""
-        try:
-            record = json.loads(self.stamp_path(stage).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return {}
-        return record if isinstance(record, dict) else {}
+        return read_json(self.stamp_path(stage), {})
 
     def stamped_device(self, stage: str) -> str:
         """Where a complete stage ran (its stamp; this machine for a stamp that predates the

@@ -46,7 +46,7 @@ from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import METHODS
-from igdrivsim.io import atomic_copy, atomic_write_json
+from igdrivsim.io import atomic_copy, atomic_write_json, read_json
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
 from igdrivsim.pipeline import planning
@@ -137,7 +137,7 @@ class Pipeline(Publisher, StageRunner):
         run = self.work / "runs" / part.name
         settings, sets, depends = part.settings, list(self.overrides), []
         if get_method(method).teacher:
-            choice = json.loads(self.teacher_choice.read_text(encoding="utf-8"))
+            choice = read_json(self.teacher_choice)
             settings = tuple(s for s in settings if s != TEACHER_SETTING)
             sets.append(f"training.teacher={choice['run']}")
             depends = ["teacher"]
@@ -304,10 +304,7 @@ class Pipeline(Publisher, StageRunner):
             paper=str(self.paper), overrides=list(self.overrides))))
         path = self.work / "pipeline.json"
         if path.is_file():
-            try:
-                old = json.loads(path.read_text())
-            except (OSError, json.JSONDecodeError):
-                old = {}
+            old = read_json(path, {})
             for key in ("profile", "train_data", "val_data", "overrides"):
                 if key in old and old[key] != record[key]:
                     raise ConfigError(f"{path}: this work folder was made with another {key} "

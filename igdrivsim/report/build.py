@@ -26,7 +26,6 @@ written (``igdrivsim report``, also with ``--from-tables``).
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +34,7 @@ from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
-from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
 from igdrivsim.report import methods_table
 from igdrivsim.report.figures import (
     fig3_metrics,
@@ -117,7 +116,7 @@ def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path
     for root in map(Path, eval_dirs):
         path = root / speed_walk.RESULT_FILE
         if path.is_file():
-            result = json.loads(path.read_text(encoding="utf-8"))
+            result = read_json(path)
             return [atomic_write_text(tables / "speed_walk.md", speed_walk.report_markdown(result)),
                     atomic_write_text(generated / "speed_walk.tex", speed_walk.report_tex(result))]
     return []

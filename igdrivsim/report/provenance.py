@@ -37,7 +37,7 @@ from pathlib import Path
 
 from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text
+from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import (  # noqa: F401 (re-exported: the stamps' code)
     CODE_KEYS,
     OWN_OUTPUTS,
@@ -157,11 +157,7 @@ def load(paper: Path) -> dict[str, dict]:
     path = Path(paper) / FILE
     if not path.is_file():
         return {}
-    try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        raise ConfigError(f"{path}: not readable JSON ({err})") from err
-    return dict(record.get("files", {}))
+    return dict(read_json(path).get("files", {}))
 
 
 def save(paper: Path, files: dict[str, dict]) -> Path:

@@ -10,7 +10,6 @@ in them is typed by hand. The README block lies between
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -31,7 +30,7 @@ from igdrivsim.evaluation.schema import (
     setting_short,
     table_settings,
 )
-from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
 from igdrivsim.report import methods_table
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
@@ -85,10 +84,7 @@ def run_line(paper: Path, commit: bool = True) -> str:
     path = Path(paper) / "provenance.json"
     if not path.is_file():
         return ""
-    try:
-        files = json.loads(path.read_text(encoding="utf-8")).get("files", {})
-    except (OSError, ValueError, AttributeError) as err:
-        raise DataError(f"not readable JSON ({err})", file=str(path)) from err
+    files = read_json(path).get("files", {})
     entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
     if not isinstance(entry, dict):
         return ""
@@ -456,11 +452,11 @@ def write_run_times(work: str | Path, tables: Path) -> list[Path]:
     """``tables/run_times.csv`` from the pipeline's ``WORK/stages/*.json``."""
     rows = []
     for path in sorted(Path(work).glob("stages/*.json")):
+        info = read_json(path)
         try:
-            info = json.loads(path.read_text(encoding="utf-8"))
             rows.append(dict(stage=info["stage"], seconds=float(info["seconds"]),
                              finished=str(info.get("finished", ""))))
-        except (OSError, ValueError, KeyError, TypeError) as err:
+        except (ValueError, KeyError, TypeError) as err:
             raise DataError(f"not a stage record ({err!r})", file=str(path)) from err
     if not rows:
         return []

@@ -18,7 +18,6 @@ pooled``): the comparison with the most power.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -32,7 +31,7 @@ from igdrivsim.evaluation.aggregate import (
     scenario_cube,
 )
 from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY
-from igdrivsim.io import atomic_write_text
+from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.machine import code_label, code_state
 
 METRICS = ("log_divergence", "offroad", "overlap")
@@ -115,11 +114,7 @@ def code_lines(work: Path) -> list[str]:
     it; ``unknown`` where they did not)."""
 
     def read(path: Path) -> dict:
-        try:
-            record = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            record = None
-        return record if isinstance(record, dict) else {}
+        return read_json(path, {})
 
     def label(record: dict) -> str:
         code = record.get("code")

@@ -61,7 +61,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import barrier
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_write_json, atomic_write_text
+from igdrivsim.io import atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import code_state
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
 
@@ -311,8 +311,7 @@ class Run:
         config classes since then count at their defaults; :data:`BOOKKEEPING` fields may
         differ)."""
         path = os.path.join(self.dir, CONFIG)
-        with open(path) as f:
-            old = json.load(f)
+        old = read_json(path)
         try:
             old_config = to_dict(from_dict(old.get("config", {})))
         except (ConfigError, TypeError):
@@ -424,12 +423,8 @@ class SavedRun:
         path = os.path.join(os.fspath(out_dir), CONFIG)
         if not os.path.isfile(path):
             raise ConfigError(f"{path}: not a training run (no {CONFIG})")
-        try:
-            with open(path) as f:
-                record = json.load(f)
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise DataError(f"cannot read the run's config ({err})", file=path) from err
-        if not isinstance(record, dict) or not isinstance(record.get("config"), dict):
+        record = read_json(path)
+        if not isinstance(record.get("config"), dict):
             raise DataError("not a run config (no \"config\" object)", file=path)
         return cls(out_dir, record)
 

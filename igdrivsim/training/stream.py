@@ -29,7 +29,7 @@ from igdrivsim.data.manifest import _load_records
 from igdrivsim.data.reader import count_records, expand_paths
 from igdrivsim.data.scenario import Capacities, Scenario
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.io import atomic_write_json
+from igdrivsim.io import atomic_write_json, read_json
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
@@ -222,5 +222,4 @@ def load_state(folder: str, step: int) -> dict:
     if not os.path.isfile(path):
         raise ConfigError(f"{path}: no input iterator state for checkpoint {step}; "
                           "cannot resume the streamed run exactly")
-    with open(path) as f:
-        return json.load(f)["iterator"]
+    return read_json(path)["iterator"]

@@ -25,7 +25,7 @@ from igdrivsim.data.synthetic.plot import save_pictures
 from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.data.tfrecord import write_records
 from igdrivsim.errors import ConfigError, check_min
-from igdrivsim.io import atomic_write_json, require_folder
+from igdrivsim.io import atomic_write_json, read_json, require_folder
 
 CHUNK = 8  # scenarios per worker task
 
@@ -102,8 +102,7 @@ def generate_command(args: argparse.Namespace) -> int:
     os.makedirs(args.out, exist_ok=True)
     config_path = os.path.join(args.out, "generator_config.json")
     if os.path.exists(config_path) and not args.overwrite:
-        with open(config_path) as f:
-            previous = json.load(f)
+        previous = read_json(config_path)
         if previous != resolved:
             raise ConfigError(f"{config_path} holds a different configuration; use another --out "
                               "or --overwrite")
