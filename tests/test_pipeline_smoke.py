@@ -79,6 +79,9 @@ def test_every_output_exists_and_parses(done):
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()
         info = json.loads((work / "evals" / run / "eval_config.json").read_text())
         assert info["settings"] == list(SETTINGS) and info["actions"] == "sample"
+        trained = json.loads((work / "runs" / run / "config.json").read_text())
+        assert info["trained"]["code"] == trained["code"] and "commit" in trained["code"]
+        assert info["trained"]["num_updates"] == trained["num_updates"] > 0
     refs = pd.read_csv(work / "evals" / "references" / "per_scenario.csv")
     assert set(refs.method) == {"expert", "constant_velocity"}
     assert refs[refs.method == "expert"].log_divergence.max() < 0.2

@@ -55,13 +55,15 @@ def test_transfer_tables_measure_bc_against_cv_and_the_motions(tmp_path, capsys)
         "calibrated")
     assert motions.loc["real", "log_divergence_diff"] == pytest.approx(2.0)
     assert motions.loc["real", "log_divergence_p"] < 0.05
-    (tmp_path / "default" / "runs" / "bc").mkdir(parents=True)
-    (tmp_path / "default" / "runs" / "bc" / "config.json").write_text(json.dumps(
-        {"num_scenarios": 1970, "code": {"commit": "abc1234", "dirty": False,
-                                         "diff_hash": None}}))
+    # the BC evaluations' records name the code that trained and the code that evaluated
+    code = {"commit": "abc1234", "dirty": False, "diff_hash": None}
+    (tmp_path / "default" / "evals_real" / "bc" / "eval_config.json").write_text(json.dumps(
+        {"code": {**code, "commit": "def5678"}, "trained": {"num_scenarios": 1970,
+                                                             "code": code}}))
     assert main([str(tmp_path), "--out", str(tmp_path / "transfer.md")]) == 0
     text = (tmp_path / "transfer.md").read_text()
-    assert "- default: 1,970 training scenarios; trained at abc1234; evaluated at unknown" in text
+    assert "- default: 1,970 training scenarios; trained at abc1234; evaluated at def5678" in text
+    assert "- calibrated: trained at unknown; evaluated at unknown" in text
     assert "| real | default | 8 | 6.05 | 5.00 | 1.21 |" in text
     assert "| real | default - calibrated | 8 | +2.00" in text
 

@@ -46,7 +46,9 @@ from igdrivsim.evaluation.schema import (
     METRIC_BY_KEY,
     METRICS,
     PER_SCENARIO_COLUMNS,
+    PER_SCENARIO_FILE,
     PER_STEP_COLUMNS,
+    PER_STEP_FILE,
     REFERENCES,
 )
 
@@ -112,13 +114,13 @@ def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.Data
     for root in map(Path, paths):
         if not root.exists():
             raise DataError("evaluation folder does not exist", file=str(root))
-        for csv in sorted(root.rglob("per_step.csv")):
+        for csv in sorted(root.rglob(PER_STEP_FILE)):
             steps.append(read_csv_checked(csv, PER_STEP_COLUMNS))
-        for csv in sorted(root.rglob("per_scenario.csv")):
+        for csv in sorted(root.rglob(PER_SCENARIO_FILE)):
             scenarios.append(read_csv_checked(csv, PER_SCENARIO_COLUMNS,
                                               complete=PER_SCENARIO_COLUMNS[:4]))
     if not scenarios:
-        raise DataError("no per_scenario.csv found", file=", ".join(map(str, paths)))
+        raise DataError(f"no {PER_SCENARIO_FILE} found", file=", ".join(map(str, paths)))
     per_step = pd.concat(steps, ignore_index=True) if steps else pd.DataFrame(
         columns=PER_STEP_COLUMNS)
     per_scenario = pd.concat(scenarios, ignore_index=True)

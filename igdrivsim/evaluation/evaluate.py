@@ -19,18 +19,26 @@ from igdrivsim.evaluation.rollout import (
     scenario_ids_of,
     tidy_frames,
 )
+from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, PER_STEP_FILE
 from igdrivsim.io import atomic_write_csv, atomic_write_json
 from igdrivsim.machine import code_state
 from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
-
-EVAL_CONFIG = "eval_config.json"
 
 
 def load_trained(run_dir: str):
     """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
     run = Run.open(run_dir)
     return run.config, run.params(), list(run.config.seeds)
+
+
+def trained_record(run_dir: str) -> dict:
+    """What the evaluation record says of the parameters it evaluated: the code that trained
+    them (``code``, ``code_resumed``), on how many scenarios and for how many updates, so that
+    a report reads an evaluation folder alone."""
+    record = Run.open(run_dir).record
+    return {k: record[k] for k in ("code", "code_resumed", "num_scenarios", "num_updates")
+            if k in record}
 
 
 def _bar(total: int, desc: str, enabled: bool):
@@ -75,7 +83,8 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     return _write(out, per_step, per_scenario, dict(
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
-        num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params)))
+        num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params),
+        trained=trained_record(run_dir)))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
@@ -101,8 +110,8 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
     out = Path(out)
     if jax.process_index() != 0:
         return out
-    atomic_write_csv(out / "per_step.csv", per_step.round(6))
-    atomic_write_csv(out / "per_scenario.csv", per_scenario.round(6))
+    atomic_write_csv(out / PER_STEP_FILE, per_step.round(6))
+    atomic_write_csv(out / PER_SCENARIO_FILE, per_scenario.round(6))
     atomic_write_json(out / EVAL_CONFIG, {**info, "code": code_state()}, indent=2,
                       sort_keys=True)
     return out

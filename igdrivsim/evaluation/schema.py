@@ -83,6 +83,10 @@ METHOD_LABELS: dict[str, str] = {  # the learned methods' labels, then the refer
 # Reference rows do not depend on the observation: their CSV `setting` is this value.
 REFERENCE_SETTING = "none"
 
+# An evaluation folder's files: the tidy CSVs and the record of what was evaluated.
+PER_STEP_FILE, PER_SCENARIO_FILE = "per_step.csv", "per_scenario.csv"
+EVAL_CONFIG = "eval_config.json"
+
 # Tidy CSV columns. per_step: one row per (setting, method, seed, step), the mean over scenarios
 # of the metric after the step-th policy action (step 1..80; overlap/offroad as fractions).
 PER_STEP_COLUMNS = ("setting", "method", "seed", "step", "log_divergence", "overlap", "offroad")

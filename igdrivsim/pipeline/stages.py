@@ -45,7 +45,7 @@ from pathlib import Path
 from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.schema import METHODS
+from igdrivsim.evaluation.schema import METHODS, PER_SCENARIO_FILE
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
@@ -170,7 +170,7 @@ class Pipeline(Publisher, StageRunner):
         self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
                                          "--out", out, *self._eval_common(val_manifest)]],
                    depends=[f"train_{name}", "filter_validation"],
-                   outputs=[out / "per_scenario.csv"], echo=echo)
+                   outputs=[out / PER_SCENARIO_FILE], echo=echo)
 
     def run_references(self, like: str, val_manifest: Path, echo: bool = True) -> None:
         """The reference actors, with the capacities and simulator settings of run ``like``."""
@@ -179,7 +179,7 @@ class Pipeline(Publisher, StageRunner):
             "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / like,
             "--out", out, *self._eval_common(val_manifest)]],
             depends=["filter_validation", f"train_{like}"],
-            outputs=[out / "per_scenario.csv"], echo=echo)
+            outputs=[out / PER_SCENARIO_FILE], echo=echo)
 
     def run_speed_walk(self, val_manifest: Path, echo: bool = True) -> None:
         """The speed-walk diagnostic of the validation scenarios (no trained policy)."""

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.evaluate import EVAL_CONFIG
+from igdrivsim.evaluation.schema import EVAL_CONFIG
 from igdrivsim.io import read_json, require_folder
 from igdrivsim.report.results_doc import write_markdown, write_run_times
 

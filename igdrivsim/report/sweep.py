@@ -22,7 +22,7 @@ import pandas as pd
 
 from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import CONSTANT_VELOCITY
+from igdrivsim.evaluation.schema import CONSTANT_VELOCITY, PER_SCENARIO_FILE
 from igdrivsim.io import atomic_write_text
 
 # the fields a variant's compute per update scales with (and the updates it trained)
@@ -59,14 +59,14 @@ def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
         raise ConfigError(f"{sweep}/runs: no trained run found")
     cv = None
     if references is not None:
-        ref = pd.read_csv(references / "per_scenario.csv")
+        ref = pd.read_csv(references / PER_SCENARIO_FILE)
         cv = ref[ref.method == CONSTANT_VELOCITY].set_index("scenario_id")["log_divergence"]
     rows = []
     for path in runs:
         run = Run.open(path)
         config = run.config
         saved, base = to_dict(config), to_dict(get_profile(config.profile))
-        scores = sweep / "evals" / path.name / "per_scenario.csv"
+        scores = sweep / "evals" / path.name / PER_SCENARIO_FILE
         if not scores.exists():
             raise ConfigError(f"{scores}: no evaluation of run {path.name}")
         frame = pd.read_csv(scores)

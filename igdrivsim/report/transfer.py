@@ -30,7 +30,7 @@ from igdrivsim.evaluation.aggregate import (
     paired_difference,
     scenario_cube,
 )
-from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY
+from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, EVAL_CONFIG, PER_SCENARIO_FILE
 from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.machine import code_label, code_state
 
@@ -43,8 +43,8 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
     """``{(data set, motion): per-scenario rows of BC and the references}``."""
     found = {}
     for folder in sorted(work.glob("*/evals_*")):
-        if (folder / BC / "per_scenario.csv").is_file() and \
-                (folder / "references" / "per_scenario.csv").is_file():
+        if (folder / BC / PER_SCENARIO_FILE).is_file() and \
+                (folder / "references" / PER_SCENARIO_FILE).is_file():
             _, per_scenario = load_evaluations([folder / BC, folder / "references"])
             found[(folder.name.removeprefix("evals_"), folder.parent.name)] = per_scenario
     if not found:
@@ -110,24 +110,22 @@ def _diff(row: pd.Series, key: str) -> str:
 
 def code_lines(work: Path) -> list[str]:
     """Per motion folder, the code that trained its BC run and the code of its evaluations
-    (:func:`igdrivsim.machine.code_state`, as ``config.json`` and ``eval_config.json`` recorded
-    it; ``unknown`` where they did not)."""
+    (:func:`igdrivsim.machine.code_state`, as the evaluation records ``eval_config.json``
+    hold them: ``code`` and the run's ``trained``; ``unknown`` where they do not)."""
 
-    def read(path: Path) -> dict:
-        return read_json(path, {})
-
-    def label(record: dict) -> str:
-        code = record.get("code")
+    def label(code) -> str:
         return code_label(code) if isinstance(code, dict) else "unknown"
 
     lines = []
-    for folder in sorted(p for p in work.iterdir() if (p / "runs" / BC).is_dir()):
-        run = read(folder / "runs" / BC / "config.json")
-        evaluated = sorted({label(read(f)) for f in folder.glob("evals_*/*/eval_config.json")})
-        scenarios = run.get("num_scenarios")
-        trained_on = f"{scenarios:,} training scenarios; " if scenarios else ""
-        lines.append(f"- {folder.name}: {trained_on}trained at {label(run)}; evaluated at "
-                     f"{', '.join(evaluated) or 'unknown'}")
+    for folder in sorted(p for p in work.iterdir() if any(p.glob(f"evals_*/{BC}"))):
+        records = [read_json(f, {}) for f in sorted(folder.glob(f"evals_*/*/{EVAL_CONFIG}"))]
+        evaluated = sorted({label(r.get("code")) for r in records})
+        runs = [r["trained"] for r in records if isinstance(r.get("trained"), dict)]
+        trained = sorted({label(r.get("code")) for r in runs}) or ["unknown"]
+        scenarios = sorted({r["num_scenarios"] for r in runs if r.get("num_scenarios")})
+        trained_on = f"{scenarios[0]:,} training scenarios; " if len(scenarios) == 1 else ""
+        lines.append(f"- {folder.name}: {trained_on}trained at {', '.join(trained)}; "
+                     f"evaluated at {', '.join(evaluated) or 'unknown'}")
     return lines
 
 
