@@ -4,6 +4,7 @@ before any work is done (no traceback, nothing half-written)."""
 from __future__ import annotations
 
 import json
+import signal
 import warnings
 
 import pytest
@@ -11,6 +12,7 @@ import pytest
 from igdrivsim.cli import main
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
+from igdrivsim.pipeline.cli import main as reproduce
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.records import data_identity
 
@@ -133,6 +135,22 @@ def test_reproduce_checks_its_arguments_before_any_stage(extra, needle, tmp_path
     with pytest.raises((ConfigError, DataError), match=needle):
         pipeline_from_args(args)
     assert not (tmp_path / "work").exists()
+
+
+def test_reproduce_gives_sigterm_back_to_its_caller(tmp_path, monkeypatch, capsys):
+    """main() turns SIGTERM into an interrupt while it runs, then restores the caller's handler
+    (a process that calls it, a test worker, keeps its own)."""
+    def mine(signum, frame):
+        pass
+
+    monkeypatch.chdir(tmp_path)
+    before = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert reproduce(["--profile", "smoke", "--out", "work", "--obs", "full,full"]) == 2
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert "distinct settings" in capsys.readouterr().err
 
 
 def test_every_command_line_reports_through_run_command(capsys):

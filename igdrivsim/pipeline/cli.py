@@ -150,8 +150,11 @@ def _interrupt(signum, frame) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the stages as Ctrl-C does
+    on_main = threading.current_thread() is threading.main_thread()
+    if on_main:
+        # `kill` stops the stages as Ctrl-C does, while this call runs (then the caller's
+        # handler is back: a process that called main() keeps its own)
+        previous = signal.signal(signal.SIGTERM, _interrupt)
     pipeline = None
 
     def body() -> None:
@@ -166,6 +169,9 @@ def main(argv: list[str] | None = None) -> int:
             pipeline.stop()
         print("reproduce: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
+    finally:
+        if on_main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":
