@@ -26,19 +26,12 @@ from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
 
 
-def load_trained(run_dir: str):
-    """``(RunConfig, stacked parameters [G, S], seed list)`` of a training run folder."""
-    run = Run.open(run_dir)
-    return run.config, run.params(), list(run.config.seeds)
-
-
-def trained_record(run_dir: str) -> dict:
+def trained_record(run: Run) -> dict:
     """What the evaluation record says of the parameters it evaluated: the code that trained
     them (``code``, ``code_resumed``), on how many scenarios and for how many updates, so that
     a report reads an evaluation folder alone."""
-    record = Run.open(run_dir).record
-    return {k: record[k] for k in ("code", "code_resumed", "num_scenarios", "num_updates")
-            if k in record}
+    return {k: run.record[k] for k in ("code", "code_resumed", "num_scenarios", "num_updates")
+            if k in run.record}
 
 
 def _bar(total: int, desc: str, enabled: bool):
@@ -64,7 +57,8 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     import pandas as pd  # heavy: pandas is needed only here
 
     _check_sizes(max_scenarios, batch_size)
-    config, params, seeds = load_trained(run_dir)
+    run = Run.open(run_dir)
+    config, params, seeds = run.config, run.params(), list(run.config.seeds)
     if scenarios is None:
         scenarios = load_validation(data, config.capacities, max_scenarios, progress)
     ids = scenario_ids_of(scenarios)
@@ -84,7 +78,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
         num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params),
-        trained=trained_record(run_dir)))
+        trained=trained_record(run)))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
