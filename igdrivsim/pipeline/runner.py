@@ -45,13 +45,10 @@ class StageRunner:
              commands: Sequence[Sequence[str]] | None = None) -> bool:
         """Complete: stamped (with the same ``commands``, when given), and none of ``depends``
         ran again in this invocation."""
-        path = self.stamp_path(stage)
-        if not path.is_file() or set(depends) & self.ran:
+        if not self.stamp_path(stage).is_file() or set(depends) & self.ran:
             return False
-        if commands is None:
-            return True
-        stamped = read_json(path, {}).get("commands")
-        return stamped == [list(map(str, c)) for c in commands]
+        return commands is None or self.stamp(stage).get("commands") == [
+            list(map(str, c)) for c in commands]
 
     def stamp(self, stage: str) -> dict:
         """A complete stage's stamp (empty when there is none or it is unreadable)."""
