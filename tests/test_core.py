@@ -80,14 +80,16 @@ def test_categorical_terms_by_hand():
 def test_maze_and_driving_share_the_runner_and_the_loss_terms():
     import importlib
 
-    from igdrivsim.policy import distribution as driving_losses
+    from igdrivsim.policy import act as driving_losses
+    from igdrivsim.training import update
     from maze import mixed, ppo, rollout
 
     driving = importlib.import_module("igdrivsim.simulator.rollout")
     assert rollout.run_episode is driving.episode.run_episode is episode.run_episode
     assert rollout.Actor is driving.Actor is episode.Actor
-    for name in ("gae", "surrogate_terms", "normalize", "masked_mean"):
+    for name in ("surrogate_terms", "masked_mean"):
         assert getattr(driving_losses, name) is getattr(learn, name)
+    assert update.gae is learn.gae and update.normalize is learn.normalize
     assert ppo.gae is mixed.gae is learn.gae
     assert ppo.surrogate_terms is learn.surrogate_terms
 

@@ -17,9 +17,13 @@ import pytest
 
 from igdrivsim.data.scenario import CURRENT_INDEX
 from igdrivsim.observation import ObservationConfig, get_setting, observe
-from igdrivsim.policy.act import choose_levels, example_observation, policy_actor
-from igdrivsim.policy.closed_loop import policy_rollout
-from igdrivsim.policy.distribution import action_log_prob
+from igdrivsim.policy.act import (
+    action_log_prob,
+    choose_levels,
+    example_observation,
+    policy_actor,
+    policy_rollout,
+)
 from igdrivsim.policy.network import (
     POOLED_NETWORK,
     PolicyConfig,

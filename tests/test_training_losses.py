@@ -10,16 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from igdrivsim.core.learn import gae, normalize, value_loss
 from igdrivsim.observation import ObservationConfig
-from igdrivsim.policy.act import example_observation, policy_step
-from igdrivsim.policy.distribution import (
+from igdrivsim.policy.act import (
     action_log_prob,
     bc_loss,
     clipped_surrogate,
     entropy,
-    gae,
-    normalize,
-    value_loss,
+    example_observation,
+    policy_step,
 )
 from igdrivsim.policy.network import (
     POOLED_NETWORK,

@@ -173,8 +173,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     hides far road points), the same states fully observed for the teacher; the teacher's
     labels are its network on those full observations."""
     from igdrivsim.observation import get_setting
-    from igdrivsim.policy.act import example_observation
-    from igdrivsim.policy.closed_loop import policy_rollout
+    from igdrivsim.policy.act import example_observation, policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
     from igdrivsim.training.loop import init_buffer, load_teacher
     from igdrivsim.training.update import (

@@ -4,7 +4,7 @@ categorical policies and the one optimisation loop.
 **Loss terms** (on explicit arrays, no network): GAE, the clipped PPO terms, and the
 log-probability, entropy, cross-entropy and KL of a categorical; the maze trains one
 categorical over 4 moves, the driving policy three over 257 levels
-(:mod:`igdrivsim.policy.distribution` sums these over its three action dimensions).
+(:mod:`igdrivsim.policy.act` sums these over its three action dimensions).
 Per-categorical functions reduce the last (class) axis only; sequences are time-major
 (``[T, ...]``).
 

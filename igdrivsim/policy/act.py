@@ -1,6 +1,13 @@
-"""Acting with a trained policy: the GRU warm-up on the logged steps and one action step.
+"""The policy acting: its action distribution, the actor, and its own training episodes.
 
-The training episode (and therefore evaluation) is: observe the logged warm-up steps
+**The action distribution** is three independent categoricals (dx, dy, dyaw levels): logits
+``[..., 3, bins]`` and actions ``[..., 3]`` (level indices). :func:`action_log_prob` and the
+loss terms the learning methods sum (BC's NLL, entropy, cross-entropy, KL, PPO's surrogate) are
+the shared categorical terms of :mod:`igdrivsim.core.learn` summed over the three dimensions
+(GAE, the PPO terms and the masked statistics are the core's own). They live with the policy
+(acting needs the log-probability) so that ``policy`` does not import ``training``.
+
+**Acting.** The training episode (and therefore evaluation) is: observe the logged warm-up steps
 ``t = 0..9`` (GRU state zeroed at ``t = 0``), then at every controlled step ``t = 10..89``
 observe, step the GRU, pick one of 257 levels per dimension and convert it to the continuous
 delta-local action ``(dx, dy, dyaw)``. How the level is picked is the *action mode*
@@ -16,24 +23,65 @@ Every closed-loop episode of a learned policy goes through the simulator's runne
 
 :func:`warmup_carry` is the actor's GRU warm-up for one scenario; :func:`policy_step` is one
 step by hand from a given observation (tests, interactive use).
+
+**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: a batch of
+reset states driven by actions sampled from the policy, time-major (``[T, B, ...]``) with
+observations, log-probabilities, values and rewards. Steps 0..9 are the logged warm-up
+(observed only, to warm the GRU; the update does that from the teacher-forced observations),
+then 80 controlled steps 10..89. Each scenario has its own episode key (Gaussian noise offset,
+masking draws); the step key is ``fold_in(episode_key, t)``. The reward is the simulator's
+(``-1[overlap] - 1[offroad]``), zero where the logged SDC has no next pose.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from igdrivsim.data.scenario import CURRENT_INDEX
+from igdrivsim.core import learn as core
+from igdrivsim.core.learn import log_prob, masked_mean, surrogate_terms
+from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS
 from igdrivsim.observation import ROADGRAPH_FEATURES, Observation, ObservationConfig, observe
 from igdrivsim.observation.features import DEFAULT_CONFIG
-from igdrivsim.policy.distribution import action_log_prob
 from igdrivsim.policy.network import PolicyConfig, apply_step, initial_carry
 from igdrivsim.simulator.dynamics import undiscretize
-from igdrivsim.simulator.rollout import Actor, StepInfo
-from igdrivsim.simulator.state import vmap_batch
+from igdrivsim.simulator.rollout import Actor, StepInfo, run_episode
+from igdrivsim.simulator.state import SimParams, SimState, vmap_batch
+
+
+def action_log_prob(logits: jax.Array, actions: jax.Array) -> jax.Array:
+    """log pi(a) = sum over the 3 dimensions of log softmax(logits)[a_d]; ``[...]``."""
+    return log_prob(logits, actions).sum(-1)
+
+
+def entropy(logits: jax.Array) -> jax.Array:
+    """Entropy of the joint (product) distribution, ``[...]``."""
+    return core.entropy(logits).sum(-1)
+
+
+def soft_cross_entropy(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
+    """Cross-entropy of the policy to a target distribution (a teacher's log-probabilities),
+    summed over the 3 dimensions: ``[...]``."""
+    return core.soft_cross_entropy(target_logp, logits).sum(-1)
+
+
+def kl_divergence(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
+    """KL(target || policy) summed over the 3 dimensions, ``[...]``."""
+    return core.kl_divergence(target_logp, logits).sum(-1)
+
+
+def bc_loss(logits: jax.Array, expert_actions: jax.Array, mask: jax.Array | None = None):
+    """Mean negative log-likelihood of the discretised expert actions."""
+    return masked_mean(-action_log_prob(logits, expert_actions), mask)
+
+
+def clipped_surrogate(logp_new: jax.Array, logp_old: jax.Array, advantages: jax.Array,
+                      clip: float, mask: jax.Array | None = None) -> jax.Array:
+    """PPO policy loss (to minimise): -mean(min(r A, clip(r, 1-eps, 1+eps) A))."""
+    return masked_mean(surrogate_terms(logp_new, logp_old, advantages, clip), mask)
 
 
 def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Observation:
@@ -148,3 +196,40 @@ def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationC
         return undiscretize(levels), carry.replace(hidden=h), info
 
     return Actor(step=step, init=init)
+
+
+WARMUP_STEPS = CURRENT_INDEX  # observations at t = 0..9 warm the GRU
+CONTROLLED_STEPS = NUM_STEPS - 1 - CURRENT_INDEX  # 80
+
+
+class PolicyRollout(NamedTuple):
+    obs: Observation  # [80, B, ...]
+    actions: jax.Array  # int32 [80, B, 3], sampled bin indices
+    log_probs: jax.Array  # [80, B]
+    values: jax.Array  # [80, B]
+    rewards: jax.Array  # [80, B], reward of the state reached by the action
+    valid: jax.Array  # bool [80, B]
+    privileged_obs: Observation | None = None  # [80, B, ...] the same states, fully observed
+
+
+def policy_rollout(config: PolicyConfig, params, carry, state: SimState, setting, obs_config,
+                   sim_params: SimParams, episode_keys, key,
+                   num_steps: int = CONTROLLED_STEPS, privileged=None) -> PolicyRollout:
+    """Drive a batch ``[B]`` with actions sampled from the policy, starting from the warmed-up
+    GRU state ``carry [B, H]``; one draw per step for the whole batch from
+    ``split(key, num_steps)``. ``privileged``: a setting (the teacher's, e.g. ``full``) under
+    which every visited state is observed as well, for a teacher to label it."""
+    actor = student = policy_actor(config, params, setting, obs_config, "sample")
+    if privileged is not None:
+        def step(s, pc, k):
+            action, pc, info = student.step(s, pc, k)
+            seen = observe_now(s, privileged, pc.episode_key, obs_config)
+            return action, pc, info._replace(extras=(info.extras, seen))
+
+        actor = Actor(step=step, init=student.init)
+    _, tr = run_episode(state, actor, key, sim_params, carry=PolicyCarry(carry, episode_keys),
+                        metrics_fn=None, observation=True, value=True, log_prob=True,
+                        with_reward=True, num_steps=num_steps)
+    levels, seen = tr.extras if privileged is not None else (tr.extras, None)
+    rewards = jnp.where(tr.valid, tr.reward, 0.0)
+    return PolicyRollout(tr.observation, levels, tr.log_prob, tr.value, rewards, tr.valid, seen)

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from igdrivsim.core.learn import clipped_adam, sgd_epochs
+from igdrivsim.core.learn import clipped_adam, gae, normalize, sgd_epochs
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -45,9 +45,7 @@ from igdrivsim.observation import (
     get_setting,
     stack_settings,
 )
-from igdrivsim.policy.act import example_observation
-from igdrivsim.policy.closed_loop import WARMUP_STEPS, policy_rollout
-from igdrivsim.policy.distribution import bc_loss, gae, normalize
+from igdrivsim.policy.act import WARMUP_STEPS, bc_loss, example_observation, policy_rollout
 from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training.config import LossConfig, RunConfig

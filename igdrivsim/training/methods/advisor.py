@@ -23,17 +23,10 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+from igdrivsim.core.learn import masked_mean, surrogate_terms, value_loss
 from igdrivsim.core.params import AdvisorParams
 from igdrivsim.errors import ConfigError
-from igdrivsim.policy.distribution import (
-    action_log_prob,
-    entropy,
-    kl_divergence,
-    masked_mean,
-    soft_cross_entropy,
-    surrogate_terms,
-    value_loss,
-)
+from igdrivsim.policy.act import action_log_prob, entropy, kl_divergence, soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 
 

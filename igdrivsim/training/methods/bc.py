@@ -3,7 +3,8 @@ logged episodes (the paper's BC; ``w_BC BC + w_RL PPO`` with ``w_RL = 0``)."""
 
 from __future__ import annotations
 
-from igdrivsim.policy.distribution import bc_loss, entropy, masked_mean
+from igdrivsim.core.learn import masked_mean
+from igdrivsim.policy.act import bc_loss, entropy
 from igdrivsim.training.methods import Method, register_method
 
 

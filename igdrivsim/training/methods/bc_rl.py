@@ -6,13 +6,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from igdrivsim.policy.distribution import (
-    action_log_prob,
-    clipped_surrogate,
-    entropy,
-    masked_mean,
-    value_loss,
-)
+from igdrivsim.core.learn import masked_mean, value_loss
+from igdrivsim.policy.act import action_log_prob, clipped_surrogate, entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
 

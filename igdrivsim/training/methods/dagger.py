@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from igdrivsim.core.learn import masked_mean
 from igdrivsim.errors import ConfigError
-from igdrivsim.policy.distribution import masked_mean, soft_cross_entropy
+from igdrivsim.policy.act import soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
 
