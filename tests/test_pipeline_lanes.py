@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from igdrivsim.evaluation.schema import SETTINGS
 from igdrivsim.pipeline import planning, runner
 from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
 from igdrivsim.pipeline.profiles import PROFILES
@@ -136,7 +137,7 @@ def test_gpu_profile_trains_the_laptop_updates_with_more_seeds():
 
 def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, monkeypatch,
                                                                       capsys):
-    from igdrivsim.evaluation.schema import METHODS, SETTINGS
+    from igdrivsim.evaluation.schema import METHODS
 
     seconds = planning.part_seconds("laptop", 3, 1000, False)
     for workers in (1, 2, 4, 8):
@@ -159,6 +160,24 @@ def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, m
     err = capsys.readouterr().err
     assert "plan: estimated wall time ~" in err and "below the competence targets" in err
     assert "test CPU, 2 cores; 2 worker process(es), one XLA thread each" in err
+
+
+def test_a_resumed_run_is_priced_without_its_complete_stages():
+    """The methods run after the default run: only the taught methods' training is left."""
+    plain, taught = ("bc", "bc_rl"), ("dagger", "advisor")
+    whole = planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2)
+    seconds = planning.part_seconds("laptop", 3, 1000, False)
+    first = planning.split_grid(plain, SETTINGS, 2, seconds, [planning.cost.MAZE_CPU_S])
+    complete = {f"train_{p.name}" for p in first} | {"maze"}
+    left = planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2,
+                                     done=complete.__contains__)
+    second = planning.split_grid(taught, [s for s in SETTINGS if s != "full"], 2, seconds)
+    assert left == pytest.approx(planning.makespan([p.seconds for p in second], 2)
+                                 + planning.cost.LAPTOP_OTHER_CPU_S)
+    assert whole and 0 < left < whole
+    everything = complete | {f"train_{p.name}" for p in second} | {"report"}
+    assert planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2,
+                                     done=everything.__contains__) == 0
 
 
 def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):

@@ -338,7 +338,7 @@ class Pipeline(Publisher, StageRunner):
         wall = planning.estimate_seconds(
             self.profile.name, [m for m in self.methods if m not in taught], taught,
             self.settings, self.profile.seeds, t.num_updates, self.lanes,
-            self.machine.accelerator is not None)
+            self.machine.accelerator is not None, done=self.done)
         grid = ", ".join(f"{p.name} ({len(p.settings)} setting{'s' * (len(p.settings) > 1)})"
                          for p in (*first, *second))
         lines = [
@@ -363,7 +363,7 @@ class Pipeline(Publisher, StageRunner):
             where = ("training at the measured H100 rates, the other stages at their measured "
                      "CPU costs" if self.machine.accelerator else "measured per-update costs")
             lines.append(f"plan: estimated wall time ~{planning.hours_text(wall)} ({where}: "
-                         "igdrivsim/training/cost.py; stages already complete are skipped)")
+                         "igdrivsim/training/cost.py; stages already complete are not counted)")
         note = provenance.competence_note(self.profile.name, t.num_updates)
         if note:
             lines.append(f"plan: {note}")
