@@ -24,6 +24,21 @@ def test_a_killed_rerun_of_a_stage_is_not_taken_for_complete(tmp_path):
     assert not Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper").done("a")
 
 
+def test_a_resumed_stage_counts_the_seconds_of_every_invocation(tmp_path):
+    """A stage killed after some work and completed by a later invocation is stamped with the
+    time of both (the interrupted one's kept in its .spent record)."""
+    pipe = Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper", quiet=True)
+    slow = [["python", "-c", "import time; time.sleep(1.5)"]]
+    with pytest.raises(IGDrivSimError, match="failed"):  # interrupted after ~1.5 s of work
+        pipe.stage("a", [*slow, ["python", "-c", "raise SystemExit(3)"]])
+    assert json.loads(pipe.spent_path("a").read_text())["seconds"] >= 1.5
+    again = Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper", quiet=True)
+    assert again.stage("a", slow)
+    assert again.stamp("a")["seconds"] >= 3.0 and not again.spent_path("a").exists()
+    assert again.stage("a", [["python", "-c", "pass"]])  # other commands: counted anew
+    assert again.stamp("a")["seconds"] < 1.5
+
+
 def test_a_torn_log_line_is_dropped_on_resume(tmp_path):
     log = tmp_path / "metrics.jsonl"
     log.write_text('{"update": 1, "x": 1}\n{"update": 2, "x": 2}\n{"update": 3, "x"')

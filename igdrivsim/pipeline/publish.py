@@ -153,3 +153,4 @@ class Publisher:
     def _keep_wall(self, stop: threading.Event) -> None:
         while not stop.wait(WALL_EVERY_S):
             self._record_wall()
+            self.record_spent()

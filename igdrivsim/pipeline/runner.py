@@ -1,6 +1,6 @@
 """Resumable stages: run a command line as a named stage, stamp it when complete (with the
-code it ran: commit, dirty flag, diff hash), skip it when stamped, log it, and stop every
-running stage on an interrupt."""
+code it ran: commit, dirty flag, diff hash, and its seconds over every invocation that worked
+on it), skip it when stamped, log it, and stop every running stage on an interrupt."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ class StageError(IGDrivSimError):
 class StageRunner:
     """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps). The dataclass that
     inherits it provides ``work``, ``quiet``, ``in_process``, ``one_thread``, ``ran``,
-    ``stopping``, ``children`` and ``device_text`` (where the stages run: recorded in each
-    stamp, so a run resumed on another machine says which stage ran where)."""
+    ``running``, ``stopping``, ``children`` and ``device_text`` (where the stages run: recorded
+    in each stamp, so a run resumed on another machine says which stage ran where)."""
 
     # ----------------------------------------------------------------------- bookkeeping
     def log_path(self, stage: str) -> Path:
@@ -49,6 +49,29 @@ class StageRunner:
             return False
         return commands is None or self.stamp(stage).get("commands") == [
             list(map(str, c)) for c in commands]
+
+    def spent_path(self, stage: str) -> Path:
+        """The seconds an unfinished stage has taken so far, over its invocations."""
+        return self.work / "stages" / f"{stage}.spent"
+
+    def spent(self, stage: str) -> float:
+        """Seconds of a stage: the earlier (interrupted) invocations' and, while it runs, this
+        one's."""
+        try:
+            before = float(read_json(self.spent_path(stage), {}).get("seconds", 0.0))
+        except (TypeError, ValueError):
+            before = 0.0
+        start = self.running.get(stage)
+        return before + (time.time() - start if start is not None else 0.0)
+
+    def record_spent(self) -> None:
+        """Write the seconds of every running stage, so that a killed run keeps them (called
+        every minute while the run goes on, and when a stage stops)."""
+        for stage in list(self.running):
+            if stage not in self.running:  # finished meanwhile (another lane)
+                continue
+            atomic_write_text(self.spent_path(stage),
+                              json.dumps({"seconds": round(self.spent(stage), 1)}) + "\n")
 
     def stamp(self, stage: str) -> dict:
         """A complete stage's stamp (empty when there is none or it is unreadable)."""
@@ -89,27 +112,38 @@ class StageRunner:
         log.parent.mkdir(parents=True, exist_ok=True)
         # an old stamp must not survive a rerun that is killed: the next invocation would take
         # the half-rewritten stage (and so its dependents) for complete
+        if self.stamp_path(name).is_file():  # a complete stage run again starts its count anew
+            self.spent_path(name).unlink(missing_ok=True)
         self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
         start, code = time.time(), provenance.code_state(REPO_ROOT)  # the code it runs
-        with open(log, "a", encoding="utf-8") as fh:
-            fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
-            for argv in commands:
-                fh.write("$ " + " ".join(map(str, argv)) + "\n")
-                fh.flush()
-                rc = self._run(list(map(str, argv)), fh, name if not echo else None)
-                if rc != 0:
-                    raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
-        missing = [str(p) for p in outputs if not Path(p).exists()]
-        if missing:
-            raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
+        self.running[name] = start
+        try:
+            with open(log, "a", encoding="utf-8") as fh:
+                fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")
+                for argv in commands:
+                    fh.write("$ " + " ".join(map(str, argv)) + "\n")
+                    fh.flush()
+                    rc = self._run(list(map(str, argv)), fh, name if not echo else None)
+                    if rc != 0:
+                        raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
+            missing = [str(p) for p in outputs if not Path(p).exists()]
+            if missing:
+                raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
+            seconds = self.spent(name)
+        finally:
+            self.record_spent()
+            del self.running[name]
         atomic_write_text(self.stamp_path(name), json.dumps(dict(
-            stage=name, seconds=round(time.time() - start, 1), commands=[list(map(str, c))
-                                                                         for c in commands],
+            stage=name, seconds=round(seconds, 1), commands=[list(map(str, c))
+                                                             for c in commands],
             finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text, code=code),
             indent=2) + "\n")
+        self.spent_path(name).unlink(missing_ok=True)
         self.ran.add(name)
-        self._say(f"{name}: done in {time.time() - start:.0f} s")
+        elapsed = time.time() - start
+        self._say(f"{name}: done in {elapsed:.0f} s" + (
+            f" ({seconds:.0f} s with the invocations before)" if seconds > elapsed + 1 else ""))
         return True
 
     def _run(self, argv: list[str], fh, beat: str | None = None) -> int:

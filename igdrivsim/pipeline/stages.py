@@ -95,6 +95,7 @@ class Pipeline(Publisher, StageRunner):
         self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
         self.children: set[subprocess.Popen] = set()  # stage processes now running
+        self.running: dict[str, float] = {}  # stages now running -> when this invocation began
 
     # --------------------------------------------------------------------------- stages
     @property
