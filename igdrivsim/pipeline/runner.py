@@ -64,10 +64,10 @@ class StageRunner:
         start = self.running.get(stage)
         return before + (time.time() - start if start is not None else 0.0)
 
-    def record_spent(self) -> None:
-        """Write the seconds of every running stage, so that a killed run keeps them (called
-        every minute while the run goes on, and when a stage stops)."""
-        for stage in list(self.running):
+    def record_spent(self, stages: Sequence[str] | None = None) -> None:
+        """Write the seconds of ``stages`` (default: every running stage), so that a killed run
+        keeps them (called every minute while the run goes on, and when a stage fails)."""
+        for stage in list(self.running if stages is None else stages):
             if stage not in self.running:  # finished meanwhile (another lane)
                 continue
             atomic_write_text(self.spent_path(stage),
@@ -131,8 +131,10 @@ class StageRunner:
             if missing:
                 raise StageError(f"stage '{name}' did not write {missing[0]}; read {log}")
             seconds = self.spent(name)
+        except BaseException:
+            self.record_spent([name])  # a failed or interrupted stage keeps its seconds so far
+            raise
         finally:
-            self.record_spent()
             del self.running[name]
         atomic_write_text(self.stamp_path(name), json.dumps(dict(
             stage=name, seconds=round(seconds, 1), commands=[list(map(str, c))
