@@ -162,22 +162,28 @@ def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, m
     assert "test CPU, 2 cores; 2 worker process(es), one XLA thread each" in err
 
 
-def test_a_resumed_run_is_priced_without_its_complete_stages():
-    """The methods run after the default run: only the taught methods' training is left."""
+def test_a_resumed_run_is_priced_for_what_is_left():
+    """The methods run after the default run: only the taught methods' training is left, and
+    of a part checkpointed halfway, half."""
     plain, taught = ("bc", "bc_rl"), ("dagger", "advisor")
     whole = planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2)
     seconds = planning.part_seconds("laptop", 3, 1000, False)
     first = planning.split_grid(plain, SETTINGS, 2, seconds, [planning.cost.MAZE_CPU_S])
     complete = {f"train_{p.name}" for p in first} | {"maze"}
     left = planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2,
-                                     done=complete.__contains__)
+                                     left=lambda stage: float(stage not in complete))
     second = planning.split_grid(taught, [s for s in SETTINGS if s != "full"], 2, seconds)
     assert left == pytest.approx(planning.makespan([p.seconds for p in second], 2)
                                  + planning.cost.LAPTOP_OTHER_CPU_S)
     assert whole and 0 < left < whole
+    halfway = planning.estimate_seconds(  # the taught parts checkpointed at half their updates
+        "laptop", plain, taught, SETTINGS, 3, 1000, 2,
+        left=lambda stage: 0.0 if stage in complete else 0.5 if stage.startswith("train_") else 1)
+    assert halfway == pytest.approx(0.5 * planning.makespan([p.seconds for p in second], 2)
+                                    + planning.cost.LAPTOP_OTHER_CPU_S)
     everything = complete | {f"train_{p.name}" for p in second} | {"report"}
     assert planning.estimate_seconds("laptop", plain, taught, SETTINGS, 3, 1000, 2,
-                                     done=everything.__contains__) == 0
+                                     left=lambda stage: float(stage not in everything)) == 0
 
 
 def test_stop_terminates_the_running_stage_processes(tmp_path, monkeypatch):

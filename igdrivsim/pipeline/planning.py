@@ -191,25 +191,25 @@ def part_seconds(profile: str, seeds: int, updates: int, gpu: bool
 
 def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
                      settings: Sequence[str], seeds: int, updates: int, workers: int,
-                     gpu: bool = False, done: Callable[[str], bool] = lambda stage: False
+                     gpu: bool = False, left: Callable[[str], float] = lambda stage: 1.0
                      ) -> float | None:
     """Estimated wall seconds of the pipeline (None for a profile whose costs were not
     measured): the training parts and the maze over the workers (then the taught methods'
     parts), plus the other stages' measured CPU-s on 2 cores taken as serial (an upper bound,
-    on a GPU machine too). ``done(stage)``: whether a stage (``train_<part>``, ``maze``,
-    ``report``) is complete; a resumed run is priced without them."""
+    on a GPU machine too). ``left(stage)``: the share of a stage (``train_<part>``, ``maze``,
+    ``report``) still to run, 0 when complete; a resumed run is priced for what is left."""
     if profile not in PRICED_PROFILES:
         return None
     seconds = part_seconds(profile, seeds, updates, gpu)
     maze = cost.GPU_MACHINE_MAZE_S if gpu else cost.MAZE_CPU_S
     first = split_grid(plain, settings, workers, seconds, [maze])
-    total = makespan([p.seconds for p in first if not done(f"train_{p.name}")]
-                     + [maze] * (not done("maze")), workers)
+    total = makespan([p.seconds * left(f"train_{p.name}") for p in first]
+                     + [maze * left("maze")], workers)
     if taught:
         rest = [s for s in settings if s != "full"]
         second = split_grid(taught, rest, workers, seconds)
-        total += makespan([p.seconds for p in second if not done(f"train_{p.name}")], workers)
-    return total + cost.LAPTOP_OTHER_CPU_S * (not (done("report") and total == 0))
+        total += makespan([p.seconds * left(f"train_{p.name}") for p in second], workers)
+    return total + cost.LAPTOP_OTHER_CPU_S * (not (left("report") == 0 and total == 0))
 
 
 def hours_text(seconds: float) -> str:

@@ -59,7 +59,7 @@ from igdrivsim.training.config import QUICK_UPDATES, get_profile, with_overrides
 from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
-from igdrivsim.training.run import DONE, is_complete
+from igdrivsim.training.run import CHECKPOINTS, DONE, Run, is_complete
 
 
 @dataclass
@@ -331,6 +331,17 @@ class Pipeline(Publisher, StageRunner):
         """The maze stage's measured CPU-s (0: a profile whose costs were not measured)."""
         return MAZE_CPU_S if self.profile.name in planning.PRICED_PROFILES else 0.0
 
+    def left(self, stage: str) -> float:
+        """The share of ``stage`` still to run: 0 when complete; for a training part, the
+        updates past its latest checkpoint; else 1."""
+        if self.done(stage):
+            return 0.0
+        run = self.work / "runs" / stage.removeprefix("train_")
+        if not stage.startswith("train_") or not (run / CHECKPOINTS).is_dir():
+            return 1.0
+        updates = self.training_config().training.num_updates
+        return max(0.0, 1.0 - (Run.open(run).latest_step() or 0) / updates)
+
     def plan(self) -> list[str]:
         """What this run will do and how long it should take (printed before any stage)."""
         first, second = self.parts()
@@ -339,7 +350,7 @@ class Pipeline(Publisher, StageRunner):
         wall = planning.estimate_seconds(
             self.profile.name, [m for m in self.methods if m not in taught], taught,
             self.settings, self.profile.seeds, t.num_updates, self.lanes,
-            self.machine.accelerator is not None, done=self.done)
+            self.machine.accelerator is not None, left=self.left)
         grid = ", ".join(f"{p.name} ({len(p.settings)} setting{'s' * (len(p.settings) > 1)})"
                          for p in (*first, *second))
         lines = [
@@ -364,11 +375,13 @@ class Pipeline(Publisher, StageRunner):
             where = ("training at the measured H100 rates, the other stages at their measured "
                      "CPU costs" if self.machine.accelerator else "measured per-update costs")
             lines.append(f"plan: estimated wall time ~{planning.hours_text(wall)} ({where}: "
-                         "igdrivsim/training/cost.py; stages already complete are not counted)")
+                         "igdrivsim/training/cost.py; work already complete or checkpointed "
+                         "is not counted)")
         note = provenance.competence_note(self.profile.name, t.num_updates)
         if note:
             lines.append(f"plan: {note}")
-        elif self.profile.name == "laptop" and wall is not None and not self.machine.accelerator:
+        elif (self.profile.name == "laptop" and wall is not None and not self.machine.accelerator
+              and not self.stamped_stages()):  # a first look is for a run not yet begun
             quick = planning.estimate_seconds(
                 "quick", [m for m in self.methods if m not in taught], taught, self.settings,
                 self.profile.seeds, QUICK_UPDATES, self.lanes, self.machine.accelerator is not None)
