@@ -71,3 +71,11 @@ def test_bench_train_times_the_update_and_its_parts():
     assert r["grad_steps_per_s"] * r["seconds_per_update"] == pytest.approx(2 * 2 * 2, rel=1e-2)
     assert set(r["parts_s"]) == {"record", "observe", "collect", "forward_backward"}
     assert all(v > 0 for v in r["parts_s"].values())
+
+
+def test_bench_train_times_a_method_without_an_expert_loss():
+    """ADVISOR reports no ``bc_loss``: its record carries the loss it trains, ``teacher_ce``."""
+    from igdrivsim.training.bench import bench_profile
+
+    r = bench_profile("smoke", "advisor", updates=1, obs="circular_r4")
+    assert r["seconds_per_update"] > 0 and r["teacher_ce"] > 0 and "bc_loss" not in r

@@ -40,7 +40,7 @@ from igdrivsim.simulator import toy
 from igdrivsim.training import inputs
 from igdrivsim.training.commands import refuse_contradictions
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
-from igdrivsim.training.methods import METHODS
+from igdrivsim.training.methods import METHODS, loss_key
 from igdrivsim.training.update import settings_as_data, update_spec
 
 
@@ -273,7 +273,7 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             "grad_steps_per_s": round(grads / per_update, 2),
             "matmul_flops_per_update": flops,
             "matmul_tflop_per_s": round(flops / per_update / 1e12, 4),
-            "bc_loss": float(np.mean(jax.device_get(m["bc_loss"]))), **traced}
+            loss_key(m): float(np.mean(jax.device_get(m[loss_key(m)]))), **traced}
 
 
 def bench_train_command(args: argparse.Namespace) -> int:

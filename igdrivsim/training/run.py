@@ -64,6 +64,7 @@ from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import code_state
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
+from igdrivsim.training.methods import loss_key
 
 # The files of a run folder (see the module docstring).
 CONFIG, METRICS, CURVES, DONE = "config.json", "metrics.jsonl", "curves.jsonl", "DONE"
@@ -394,10 +395,10 @@ class Run:
         line = log_line(done, lr, metrics, rates)
         self.metrics_file.write(json.dumps(line) + "\n")
         self.metrics_file.flush()
-        loss_key = "bc_loss" if "bc_loss" in metrics else "teacher_ce"
-        self.curves(done, {loss_key: metrics[loss_key]})
+        key = loss_key(metrics)
+        self.curves(done, {key: metrics[key]})
         if self.bar is not None:
-            self.bar.set_postfix({loss_key: f"{line[loss_key]:.3f}"}, refresh=False)
+            self.bar.set_postfix({key: f"{line[key]:.3f}"}, refresh=False)
 
     def run_hooks(self, done: int, params, last: bool = False) -> bool:
         """Call the hooks due at ``done`` (0: a fresh run's start); True when one ran."""

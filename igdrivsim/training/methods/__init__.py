@@ -136,6 +136,13 @@ def get_method(name: str) -> Method:
 # Every module of this package registers one method. The paper's two come first, then the
 # remedies beyond it, then any other module (alphabetically): registration order is the
 # tables' order.
+def loss_key(metrics: Mapping[str, Any]) -> str:
+    """The training loss an update reports first (progress bar, learning curves, ``bench
+    train``): the imitation of the expert (``bc_loss``) when the method has one, else of the
+    teacher (``teacher_ce``, ADVISOR)."""
+    return "bc_loss" if "bc_loss" in metrics else "teacher_ce"
+
+
 ORDER = ("bc", "bc_rl", "dagger", "advisor")
 DEFAULT_METHOD = ORDER[0]  # what a run trains unless told otherwise: the paper's BC
 
