@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 
 import pytest
 
@@ -37,6 +38,27 @@ def test_a_resumed_stage_counts_the_seconds_of_every_invocation(tmp_path):
     assert again.stamp("a")["seconds"] >= 3.0 and not again.spent_path("a").exists()
     assert again.stage("a", [["python", "-c", "pass"]])  # other commands: counted anew
     assert again.stamp("a")["seconds"] < 1.5
+
+
+def test_a_stage_s_seconds_do_not_compound_when_its_record_is_kept_often(tmp_path):
+    """The run keeps the running stages' seconds every minute: written many times during one
+    invocation, they still count that invocation once."""
+    pipe = Pipeline(PROFILES["smoke"], tmp_path, tmp_path / "paper", quiet=True)
+    stop = threading.Event()
+
+    def keep() -> None:
+        while not stop.wait(0.05):
+            pipe.record_spent()
+
+    keeper = threading.Thread(target=keep)
+    keeper.start()
+    try:
+        with pytest.raises(IGDrivSimError, match="failed"):
+            pipe.stage("a", [["python", "-c", "import time; time.sleep(1.5); raise SystemExit(3)"]])
+    finally:
+        stop.set()
+        keeper.join()
+    assert 1.5 <= json.loads(pipe.spent_path("a").read_text())["seconds"] < 4.0
 
 
 def test_a_torn_log_line_is_dropped_on_resume(tmp_path):

@@ -56,13 +56,14 @@ class StageRunner:
 
     def spent(self, stage: str) -> float:
         """Seconds of a stage: the earlier (interrupted) invocations' and, while it runs, this
-        one's."""
+        one's (the record holds both once this invocation has written it, so it is read only
+        when the stage starts)."""
+        if stage in self.running:
+            return time.time() - self.running[stage]
         try:
-            before = float(read_json(self.spent_path(stage), {}).get("seconds", 0.0))
+            return float(read_json(self.spent_path(stage), {}).get("seconds", 0.0))
         except (TypeError, ValueError):
-            before = 0.0
-        start = self.running.get(stage)
-        return before + (time.time() - start if start is not None else 0.0)
+            return 0.0
 
     def record_spent(self, stages: Sequence[str] | None = None) -> None:
         """Write the seconds of ``stages`` (default: every running stage), so that a killed run
@@ -117,7 +118,7 @@ class StageRunner:
         self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
         start, code = time.time(), provenance.code_state(REPO_ROOT)  # the code it runs
-        self.running[name] = start
+        self.running[name] = start - self.spent(name)  # as if begun with the earlier seconds
         try:
             with open(log, "a", encoding="utf-8") as fh:
                 fh.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} stage {name}\n")

@@ -95,7 +95,8 @@ class Pipeline(Publisher, StageRunner):
         self._machine: planning.Machine | None = None
         self.stopping = threading.Event()  # a lane failed: the other lane's stage stops
         self.children: set[subprocess.Popen] = set()  # stage processes now running
-        self.running: dict[str, float] = {}  # stages now running -> when this invocation began
+        # stages now running -> when they began, moved back by their earlier invocations' seconds
+        self.running: dict[str, float] = {}
 
     # --------------------------------------------------------------------------- stages
     @property
