@@ -133,9 +133,6 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-# Every module of this package registers one method. The paper's two come first, then the
-# remedies beyond it, then any other module (alphabetically): registration order is the
-# tables' order.
 def loss_key(metrics: Mapping[str, Any]) -> str:
     """The training loss an update reports first (progress bar, learning curves, ``bench
     train``): the imitation of the expert (``bc_loss``) when the method has one, else of the
@@ -143,6 +140,9 @@ def loss_key(metrics: Mapping[str, Any]) -> str:
     return "bc_loss" if "bc_loss" in metrics else "teacher_ce"
 
 
+# Every module of this package registers one method. The paper's two come first, then the
+# remedies beyond it, then any other module (alphabetically): registration order is the
+# tables' order.
 ORDER = ("bc", "bc_rl", "dagger", "advisor")
 DEFAULT_METHOD = ORDER[0]  # what a run trains unless told otherwise: the paper's BC
 
