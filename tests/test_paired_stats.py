@@ -133,4 +133,5 @@ def test_tidy_rows_give_the_egos_every_seed_shares_grouped_by_source():
     assert (out["n_egos"], out["n_sources"], out["n_seeds"]) == (3, 2, 2)
     assert out["win"] == 0.75  # seed 0 closer, seed 1 a tie, on every ego
     assert out["median"] == -0.5 and out["ratio"] == pytest.approx(0.75)
+    assert out["diff"] == pytest.approx(-0.5) and out["diff_lo"] <= -0.5 <= out["diff_hi"]
     assert compare_on_egos(frame, "full", "bc_rl", "constant_velocity")["n_egos"] == 0

@@ -11,7 +11,8 @@ statistics compare a driver with a reference (constant velocity, the expert) ego
   most one rank, where it moves a mean without bound.
 - **Mean ratio**: the driver's mean over seeds and egos over the reference's mean over egos,
   with its **minimum detectable effect** ``(z_{0.975} + z_{0.8}) * SE``: the smallest departure
-  from a ratio of 1 a two-sided level-0.05 test detects with 80% power.
+  from a ratio of 1 a two-sided level-0.05 test detects with 80% power. The mean difference
+  (``diff``) comes with its interval and MDE too, for the tables that show it.
 
 Intervals (95%, percentile) come from a **hierarchical bootstrap**: source scenarios are
 resampled with replacement and every ego of a drawn source comes with it (egos of one scene
@@ -45,7 +46,7 @@ N_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
 # the statistics, in the order of their columns (each with _lo, _hi; ratio and win with _mde)
-STATISTICS = ("win", "median", "ratio")
+STATISTICS = ("win", "median", "ratio", "diff")
 
 
 def source_of(scenario_id: str) -> str:
@@ -85,7 +86,8 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
                 seed_counts: np.ndarray, ego_counts: np.ndarray) -> np.ndarray:
-    """``(B, 3)``: win share, median difference and mean ratio under ``B`` weightings
+    """``(B, 4)``: win share, median difference, mean ratio and mean difference under ``B``
+    weightings
     (``seed_counts`` ``(B, S)`` over the driver's seeds, ``ego_counts`` ``(B, E)``)."""
     n_seeds = seed_counts.sum(axis=1, keepdims=True)
     per_ego = seed_counts @ driver / n_seeds  # (B, E): the driver's seed mean on each ego
@@ -93,8 +95,10 @@ def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
     total = ego_counts.sum(axis=1)
     win = (ego_counts * win_ego).sum(axis=1) / total
     median = weighted_median(per_ego - reference, ego_counts)
-    ratio = (ego_counts * per_ego).sum(axis=1) / (ego_counts @ reference)
-    return np.stack([win, median, ratio], axis=1)
+    driver_mean = (ego_counts * per_ego).sum(axis=1)
+    reference_mean = ego_counts @ reference
+    ratio = driver_mean / reference_mean
+    return np.stack([win, median, ratio, (driver_mean - reference_mean) / total], axis=1)
 
 
 def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Sequence,
@@ -108,7 +112,8 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
     ``source``: each ego's source scenario (egos of one source are resampled together).
     Returns ``win, win_lo, win_hi, win_mde`` (the smallest departure from a share of 0.5
     detectable), ``median, median_lo, median_hi``, ``ratio, ratio_lo, ratio_hi, ratio_mde``
-    (from a ratio of 1), ``n_egos``, ``n_sources``, ``n_seeds``; NaN statistics without egos.
+    (from a ratio of 1), ``diff, diff_lo, diff_hi, diff_mde`` (the mean difference, from 0),
+    ``n_egos``, ``n_sources``, ``n_seeds``; NaN statistics without egos.
     """
     driver = np.atleast_2d(np.asarray(driver, float))
     reference = np.asarray(reference, float)
@@ -120,8 +125,8 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
         raise ValueError("driver (seeds, egos), reference (egos,) and source (egos,) must "
                          "agree on the egos")
     out: dict[str, float] = dict(n_egos=n_egos, n_sources=len(uniques), n_seeds=n_seeds)
-    keys = [f"{s}{k}" for s in STATISTICS for k in ("", "_lo", "_hi")] + ["win_mde",
-                                                                           "ratio_mde"]
+    keys = [f"{s}{k}" for s in STATISTICS for k in ("", "_lo", "_hi")] + [
+        "win_mde", "ratio_mde", "diff_mde"]
     if n_egos == 0 or n_seeds == 0:
         return out | dict.fromkeys(keys, float("nan"))
     wins = (driver < reference) + 0.5 * (driver == reference)
@@ -141,6 +146,7 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
         out |= {name: float(point[i]), f"{name}_lo": float(lo[i]), f"{name}_hi": float(hi[i])}
     out["win_mde"] = float(minimum_detectable_effect(se[0]))
     out["ratio_mde"] = float(minimum_detectable_effect(se[2]))
+    out["diff_mde"] = float(minimum_detectable_effect(se[3]))
     return out
 
 
