@@ -135,3 +135,26 @@ def test_tidy_rows_give_the_egos_every_seed_shares_grouped_by_source():
     assert out["median"] == -0.5 and out["ratio"] == pytest.approx(0.75)
     assert out["diff"] == pytest.approx(-0.5) and out["diff_lo"] <= -0.5 <= out["diff_hi"]
     assert compare_on_egos(frame, "full", "bc_rl", "constant_velocity")["n_egos"] == 0
+
+
+def test_the_mean_difference_bootstrap_resamples_clusters_when_given():
+    from igdrivsim.evaluation.aggregate import hierarchical_bootstrap
+
+    rng = np.random.default_rng(2)
+    xb = rng.lognormal(1.0, 0.8, (1, 60, 1))
+    xa = xb + rng.normal(0.3, 1.0, (3, 60, 1))
+    distinct = [f"s{i}" for i in range(60)]
+    assert np.array_equal(hierarchical_bootstrap(xa, xb, B, 0, clusters=distinct),
+                          hierarchical_bootstrap(xa, xb, B, 0))  # the plain resample
+    k = 5
+    copies = np.repeat(xa, k, axis=1), np.repeat(xb, k, axis=1)
+
+    def width(reps):
+        return float(np.diff(np.percentile(reps[:, 0], [2.5, 97.5]))[0])
+
+    base = width(hierarchical_bootstrap(xa, xb, B, 0))
+    clustered = width(hierarchical_bootstrap(*copies, B, 0, clusters=np.repeat(distinct, k)))
+    naive = width(hierarchical_bootstrap(*copies, B, 0))
+    assert clustered == pytest.approx(base, rel=0.2) and clustered > 1.6 * naive
+    with pytest.raises(ValueError, match="one entry per scenario"):
+        hierarchical_bootstrap(xa, xb, 10, 0, clusters=distinct[:-1])

@@ -64,6 +64,11 @@ def sources(frame: pd.DataFrame) -> pd.Series:
     return frame["scenario_id"].astype(str).map(source_of)
 
 
+def source_map(frame: pd.DataFrame) -> dict[str, str]:
+    """``{scenario_id: source scenario}`` of a frame's rows (see :func:`sources`)."""
+    return dict(zip(frame["scenario_id"].astype(str), sources(frame), strict=True))
+
+
 def _counts(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
     """``(n_resamples, n)`` integer counts of each of ``n`` items in a resample of size ``n``."""
     idx = rng.integers(0, n, size=(n_resamples, n)) + n * np.arange(n_resamples)[:, None]
@@ -176,11 +181,10 @@ def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference:
     b = ref.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
                         dropna=False)
     egos = sorted(set(a.columns[a.notna().all(axis=0)]) & set(b.columns[b.notna().all(axis=0)]))
-    rows = pd.concat([ours, ref]).drop_duplicates("scenario_id").set_index("scenario_id")
-    source = sources(rows.reset_index()).set_axis(rows.index)
+    source = source_map(pd.concat([ours, ref]))
     return (a[egos].to_numpy(float).reshape(len(a), len(egos)),
             b[egos].to_numpy(float).mean(axis=0),
-            [source[e] for e in egos])
+            [source[str(e)] for e in egos])
 
 
 def statistic_seed(*names: str) -> list[int]:

@@ -7,7 +7,8 @@ synthetic validation set and on real sets). For every (data set, motion) the tab
 BC's and constant velocity's per-step metrics (mean over seeds of each seed's mean over
 scenarios) and BC - constant velocity with its 95% interval and the smallest difference the
 comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
-scenarios (:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
+scenarios, the egos of one source scenario together
+(:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
 which every motion model is evaluated on, a second table compares the motion models' BC
 directly (paired scenarios). Where there are several real sets, they are also pooled (``real,
 pooled``): the comparison with the most power. A last table compares every learned driver
@@ -35,7 +36,7 @@ from igdrivsim.evaluation.aggregate import (
     paired_difference,
     scenario_cube,
 )
-from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos
+from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
 from igdrivsim.evaluation.schema import (
     BC,
     CONSTANT_VELOCITY,
@@ -99,8 +100,10 @@ def against_constant_velocity(found: dict) -> pd.DataFrame:
     for (data, motion), frame in _in_order(found):
         frame = frame[(frame.method != BC) | (frame.setting == FULL)]  # Full BC
         scen = complete_scenarios(frame, (BC, CONSTANT_VELOCITY))
+        source = source_map(frame)
         c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
-                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS))
+                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS),
+                              clusters=[source[str(s)] for s in scen])
         row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
                    .nunique())
         for i, key in enumerate(METRICS):
@@ -139,8 +142,10 @@ def between_motions(found: dict) -> pd.DataFrame:
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
             scen = complete_scenarios(a, (BC,)).intersection(complete_scenarios(b, (BC,)))
+            source = source_map(a)
             c = paired_difference(scenario_cube(a, BC, scen, METRICS),
-                              scenario_cube(b, BC, scen, METRICS))
+                                  scenario_cube(b, BC, scen, METRICS),
+                                  clusters=[source[str(s)] for s in scen])
             row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
             for i, key in enumerate(METRICS):
                 row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
@@ -182,7 +187,8 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         "Written by `bash scripts/transfer_check.sh WORK MOTION` "
         "(`python -m igdrivsim.report.transfer`). Laptop profile, 3 seeds, 1,000 updates. "
         "Means are over seeds of each seed's mean over the N scenarios; differences with a "
-        "95% hierarchical-bootstrap interval (seeds, then paired scenarios), its p-value and "
+        "95% hierarchical-bootstrap interval (seeds, then paired scenarios; egos of one source "
+        "scenario together), its p-value and "
         "the minimum detectable effect (MDE, 80% power). Log divergence in m, offroad and "
         "overlap in % of steps.",
         "",
