@@ -10,7 +10,8 @@ statistics compare a driver with a reference (constant velocity, the expert) ego
   value being its mean over seeds on that ego. One ego with a huge divergence moves it by at
   most one rank, where it moves a mean without bound.
 - **Mean ratio**: the driver's mean over seeds and egos over the reference's mean over egos,
-  with its **minimum detectable effect** ``(z_{0.975} + z_{0.8}) * SE``: the smallest departure
+  with its **minimum detectable effect** ``(z_{0.975} + z_{0.8}) * SE``
+  (:func:`igdrivsim.evaluation.aggregate.minimum_detectable_effect`): the smallest departure
   from a ratio of 1 a two-sided level-0.05 test detects with 80% power. The mean difference
   (``diff``) comes with its interval and MDE too, for the tables that show it.
 
@@ -35,14 +36,12 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from igdrivsim.evaluation.aggregate import CONFIDENCE, N_RESAMPLES, minimum_detectable_effect
 from igdrivsim.evaluation.schema import REFERENCE_SETTING
 
 EGO_SEPARATOR = "#"  # ego id = <source scenario id>#<object id>
 SOURCE_COLUMN = "source"  # an evaluation row's source scenario, where the CSV records it
-CONFIDENCE, ALPHA, POWER = 0.95, 0.05, 0.8
-N_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
 # the statistics, in the order of their columns (each with _lo, _hi; ratio and win with _mde)
@@ -153,13 +152,6 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
     out["ratio_mde"] = float(minimum_detectable_effect(se[2]))
     out["diff_mde"] = float(minimum_detectable_effect(se[3]))
     return out
-
-
-def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA,
-                              power: float = POWER) -> float | np.ndarray:
-    """Smallest true effect a two-sided level-``alpha`` test detects with ``power`` for an
-    estimate with standard error ``se`` (normal approximation)."""
-    return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)) * np.asarray(se, float)
 
 
 def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
