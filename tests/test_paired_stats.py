@@ -113,6 +113,9 @@ def test_seed_spread_widens_the_interval_and_reruns_are_identical():
         paired_ego_statistics(shaky, ref, src, n_resamples=B, seed=7)
     assert paired_ego_statistics(shaky, ref, src, n_resamples=B, seed=8)["ratio_lo"] != \
         varied["ratio_lo"]
+    never = paired_ego_statistics(driver + 100.0, ref, src, n_resamples=B)
+    assert never["win"] == 0.0 and never["win_lo"] == 0.0  # Wilson's, one trial per source
+    assert never["win_hi"] == pytest.approx(1.96 ** 2 / (100 + 1.96 ** 2), rel=1e-3)
     empty = paired_ego_statistics(np.zeros((3, 0)), np.zeros(0), [], n_resamples=10)
     assert empty["n_egos"] == 0 and np.isnan(empty["win"]) and np.isnan(empty["ratio_mde"])
     with pytest.raises(ValueError, match="agree on the egos"):

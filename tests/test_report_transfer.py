@@ -110,7 +110,7 @@ def test_transfer_compares_every_driver_ego_by_ego_clustered_by_source(tmp_path)
     assert main([str(tmp_path), "--out", str(tmp_path / "transfer.md")]) == 0
     text = (tmp_path / "transfer.md").read_text()
     assert "| real | default | Full | BC | Constant velocity | 8 (4) | 50% [" in text
-    assert "| real, pooled | default | Full | BC-RL | Constant velocity | 16 (8) | 0% [0, 0] |" \
+    assert "| real, pooled | default | Full | BC-RL | Constant velocity | 16 (8) | 0% [0, 32] |" \
         in text
 
 

@@ -21,7 +21,10 @@ share its map, traffic and difficulty, so they are one cluster, not independent 
 the driver's seeds are resampled with replacement (independently trained policies). The
 reference is taken per ego as its mean over its seeds (the references are deterministic). Each
 resample is a weighted statistic (source counts x seed counts), computed for blocks of
-resamples at once; a fixed RNG seed makes reruns identical.
+resamples at once; a fixed RNG seed makes reruns identical. Where the driver wins on every
+ego or on none, every resample agrees and the percentile interval is a point, so the win
+share's interval is then Wilson's score interval with one trial per source scenario (the
+conservative sample size: egos of one scene count once).
 
 Ego ids: when every vehicle of a scenario is the ego in turn, an ego's ``scenario_id`` is
 ``<source scenario id>#<object id>`` (:data:`EGO_SEPARATOR`); :func:`source_of` gives back the
@@ -36,6 +39,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from igdrivsim.evaluation.aggregate import CONFIDENCE, N_RESAMPLES, minimum_detectable_effect
 from igdrivsim.evaluation.schema import REFERENCE_SETTING
@@ -148,10 +152,23 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
     se = np.nanstd(np.where(np.isfinite(reps), reps, np.nan), axis=0, ddof=1)
     for i, name in enumerate(STATISTICS):
         out |= {name: float(point[i]), f"{name}_lo": float(lo[i]), f"{name}_hi": float(hi[i])}
+    if point[0] in (0.0, 1.0):  # every resample agrees: the percentile interval is a point
+        out["win_lo"], out["win_hi"] = wilson_interval(point[0], len(uniques), confidence)
     out["win_mde"] = float(minimum_detectable_effect(se[0]))
     out["ratio_mde"] = float(minimum_detectable_effect(se[2]))
     out["diff_mde"] = float(minimum_detectable_effect(se[3]))
     return out
+
+
+def wilson_interval(share: float, n: int, confidence: float = CONFIDENCE
+                    ) -> tuple[float, float]:
+    """Wilson score interval of a binomial ``share`` observed on ``n`` trials."""
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    centre = (share + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(share * (1 - share) / n + z * z / (4 * n * n))
+    lo = 0.0 if share <= 0 else max(0.0, centre - half)  # exact ends at a share of 0 or 1
+    hi = 1.0 if share >= 1 else min(1.0, centre + half)
+    return float(lo), float(hi)
 
 
 def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,

@@ -267,7 +267,7 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
                        & learned.real_vs_cv_win.notna()]
         if len(full):
             r = full.iloc[0]
-            closer += (f" (Full BC {100 * r.real_vs_cv_win:.0f}%, 95% CI "
+            closer += (f", Full BC on {100 * r.real_vs_cv_win:.0f}% (95% CI "
                        f"{100 * r.real_vs_cv_win_lo:.0f}-{100 * r.real_vs_cv_win_hi:.0f}%)")
     where = f"{n} real scenarios"
     if "real_sources" in cv and pd.notna(cv.real_sources.iloc[0]) \
