@@ -45,6 +45,7 @@ from igdrivsim.evaluation.schema import (
     PER_SCENARIO_FILE,
     REFERENCES,
     setting_short,
+    table_settings,
 )
 from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.machine import code_label, code_state
@@ -119,7 +120,9 @@ def ego_by_ego(found: dict) -> pd.DataFrame:
     rows = []
     for (data, motion), frame in _in_order(found):
         learned = frame.loc[~frame.method.isin(REFERENCES), ["setting", "method"]]
-        for setting, method in sorted(set(map(tuple, learned.to_numpy()))):
+        order = {s: i for i, s in enumerate(table_settings(learned))}  # Table I's order
+        for setting, method in sorted(set(map(tuple, learned.to_numpy())),
+                                      key=lambda sm: (order.get(sm[0], len(order)), sm)):
             for reference in PAIRED_REFERENCES.values():
                 c = compare_on_egos(frame, setting, method, reference)
                 if c["n_egos"]:
