@@ -29,7 +29,9 @@ conservative sample size: egos of one scene count once).
 Ego ids: when every vehicle of a scenario is the ego in turn, an ego's ``scenario_id`` is
 ``<source scenario id>#<object id>`` (:data:`EGO_SEPARATOR`); :func:`source_of` gives back the
 source, and a frame's ``source`` column, where present, takes precedence. With one ego per
-scenario (the logged SDC) the source is the scenario itself.
+scenario (the logged SDC) the source is the scenario itself; so are the windows of one long
+log (ScenarioNet's ``<log id>_<first step>``, hashed when long), unless a ``source`` column
+names their log.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ EGO_SEPARATOR = "#"  # ego id = <source scenario id>#<object id>
 SOURCE_COLUMN = "source"  # an evaluation row's source scenario, where the CSV records it
 BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
-# the statistics, in the order of their columns (each with _lo, _hi; ratio and win with _mde)
+# the statistics, in the order of their columns (each with _lo, _hi; all but median with _mde)
 STATISTICS = ("win", "median", "ratio", "diff")
 
 
