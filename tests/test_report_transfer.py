@@ -10,7 +10,13 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.report.transfer import against_constant_velocity, between_motions, evaluations, main
+from igdrivsim.report.transfer import (
+    against_constant_velocity,
+    between_motions,
+    ego_by_ego,
+    evaluations,
+    main,
+)
 
 COLUMNS = ["setting", "method", "seed", "scenario_id", "log_divergence", "offroad_steps",
            "overlap_steps", "max_log_divergence", "overlap", "offroad"]
@@ -66,6 +72,46 @@ def test_transfer_tables_measure_bc_against_cv_and_the_motions(tmp_path, capsys)
     assert "- calibrated: trained at unknown; evaluated at unknown" in text
     assert "| real | default | 8 | 6.05 | 5.00 | 1.21 |" in text
     assert "| real | default - calibrated | 8 | +2.00" in text
+
+
+def test_transfer_compares_every_driver_ego_by_ego_clustered_by_source(tmp_path):
+    """BC and a BC-RL folder beside it, on egos ``<scenario>#<object>`` (two per source):
+    each against constant velocity and the expert, N egos and N sources, also when pooled."""
+    for data in ("validation", "real", "other"):
+        _evals(tmp_path, "default", data, 5.0, 5.0)
+        folder = tmp_path / "default" / f"evals_{data}"
+        for who in ("bc", "references"):
+            frame = pd.read_csv(folder / who / "per_scenario.csv")
+            frame["scenario_id"] = frame.scenario_id.str[1:].astype(int).map(
+                lambda i: f"src{i // 2}#{i % 2}")
+            if who == "references":  # and the expert, replaying the log
+                frame = pd.concat([frame, frame.assign(method="expert", log_divergence=0.02)])
+            frame.to_csv(folder / who / "per_scenario.csv", index=False)
+        rl = pd.read_csv(folder / "bc" / "per_scenario.csv").assign(
+            method="bc_rl", log_divergence=lambda f: f.log_divergence + 2.0)
+        (folder / "bc_rl").mkdir()
+        rl.to_csv(folder / "bc_rl" / "per_scenario.csv", index=False)
+    found = evaluations(tmp_path)
+    egos = ego_by_ego(found).set_index(["data", "method", "reference"])
+    bc = egos.loc[("real", "bc", "constant_velocity")]
+    assert (bc.egos, bc.sources, bc.n_seeds) == (8, 4, 2)
+    # BC wobbles by +-0.5 around CV, and every source holds one win and one loss: resampling
+    # sources (not egos) cannot move the share
+    assert bc.win == bc.win_lo == bc.win_hi == 0.5
+    assert bc["median"] == pytest.approx(0.05) and bc.ratio == pytest.approx(5.05 / 5.0)
+    rl = egos.loc[("real", "bc_rl", "constant_velocity")]
+    assert rl.win == 0.0 and rl.ratio == pytest.approx(7.05 / 5.0)
+    expert = egos.loc[("real", "bc", "expert")]
+    assert (expert.egos, expert.win) == (8, 0.0) and expert.ratio == pytest.approx(5.05 / 0.02)
+    pooled = egos.loc[("real, pooled", "bc", "constant_velocity")]
+    assert (pooled.egos, pooled.sources) == (16, 8)
+    assert list(ego_by_ego(found).data)[0] == "validation"
+    assert against_constant_velocity(found).set_index("data").loc["real", "n"] == 8
+    assert main([str(tmp_path), "--out", str(tmp_path / "transfer.md")]) == 0
+    text = (tmp_path / "transfer.md").read_text()
+    assert "| real | default | Full | BC | Constant velocity | 8 (4) | 50% [" in text
+    assert "| real, pooled | default | Full | BC-RL | Constant velocity | 16 (8) | 0% [0, 32] |" \
+        in text
 
 
 def test_transfer_without_evaluations_is_one_line(tmp_path, capsys):

@@ -197,12 +197,16 @@ def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.
 
 
 def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_RESAMPLES,
-                           seed: int | Sequence[int] = TEST_SEED) -> np.ndarray:
+                           seed: int | Sequence[int] = TEST_SEED,
+                           clusters: Sequence | None = None) -> np.ndarray:
     """Bootstrap replicates of ``mean(xa) - mean(xb)`` resampling seeds, then paired scenarios.
 
     ``xa``: ``(seeds_a, scenarios, k)`` and ``xb``: ``(seeds_b, scenarios, k)``, the same
     scenarios in the same order (``k`` metrics share the resamples). Seeds are resampled within
-    each method; one scenario resample is shared by both methods and all seeds. Returns
+    each method; one scenario resample is shared by both methods and all seeds. ``clusters``:
+    each scenario's cluster (its source scenario, when several egos come from one scene,
+    :func:`igdrivsim.evaluation.paired.sources`): clusters are resampled with all their
+    scenarios; all distinct (or None) is the plain scenario resample. Returns
     ``(n_resamples, k)``. Vectorised: a resample's grand mean is ``w_seed @ X @ w_scenario``.
     """
     xa, xb = np.asarray(xa, float), np.asarray(xb, float)
@@ -211,13 +215,22 @@ def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_
     if xa.shape[1:] != xb.shape[1:]:
         raise ValueError("xa and xb need the same scenarios and metrics")
     (sa, n, k), sb = xa.shape, xb.shape[0]
+    codes, n_clusters = None, n
+    if clusters is not None:
+        codes, uniques = pd.factorize(pd.Series(list(clusters), dtype=object), sort=True)
+        if codes.shape != (n,):
+            raise ValueError("clusters needs one entry per scenario")
+        codes, n_clusters = (None, n) if len(uniques) == n else (codes, len(uniques))
     rng = np.random.default_rng(seed)
     flat_a = xa.transpose(1, 0, 2).reshape(n, sa * k)  # scenario x (seed, metric)
     flat_b = xb.transpose(1, 0, 2).reshape(n, sb * k)
     out = np.empty((n_resamples, k))
     for start in range(0, n_resamples, _CHUNK):
         m = min(_CHUNK, n_resamples - start)
-        w_scen = _resample_weights(rng, m, n)
+        w_scen = _resample_weights(rng, m, n_clusters)
+        if codes is not None:  # every scenario of a drawn cluster, weights summing to one
+            w_scen = w_scen[:, codes]
+            w_scen /= w_scen.sum(axis=1, keepdims=True)
         w_a, w_b = _resample_weights(rng, m, sa), _resample_weights(rng, m, sb)
         ya = (w_scen @ flat_a).reshape(m, sa, k)  # each seed's mean over resampled scenarios
         yb = (w_scen @ flat_b).reshape(m, sb, k)
@@ -237,13 +250,13 @@ def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
 
 
 def paired_difference(a: np.ndarray, b: np.ndarray, n_resamples: int = N_RESAMPLES,
-                      seed: int | Sequence[int] = TEST_SEED, confidence: float = CONFIDENCE
-                      ) -> dict[str, np.ndarray]:
+                      seed: int | Sequence[int] = TEST_SEED, confidence: float = CONFIDENCE,
+                      clusters: Sequence | None = None) -> dict[str, np.ndarray]:
     """``a - b`` over the same scenarios (``(seeds, scenarios, metrics)`` each): the means,
     the difference, its interval (:func:`hierarchical_bootstrap`: seeds, then paired
-    scenarios), its standard error, the bootstrap p-value and the minimum detectable effect
-    (level ``ALPHA``, power ``POWER``), per metric."""
-    reps = hierarchical_bootstrap(a, b, n_resamples, seed)
+    scenarios, or their ``clusters``), its standard error, the bootstrap p-value and the
+    minimum detectable effect (level ``ALPHA``, power ``POWER``), per metric."""
+    reps = hierarchical_bootstrap(a, b, n_resamples, seed, clusters)
     lo, hi = np.percentile(reps, [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2],
                            axis=0)
     se = reps.std(axis=0, ddof=1)

@@ -7,7 +7,12 @@ Each cell is the mean over seeds of each seed's mean over scenarios (Table I's p
 log divergence, offroad and overlap as percent of steps), with the number of scenarios beside
 it, and each learned driver's real log divergence minus constant velocity's with its 95%
 interval and the smallest difference the real scenarios detect (80% power): on a handful of
-real scenarios, the check's power is part of its result.
+real scenarios, the check's power is part of its result. Heavy tails (a few egos diverging by
+15 m or more) leave a mean weak, so a second table compares every learned driver with constant
+velocity and with the expert ego by ego (:mod:`igdrivsim.evaluation.paired`): the share of
+egos where it stays closer to the log, the median paired difference and the mean ratio with its
+minimum detectable effect, with 95% intervals from a bootstrap over source scenarios, then
+seeds, and the numbers of egos and of source scenarios.
 
 ``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
 ``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` and a one-sentence
@@ -24,15 +29,12 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError, run_command
-from igdrivsim.evaluation.aggregate import (
-    complete_scenarios,
-    load_evaluations,
-    paired_difference,
-    scenario_cube,
-    seed_means,
-)
+from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
+from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
+    BC,
     CONSTANT_VELOCITY,
+    EXPERT,
     METHOD_LABELS,
     METRIC_BY_KEY,
     REFERENCES,
@@ -50,6 +52,13 @@ VS_CV = ["real_vs_cv_diff", "real_vs_cv_lo", "real_vs_cv_hi", "real_vs_cv_mde"]
 VS_CV_HEADER = "log divergence - constant velocity (m), real [95% CI], MDE"
 HEADERS = {"log_divergence": "log divergence (m)", "offroad": "offroad (%)",
            "overlap": "overlap (%)"}
+# ego by ego against each reference (igdrivsim.evaluation.paired): column prefix -> reference
+PAIRED_REFERENCES = {"cv": CONSTANT_VELOCITY, "expert": EXPERT}
+PAIRED_STATS = ("egos", "sources", "win", "win_lo", "win_hi", "win_mde", "median", "median_lo",
+                "median_hi", "ratio", "ratio_lo", "ratio_hi", "ratio_mde")
+PAIRED = [f"real_vs_{ref}_{k}" for ref in PAIRED_REFERENCES for k in PAIRED_STATS]
+PAIRED_HEAD = ["N egos (sources)", "closer to the log [95% CI]",
+               "median difference (m) [95% CI]", "mean ratio [95% CI], MDE"]
 
 
 def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -> pd.DataFrame:
@@ -61,22 +70,26 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
         if frame is None or frame.empty:
             continue
         means = seed_means(frame, metrics).groupby(["setting", "method", "metric"])["value"]
-        counts = frame.groupby(["setting", "method"]).agg(
-            n=("scenario_id", "nunique"), seeds=("seed", "nunique"))
+        counts = frame.assign(source=sources(frame)).groupby(["setting", "method"]).agg(
+            n=("scenario_id", "nunique"), seeds=("seed", "nunique"),
+            sources=("source", "nunique"))
         for (setting, method), c in counts.iterrows():
             if source == "validation" and (setting, method) not in rows:
                 continue  # only what was also evaluated on real logs
             row = rows.setdefault((setting, method), dict(setting=setting, method=method))
             row[f"{source}_n"], row[f"{source}_seeds"] = int(c.n), int(c.seeds)
+            if source == "real":
+                row["real_sources"] = int(c.sources)
             for key in METRIC_KEYS:
                 try:
                     row[f"{source}_{key}"] = float(means.mean().loc[(setting, method, key)])
                 except KeyError:
                     row[f"{source}_{key}"] = float("nan")
     for row in rows.values():
-        row |= _against_constant_velocity(real, row["setting"], row["method"])
+        row |= _ego_by_ego(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
-                                        for x in ("n", "seeds", *METRIC_KEYS)] + VS_CV
+                                        for x in ("n", "seeds", *METRIC_KEYS)] + VS_CV + [
+        "real_sources", *PAIRED]
     table = pd.DataFrame(list(rows.values()), columns=columns)
     methods = {m: i for i, m in enumerate(METHOD_LABELS)}
     settings = {s: i for i, s in enumerate(table_settings(table))}
@@ -87,19 +100,65 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
     return table.loc[keys.sort_values(["ref", "s", "m"]).index].reset_index(drop=True)
 
 
-def _against_constant_velocity(real: pd.DataFrame, setting: str, method: str) -> dict:
-    """A learned driver's real log divergence minus constant velocity's on the same scenarios:
-    the difference, its 95% interval (seeds, then paired scenarios) and the minimum detectable
-    effect (80% power); NaN for the references or without constant velocity."""
-    ours = real[(real.setting == setting) & (real.method == method)]
-    cv = real[real.method == CONSTANT_VELOCITY]
-    if method in REFERENCES or ours.empty or cv.empty:
-        return dict.fromkeys(VS_CV, float("nan"))
-    scenarios = complete_scenarios(real[real.setting.isin([setting, cv.setting.iloc[0]])],
-                                   (method, CONSTANT_VELOCITY))
-    c = paired_difference(scenario_cube(ours, method, scenarios, ["log_divergence"]),
-                          scenario_cube(cv, CONSTANT_VELOCITY, scenarios, ["log_divergence"]))
-    return {f"real_vs_cv_{k}": float(c[k][0]) for k in ("diff", "lo", "hi", "mde")}
+def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
+    """A learned driver against each of :data:`PAIRED_REFERENCES` ego by ego on the real logs'
+    log divergence (:func:`igdrivsim.evaluation.paired.compare_on_egos`: bootstrap over
+    source scenarios, then seeds), and against constant velocity the mean difference, its
+    interval and minimum detectable effect (:data:`VS_CV`); NaN for the references."""
+    out = dict.fromkeys(PAIRED + VS_CV, float("nan"))
+    if method in REFERENCES:
+        return out
+    for prefix, reference in PAIRED_REFERENCES.items():
+        c = compare_on_egos(real, setting, method, reference)
+        if not c["n_egos"]:
+            continue
+        out |= {f"real_vs_{prefix}_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
+                for k in PAIRED_STATS}
+        if reference == CONSTANT_VELOCITY:
+            out |= dict(zip(VS_CV, (c["diff"], c["diff_lo"], c["diff_hi"], c["diff_mde"]),
+                            strict=True))
+    return out
+
+
+def paired_cells(values: dict | pd.Series, prefix: str = "") -> list[str]:
+    """The cells of :data:`PAIRED_HEAD` from :func:`~igdrivsim.evaluation.paired.compare_on_egos`'s
+    numbers (keys ``prefix`` + ``egos``, ``sources``, ``win``...); ``--`` without egos."""
+    def get(key: str) -> float:
+        value = values.get(prefix + key)
+        return float("nan") if value is None else float(value)
+
+    if not get("egos") > 0:
+        return ["--"] * len(PAIRED_HEAD)
+    return [f"{int(get('egos'))} ({int(get('sources'))})",
+            f"{100 * get('win'):.0f}% [{100 * get('win_lo'):.0f}, {100 * get('win_hi'):.0f}]",
+            f"{get('median'):+.2f} [{get('median_lo'):+.2f}, {get('median_hi'):+.2f}]",
+            f"{get('ratio'):.2f}x [{get('ratio_lo'):.2f}, {get('ratio_hi'):.2f}], "
+            f"MDE {get('ratio_mde'):.2f}"]
+
+
+PAIRED_NOTE = (
+    "Ego by ego (heavy tails leave a mean weak): N egos compared (source scenarios: egos of "
+    "one scene form one cluster); the share of egos where the driver stays closer to the log "
+    "than the reference (over its seeds; a tie counts half); the median over egos of the "
+    "driver's log divergence (mean over seeds) minus the reference's; the driver's mean log "
+    "divergence over the reference's, with the smallest departure from 1 detectable at 80% "
+    "power (MDE). 95% intervals: bootstrap resampling source scenarios, then seeds.")
+
+
+def _paired_markdown(table: pd.DataFrame) -> list[str]:
+    """The second table: each learned driver against each reference, ego by ego."""
+    lines = []
+    for _, row in table.iterrows():
+        for prefix, reference in PAIRED_REFERENCES.items():
+            cells = paired_cells(row, f"real_vs_{prefix}_")
+            if cells[0] != "--":
+                lines.append("| " + " | ".join([*_label(row), METHOD_LABELS.get(
+                    reference, reference), *cells]) + " |")
+    if not lines:
+        return []
+    head = ["setting", "method", "against", *PAIRED_HEAD]
+    return ["", "## Ego by ego on the real logs", "", PAIRED_NOTE, "",
+            "| " + " | ".join(head) + " |", "|" + "---|" * len(head), *lines]
 
 
 def _vs_cv_cell(row: pd.Series) -> str:
@@ -129,10 +188,11 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
              f"Real: {real_label}. Validation: {validation_label}. Each value is the mean "
-             "over seeds of each seed's mean over scenarios; N is the number of scenarios. "
+             "over seeds of each seed's mean over scenarios; N is the number of scenarios "
+             "(egos, when every vehicle is the ego in turn). "
              "The last column: a learned driver's real log divergence minus constant "
-             "velocity's on the same scenarios, its 95% interval (hierarchical bootstrap over "
-             "seeds, then paired scenarios) and the smallest difference these scenarios detect "
+             "velocity's on the same scenarios, its 95% interval (bootstrap resampling source "
+             "scenarios, then seeds) and the smallest difference these scenarios detect "
              "at 80% power (MDE); a few real scenarios cannot separate the methods.",
              "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -140,7 +200,7 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
         cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS
                                   for s in SOURCES] + [_vs_cv_cell(row)]
         lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _paired_markdown(table)) + "\n"
 
 
 def _tex(text: str) -> str:
@@ -198,8 +258,23 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
         mde = learned.real_vs_cv_mde.dropna()
         power = (f"; at 80% power these scenarios detect only differences of "
                  f"{_span(mde, 1)}{metre} or more")
-    return (f"On {n} real scenarios, {verdict}: {ref:.2f}{metre} for constant velocity "
-            f"against {ranges} over the settings{power}.")
+    closer = ""
+    if "real_vs_cv_win" in learned and learned.real_vs_cv_win.notna().any():
+        win = 100 * learned.real_vs_cv_win.dropna()
+        closer = (f"; ego by ego, they stay closer to the log than constant velocity on "
+                  f"{_span(win, 0)}% of the egos")
+        full = learned[(learned.setting == "full") & (learned.method == BC)
+                       & learned.real_vs_cv_win.notna()]
+        if len(full):
+            r = full.iloc[0]
+            closer += (f", Full BC on {100 * r.real_vs_cv_win:.0f}% (95% CI "
+                       f"{100 * r.real_vs_cv_win_lo:.0f}-{100 * r.real_vs_cv_win_hi:.0f}%)")
+    where = f"{n} real scenarios"
+    if "real_sources" in cv and pd.notna(cv.real_sources.iloc[0]) \
+            and int(cv.real_sources.iloc[0]) != n:
+        where = f"{n} real egos from {int(cv.real_sources.iloc[0])} source scenarios"
+    return (f"On {where}, {verdict}: {ref:.2f}{metre} for constant velocity "
+            f"against {ranges} over the settings{power}{closer}.")
 
 
 def _summary_tex(table: pd.DataFrame) -> str:
@@ -237,6 +312,8 @@ def table_from_markdown(text: str) -> pd.DataFrame:
     methods = {label: name for name, label in METHOD_LABELS.items()}
     rows = []
     for line in text.splitlines():
+        if line.startswith("## "):
+            break  # the ego-by-ego table follows the main one
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) not in (2 + 2 * len(METRIC_KEYS), 3 + 2 * len(METRIC_KEYS)) \
                 or cells[0] in ("setting", "---"):

@@ -7,10 +7,16 @@ synthetic validation set and on real sets). For every (data set, motion) the tab
 BC's and constant velocity's per-step metrics (mean over seeds of each seed's mean over
 scenarios) and BC - constant velocity with its 95% interval and the smallest difference the
 comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
-scenarios (:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
+scenarios, the egos of one source scenario together
+(:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
 which every motion model is evaluated on, a second table compares the motion models' BC
 directly (paired scenarios). Where there are several real sets, they are also pooled (``real,
-pooled``): the comparison with the most power.
+pooled``): the comparison with the most power. A last table compares every learned driver
+evaluated (each setting, BC and any other method folder beside it, e.g. ``bc_rl``) with
+constant velocity and with the expert ego by ego, the statistics that survive heavy tails
+(:mod:`igdrivsim.evaluation.paired`): the share of egos where it stays closer to the log, the
+median paired difference and the mean ratio with its minimum detectable effect, with 95%
+intervals from a bootstrap over source scenarios, then seeds, and N egos and source scenarios.
 
 ``python -m igdrivsim.report.transfer WORK --out WORK/transfer.md``
 """
@@ -30,22 +36,37 @@ from igdrivsim.evaluation.aggregate import (
     paired_difference,
     scenario_cube,
 )
-from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, EVAL_CONFIG, PER_SCENARIO_FILE
+from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
+from igdrivsim.evaluation.schema import (
+    BC,
+    CONSTANT_VELOCITY,
+    EVAL_CONFIG,
+    METHOD_LABELS,
+    PER_SCENARIO_FILE,
+    REFERENCES,
+    setting_short,
+    table_settings,
+)
 from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.machine import code_label, code_state
+from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
 
 METRICS = ("log_divergence", "offroad", "overlap")
+FULL = "full"  # the observation setting of the first table's BC
 VALIDATION = "validation"  # the synthetic validation set's name (evals_validation)
 POOLED = "real, pooled"  # every real set of a motion model together
 
 
 def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
-    """``{(data set, motion): per-scenario rows of BC and the references}``."""
+    """``{(data set, motion): per-scenario rows of BC, the references and any other evaluated
+    run beside them (e.g. ``bc_rl``)}``."""
     found = {}
     for folder in sorted(work.glob("*/evals_*")):
         if (folder / BC / PER_SCENARIO_FILE).is_file() and \
                 (folder / "references" / PER_SCENARIO_FILE).is_file():
-            _, per_scenario = load_evaluations([folder / BC, folder / "references"])
+            others = [p.parent for p in sorted(folder.glob(f"*/{PER_SCENARIO_FILE}"))
+                      if p.parent.name not in (BC, "references")]
+            _, per_scenario = load_evaluations([folder / BC, folder / "references", *others])
             found[(folder.name.removeprefix("evals_"), folder.parent.name)] = per_scenario
     if not found:
         raise ConfigError(f"no evals_*/{{bc,references}}/per_scenario.csv under {work}/*/: "
@@ -55,30 +76,59 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
 
 def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], pd.DataFrame]:
     """``{(POOLED, motion): every real set of that motion}`` where a motion has several real
-    sets (each scenario named by its set, ``set/id``): the comparison with the most power."""
+    sets (each scenario and source scenario named by its set, ``set/id``): the comparison with
+    the most power."""
     out = {}
     for motion in sorted({m for _, m in found}):
-        real = [f.assign(scenario_id=d + "/" + f.scenario_id)
+        real = [f.assign(scenario_id=d + "/" + f.scenario_id, **(
+                    {SOURCE_COLUMN: d + "/" + f[SOURCE_COLUMN].astype(str)}
+                    if SOURCE_COLUMN in f else {}))
                 for (d, m), f in sorted(found.items()) if m == motion and d != VALIDATION]
         if len(real) > 1:
             out[(POOLED, motion)] = pd.concat(real, ignore_index=True)
     return out
 
 
+def _in_order(found: dict) -> list:
+    """``found``'s items, validation first, the pooled real sets last."""
+    order = {VALIDATION: 0, POOLED: 2}
+    return sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1), kv[0]))
+
+
 def against_constant_velocity(found: dict) -> pd.DataFrame:
     """One row per (data set, motion): BC against constant velocity."""
     rows = []
-    order = {VALIDATION: 0, POOLED: 2}  # validation first, the pooled real sets last
-    for (data, motion), frame in sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1),
-                                                                      kv[0])):
+    for (data, motion), frame in _in_order(found):
+        frame = frame[(frame.method != BC) | (frame.setting == FULL)]  # Full BC
         scen = complete_scenarios(frame, (BC, CONSTANT_VELOCITY))
+        source = source_map(frame)
         c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
-                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS))
+                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS),
+                              clusters=[source[str(s)] for s in scen])
         row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
                    .nunique())
         for i, key in enumerate(METRICS):
             row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
         rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def ego_by_ego(found: dict) -> pd.DataFrame:
+    """One row per (data set, motion, setting, learned method, reference): the driver against
+    constant velocity and the expert, ego by ego on log divergence
+    (:func:`igdrivsim.evaluation.paired.compare_on_egos`)."""
+    rows = []
+    for (data, motion), frame in _in_order(found):
+        learned = frame.loc[~frame.method.isin(REFERENCES), ["setting", "method"]]
+        order = {s: i for i, s in enumerate(table_settings(learned))}  # Table I's order
+        for setting, method in sorted(set(map(tuple, learned.to_numpy())),
+                                      key=lambda sm: (order.get(sm[0], len(order)), sm)):
+            for reference in PAIRED_REFERENCES.values():
+                c = compare_on_egos(frame, setting, method, reference)
+                if c["n_egos"]:
+                    rows.append(dict(data=data, motion=motion, setting=setting, method=method,
+                                     reference=reference, egos=c["n_egos"],
+                                     sources=c["n_sources"]) | c)
     return pd.DataFrame(rows)
 
 
@@ -91,11 +141,14 @@ def between_motions(found: dict) -> pd.DataFrame:
         if len(motions) < 2:
             continue
         frames = {m: found[(data, m)] for m in motions}
+        frames = {m: f[(f.method == BC) & (f.setting == FULL)] for m, f in frames.items()}
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
             scen = complete_scenarios(a, (BC,)).intersection(complete_scenarios(b, (BC,)))
+            source = source_map(a)
             c = paired_difference(scenario_cube(a, BC, scen, METRICS),
-                              scenario_cube(b, BC, scen, METRICS))
+                                  scenario_cube(b, BC, scen, METRICS),
+                                  clusters=[source[str(s)] for s in scen])
             row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
             for i, key in enumerate(METRICS):
                 row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
@@ -129,14 +182,16 @@ def code_lines(work: Path) -> list[str]:
     return lines
 
 
-def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = ()) -> str:
+def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
+             egos: pd.DataFrame | None = None) -> str:
     lines = [
         "# Full BC trained on each synthetic motion model, against constant velocity",
         "",
         "Written by `bash scripts/transfer_check.sh WORK MOTION` "
         "(`python -m igdrivsim.report.transfer`). Laptop profile, 3 seeds, 1,000 updates. "
         "Means are over seeds of each seed's mean over the N scenarios; differences with a "
-        "95% hierarchical-bootstrap interval (seeds, then paired scenarios), its p-value and "
+        "95% hierarchical-bootstrap interval (seeds, then paired scenarios; egos of one source "
+        "scenario together), its p-value and "
         "the minimum detectable effect (MDE, 80% power). Log divergence in m, offroad and "
         "overlap in % of steps.",
         "",
@@ -156,6 +211,20 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = ()) -
         for _, r in motions.iterrows():
             lines.append(f"| {r.data} | {r.motion} - {r.baseline} | {r.n} | "
                          f"{_diff(r, 'log_divergence')} | {_diff(r, 'offroad')} |")
+    if egos is not None and not egos.empty:
+        lines += ["", "Every driver against constant velocity and the expert, ego by ego (heavy "
+                  "tails leave a mean weak): N egos (source scenarios); the share of egos where "
+                  "the driver stays closer to the log (over its seeds; a tie counts half); the "
+                  "median over egos of its log divergence minus the reference's (m); its mean "
+                  "log divergence over the reference's, with the smallest departure from 1 "
+                  "detectable at 80% power (MDE). 95% intervals: bootstrap resampling source "
+                  "scenarios, then seeds.", "",
+                  "| data | motion | setting | method | against | " + " | ".join(PAIRED_HEAD)
+                  + " |", "|---|---|---|---|---|" + "---|" * len(PAIRED_HEAD)]
+        for _, r in egos.iterrows():
+            names = [r.data, r.motion, setting_short(r.setting), METHOD_LABELS.get(
+                r.method, r.method), METHOD_LABELS.get(r.reference, r.reference)]
+            lines.append("| " + " | ".join([*names, *paired_cells(r)]) + " |")
     if code:
         lines += ["", "Each motion model's training set and the code (commit) behind its numbers:",
                   "", *code,
@@ -177,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         found = evaluations(args.work)
         text = markdown(against_constant_velocity(found), between_motions(found),
-                        code_lines(args.work))
+                        code_lines(args.work), ego_by_ego(found))
         if args.out is not None:
             atomic_write_text(args.out, text)
         print(text, end="")

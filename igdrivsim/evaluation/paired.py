@@ -1,0 +1,213 @@
+"""Paired statistics of a driver against a reference over egos, that survive heavy tails.
+
+On real logs a few egos diverge by 15 m or more, so a mean difference has little power; these
+statistics compare a driver with a reference (constant velocity, the expert) ego by ego:
+
+- **Win share**: the share of (ego, seed) pairs where the driver's value (log divergence) is
+  lower than the reference's on the same ego (a tie counts one half), i.e. the share of egos
+  where the driver stays closer to the log, averaged over the driver's seeds.
+- **Median paired difference**: the median over egos of ``driver - reference``, the driver's
+  value being its mean over seeds on that ego. One ego with a huge divergence moves it by at
+  most one rank, where it moves a mean without bound.
+- **Mean ratio**: the driver's mean over seeds and egos over the reference's mean over egos,
+  with its **minimum detectable effect** ``(z_{0.975} + z_{0.8}) * SE``
+  (:func:`igdrivsim.evaluation.aggregate.minimum_detectable_effect`): the smallest departure
+  from a ratio of 1 a two-sided level-0.05 test detects with 80% power. The mean difference
+  (``diff``) comes with its interval and MDE too, for the tables that show it.
+
+Intervals (95%, percentile) come from a **hierarchical bootstrap**: source scenarios are
+resampled with replacement and every ego of a drawn source comes with it (egos of one scene
+share its map, traffic and difficulty, so they are one cluster, not independent draws); then
+the driver's seeds are resampled with replacement (independently trained policies). The
+reference is taken per ego as its mean over its seeds (the references are deterministic). Each
+resample is a weighted statistic (source counts x seed counts), computed for blocks of
+resamples at once; a fixed RNG seed makes reruns identical. Where the driver wins on every
+ego or on none, every resample agrees and the percentile interval is a point, so the win
+share's interval is then Wilson's score interval with one trial per source scenario (the
+conservative sample size: egos of one scene count once).
+
+Ego ids: when every vehicle of a scenario is the ego in turn, an ego's ``scenario_id`` is
+``<source scenario id>#<object id>`` (:data:`EGO_SEPARATOR`); :func:`source_of` gives back the
+source, and a frame's ``source`` column, where present, takes precedence. With one ego per
+scenario (the logged SDC) the source is the scenario itself; so are the windows of one long
+log (ScenarioNet's ``<log id>_<first step>``, hashed when long), unless a ``source`` column
+names their log.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from igdrivsim.evaluation.aggregate import CONFIDENCE, N_RESAMPLES, minimum_detectable_effect
+from igdrivsim.evaluation.schema import REFERENCE_SETTING
+
+EGO_SEPARATOR = "#"  # ego id = <source scenario id>#<object id>
+SOURCE_COLUMN = "source"  # an evaluation row's source scenario, where the CSV records it
+BOOTSTRAP_SEED = 0
+_CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
+# the statistics, in the order of their columns (each with _lo, _hi; all but median with _mde)
+STATISTICS = ("win", "median", "ratio", "diff")
+
+
+def source_of(scenario_id: str) -> str:
+    """The source scenario of an ego id ``<scenario id>#<object id>``: the part before the last
+    ``#``; an id without one (one ego per scenario) is its own source."""
+    source, sep, _ = str(scenario_id).rpartition(EGO_SEPARATOR)
+    return source if sep else str(scenario_id)
+
+
+def sources(frame: pd.DataFrame) -> pd.Series:
+    """Each row's source scenario: the frame's ``source`` column, else :func:`source_of` of its
+    ``scenario_id``."""
+    if SOURCE_COLUMN in frame.columns:
+        return frame[SOURCE_COLUMN].astype(str)
+    return frame["scenario_id"].astype(str).map(source_of)
+
+
+def source_map(frame: pd.DataFrame) -> dict[str, str]:
+    """``{scenario_id: source scenario}`` of a frame's rows (see :func:`sources`)."""
+    return dict(zip(frame["scenario_id"].astype(str), sources(frame), strict=True))
+
+
+def _counts(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
+    """``(n_resamples, n)`` integer counts of each of ``n`` items in a resample of size ``n``."""
+    idx = rng.integers(0, n, size=(n_resamples, n)) + n * np.arange(n_resamples)[:, None]
+    return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n)
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Row-wise median of ``values`` ``(B, n)`` with non-negative integer ``weights`` ``(B, n)``
+    (counts): the mean of the lower and upper weighted medians, so unit weights give
+    :func:`numpy.median`."""
+    order = np.argsort(values, axis=1, kind="stable")
+    v = np.take_along_axis(values, order, axis=1)
+    cum = np.cumsum(np.take_along_axis(weights, order, axis=1), axis=1)
+    half = cum[:, -1:] / 2
+    lower = np.argmax(cum >= half, axis=1)
+    upper = np.argmax(cum > half, axis=1)
+    rows = np.arange(values.shape[0])
+    return (v[rows, lower] + v[rows, upper]) / 2
+
+
+def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
+                seed_counts: np.ndarray, ego_counts: np.ndarray) -> np.ndarray:
+    """``(B, 4)``: win share, median difference, mean ratio and mean difference under ``B``
+    weightings
+    (``seed_counts`` ``(B, S)`` over the driver's seeds, ``ego_counts`` ``(B, E)``)."""
+    n_seeds = seed_counts.sum(axis=1, keepdims=True)
+    per_ego = seed_counts @ driver / n_seeds  # (B, E): the driver's seed mean on each ego
+    win_ego = seed_counts @ wins / n_seeds
+    total = ego_counts.sum(axis=1)
+    win = (ego_counts * win_ego).sum(axis=1) / total
+    median = weighted_median(per_ego - reference, ego_counts)
+    driver_mean = (ego_counts * per_ego).sum(axis=1)
+    reference_mean = ego_counts @ reference
+    ratio = driver_mean / reference_mean
+    return np.stack([win, median, ratio, (driver_mean - reference_mean) / total], axis=1)
+
+
+def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Sequence,
+                          n_resamples: int = N_RESAMPLES,
+                          seed: int | Sequence[int] = BOOTSTRAP_SEED,
+                          confidence: float = CONFIDENCE) -> dict[str, float]:
+    """Win share, median paired difference and mean ratio of ``driver`` ``(seeds, egos)``
+    against ``reference`` ``(egos,)`` or ``(reference seeds, egos)``, with 95% intervals from
+    the hierarchical bootstrap (sources, then the driver's seeds; see the module docstring).
+
+    ``source``: each ego's source scenario (egos of one source are resampled together).
+    Returns ``win, win_lo, win_hi, win_mde`` (the smallest departure from a share of 0.5
+    detectable), ``median, median_lo, median_hi``, ``ratio, ratio_lo, ratio_hi, ratio_mde``
+    (from a ratio of 1), ``diff, diff_lo, diff_hi, diff_mde`` (the mean difference, from 0),
+    ``n_egos``, ``n_sources``, ``n_seeds``; NaN statistics without egos.
+    """
+    driver = np.atleast_2d(np.asarray(driver, float))
+    reference = np.asarray(reference, float)
+    if reference.ndim == 2:
+        reference = reference.mean(axis=0)
+    codes, uniques = pd.factorize(pd.Series(list(source), dtype=object), sort=True)
+    n_seeds, n_egos = driver.shape
+    if reference.shape != (n_egos,) or codes.shape != (n_egos,):
+        raise ValueError("driver (seeds, egos), reference (egos,) and source (egos,) must "
+                         "agree on the egos")
+    out: dict[str, float] = dict(n_egos=n_egos, n_sources=len(uniques), n_seeds=n_seeds)
+    keys = [f"{s}{k}" for s in STATISTICS for k in ("", "_lo", "_hi")] + [
+        "win_mde", "ratio_mde", "diff_mde"]
+    if n_egos == 0 or n_seeds == 0:
+        return out | dict.fromkeys(keys, float("nan"))
+    wins = (driver < reference) + 0.5 * (driver == reference)
+    point = _statistics(driver, wins, reference, np.ones((1, n_seeds)), np.ones((1, n_egos)))[0]
+    rng = np.random.default_rng(seed)
+    reps = np.empty((n_resamples, len(STATISTICS)))
+    with np.errstate(invalid="ignore", divide="ignore"):  # a zero reference mean: inf ratio
+        for start in range(0, n_resamples, _CHUNK):
+            m = min(_CHUNK, n_resamples - start)
+            ego_counts = _counts(rng, m, len(uniques))[:, codes]
+            reps[start:start + m] = _statistics(driver, wins, reference,
+                                                _counts(rng, m, n_seeds), ego_counts)
+    q = [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2]
+    lo, hi = np.nanpercentile(reps, q, axis=0)
+    se = np.nanstd(np.where(np.isfinite(reps), reps, np.nan), axis=0, ddof=1)
+    for i, name in enumerate(STATISTICS):
+        out |= {name: float(point[i]), f"{name}_lo": float(lo[i]), f"{name}_hi": float(hi[i])}
+    if point[0] in (0.0, 1.0):  # every resample agrees: the percentile interval is a point
+        out["win_lo"], out["win_hi"] = wilson_interval(point[0], len(uniques), confidence)
+    out["win_mde"] = float(minimum_detectable_effect(se[0]))
+    out["ratio_mde"] = float(minimum_detectable_effect(se[2]))
+    out["diff_mde"] = float(minimum_detectable_effect(se[3]))
+    return out
+
+
+def wilson_interval(share: float, n: int, confidence: float = CONFIDENCE
+                    ) -> tuple[float, float]:
+    """Wilson score interval of a binomial ``share`` observed on ``n`` trials."""
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    centre = (share + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(share * (1 - share) / n + z * z / (4 * n * n))
+    lo = 0.0 if share <= 0 else max(0.0, centre - half)  # exact ends at a share of 0 or 1
+    hi = 1.0 if share >= 1 else min(1.0, centre + half)
+    return float(lo), float(hi)
+
+
+def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
+               column: str = "log_divergence") -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``(driver (seeds, egos), reference (egos,), sources)`` of one ``column`` from tidy
+    per-scenario rows: ``method`` in ``setting`` against ``reference`` (its rows in any setting
+    when it has none in ``setting``, the references' being :data:`REFERENCE_SETTING`), on the
+    egos every seed of both evaluated with a value, in id order."""
+    ours = per_scenario[(per_scenario.setting == setting) & (per_scenario.method == method)]
+    ref = per_scenario[per_scenario.method == reference]
+    if (ref.setting == setting).any():
+        ref = ref[ref.setting == setting]
+    elif (ref.setting == REFERENCE_SETTING).any():
+        ref = ref[ref.setting == REFERENCE_SETTING]
+    if ours.empty or ref.empty:
+        return np.zeros((0, 0)), np.zeros(0), []
+    a = ours.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
+                         dropna=False)
+    b = ref.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
+                        dropna=False)
+    egos = sorted(set(a.columns[a.notna().all(axis=0)]) & set(b.columns[b.notna().all(axis=0)]))
+    source = source_map(pd.concat([ours, ref]))
+    return (a[egos].to_numpy(float).reshape(len(a), len(egos)),
+            b[egos].to_numpy(float).mean(axis=0),
+            [source[str(e)] for e in egos])
+
+
+def statistic_seed(*names: str) -> list[int]:
+    """A fixed bootstrap seed per comparison (independent of which others were made)."""
+    return [BOOTSTRAP_SEED, zlib.crc32("/".join(names).encode())]
+
+
+def compare_on_egos(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
+                    column: str = "log_divergence", n_resamples: int = N_RESAMPLES
+                    ) -> dict[str, float]:
+    """:func:`paired_ego_statistics` of ``method`` in ``setting`` against ``reference`` on
+    the egos both were evaluated on (see :func:`ego_arrays`), seeded per comparison."""
+    driver, ref, source = ego_arrays(per_scenario, setting, method, reference, column)
+    return paired_ego_statistics(driver, ref, source, n_resamples,
+                                 statistic_seed(setting, method, reference, column))
