@@ -1,0 +1,98 @@
+"""Every vehicle as the ego: one scenario per eligible vehicle of a logged scenario.
+
+A vehicle is **eligible** when it is valid at every step of the window and passes the scenario
+filter (:mod:`igdrivsim.data.filter`, the paper's criterion or the ``objects_of_interest``
+variant, with its minimum mean speed) with itself as the SDC. :func:`as_ego` makes it the SDC
+(the simulator controls it, the observation is taken from it and leaves it out) and the logged
+SDC an ordinary log-replayed object; the scenario id becomes ``<scenario id>#<object id>``
+(stable: it names the source scenario and the vehicle), and :func:`expand_egos` says whether the
+ego is the logged SDC.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterator
+
+import numpy as np
+
+from igdrivsim.data.filter import FilterConfig, keep, scenario_stats
+from igdrivsim.data.scenario import (
+    SCENARIO_ID_BYTES,
+    TYPE_VEHICLE,
+    Scenario,
+    decode_scenario_id,
+    encode_scenario_id,
+)
+from igdrivsim.errors import ConfigError
+
+EGO_MODES = ("sdc", "all")  # the logged SDC only (the paper's protocol), every eligible vehicle
+SEPARATOR = "#"
+PAPER_FILTER = FilterConfig()  # interactive and mean speed >= 0.7 m/s
+
+
+def check_egos(egos: str) -> str:
+    """``egos`` if it is one of :data:`EGO_MODES`, else a one-line :class:`ConfigError`."""
+    if egos not in EGO_MODES:
+        raise ConfigError(f"unknown egos {egos!r}; choose one of {', '.join(EGO_MODES)}")
+    return egos
+
+
+def ego_id(scenario_id: str, object_id: int) -> str:
+    """``<scenario id>#<object id>``; a scenario id too long to fit is replaced by its hash."""
+    tail = f"{SEPARATOR}{int(object_id)}"
+    if len(scenario_id) + len(tail) > SCENARIO_ID_BYTES:
+        scenario_id = hashlib.sha1(scenario_id.encode()).hexdigest()[:SCENARIO_ID_BYTES - len(tail)]
+    return scenario_id + tail
+
+
+def split_ego_id(text: str) -> tuple[str, int | None]:
+    """``(source scenario id, object id)`` of an ego id; ``(text, None)`` for a plain id."""
+    head, sep, tail = text.rpartition(SEPARATOR)
+    if sep and tail.lstrip("-").isdigit():
+        return head, int(tail)
+    return text, None
+
+
+def as_ego(scenario: Scenario, slot: int) -> Scenario:
+    """One unbatched scenario with object ``slot`` as the SDC and the ego's id."""
+    md = scenario.metadata
+    is_sdc = np.zeros_like(np.asarray(md.is_sdc, bool))
+    is_sdc[slot] = True
+    sid = ego_id(decode_scenario_id(scenario.scenario_id), int(np.asarray(md.id)[slot]))
+    return scenario.replace(metadata=md.replace(is_sdc=is_sdc),
+                            scenario_id=encode_scenario_id(sid))
+
+
+def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> list[int]:
+    """Slots of the vehicles valid over the whole window that pass the filter as the ego."""
+    tr, md = scenario.trajectory, scenario.metadata
+    valid = np.asarray(tr.valid, bool).all(axis=-1) & np.asarray(md.valid, bool)
+    vehicle = np.asarray(md.object_type) == TYPE_VEHICLE
+    speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
+    out = []
+    for slot in np.flatnonzero(valid & vehicle):
+        if speed[slot].mean() < config.min_speed:  # cheap first: the filter's speed bound
+            continue
+        if keep(scenario_stats(as_ego(scenario, int(slot))), config):
+            out.append(int(slot))
+    return out
+
+
+def expand_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER
+                ) -> Iterator[tuple[Scenario, dict]]:
+    """``(scenario as seen from the ego, {"id", "object_id", "logged_sdc"})`` per eligible
+    vehicle of one unbatched scenario (native sizes: fit to capacities afterwards, so that the
+    objects kept are those nearest to the ego)."""
+    logged = int(np.argmax(np.asarray(scenario.metadata.is_sdc)))
+    for slot in eligible_egos(scenario, config):
+        ego = as_ego(scenario, slot)
+        yield ego, {"id": decode_scenario_id(ego.scenario_id),
+                    "object_id": int(np.asarray(scenario.metadata.id)[slot]),
+                    "logged_sdc": slot == logged}
+
+
+def ego_slot(scenario: Scenario, object_id: int) -> int | None:
+    """The slot of object ``object_id`` in one unbatched scenario (None: not there)."""
+    hits = np.flatnonzero(np.asarray(scenario.metadata.id) == int(object_id))
+    return int(hits[0]) if len(hits) else None
