@@ -38,6 +38,14 @@ def check_egos(egos: str) -> str:
     return egos
 
 
+def add_egos_argument(parser) -> None:
+    """The ``--egos`` option every command that reads data shares."""
+    parser.add_argument("--egos", choices=EGO_MODES, default="sdc",
+                        help="sdc: each scenario from its logged SDC (the paper's); all: one "
+                             "scenario per vehicle valid over the window that passes the "
+                             "scenario filter as the ego (default: sdc)")
+
+
 def ego_id(scenario_id: str, object_id: int) -> str:
     """``<scenario id>#<object id>``; a scenario id too long to fit is replaced by its hash."""
     tail = f"{SEPARATOR}{int(object_id)}"

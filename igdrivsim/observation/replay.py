@@ -23,7 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from igdrivsim.data import decode_scenario_id, iter_scenarios
-from igdrivsim.data.manifest import count_scenarios
+from igdrivsim.data.source import count_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, atomic_write_json, require_folder
 from igdrivsim.observation import render
