@@ -25,6 +25,7 @@ from igdrivsim.io import atomic_path, atomic_write_json
 MANIFEST, COUNTS = "manifest.jsonl", "counts.json"
 FIELDS = ("file", "record", "scenario_id", "sdc_mean_speed", "interactive",
           "objects_of_interest", "kept")
+EGO_FIELDS = ("ego", "logged_sdc")  # lines of a filter run with every vehicle as the ego
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
@@ -37,7 +38,7 @@ def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
     n = 0
     with atomic_path(path, "w") as f:
         for entry in entries:
-            f.write(json.dumps({k: entry[k] for k in FIELDS}) + "\n")
+            f.write(json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n")
             n += 1
     return n
 
