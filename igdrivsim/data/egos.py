@@ -5,29 +5,22 @@ filter (:mod:`igdrivsim.data.filter`, the paper's criterion or the ``objects_of_
 variant, with its minimum mean speed) with itself as the SDC. :func:`as_ego` makes it the SDC
 (the simulator controls it, the observation is taken from it and leaves it out) and the logged
 SDC an ordinary log-replayed object; the scenario id becomes ``<scenario id>#<object id>``
-(stable: it names the source scenario and the vehicle), and :func:`expand_egos` says whether the
-ego is the logged SDC.
+(stable: it names the source scenario and the vehicle; :func:`~igdrivsim.data.scenario.as_ego`,
+``ego_id`` and ``split_ego_id`` live with the scenario model), and :func:`expand_egos` says
+whether the ego is the logged SDC.
 """
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Iterator
 
 import numpy as np
 
 from igdrivsim.data.filter import FilterConfig, keep, scenario_stats
-from igdrivsim.data.scenario import (
-    SCENARIO_ID_BYTES,
-    TYPE_VEHICLE,
-    Scenario,
-    decode_scenario_id,
-    encode_scenario_id,
-)
+from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError
 
 EGO_MODES = ("sdc", "all")  # the logged SDC only (the paper's protocol), every eligible vehicle
-SEPARATOR = "#"
 PAPER_FILTER = FilterConfig()  # interactive and mean speed >= 0.7 m/s
 
 
@@ -44,32 +37,6 @@ def add_egos_argument(parser) -> None:
                         help="sdc: each scenario from its logged SDC (the paper's); all: one "
                              "scenario per vehicle valid over the window that passes the "
                              "scenario filter as the ego (default: sdc)")
-
-
-def ego_id(scenario_id: str, object_id: int) -> str:
-    """``<scenario id>#<object id>``; a scenario id too long to fit is replaced by its hash."""
-    tail = f"{SEPARATOR}{int(object_id)}"
-    if len(scenario_id) + len(tail) > SCENARIO_ID_BYTES:
-        scenario_id = hashlib.sha1(scenario_id.encode()).hexdigest()[:SCENARIO_ID_BYTES - len(tail)]
-    return scenario_id + tail
-
-
-def split_ego_id(text: str) -> tuple[str, int | None]:
-    """``(source scenario id, object id)`` of an ego id; ``(text, None)`` for a plain id."""
-    head, sep, tail = text.rpartition(SEPARATOR)
-    if sep and tail.lstrip("-").isdigit():
-        return head, int(tail)
-    return text, None
-
-
-def as_ego(scenario: Scenario, slot: int) -> Scenario:
-    """One unbatched scenario with object ``slot`` as the SDC and the ego's id."""
-    md = scenario.metadata
-    is_sdc = np.zeros_like(np.asarray(md.is_sdc, bool))
-    is_sdc[slot] = True
-    sid = ego_id(decode_scenario_id(scenario.scenario_id), int(np.asarray(md.id)[slot]))
-    return scenario.replace(metadata=md.replace(is_sdc=is_sdc),
-                            scenario_id=encode_scenario_id(sid))
 
 
 def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> list[int]:

@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
 from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
-from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, decode_scenario_id
+from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
 
@@ -204,8 +204,6 @@ def ego_entries(scenario: Scenario) -> list[dict]:
     """:func:`scenario_stats` with each vehicle valid over the whole window as the ego (the
     candidates of :mod:`igdrivsim.data.egos`), with ``ego`` (its object id) and
     ``logged_sdc``; ``scenario_id`` stays the source scenario's."""
-    from igdrivsim.data.egos import as_ego  # egos builds on this module
-
     md, valid = scenario.metadata, np.asarray(scenario.trajectory.valid, bool).all(axis=-1)
     sid = decode_scenario_id(scenario.scenario_id)
     out = []
