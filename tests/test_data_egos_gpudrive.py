@@ -209,3 +209,29 @@ def test_stats_and_env_take_every_ego(capsys):
     assert sorted(decode_scenario_id(s.scenario_id) for s in env.scenarios) == [
         "bada21415c031740#1729", "bada21415c031740#1749", "db4edc9bd0c9d18c#285",
         "db4edc9bd0c9d18c#3"]
+
+
+@needs_gpudrive
+def test_training_input_stream_and_config_take_every_ego():
+    import argparse
+
+    from igdrivsim.errors import ConfigError
+    from igdrivsim.training.commands import resolve_config, train_arguments
+    from igdrivsim.training.config import get_profile, with_overrides
+    from igdrivsim.training.inputs import iter_scenarios
+    from igdrivsim.training.stream import ScenarioIndex
+
+    caps = Capacities(max_objects=16, max_roadgraph_points=256)
+    want = [r.ego["id"] for r in open_scenarios(GPUDRIVE, caps, egos="all")]
+    chunks = list(iter_scenarios(GPUDRIVE, caps, chunk=3, egos="all"))
+    assert [decode_scenario_id(s.scenario_id) for c in chunks for s in c] == want
+    index = ScenarioIndex.from_path(GPUDRIVE, caps, egos="all")
+    assert index.refs.shape == (4, 3)
+    assert [decode_scenario_id(index[i].scenario_id) for i in range(len(index))] == want
+    assert ScenarioIndex.from_path(GPUDRIVE, caps).refs.shape == (3, 2)  # 8 bytes each
+    parser = argparse.ArgumentParser()
+    train_arguments(parser)
+    args = parser.parse_args(["--data", str(GPUDRIVE), "--out", "x", "--egos", "all"])
+    assert resolve_config(args).data.egos == "all"
+    with pytest.raises(ConfigError, match="data.egos"):
+        with_overrides(get_profile("laptop"), ["data.egos=every"]).validate()

@@ -18,13 +18,14 @@ from igdrivsim.data.filter import (
     run_filter,
     sdc_mean_speed,
 )
-from igdrivsim.data.reader import ReadStats, available_cpus, iter_scenarios
+from igdrivsim.data.reader import ReadStats, available_cpus
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     RG_ROAD_EDGE_TYPES,
     Scenario,
     decode_scenario_id,
 )
+from igdrivsim.data.source import open_scenarios
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
 
@@ -64,6 +65,7 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1,
                         help="N worker processes (1: in this process, which starts printing at "
                              "once)")
+    add_egos_argument(parser)
 
 
 def inspect_command(args: argparse.Namespace) -> int:
@@ -73,12 +75,13 @@ def inspect_command(args: argparse.Namespace) -> int:
     check_min("--workers", args.workers, 1)
     stats = ReadStats()
     shown = 0
-    for rec in iter_scenarios(args.files, caps=None, skip_bad=args.skip_bad, stats=stats,
-                              workers=args.workers):
+    for rec in open_scenarios(args.files, caps=None, skip_bad=args.skip_bad, stats=stats,
+                              workers=args.workers, egos=args.egos):
         if args.limit is not None and shown >= args.limit:
             break
         line = {"file": rec.file, "record": rec.record, "format": rec.format,
-                **(rec.source or {}), **describe(rec.scenario)}
+                **(rec.source or {}), **describe(rec.scenario),
+                **({} if rec.ego is None else {"logged_sdc": rec.ego["logged_sdc"]})}
         print(json.dumps(line), flush=True)
         shown += 1
     if stats.skipped:
