@@ -235,3 +235,24 @@ def test_training_input_stream_and_config_take_every_ego():
     assert resolve_config(args).data.egos == "all"
     with pytest.raises(ConfigError, match="data.egos"):
         with_overrides(get_profile("laptop"), ["data.egos=every"]).validate()
+
+
+def test_a_new_format_is_one_registry_entry(tmp_path, monkeypatch):
+    """A format registered at the end of ``FORMATS`` is detected, listed, counted and read by
+    every reader, with every vehicle as the ego too."""
+    from igdrivsim.data.formats import Format
+
+    def decode(path, start, stop):
+        if start <= 0 and (stop is None or stop > 0):
+            yield 0, "toy", _hand_made(), None
+
+    toy = Format("toy", lambda p: p.endswith(".toy"), decode, lambda p: 1, True, lambda p: True)
+    monkeypatch.setitem(FORMATS, "toy", toy)
+    (tmp_path / "a.toy").write_text("")
+    (tmp_path / "notes.txt").write_text("")
+    assert expand_paths(tmp_path) == [str(tmp_path / "a.toy")]
+    assert count_scenarios(tmp_path) == 1
+    recs = list(open_scenarios(tmp_path, Capacities(max_objects=8, max_roadgraph_points=16),
+                               egos="all"))
+    assert [r.format for r in recs] == ["toy", "toy"]
+    assert [r.ego["object_id"] for r in recs] == [100, 101]

@@ -7,7 +7,8 @@ a longer log starts, else None; a bad record comes as a :class:`DataError` in pl
 scenario, so that the rest of the file can still be read; a file that cannot be read at all
 raises it) and ``count(path)`` (how many scenarios the file holds; ``cheap_count`` False when
 that takes a full decode). A file belongs to the first format, in registry order, that
-detects it; a folder reads the files of the first format in :data:`FOLDER_ORDER` that has any.
+detects it, else to :data:`FALLBACK` (TFRecord); a folder reads the files of the first format
+that has any, TFRecords first, then the others in registry order.
 Adding a format is one module plus one entry here; every reader
 (:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
 """
@@ -99,27 +100,30 @@ FORMATS: dict[str, Format] = {
     "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive,
                        lambda path: 1, True, lambda path: True),
     # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
-    # every other file is tried as one; a folder listing takes names containing "tfrecord"
+    # every file no other format detects is tried as one; a folder listing takes names
+    # containing "tfrecord"
     "tfrecord": Format("tfrecord", lambda path: True, _decode_tfrecord, tfrecord.count_records,
                        True, lambda path: "tfrecord" in os.path.basename(path)),
 }
-FOLDER_ORDER = ("tfrecord", "scenarionet", "gpudrive")  # a folder with several reads the first
+FALLBACK = "tfrecord"
 
 
 def format_of(path: str) -> Format:
-    """The registered format of one file (the first that detects it)."""
-    return next(f for f in FORMATS.values() if f.detect(path))
+    """The registered format of one file (the first that detects it, else the fallback)."""
+    return next((f for name, f in FORMATS.items() if name != FALLBACK and f.detect(path)),
+                FORMATS[FALLBACK])
 
 
 def folder_files(files: list[str]) -> list[str]:
-    """The files of a folder to read: those of the first format in :data:`FOLDER_ORDER` that
-    lists any, else all of them."""
+    """The files of a folder to read: those of the first format that lists any (TFRecords
+    first, then registry order), else all of them."""
     by_format: dict[str, list[str]] = {}
     for path in files:
         fmt = format_of(path)
         if fmt.lists(path):
             by_format.setdefault(fmt.name, []).append(path)
-    return next((by_format[n] for n in FOLDER_ORDER if n in by_format), files)
+    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK)]
+    return next((by_format[n] for n in order if n in by_format), files)
 
 
 def count_records(path: str) -> int:
