@@ -68,20 +68,34 @@ def _from_manifest(manifest: str, caps, egos: str, config: FilterConfig, limit: 
         wanted.setdefault((e["file"], e["record"]), []).append(e)
     first = [group[0] for group in wanted.values()]
     decode_caps = None if egos == "all" or per_ego else caps
+    done: dict[tuple[str, int], object] = {}
+    order = iter(wanted)
+    nxt = next(order, None)
+    # each file is read once, front to back; the records come out in the manifest's order
     for entry, scenario in iter_manifest_scenarios(first, decode_caps, workers,
                                                    check_ids=check_ids, progress=progress):
-        file, record = entry["file"], entry["record"]
-        rec = ScenarioRecord(file, record, format_of(file).name, scenario)
-        if per_ego:
-            for e in wanted[(file, record)]:
-                slot = ego_slot(scenario, e["ego"])
-                if slot is None:
-                    raise DataError(f"manifest line {e['line']}: no object {e['ego']}",
-                                    file=file, record=record)
-                yield from _egos_of(rec, caps, config, only=slot)
-        elif egos == "all":
-            yield from _egos_of(rec, caps, config)
-        else:
+        done[(entry["file"], entry["record"])] = scenario
+        while nxt is not None and nxt in done:
+            yield from _manifest_records(nxt, done.pop(nxt), wanted[nxt], caps, egos, per_ego,
+                                         config)
+            nxt = next(order, None)
+
+
+def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, egos: str,
+                      per_ego: bool, config: FilterConfig) -> Iterator[ScenarioRecord]:
+    file, record = ref
+    rec = ScenarioRecord(file, record, format_of(file).name, scenario)
+    if per_ego:
+        for e in lines:
+            slot = ego_slot(scenario, e["ego"])
+            if slot is None:
+                raise DataError(f"manifest line {e['line']}: no object {e['ego']}",
+                                file=file, record=record)
+            yield from _egos_of(rec, caps, config, only=slot)
+    elif egos == "all":
+        yield from _egos_of(rec, caps, config)
+    else:
+        for _ in lines:  # a line repeated reads twice, as it is written
             yield rec
 
 
