@@ -10,11 +10,11 @@ import warnings
 import pytest
 
 from igdrivsim.cli import main
+from igdrivsim.data.source import data_identity
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
 from igdrivsim.pipeline.cli import main as reproduce
 from igdrivsim.training.config import get_profile, with_overrides
-from igdrivsim.training.records import data_identity
 
 
 def one_line_error(capsys, *needles: str) -> str:

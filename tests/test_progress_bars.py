@@ -17,7 +17,7 @@ import pytest
 
 from igdrivsim.cli import main as cli_main
 from igdrivsim.data import Capacities
-from igdrivsim.data.manifest import count_scenarios
+from igdrivsim.data.source import count_scenarios
 from igdrivsim.training import inputs
 
 CAPS = Capacities(max_objects=8, max_roadgraph_points=256)

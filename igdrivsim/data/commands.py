@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 
+from igdrivsim.data.egos import add_egos_argument
 from igdrivsim.data.filter import (
     FilterConfig,
     intersecting_objects,
@@ -17,13 +18,14 @@ from igdrivsim.data.filter import (
     run_filter,
     sdc_mean_speed,
 )
-from igdrivsim.data.reader import ReadStats, available_cpus, iter_scenarios
+from igdrivsim.data.reader import ReadStats, available_cpus
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     RG_ROAD_EDGE_TYPES,
     Scenario,
     decode_scenario_id,
 )
+from igdrivsim.data.source import open_scenarios
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
 
@@ -54,7 +56,7 @@ def describe(scenario: Scenario) -> dict:
 def inspect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="TFRecord files, folders, globs or name@N (either WOMD format), "
-                             "or ScenarioNet .pkl files / dataset folders")
+                             "ScenarioNet .pkl files / dataset folders, GPUDrive .json files")
     parser.add_argument("--limit", type=int, default=None, help="stop after N scenarios")
     parser.add_argument("--json", action="store_true",
                         help=argparse.SUPPRESS)  # deprecated: JSON lines are the only output
@@ -63,6 +65,7 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1,
                         help="N worker processes (1: in this process, which starts printing at "
                              "once)")
+    add_egos_argument(parser)
 
 
 def inspect_command(args: argparse.Namespace) -> int:
@@ -72,12 +75,13 @@ def inspect_command(args: argparse.Namespace) -> int:
     check_min("--workers", args.workers, 1)
     stats = ReadStats()
     shown = 0
-    for rec in iter_scenarios(args.files, caps=None, skip_bad=args.skip_bad, stats=stats,
-                              workers=args.workers):
+    for rec in open_scenarios(args.files, caps=None, skip_bad=args.skip_bad, stats=stats,
+                              workers=args.workers, egos=args.egos):
         if args.limit is not None and shown >= args.limit:
             break
         line = {"file": rec.file, "record": rec.record, "format": rec.format,
-                **(rec.source or {}), **describe(rec.scenario)}
+                **(rec.source or {}), **describe(rec.scenario),
+                **({} if rec.ego is None else {"logged_sdc": rec.ego["logged_sdc"]})}
         print(json.dumps(line), flush=True)
         shown += 1
     if stats.skipped:
@@ -89,7 +93,8 @@ def inspect_command(args: argparse.Namespace) -> int:
 
 def filter_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
-                        help="WOMD shards (files, folders, globs, name@N); with --merge: the "
+                        help="scenario files of any format read (WOMD shards, ScenarioNet, "
+                             "GPUDrive JSON: files, folders, globs, name@N); with --merge: the "
                              "output folders of earlier (--part) runs")
     parser.add_argument("--out", required=True, help="output folder (manifest.jsonl, "
                                                      "counts.json, shards/)")
@@ -106,6 +111,7 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
                              "join the parts with --merge")
     parser.add_argument("--merge", action="store_true",
                         help="join the per-shard results in the INPUT folders into --out")
+    add_egos_argument(parser)
     parser.add_argument("--skip-bad", action="store_true",
                         help="warn about and count bad records instead of stopping")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -125,7 +131,8 @@ def filter_command(args: argparse.Namespace) -> int:
         if args.workers < 0:
             raise ConfigError(f"--workers must be >= 0, got {args.workers}")
         counts = run_filter(args.inputs, args.out, config, workers=args.workers, part=part,
-                            skip_bad=args.skip_bad, progress=not args.no_progress)
+                            skip_bad=args.skip_bad, progress=not args.no_progress,
+                            egos=args.egos)
         if counts is None:
             print(f"igdrivsim filter: part {args.part} done; join the parts with "
                   f"`igdrivsim filter --merge {args.out} ... --out DIR`", file=sys.stderr)

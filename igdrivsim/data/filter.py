@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
 from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
-from igdrivsim.data.scenario import Scenario, decode_scenario_id
+from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
 
@@ -200,9 +200,26 @@ def shard_result_path(out: str, file: str) -> str:
     return os.path.join(out, SHARDS_DIR, f"{os.path.basename(file)}.{digest}.json")
 
 
-def filter_shard(file: str, result_path: str, skip_bad: bool = False) -> tuple[int, int]:
-    """Compute :func:`scenario_stats` for every record of ``file`` and write them atomically to
-    ``result_path``; returns ``(scenarios, bad_records)``."""
+def ego_entries(scenario: Scenario) -> list[dict]:
+    """:func:`scenario_stats` with each vehicle valid over the whole window as the ego (the
+    candidates of :mod:`igdrivsim.data.egos`), with ``ego`` (its object id) and
+    ``logged_sdc``; ``scenario_id`` stays the source scenario's."""
+    md, valid = scenario.metadata, np.asarray(scenario.trajectory.valid, bool).all(axis=-1)
+    sid = decode_scenario_id(scenario.scenario_id)
+    out = []
+    for slot in np.flatnonzero(valid & np.asarray(md.valid, bool)
+                               & (np.asarray(md.object_type) == TYPE_VEHICLE)):
+        row = scenario_stats(as_ego(scenario, int(slot)))
+        out.append({**row, "scenario_id": sid, "ego": int(np.asarray(md.id)[slot]),
+                    "logged_sdc": bool(np.asarray(md.is_sdc)[slot])})
+    return out
+
+
+def filter_shard(file: str, result_path: str, skip_bad: bool = False, egos: str = "sdc"
+                 ) -> tuple[int, int]:
+    """Compute :func:`scenario_stats` for every record of ``file`` (``egos="all"``: for every
+    candidate ego, :func:`ego_entries`) and write them atomically to ``result_path``; returns
+    ``(scenarios, bad_records)``."""
     file = os.path.abspath(file)
     signature = _signature(file)  # before reading: a file changed meanwhile is redone next time
     stats = ReadStats()
@@ -210,9 +227,14 @@ def filter_shard(file: str, result_path: str, skip_bad: bool = False) -> tuple[i
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for rec in iter_file(file, caps=None, skip_bad=skip_bad, stats=stats):
-            entries.append({"file": file, "record": rec.record, **scenario_stats(rec.scenario)})
+            where = {"file": file, "record": rec.record}
+            if egos == "all":
+                entries += [{**where, **e} for e in ego_entries(rec.scenario)]
+            else:
+                entries.append({**where, **scenario_stats(rec.scenario)})
     bad = [{"file": f, "record": r, "error": msg} for f, r, msg in stats.skipped]
-    write_json(result_path, {"file": file, "entries": entries, "bad": bad, **signature})
+    mode = {} if egos == "sdc" else {"egos": egos}
+    write_json(result_path, {"file": file, "entries": entries, "bad": bad, **signature, **mode})
     return len(entries), len(bad)
 
 
@@ -221,11 +243,15 @@ def _signature(file: str) -> dict:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def _read_shard_result(path: str, file: str | None = None) -> dict | None:
+def _read_shard_result(path: str, file: str | None = None, egos: str | None = None
+                       ) -> dict | None:
     """A finished partial result, or None if it is absent, unreadable or (given the input
-    ``file``) made from a different version of that file; then it is redone."""
+    ``file`` and ``egos``) made from a different version of that file or for other egos; then
+    it is redone."""
     result = read_json(path, {})
     if "entries" not in result:
+        return None
+    if egos is not None and result.get("egos", "sdc") != egos:
         return None
     if file is not None:
         try:
@@ -239,14 +265,15 @@ def _read_shard_result(path: str, file: str | None = None) -> dict | None:
 
 def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers: int = 0,
                part: tuple[int, int] | None = None, skip_bad: bool = False,
-               progress: bool = True) -> dict | None:
+               progress: bool = True, egos: str = "sdc") -> dict | None:
     """Filter the shards named by ``inputs`` into ``out``.
 
     Each shard's statistics go to ``out/shards/`` as soon as it is done; shards already there are
     skipped, so an interrupted run resumes. ``workers > 1`` processes shards in that many spawned
     processes. Without ``part`` the run ends by writing ``manifest.jsonl`` and ``counts.json``
     (returned); with ``part=(i, n)`` only slice ``i`` of ``n`` is processed and :func:`merge`
-    joins the slices later (returns None).
+    joins the slices later (returns None). ``egos="all"``: one manifest line per candidate ego
+    (a vehicle valid over the window), kept when it passes the filter as the ego.
     """
     files = expand_paths(inputs)
     if part is not None:
@@ -255,10 +282,11 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     resolved = {**config.to_dict(), "inputs": [os.fspath(i) for i in
                                                ([inputs] if isinstance(inputs, str | os.PathLike)
                                                 else inputs)],
-                "part": None if part is None else f"{part[0]}/{part[1]}", "skip_bad": skip_bad}
+                "part": None if part is None else f"{part[0]}/{part[1]}", "skip_bad": skip_bad,
+                **({} if egos == "sdc" else {"egos": egos})}
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
     write_json(os.path.join(out, name), resolved)
-    todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f) is None]
+    todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f, egos) is None]
     bar = None
     if progress:
         bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
@@ -266,8 +294,8 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     try:
         if workers > 1 and len(todo) > 1:
             with process_pool(min(workers, len(todo))) as pool:
-                futures = [pool.submit(filter_shard, f, shard_result_path(out, f), skip_bad)
-                           for f in todo]
+                futures = [pool.submit(filter_shard, f, shard_result_path(out, f), skip_bad,
+                                       egos) for f in todo]
                 try:
                     for fut in as_completed(futures):
                         scenarios += fut.result()[0]
@@ -280,7 +308,7 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
                     raise
         else:
             for f in todo:
-                scenarios += filter_shard(f, shard_result_path(out, f), skip_bad)[0]
+                scenarios += filter_shard(f, shard_result_path(out, f), skip_bad, egos)[0]
                 if bar is not None:
                     bar.update()
                     bar.set_postfix(scenarios=scenarios)

@@ -3,8 +3,10 @@
 A manifest line is ``{"file", "record", "scenario_id", "sdc_mean_speed", "interactive",
 "objects_of_interest", "kept"}``: ``file`` is an absolute path (a relative one is resolved
 against the manifest's folder), ``record`` the record index in that TFRecord file,
-``objects_of_interest`` the number of objects WOMD flags. The training input pipeline and the
-evaluation read the kept scenarios with :func:`read_manifest` + :func:`load_manifest_scenarios`.
+``objects_of_interest`` the number of objects WOMD flags. A filter run with ``--egos all``
+writes one line per vehicle (``ego``: its object id, ``logged_sdc``); ``scenario_id`` stays the
+source scenario's. Every reader takes the kept rows through
+:func:`igdrivsim.data.source.open_scenarios`.
 """
 
 from __future__ import annotations
@@ -15,8 +17,7 @@ from collections.abc import Iterable, Iterator
 
 from tqdm.auto import tqdm
 
-from igdrivsim.data import scenarionet
-from igdrivsim.data.reader import count_records, expand_paths, iter_file, process_pool
+from igdrivsim.data.reader import iter_file, process_pool
 from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
 from igdrivsim.errors import DataError
 from igdrivsim.io import atomic_path, atomic_write_json
@@ -24,6 +25,7 @@ from igdrivsim.io import atomic_path, atomic_write_json
 MANIFEST, COUNTS = "manifest.jsonl", "counts.json"
 FIELDS = ("file", "record", "scenario_id", "sdc_mean_speed", "interactive",
           "objects_of_interest", "kept")
+EGO_FIELDS = ("ego", "logged_sdc")  # lines of a filter run with every vehicle as the ego
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
@@ -36,7 +38,7 @@ def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
     n = 0
     with atomic_path(path, "w") as f:
         for entry in entries:
-            f.write(json.dumps({k: entry[k] for k in FIELDS}) + "\n")
+            f.write(json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n")
             n += 1
     return n
 
@@ -72,33 +74,6 @@ def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]
             if entry["kept"] or not kept_only:
                 entries.append(entry)
     return entries
-
-
-def count_scenarios(data, max_scenarios: int = 0) -> int | None:
-    """How many scenarios reading ``data`` (a path spec: file, folder, glob, ``name@N`` or a
-    list of those) yields, at most ``max_scenarios`` (0: no cap), for a progress bar's total:
-    the kept rows of ``DIR/manifest.jsonl`` when there is one, else the record count of the
-    TFRecord files (their framing only; files past the cap are not opened). None where that is
-    not cheap or not known: ScenarioNet pickles (a count decodes the whole file) and paths that
-    do not read (the read itself reports them)."""
-    def cap(n: int) -> int:
-        return min(n, max_scenarios) if max_scenarios else n
-
-    try:
-        if isinstance(data, (str, os.PathLike)) and os.path.isdir(data):
-            manifest = os.path.join(os.fspath(data), MANIFEST)
-            if os.path.isfile(manifest):
-                return cap(len(read_manifest(manifest)))
-        total = 0
-        for path in expand_paths(data):
-            if max_scenarios and total >= max_scenarios:
-                break
-            if scenarionet.is_scenarionet_file(path):
-                return None
-            total += count_records(path)
-        return cap(total)
-    except (DataError, OSError):
-        return None
 
 
 def _load_records(file: str, records: list[int], caps: Capacities | None

@@ -1,7 +1,8 @@
-"""Reading WOMD files: path expansion, per-record format detection, streaming and parallel reads.
+"""Reading scenario files: path expansion, streaming and parallel reads.
 
-Each record is auto-detected as a WOMD motion tf.Example or a WOMD Scenario protobuf, decoded at
-its native sizes, then fitted to the requested :class:`Capacities`. Bad records raise
+Each file's format is found in the registry (:mod:`igdrivsim.data.formats`: WOMD tf.Example or
+Scenario protobuf TFRecords, ScenarioNet pickles, GPUDrive JSON); its scenarios are decoded at
+their native sizes, then fitted to the requested :class:`Capacities`. Bad records raise
 :class:`DataError` naming file, record and problem; with ``skip_bad=True`` they are skipped with
 a warning and counted in a :class:`ReadStats`, and the rest of the file is still read.
 """
@@ -18,11 +19,10 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from google.protobuf.message import DecodeError
 from tqdm.auto import tqdm
 
 from igdrivsim.data import samples, scenarionet, tfrecord
-from igdrivsim.data.protos import example_class
+from igdrivsim.data.formats import count_records, folder_files, format_of
 from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
@@ -31,11 +31,9 @@ from igdrivsim.data.scenario import (
     index_scenario,
     trim_padding,
 )
-from igdrivsim.data.tfexample import decode_tfexample, encode_tfexample, is_tfexample
-from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
+from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.errors import DataError
 
-FORMAT_TFEXAMPLE, FORMAT_SCENARIO = "tf_example", "scenario_proto"
 _SHARDED = re.compile(r"^(?P<name>.+)@(?P<count>\d+)$")
 PathSpec = str | os.PathLike | Sequence[str | os.PathLike]
 
@@ -48,6 +46,7 @@ class ScenarioRecord(NamedTuple):
     format: str
     scenario: Scenario
     source: dict | None = None  # windowed logs (ScenarioNet): {"source_id", "first_step"}
+    ego: dict | None = None  # every vehicle as the ego: {"id", "object_id", "logged_sdc"}
 
 
 @dataclass
@@ -95,9 +94,7 @@ def expand_paths(spec: PathSpec) -> list[str]:
         files = sorted(os.path.join(spec, n) for n in os.listdir(spec)
                        if not n.startswith(".") and os.path.isfile(os.path.join(spec, n))
                        and n not in (scenarionet.SUMMARY_FILE, scenarionet.MAPPING_FILE))
-        records = [f for f in files if "tfrecord" in os.path.basename(f)]
-        pickles = [f for f in files if scenarionet.is_scenarionet_file(f)]
-        files = records or pickles or files
+        files = folder_files(files)
     elif os.path.isfile(spec):
         return [spec]
     elif (m := _SHARDED.match(spec)) is not None:
@@ -116,24 +113,6 @@ def expand_paths(spec: PathSpec) -> list[str]:
     return files
 
 
-def decode_record(data: bytes) -> tuple[str, Scenario]:
-    """Detect the format of one record and decode it at native sizes: ``(format, scenario)``."""
-    order = ("example", "scenario") if data[:1] == b"\x0a" else ("scenario", "example")
-    for kind in order:
-        try:
-            if kind == "example":
-                message = example_class().FromString(data)
-                if is_tfexample(message):
-                    return FORMAT_TFEXAMPLE, decode_tfexample(data)
-            else:
-                message = parse_scenario_proto(data)
-                if is_scenario_proto(message):
-                    return FORMAT_SCENARIO, decode_scenario_proto(message)
-        except DecodeError:
-            continue
-    raise DataError("unknown record format: neither a WOMD tf.Example nor a Scenario protobuf")
-
-
 def _locate(err: DataError, file: str, record: int | None) -> DataError:
     return DataError(err.problem, file=file, record=record if err.record is None else err.record,
                      key=err.key)
@@ -142,54 +121,29 @@ def _locate(err: DataError, file: str, record: int | None) -> DataError:
 def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool = False,
               stats: ReadStats | None = None, start: int = 0,
               stop: int | None = None) -> Iterator[ScenarioRecord]:
-    """Decode records ``start <= i < stop`` of one TFRecord file (``caps=None``: native sizes)."""
+    """Decode scenarios ``start <= i < stop`` of one file of any registered format
+    (:mod:`igdrivsim.data.formats`), fitted to ``caps`` (None: native sizes)."""
     stats = stats if stats is not None else ReadStats()
-    if scenarionet.is_scenarionet_file(path):
-        yield from _iter_scenarionet(path, caps, skip_bad, stats, start, stop)
-        return
-    records = tfrecord.iter_frames(path, start=start)
-    for index, data, error in records:
-        if stop is not None and index >= stop:
-            return
-        try:
-            if error is not None:
-                raise error
-            fmt, scenario = decode_record(data)
-            if caps is not None:
-                scenario = fit_to_capacities(scenario, caps)
-        except DataError as err:
-            err = _locate(err, path, index)
-            if not skip_bad:
-                raise err from None
-            stats.skip(err)
-            continue
-        stats.read += 1
-        yield ScenarioRecord(path, index, fmt, scenario)
-
-
-def _iter_scenarionet(path: str, caps, skip_bad: bool, stats: ReadStats, start: int,
-                      stop: int | None) -> Iterator[ScenarioRecord]:
-    """Records of a ScenarioNet file: its 91-step windows (a bad file is one bad record)."""
     try:
-        windows = list(scenarionet.iter_windows(path, start, stop))
-    except DataError as err:
+        for index, fmt, scenario, source in format_of(path).decode(path, start, stop):
+            try:
+                if isinstance(scenario, DataError):
+                    raise scenario
+                if caps is not None:
+                    scenario = fit_to_capacities(scenario, caps)
+            except DataError as err:
+                err = _locate(err, path, index)
+                if not skip_bad:
+                    raise err from None
+                stats.skip(err)
+                continue
+            stats.read += 1
+            yield ScenarioRecord(path, index, fmt, scenario, source)
+    except DataError as err:  # the file as a whole does not read: one bad record
         err = _locate(err, path, None)
         if not skip_bad:
             raise err from None
         stats.skip(err)
-        return
-    for index, w in windows:
-        scenario = fit_to_capacities(w.scenario, caps) if caps is not None else w.scenario
-        stats.read += 1
-        yield ScenarioRecord(path, index, scenarionet.FORMAT_SCENARIONET, scenario,
-                             {"source_id": w.source_id, "first_step": w.first_step})
-
-
-def count_records(path: str) -> int:
-    """Number of records (scenarios) of one file: TFRecord frames or ScenarioNet windows."""
-    if scenarionet.is_scenarionet_file(path):
-        return len(scenarionet.read_file(path))
-    return tfrecord.count_records(path)
 
 
 def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,

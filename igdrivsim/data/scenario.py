@@ -10,6 +10,7 @@ current at index 10, 80 future), roadgraph points ``R``, traffic lights ``L``.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import jax
@@ -141,6 +142,36 @@ def encode_scenario_id(sid: str) -> np.ndarray:
 def decode_scenario_id(arr: np.ndarray) -> str:
     """Scenario id of one (unbatched) scenario as a string."""
     return bytes(np.asarray(arr, np.uint8)).rstrip(b"\0").decode("ascii")
+
+
+EGO_SEPARATOR = "#"  # an ego's scenario id: <scenario id>#<object id>
+
+
+def ego_id(scenario_id: str, object_id: int) -> str:
+    """``<scenario id>#<object id>``; a scenario id too long to fit is replaced by its hash."""
+    tail = f"{EGO_SEPARATOR}{int(object_id)}"
+    if len(scenario_id) + len(tail) > SCENARIO_ID_BYTES:
+        digest = hashlib.sha1(scenario_id.encode()).hexdigest()
+        scenario_id = digest[:SCENARIO_ID_BYTES - len(tail)]
+    return scenario_id + tail
+
+
+def split_ego_id(text: str) -> tuple[str, int | None]:
+    """``(source scenario id, object id)`` of an ego id; ``(text, None)`` for a plain id."""
+    head, sep, tail = text.rpartition(EGO_SEPARATOR)
+    if sep and tail.lstrip("-").isdigit():
+        return head, int(tail)
+    return text, None
+
+
+def as_ego(scenario: Scenario, slot: int) -> Scenario:
+    """One unbatched scenario with object ``slot`` as the SDC and the ego's id."""
+    md = scenario.metadata
+    is_sdc = np.zeros_like(np.asarray(md.is_sdc, bool))
+    is_sdc[slot] = True
+    sid = ego_id(decode_scenario_id(scenario.scenario_id), int(np.asarray(md.id)[slot]))
+    return scenario.replace(metadata=md.replace(is_sdc=is_sdc),
+                            scenario_id=encode_scenario_id(sid))
 
 
 def sdc_index(scenario: Scenario) -> np.ndarray:

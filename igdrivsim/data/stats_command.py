@@ -1,5 +1,6 @@
 """``igdrivsim stats``: scene and motion statistics of any data (synthetic, tf.Example, Scenario,
-ScenarioNet, a filter output folder).
+ScenarioNet, GPUDrive JSON, a filter output folder; ``--egos all``: every eligible vehicle as the
+ego).
 
 Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`:
 ``stats.csv`` (one row per scenario), ``divergence.csv`` (Jensen-Shannon divergence of each data
@@ -20,7 +21,7 @@ from itertools import islice
 import numpy as np
 from tqdm.auto import tqdm
 
-from igdrivsim.data.manifest import COUNTS, MANIFEST, iter_manifest_scenarios, read_manifest
+from igdrivsim.data.egos import add_egos_argument
 from igdrivsim.data.motion_stats import (
     GROUP_LABELS,
     GROUPS,
@@ -30,8 +31,8 @@ from igdrivsim.data.motion_stats import (
     motion_summary,
     plot_motion,
 )
-from igdrivsim.data.reader import iter_scenarios
 from igdrivsim.data.scenario import Scenario
+from igdrivsim.data.source import open_scenarios
 from igdrivsim.data.stats import FEATURES, STATISTICS, js_divergence, scene_statistics, summary
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import atomic_savefig, atomic_write_csv, atomic_write_text, require_folder
@@ -58,7 +59,8 @@ OUTPUTS = ("stats.csv", "divergence.csv", "stats.md", "stats.png", "motion_stats
 def stats_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="[NAME=]FILE",
                         help="TFRecord files, folders, globs or name@N (either WOMD format), "
-                             "ScenarioNet .pkl files / folders, `igdrivsim filter` output "
+                             "ScenarioNet .pkl files / folders, GPUDrive .json files / "
+                             "folders, `igdrivsim filter` output "
                              "folders (their kept scenarios); NAME= groups files into one "
                              "data set (default name: the file or folder name)")
     parser.add_argument("--out", default=None,
@@ -71,27 +73,20 @@ def stats_arguments(parser: argparse.ArgumentParser) -> None:
                              "(repeatable; the CSVs have every scenario)")
     parser.add_argument("--reference", default=None, metavar="NAME",
                         help="data set the divergences are taken from (default: the last one)")
+    add_egos_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def iter_dataset(paths: list[str]) -> Iterator[tuple[str, int, Scenario]]:
-    """``(file, record, scenario)`` at native sizes over ``paths``; a filter output folder
-    (``manifest.jsonl``) gives its kept scenarios, as ``train`` and ``evaluate`` read it."""
-    for path in paths:
-        if os.path.isdir(path) and os.path.isfile(os.path.join(path, MANIFEST)):
-            entries = read_manifest(os.path.join(path, MANIFEST), kept_only=True)
-            for entry, scenario in iter_manifest_scenarios(entries, caps=None):
-                yield entry["file"], entry["record"], scenario
-        elif os.path.isdir(path) and os.path.isfile(os.path.join(path, COUNTS)):
-            raise DataError(f"a filter output folder without {MANIFEST} (an unfinished "
-                            "`igdrivsim filter` run?)", file=path)
-        else:  # native sizes: nothing is cut
-            for rec in iter_scenarios(path, caps=None):
-                yield rec.file, rec.record, rec.scenario
+def iter_dataset(paths: list[str], egos: str = "sdc") -> Iterator[tuple[str, int, Scenario]]:
+    """``(file, record, scenario)`` at native sizes over ``paths`` (:func:`open_scenarios`: a
+    filter output folder gives its kept scenarios, as ``train`` and ``evaluate`` read it);
+    ``egos="all"``: one per eligible vehicle."""
+    for rec in open_scenarios(paths, caps=None, egos=egos):
+        yield rec.file, rec.record, rec.scenario
 
 
 def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: bool = True,
-            kept_only: Sequence[str] = ()):
+            kept_only: Sequence[str] = (), egos: str = "sdc"):
     """Scene rows (one per scenario, with ``dataset, file, record``), pooled scene histograms
     per set, pooled motion statistics per set (only the filter-kept scenarios of the sets in
     ``kept_only``) and motion rows (one per agent)."""
@@ -99,7 +94,7 @@ def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: 
     for name, paths in datasets.items():
         pooled = {k: np.zeros(len(e) - 1, np.int64) for k, e in FEATURES.items()}
         pools[name] = MotionPool()
-        records = islice(iter_dataset(paths), limit)
+        records = islice(iter_dataset(paths, egos), limit)
         count = 0
         for file, record, scenario in tqdm(records, desc=name, unit="scn", disable=not progress,
                                            total=limit):
@@ -249,7 +244,7 @@ def stats_command(args: argparse.Namespace) -> int:
     if args.out is not None:
         require_folder(args.out)
     rows, hists, pools, agents = collect(datasets, args.limit, not args.no_progress,
-                                         args.kept_only)
+                                         args.kept_only, args.egos)
     frame = pd.DataFrame(rows)
     table = summary_table(frame, args.kept_only)
     print(table)

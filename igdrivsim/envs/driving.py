@@ -34,9 +34,11 @@ import numpy as np
 from flax import struct
 from gymnasium import spaces
 
-from igdrivsim.data import Scenario, read_scenarios
+from igdrivsim.data import Scenario
+from igdrivsim.data.egos import check_egos, expand_egos
 from igdrivsim.data.reader import unbatch
 from igdrivsim.data.scenario import CURRENT_INDEX, DEFAULT_CAPS, Capacities, decode_scenario_id
+from igdrivsim.data.source import open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import Observation, ObservationConfig, get_setting, observe
 from igdrivsim.observation.features import OBJECT_FEATURES, ROADGRAPH_FEATURES
@@ -146,17 +148,18 @@ def _to_numpy(obs: Observation) -> dict[str, np.ndarray]:
     }
 
 
-def _load(data, caps: Capacities, max_scenarios: int | None) -> list[Scenario]:
+def _load(data, caps: Capacities, max_scenarios: int | None, egos: str = "sdc"
+          ) -> list[Scenario]:
+    check_egos(egos)
     if isinstance(data, Scenario):
         data = [data]
     if isinstance(data, Sequence) and data and all(isinstance(s, Scenario) for s in data):
         scenarios = list(unbatch(data))
+        if egos == "all":
+            scenarios = [e for s in scenarios for e, _ in expand_egos(s)]
     else:
-        scenarios = []
-        for s in read_scenarios(data, caps):
-            scenarios.append(s)
-            if max_scenarios is not None and len(scenarios) >= max_scenarios:
-                break
+        scenarios = [rec.scenario for rec in open_scenarios(data, caps, egos=egos,
+                                                            limit=max_scenarios or 0)]
     scenarios = scenarios[:max_scenarios]
     if not scenarios:
         raise DataError("no scenarios to drive in", file=str(data))
@@ -172,15 +175,18 @@ class DrivingEnv(gym.Env):
 
     def __init__(self, data, setting: str = "full", continuous: bool = False,
                  params: SimParams = DEFAULT_PARAMS, config: ObservationConfig = DEFAULT_CONFIG,
-                 caps: Capacities = DEFAULT_CAPS, max_scenarios: int | None = None):
-        """``data``: files/folders/globs any reader accepts (WOMD or ScenarioNet), or
-        :class:`Scenario` objects; all of it is loaded (``max_scenarios`` caps how many)."""
+                 caps: Capacities = DEFAULT_CAPS, max_scenarios: int | None = None,
+                 egos: str = "sdc"):
+        """``data``: any data path (:func:`~igdrivsim.data.source.open_scenarios`: WOMD,
+        ScenarioNet, GPUDrive JSON, a filter output folder), or :class:`Scenario` objects; all
+        of it is loaded (``max_scenarios`` caps how many). ``egos="all"``: one scenario per
+        eligible vehicle (:mod:`igdrivsim.data.egos`)."""
         if not isinstance(setting, str):
             raise ConfigError(f"setting must be a preset name, got {setting!r}")
         self.setting = get_setting(setting).name
         self.continuous = continuous
         self.params, self.config = params, config
-        self.scenarios = _load(data, caps, max_scenarios)
+        self.scenarios = _load(data, caps, max_scenarios, egos)
         self.fns = driving_functions(self.setting, params, config, continuous)
         self.observation_space = _observation_space(config)
         if continuous:

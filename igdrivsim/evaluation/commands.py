@@ -13,6 +13,7 @@ from pathlib import Path
 
 from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.core.devices import maybe_init_distributed
+from igdrivsim.data.egos import add_egos_argument
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.evaluate import evaluate_references, evaluate_run
 from igdrivsim.io import require_folder
@@ -25,8 +26,9 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training run folder(s) (config.json + checkpoints); one output "
                              "sub-folder per run when several are given")
     parser.add_argument("--data", required=True,
-                        help="validation data: a filter output folder (manifest.jsonl) or WOMD "
-                             "files (file, folder, glob, name@N)")
+                        help="validation data: a filter output folder (manifest.jsonl) or "
+                             "files of any format read (WOMD TFRecords, ScenarioNet .pkl, "
+                             "GPUDrive .json; file, folder, glob, name@N)")
     parser.add_argument("--out", required=True, help="output folder for the tidy CSVs")
     parser.add_argument("--actions", choices=ACTION_MODES, default="sample",
                         help="how the policy picks its action level: sample (the paper's "
@@ -42,6 +44,7 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--limit", dest="max_scenarios", type=int, default=0, metavar="N",
                         help="evaluate at most N validation scenarios (0: all)")
     deprecated_alias(parser, "--max-scenarios", "max_scenarios", type=int)
+    add_egos_argument(parser)
     parser.add_argument("--batch-size", type=int, default=32, help="scenarios per batch")
     parser.add_argument("--seed", type=int, default=0, help="evaluation key (actions, noise)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -58,7 +61,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
         evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
-                     args.seed, progress)
+                     args.seed, progress, egos=args.egos)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:
         sim = caps = None
@@ -68,7 +71,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
             caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
-                            progress)
+                            progress, egos=args.egos)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     return 0
 

@@ -49,10 +49,11 @@ def _check_sizes(max_scenarios: int, batch_size: int) -> None:
 
 def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
-                 progress: bool = True, scenarios=None) -> Path:
+                 progress: bool = True, scenarios=None, egos: str = "sdc") -> Path:
     """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
 
-    ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``.
+    ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``;
+    ``egos="all"``: every eligible vehicle of ``data`` as the ego.
     """
     import pandas as pd  # heavy: pandas is needed only here
 
@@ -60,7 +61,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     run = Run.open(run_dir)
     config, params, seeds = run.config, run.params(), list(run.config.seeds)
     if scenarios is None:
-        scenarios = load_validation(data, config.capacities, max_scenarios, progress)
+        scenarios = load_validation(data, config.capacities, max_scenarios, progress, egos)
     ids = scenario_ids_of(scenarios)
     settings, method = list(config.settings), config.training.method
     label = ",".join(settings)
@@ -78,24 +79,25 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
         num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params),
-        trained=trained_record(run)))
+        trained=trained_record(run), **({} if egos == "sdc" else {"egos": egos})))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
-                        scenarios=None) -> Path:
+                        scenarios=None, egos: str = "sdc") -> Path:
     """Evaluate the discretised expert and constant velocity; write their tidy CSVs."""
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = sim or SimParams()
     if scenarios is None:
-        scenarios = load_validation(data, caps, max_scenarios, progress)
+        scenarios = load_validation(data, caps, max_scenarios, progress, egos)
     n = int(scenarios.scenario_id.shape[0])
     with _bar(2 * n, "evaluate references", progress) as bar:
         per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
                                                   progress=bar.update)
     return _write(out, per_step, per_scenario, dict(
-        references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim)))
+        references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim),
+        **({} if egos == "sdc" else {"egos": egos})))
 
 
 def _write(out, per_step, per_scenario, info: dict) -> Path:

@@ -22,8 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from igdrivsim.data import decode_scenario_id, iter_scenarios
-from igdrivsim.data.manifest import count_scenarios
+from igdrivsim.data import decode_scenario_id
+from igdrivsim.data.egos import add_egos_argument
+from igdrivsim.data.source import count_scenarios, open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, atomic_write_json, require_folder
 from igdrivsim.observation import render
@@ -105,7 +106,8 @@ def summarize(records: list[dict], num_steps: int) -> dict:
 
 def replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="FILE",
-                        help="WOMD files, directories, globs or name@N shards")
+                        help="scenario files of any format read (WOMD, ScenarioNet, GPUDrive "
+                             "JSON): files, directories, globs or name@N shards")
     parser.add_argument("--limit", type=int, default=None, help="replay at most N scenarios")
     parser.add_argument("--actor", choices=sorted(ACTORS), default="expert",
                         help="expert: the discretised expert; constant_velocity: a baseline")
@@ -118,6 +120,7 @@ def replay_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write an animation of the first scenario's replay to PATH "
                              "(default when given without PATH: OUT/replay.gif, or replay.gif)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    add_egos_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -126,10 +129,11 @@ def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
     render.write_rollout_animation(states, "full", path, jax.random.key(0), progress=progress)
 
 
-def _replay_total(files: list[str], limit: int | None) -> int | None:
+def _replay_total(files: list[str], limit: int | None, egos: str = "sdc") -> int | None:
     """The replay bar's total: the scenarios of ``files`` (their record count), capped by
-    ``limit``; where counting is not cheap (ScenarioNet) or fails, ``limit`` (None: no total)."""
-    total = count_scenarios(files, limit or 0)
+    ``limit``; where counting is not cheap (ScenarioNet, every ego) or fails, ``limit`` (None:
+    no total)."""
+    total = count_scenarios(files, limit or 0, egos)
     return limit if total is None else total
 
 
@@ -148,10 +152,11 @@ def replay_command(args: argparse.Namespace) -> int:
                if args.out else None)
         quiet = args.json or args.no_progress
         bar = stack.enter_context(tqdm(total=None if quiet else _replay_total(args.files,
-                                                                              args.limit),
+                                                                              args.limit,
+                                                                              args.egos),
                                        desc="replay", unit="scn", file=sys.stderr,
                                        disable=quiet))
-        for rec in iter_scenarios(args.files):
+        for rec in open_scenarios(args.files, egos=args.egos):
             if args.limit is not None and len(records) >= args.limit:
                 break
             try:
@@ -162,7 +167,8 @@ def replay_command(args: argparse.Namespace) -> int:
                 key, len(records))))
             sid = decode_scenario_id(rec.scenario.scenario_id)
             record = {**scenario_record(sid, replay, log), "file": rec.file,
-                      "record": rec.record, **(rec.source or {})}
+                      "record": rec.record, **(rec.source or {}),
+                      **({} if rec.ego is None else {"logged_sdc": rec.ego["logged_sdc"]})}
             line = json.dumps(record)
             print(line, flush=True)
             if out is not None:
@@ -179,7 +185,8 @@ def replay_command(args: argparse.Namespace) -> int:
         print("summary: " + json.dumps(summary), file=sys.stderr)
     if args.out:
         config = {"command": "replay", "files": args.files, "limit": args.limit,
-                  "actor": args.actor, "seed": args.seed, "sim_params": dataclasses.asdict(params)}
+                  "actor": args.actor, "seed": args.seed, "sim_params": dataclasses.asdict(params),
+                  **({} if args.egos == "sdc" else {"egos": args.egos})}
         atomic_write_json(os.path.join(args.out, "config.json"), config, indent=2)
         atomic_write_json(os.path.join(args.out, "summary.json"), summary, indent=2)
     return 0

@@ -71,9 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     deprecated_alias(parser, "--quiet", "quiet", action="store_true")
     parser.add_argument("--samples", default=None, metavar="DIR",
                         help="real scenarios for Fig. 1 and the real-log table: the folder of "
-                             "igdrivsim samples, or any WOMD / ScenarioNet location (default: "
-                             "the samples cache when fetched, else none: synthetic Fig. 1, "
-                             "no real-log table)")
+                             "igdrivsim samples, or any WOMD / ScenarioNet / GPUDrive "
+                             "location (default: the samples cache when fetched, else none: "
+                             "synthetic Fig. 1, no real-log table)")
     return parser
 
 

@@ -15,6 +15,8 @@ import os
 import sys
 
 from igdrivsim.core.devices import maybe_init_distributed
+from igdrivsim.data.egos import EGO_MODES
+from igdrivsim.data.source import manifest_of
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
 from igdrivsim.observation import PRESETS, get_setting
@@ -37,9 +39,14 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
                         help="number of seeds, vmapped (default: the profile's, 3 for laptop)")
     parser.add_argument("--data", required=True,
                         help="training data: a folder (with a filter manifest.jsonl, or "
-                             "TFRecords); a folder holding training/ and validation/ (as written by"
+                             "files of any format read: TFRecords, ScenarioNet .pkl, GPUDrive "
+                             ".json); a folder holding training/ and validation/ (as written by"
                              " `igdrivsim generate`) means its training/")
     parser.add_argument("--out", required=True, help="run folder")
+    parser.add_argument("--egos", choices=EGO_MODES, default=None,
+                        help="sdc: each scenario from its logged SDC; all: one scenario per "
+                             "vehicle valid over the window that passes the scenario filter as "
+                             "the ego (default: the profile's data.egos, sdc)")
     parser.add_argument("--val-data", default=None, metavar="DIR",
                         help="validation data for the learning curves (curves.jsonl): "
                              "closed-loop metrics every training.eval_every updates "
@@ -58,7 +65,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 SHORTCUTS = {"observation.setting": "--obs", "training.method": "--method",
-             "training.seeds": "--seeds"}
+             "training.seeds": "--seeds", "data.egos": "--egos"}
 
 
 def refuse_contradictions(shortcuts: list[str], overrides: list[str] | tuple[str, ...]) -> None:
@@ -83,6 +90,8 @@ def resolve_config(args: argparse.Namespace):
         shortcuts.append(f"training.method={args.method}")
     if args.seeds is not None:
         shortcuts.append(f"training.seeds={args.seeds}")
+    if getattr(args, "egos", None) is not None:
+        shortcuts.append(f"data.egos={args.egos}")
     refuse_contradictions(shortcuts, args.overrides)
     config = with_overrides(config, shortcuts + list(args.overrides))
     for name in config.observation.setting.split(","):
@@ -96,7 +105,7 @@ def resolve_data(data: str) -> str:
         raise DataError("training data not found", file=data)
     split = os.path.join(data, "training")
     if (os.path.isdir(split) and os.path.isdir(os.path.join(data, "validation"))
-            and not os.path.exists(os.path.join(data, "manifest.jsonl"))):
+            and manifest_of(data) is None):
         print(f"igdrivsim train: using the training split {split} (validation/ is for "
               f"--val-data and evaluate)", file=sys.stderr)
         return split

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from igdrivsim.core.params import MixWeights, PPOParams
+from igdrivsim.data.egos import EGO_MODES
 from igdrivsim.data.scenario import Capacities
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import ObservationConfig, stack_settings, superset_config
@@ -48,6 +49,9 @@ class DataConfig:
     workers: int = 2  # decode + reset threads of the stream
     buffer: int = 2  # batches the stream prepares ahead (bounds host memory)
     shards: int = 0  # disjoint shards of the data (0: one per process); a multiple of those
+    # "sdc": each scenario with its logged SDC as the ego (the paper's); "all": one scenario
+    # per vehicle valid over the window that passes the paper's filter as the ego
+    egos: str = "sdc"
 
 
 @dataclass(frozen=True)
@@ -200,6 +204,8 @@ class RunConfig:
         if d.stream and d.record_teacher:
             raise ConfigError("data.stream needs data.record_teacher=false (the update records "
                               "each streamed batch)")
+        if d.egos not in EGO_MODES:
+            raise ConfigError(f"data.egos must be one of {', '.join(EGO_MODES)}, got {d.egos!r}")
         if d.workers < 1 or d.buffer < 1 or d.shards < 0:
             raise ConfigError("data.workers and data.buffer must be >= 1, data.shards >= 0")
         if epochs < 1:

@@ -1,7 +1,8 @@
 """The training input pipeline: load once, reset once, record once, shuffle, prefetch.
 
-Scenarios come from a filter manifest (``manifest.jsonl`` in the data folder, kept rows) or,
-without one, from every TFRecord file of the folder. Each is fitted to the profile's capacities
+Scenarios come from :func:`~igdrivsim.data.source.open_scenarios` (a filter manifest's kept rows,
+or every file of the folder in any registered format; ``data.egos="all"``: one scenario per
+eligible vehicle). Each is fitted to the profile's capacities
 while decoding, then ``reset`` ONCE; the teacher-forced records of BC
 (:mod:`igdrivsim.training.records`) are computed from those states, or read from the on-disk
 cache, and kept in host memory (NumPy) with the states (BC-RL only). A batch is then a gather.
@@ -30,9 +31,8 @@ from jax.sharding import Mesh, NamedSharding
 from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import place
-from igdrivsim.data import read_scenarios
-from igdrivsim.data.manifest import count_scenarios, load_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
+from igdrivsim.data.source import count_scenarios, data_identity, open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
@@ -40,34 +40,19 @@ from igdrivsim.training.config import RunConfig
 from igdrivsim.training.records import (
     cache_key,
     compute_records,
-    data_identity,
     load_or_compute,
 )
 
-MANIFEST = "manifest.jsonl"
-
 
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
-                   chunk: int = 64) -> Iterator[list[Scenario]]:
-    """Chunks of the training scenarios of ``data``: the kept rows of ``DIR/manifest.jsonl``
-    when there is one, else every record of the folder's (or path's) TFRecord files."""
-    path = os.fspath(data)
-    manifest = os.path.join(path, MANIFEST) if os.path.isdir(path) else None
-    if manifest and os.path.isfile(manifest):
-        entries = read_manifest(manifest)[: max_scenarios or None]
-        for start in range(0, len(entries), chunk):
-            yield load_manifest_scenarios(entries[start:start + chunk], caps)
-        return
+                   chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
+    """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
     part: list[Scenario] = []
-    count = 0
-    for sc in read_scenarios(path, caps):
-        part.append(sc)
-        count += 1
+    for rec in open_scenarios(data, caps, egos=egos, limit=max_scenarios):
+        part.append(rec.scenario)
         if len(part) == chunk:
             yield part
             part = []
-        if max_scenarios and count >= max_scenarios:
-            break
     if part:
         yield part
 
@@ -142,14 +127,14 @@ class Dataset:
             if isinstance(data, (str, os.PathLike)):
                 if not os.path.exists(data):
                     raise DataError("training data not found", file=os.fspath(data))
-                return iter_scenarios(data, config.capacities, limit, chunk)
+                return iter_scenarios(data, config.capacities, limit, chunk, d.egos)
             scenarios = list(data)[: limit or None]
             return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
 
         def load() -> SimState:
             total = None  # the bar's: the manifest's kept rows, the records, the list
             if progress and isinstance(data, (str, os.PathLike)):
-                total = count_scenarios(data, limit)
+                total = count_scenarios(data, limit, d.egos)
             elif progress and isinstance(data, Sequence):
                 total = min(len(data), limit or len(data))
             return reset_all(chunks(), params, chunk, progress, total)
@@ -167,8 +152,9 @@ class Dataset:
             return cls(None, states, d.batch_size, config.seeds)
         key = None
         if cache_dir and isinstance(data, (str, os.PathLike)):
+            egos = {} if d.egos == "sdc" else {"egos": d.egos}  # the keys of before, for sdc
             key = cache_key(data_identity(data), caps=config.capacities, rec=rec, sim=params,
-                            limit=limit)
+                            limit=limit, **egos)
         teacher = load_or_compute(cache_dir if key else None, key or "", compute)
         if need_states and states is None:
             states = load()

@@ -103,7 +103,7 @@ class Validation:
         self.config, self.spec = config, spec
         self.teacher = inputs.Dataset.from_config(
             config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
-        self.scenarios = load_validation(data, config.capacities, n)
+        self.scenarios = load_validation(data, config.capacities, n, egos=config.data.egos)
         self.loss = make_validation_loss(spec)
         self.settings = settings_as_data(config)
 

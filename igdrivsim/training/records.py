@@ -27,10 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from igdrivsim.data import expand_paths
-from igdrivsim.data.manifest import read_manifest
 from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS
-from igdrivsim.errors import DataError
 from igdrivsim.io import atomic_path
 from igdrivsim.observation import ObservationConfig, ObservationRecord, get_setting, observe
 from igdrivsim.observation.features import ROADGRAPH_GEOMETRY, roadgraph_kind
@@ -93,26 +90,6 @@ def compute_records(states: SimState, sim: SimParams, rec: ObservationConfig,
     if bar is not None:
         bar.close()
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
-
-
-def data_identity(data) -> str:
-    """A string that changes when the data changes: the manifest's bytes or the files' stats."""
-    path = os.fspath(data)
-    manifest = os.path.join(path, "manifest.jsonl") if os.path.isdir(path) else None
-    h = hashlib.sha256()
-    if manifest and os.path.isfile(manifest):
-        with open(manifest, "rb") as f:
-            h.update(f.read())
-        # the files the manifest points at (relative to its folder; checked line by line)
-        files = sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
-    else:
-        files = expand_paths(path)
-    for name in files:
-        if not os.path.isfile(name):
-            raise DataError("the filter manifest points at a missing file", file=name)
-        st = os.stat(name)
-        h.update(f"{os.path.abspath(name)}:{st.st_size}:{st.st_mtime_ns}".encode())
-    return h.hexdigest()
 
 
 def cache_key(identity: str, **shape) -> str:

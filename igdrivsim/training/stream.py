@@ -16,7 +16,6 @@ memory is a few batches, independent of the dataset size. The iterator's state
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterator, Sequence
 
@@ -25,65 +24,46 @@ import jax
 import numpy as np
 from jax.sharding import NamedSharding
 
-from igdrivsim.data.manifest import _load_records
-from igdrivsim.data.reader import count_records, expand_paths
 from igdrivsim.data.scenario import Capacities, Scenario
+from igdrivsim.data.source import load_ref, scenario_refs
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, read_json
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
 
-MANIFEST = "manifest.jsonl"
-
 
 class ScenarioIndex:
-    """Random access to the scenarios of a folder: ``(file id, record)`` per scenario (8 bytes
-    each), decoded on demand. Grain data source protocol: ``len`` and ``[i]``."""
+    """Random access to the scenarios of a data path: ``(file id, record)`` per scenario (8
+    bytes each), plus the ego's object id with every vehicle as the ego
+    (:func:`~igdrivsim.data.source.scenario_refs`), decoded on demand. Grain data source
+    protocol: ``len`` and ``[i]``."""
 
     def __init__(self, files: Sequence[str], refs: np.ndarray, caps: Capacities):
-        self.files, self.refs, self.caps = list(files), np.asarray(refs, np.int32), caps
+        refs = np.asarray(refs, np.int32)
+        if refs.shape[1] == 3 and (refs[:, 2] < 0).all():
+            refs = refs[:, :2]  # the logged SDCs: no ego column
+        self.files, self.refs, self.caps = list(files), refs, caps
 
     @classmethod
-    def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0
-                  ) -> ScenarioIndex:
-        """The kept rows of ``DATA/manifest.jsonl``, else every record of the TFRecord files."""
-        path = os.fspath(data)
-        manifest = os.path.join(path, MANIFEST) if os.path.isdir(path) else ""
-        files: dict[str, int] = {}
-        refs: list[tuple[int, int]] = []
-        if os.path.isfile(manifest):
-            base = os.path.dirname(os.path.abspath(manifest))
-            with open(manifest) as f:
-                for line in f:
-                    if not line.strip():
-                        continue
-                    e = json.loads(line)
-                    if not e.get("kept", True):
-                        continue
-                    name = os.path.normpath(os.path.join(base, e["file"]))
-                    refs.append((files.setdefault(name, len(files)), int(e["record"])))
-                    if limit and len(refs) >= limit:
-                        break
-        else:
-            for name in expand_paths(path):
-                fid = files.setdefault(name, len(files))
-                for r in range(count_records(name)):
-                    refs.append((fid, r))
-                    if limit and len(refs) >= limit:
-                        break
-                if limit and len(refs) >= limit:
-                    break
-        if not refs:
-            raise DataError("no training scenarios found", file=path)
-        return cls(list(files), np.asarray(refs, np.int32), caps)
+    def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0,
+                  egos: str = "sdc") -> ScenarioIndex:
+        """The scenarios :func:`~igdrivsim.data.source.open_scenarios` reads from ``data``."""
+        try:
+            files, refs = scenario_refs(data, limit, egos)
+        except DataError as err:
+            if err.problem != "no scenarios found":
+                raise
+            raise DataError("no training scenarios found", file=err.file) from None
+        return cls(files, refs, caps)
 
     def __len__(self) -> int:
         return len(self.refs)
 
     def __getitem__(self, i: int) -> Scenario:
-        fid, record = self.refs[int(i)]
-        return _load_records(self.files[fid], [int(record)], self.caps)[0][1]
+        row = self.refs[int(i)]
+        ego = int(row[2]) if len(row) > 2 else -1
+        return load_ref(self.files[int(row[0])], int(row[1]), ego, self.caps)
 
 
 def owned_shards(num_shards: int, process: int, processes: int) -> range:
@@ -138,7 +118,7 @@ class StreamDataset:
         if isinstance(data, (str, os.PathLike)):
             if not os.path.exists(data):
                 raise DataError("training data not found", file=os.fspath(data))
-            source = ScenarioIndex.from_path(data, config.capacities, d.max_scenarios)
+            source = ScenarioIndex.from_path(data, config.capacities, d.max_scenarios, d.egos)
         else:
             source = list(data)[: d.max_scenarios or None]
         return cls(source, d.batch_size, config.seeds, params, d.shards, workers=d.workers,

@@ -1,0 +1,73 @@
+"""Every vehicle as the ego: one scenario per eligible vehicle of a logged scenario.
+
+A vehicle is **eligible** when it is valid at every step of the window and passes the scenario
+filter (:mod:`igdrivsim.data.filter`, the paper's criterion or the ``objects_of_interest``
+variant, with its minimum mean speed) with itself as the SDC. :func:`as_ego` makes it the SDC
+(the simulator controls it, the observation is taken from it and leaves it out) and the logged
+SDC an ordinary log-replayed object; the scenario id becomes ``<scenario id>#<object id>``
+(stable: it names the source scenario and the vehicle; :func:`~igdrivsim.data.scenario.as_ego`,
+``ego_id`` and ``split_ego_id`` live with the scenario model), and :func:`expand_egos` says
+whether the ego is the logged SDC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from igdrivsim.data.filter import FilterConfig, keep, scenario_stats
+from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
+from igdrivsim.errors import ConfigError
+
+EGO_MODES = ("sdc", "all")  # the logged SDC only (the paper's protocol), every eligible vehicle
+PAPER_FILTER = FilterConfig()  # interactive and mean speed >= 0.7 m/s
+
+
+def check_egos(egos: str) -> str:
+    """``egos`` if it is one of :data:`EGO_MODES`, else a one-line :class:`ConfigError`."""
+    if egos not in EGO_MODES:
+        raise ConfigError(f"unknown egos {egos!r}; choose one of {', '.join(EGO_MODES)}")
+    return egos
+
+
+def add_egos_argument(parser) -> None:
+    """The ``--egos`` option every command that reads data shares."""
+    parser.add_argument("--egos", choices=EGO_MODES, default="sdc",
+                        help="sdc: each scenario from its logged SDC (the paper's); all: one "
+                             "scenario per vehicle valid over the window that passes the "
+                             "scenario filter as the ego (default: sdc)")
+
+
+def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> list[int]:
+    """Slots of the vehicles valid over the whole window that pass the filter as the ego."""
+    tr, md = scenario.trajectory, scenario.metadata
+    valid = np.asarray(tr.valid, bool).all(axis=-1) & np.asarray(md.valid, bool)
+    vehicle = np.asarray(md.object_type) == TYPE_VEHICLE
+    speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
+    out = []
+    for slot in np.flatnonzero(valid & vehicle):
+        if speed[slot].mean() < config.min_speed:  # cheap first: the filter's speed bound
+            continue
+        if keep(scenario_stats(as_ego(scenario, int(slot))), config):
+            out.append(int(slot))
+    return out
+
+
+def expand_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER
+                ) -> Iterator[tuple[Scenario, dict]]:
+    """``(scenario as seen from the ego, {"id", "object_id", "logged_sdc"})`` per eligible
+    vehicle of one unbatched scenario (native sizes: fit to capacities afterwards, so that the
+    objects kept are those nearest to the ego)."""
+    logged = int(np.argmax(np.asarray(scenario.metadata.is_sdc)))
+    for slot in eligible_egos(scenario, config):
+        ego = as_ego(scenario, slot)
+        yield ego, {"id": decode_scenario_id(ego.scenario_id),
+                    "object_id": int(np.asarray(scenario.metadata.id)[slot]),
+                    "logged_sdc": slot == logged}
+
+
+def ego_slot(scenario: Scenario, object_id: int) -> int | None:
+    """The slot of object ``object_id`` in one unbatched scenario (None: not there)."""
+    hits = np.flatnonzero(np.asarray(scenario.metadata.id) == int(object_id))
+    return int(hits[0]) if len(hits) else None

@@ -1,0 +1,131 @@
+"""The registry of data formats: how a file is recognised, decoded and counted.
+
+A format is one :class:`Format` entry of :data:`FORMATS`: ``detect(path)`` (cheap: the name or
+the first bytes), ``decode(path, start, stop)`` (the scenarios ``start <= i < stop`` of the file
+at native sizes, as ``(index, format name, scenario, source)``; ``source`` says where a window of
+a longer log starts, else None; a bad record comes as a :class:`DataError` in place of the
+scenario, so that the rest of the file can still be read; a file that cannot be read at all
+raises it) and ``count(path)`` (how many scenarios the file holds; ``cheap_count`` False when
+that takes a full decode). A file belongs to the first format, in registry order, that
+detects it, else to :data:`FALLBACK` (TFRecord); a folder reads the files of the first format
+that has any, TFRecords first, then the others in registry order.
+Adding a format is one module plus one entry here; every reader
+(:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+from google.protobuf.message import DecodeError
+
+from igdrivsim.data import gpudrive, scenarionet, tfrecord
+from igdrivsim.data.protos import example_class
+from igdrivsim.data.scenario import Scenario
+from igdrivsim.data.tfexample import decode_tfexample, is_tfexample
+from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
+from igdrivsim.errors import DataError
+
+FORMAT_TFEXAMPLE, FORMAT_SCENARIO = "tf_example", "scenario_proto"
+Decoded = tuple[int, str | None, Scenario | DataError, dict | None]
+
+
+@dataclass(frozen=True)
+class Format:
+    """One data format: recognise a file, decode its scenarios, count them."""
+
+    name: str
+    detect: Callable[[str], bool]
+    decode: Callable[[str, int, int | None], Iterator[Decoded]]
+    count: Callable[[str], int]
+    cheap_count: bool  # False: counting decodes the whole file
+    lists: Callable[[str], bool]  # whether a folder listing takes this (detected) file
+
+
+def decode_record(data: bytes) -> tuple[str, Scenario]:
+    """Detect the format of one TFRecord record and decode it at native sizes:
+    ``(format, scenario)`` (a WOMD tf.Example or a WOMD Scenario protobuf)."""
+    order = ("example", "scenario") if data[:1] == b"\x0a" else ("scenario", "example")
+    for kind in order:
+        try:
+            if kind == "example":
+                message = example_class().FromString(data)
+                if is_tfexample(message):
+                    return FORMAT_TFEXAMPLE, decode_tfexample(data)
+            else:
+                message = parse_scenario_proto(data)
+                if is_scenario_proto(message):
+                    return FORMAT_SCENARIO, decode_scenario_proto(message)
+        except DecodeError:
+            continue
+    raise DataError("unknown record format: neither a WOMD tf.Example nor a Scenario protobuf")
+
+
+def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
+    """Records of a TFRecord file; a bad record comes as a :class:`DataError` naming its index."""
+    for index, data, error in tfrecord.iter_frames(path, start=start):
+        if stop is not None and index >= stop:
+            return
+        try:
+            if error is not None:
+                raise error
+            fmt, scenario = decode_record(data)
+        except DataError as err:
+            yield index, None, DataError(err.problem, file=path,
+                                         record=index if err.record is None else err.record,
+                                         key=err.key), None
+            continue
+        yield index, fmt, scenario, None
+
+
+def _decode_scenarionet(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
+    """The 91-step windows of a ScenarioNet log (a bad file is one bad record)."""
+    for index, w in list(scenarionet.iter_windows(path, start, stop)):
+        yield index, scenarionet.FORMAT_SCENARIONET, w.scenario, {
+            "source_id": w.source_id, "first_step": w.first_step}
+
+
+def _decode_gpudrive(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
+    """The one scenario of a GPUDrive JSON file."""
+    if start <= 0 and (stop is None or stop > 0):
+        yield 0, gpudrive.FORMAT_GPUDRIVE, gpudrive.read_file(path), None
+
+
+FORMATS: dict[str, Format] = {
+    "scenarionet": Format("scenarionet", scenarionet.is_scenarionet_file, _decode_scenarionet,
+                          lambda path: len(scenarionet.read_file(path)), False,
+                          lambda path: True),
+    "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive,
+                       lambda path: 1, True, lambda path: True),
+    # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
+    # every file no other format detects is tried as one; a folder listing takes names
+    # containing "tfrecord"
+    "tfrecord": Format("tfrecord", lambda path: True, _decode_tfrecord, tfrecord.count_records,
+                       True, lambda path: "tfrecord" in os.path.basename(path)),
+}
+FALLBACK = "tfrecord"
+
+
+def format_of(path: str) -> Format:
+    """The registered format of one file (the first that detects it, else the fallback)."""
+    return next((f for name, f in FORMATS.items() if name != FALLBACK and f.detect(path)),
+                FORMATS[FALLBACK])
+
+
+def folder_files(files: list[str]) -> list[str]:
+    """The files of a folder to read: those of the first format that lists any (TFRecords
+    first, then registry order), else all of them."""
+    by_format: dict[str, list[str]] = {}
+    for path in files:
+        fmt = format_of(path)
+        if fmt.lists(path):
+            by_format.setdefault(fmt.name, []).append(path)
+    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK)]
+    return next((by_format[n] for n in order if n in by_format), files)
+
+
+def count_records(path: str) -> int:
+    """Number of scenarios of one file (TFRecord frames, ScenarioNet windows, ...)."""
+    return format_of(path).count(path)

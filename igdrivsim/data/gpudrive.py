@@ -1,0 +1,244 @@
+"""GPUDrive / PufferDrive JSON scenarios -> :class:`Scenario` (one file, one scenario, native
+sizes).
+
+GPUDrive distributes processed WOMD as one JSON file per scenario, written by its converter
+(``data_utils/process_waymo_files.py`` of Emerge-Lab/gpudrive). Top-level keys: ``scenario_id``,
+``objects``, ``roads``, ``tl_states`` and ``metadata``.
+
+- **Objects** become trajectory rows in file order: per step ``position`` {x, y, z}, ``heading``
+  (radians), ``velocity`` {x, y} and ``valid``; one ``width``, ``length``, ``height`` (the last
+  valid state's) for all steps; ``id``; ``type`` ``unset / vehicle / pedestrian / cyclist /
+  other`` -> WOMD's 0-4. Invalid steps hold -10000 in every field: they are stored as -1, as a
+  WOMD tf.Example stores them.
+- **Roads** are typed polylines: ``map_element_id`` is already the tf.Example roadgraph code
+  (lanes 0-3, road lines 5-13, road edges 14-16, stop sign 17, crosswalk 18, speed bump 19); a
+  file without it falls back on the coarse ``type`` (:data:`COARSE_TYPES`). Driveways (code 20
+  or -1) have no tf.Example type and are skipped, as in the Scenario-proto reader. Crosswalk and
+  speed-bump polygons are closed; segments are subdivided to WOMD's 0.5 m.
+- **Traffic lights** (``tl_states``: per controlled lane, its ``state`` strings, stop point
+  ``x, y, z`` and ``time_index``) become one slot per lane, WOMD's state enum.
+- **Metadata**: ``sdc_track_index`` (an index into ``objects``), ``tracks_to_predict`` as
+  ``{track_index, difficulty}``, ``objects_of_interest`` as object ids.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from igdrivsim.data.scenario import (
+    NUM_STEPS,
+    RG_CROSSWALK,
+    RG_LANE_SURFACE_STREET,
+    RG_ROAD_EDGE_BOUNDARY,
+    RG_SPEED_BUMP,
+    RG_STOP_SIGN,
+    ObjectMetadata,
+    Roadgraph,
+    Scenario,
+    TrafficLights,
+    Trajectory,
+    encode_scenario_id,
+)
+from igdrivsim.data.womd_proto import (
+    DEFAULT_MAX_SPACING,
+    densify_polylines,
+    polyline_directions,
+)
+from igdrivsim.errors import DataError
+
+FORMAT_GPUDRIVE = "gpudrive_json"
+INVALID = -10000.0  # what the converter writes in every field of an invalid step
+OBJECT_TYPES = {"unset": 0, "vehicle": 1, "pedestrian": 2, "cyclist": 3, "other": 4}
+# coarse road ``type`` -> tf.Example code, when a road has no ``map_element_id``
+COARSE_TYPES = {"lane": RG_LANE_SURFACE_STREET, "road_line": 5, "road_edge": RG_ROAD_EDGE_BOUNDARY,
+                "stop_sign": RG_STOP_SIGN, "crosswalk": RG_CROSSWALK,
+                "speed_bump": RG_SPEED_BUMP}
+POLYGONS = (RG_CROSSWALK, RG_SPEED_BUMP)
+LIGHT_STATES = {"unknown": 0, "arrow_stop": 1, "arrow_caution": 2, "arrow_go": 3, "stop": 4,
+                "caution": 5, "go": 6, "flashing_stop": 7, "flashing_caution": 8}
+
+
+def is_gpudrive_file(path: str) -> bool:
+    """A ``.json`` file that opens with a JSON object (cheap: the first bytes only)."""
+    if not path.endswith(".json") or not os.path.isfile(path):
+        return False
+    with open(path, "rb") as f:
+        return f.read(64).lstrip().startswith(b"{")
+
+
+def _get(obj, key: str, where: str, kind=None):
+    if not isinstance(obj, dict) or key not in obj:
+        raise DataError(f"missing key {key!r}", key=f"{where}.{key}" if where else key)
+    value = obj[key]
+    if kind is not None and not isinstance(value, kind):
+        raise DataError(f"expected {kind.__name__ if isinstance(kind, type) else 'a number'}, "
+                        f"got {type(value).__name__}", key=f"{where}.{key}" if where else key)
+    return value
+
+
+def _xyz(points, where: str, dims: str = "xyz") -> np.ndarray:
+    try:
+        return np.array([[p[c] for c in dims] for p in points], np.float64).reshape(-1, len(dims))
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataError(f"expected points {{{', '.join(dims)}}} ({type(err).__name__}: {err})",
+                        key=where) from None
+
+
+def _decode_objects(objects: list) -> tuple[Trajectory, ObjectMetadata, np.ndarray]:
+    num = len(objects)
+    f = np.full((9, num, NUM_STEPS), -1.0, np.float32)  # x y z yaw vx vy length width height
+    valid = np.zeros((num, NUM_STEPS), bool)
+    ids, types = np.zeros(num, np.int32), np.zeros(num, np.int32)
+    for i, obj in enumerate(objects):
+        w = f"objects[{i}]"
+        pos = _xyz(_get(obj, "position", w, list), f"{w}.position")
+        vel = _xyz(_get(obj, "velocity", w, list), f"{w}.velocity", "xy")
+        yaw = np.asarray(_get(obj, "heading", w, list), np.float64)
+        ok = np.asarray(_get(obj, "valid", w, list), bool)
+        for key, a in (("position", pos), ("velocity", vel), ("heading", yaw), ("valid", ok)):
+            if len(a) != NUM_STEPS:
+                raise DataError(f"{len(a)} steps, expected {NUM_STEPS}", key=f"{w}.{key}")
+        rows = np.concatenate([pos, yaw[:, None], vel], axis=1)
+        if not np.isfinite(rows[ok]).all() or (rows[ok] == INVALID).all(axis=1).any():
+            raise DataError("a valid step holds a non-finite or invalid (-10000) value",
+                            key=f"{w}.position")
+        f[:6, i][:, ok] = rows[ok].T
+        for k, key in enumerate(("length", "width", "height")):
+            f[6 + k, i][ok] = float(_get(obj, key, w, (int, float)))
+        valid[i] = ok
+        ids[i] = int(_get(obj, "id", w, int))
+        kind = _get(obj, "type", w, str)
+        if kind not in OBJECT_TYPES:
+            raise DataError(f"unknown object type {kind!r}; known: {', '.join(OBJECT_TYPES)}",
+                            key=f"{w}.type")
+        types[i] = OBJECT_TYPES[kind]
+    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
+                            length=f[6], width=f[7], height=f[8], valid=valid)
+    metadata = ObjectMetadata(id=ids, object_type=types, is_sdc=np.zeros(num, bool),
+                              tracks_to_predict=np.zeros(num, bool),
+                              objects_of_interest=np.zeros(num, bool), valid=valid.any(axis=1))
+    return trajectory, metadata, ids
+
+
+def road_code(road: dict, where: str) -> int | None:
+    """The tf.Example roadgraph code of one road, None for a type we do not keep (driveway)."""
+    code = road.get("map_element_id") if isinstance(road, dict) else None
+    if isinstance(code, int) and 0 <= code < 20 and code != 4:
+        return code
+    if code is None:
+        return COARSE_TYPES.get(_get(road, "type", where, str))
+    return None  # 20: driveway; -1: unknown
+
+
+def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
+    xyz, types, ids = [], [], []
+    for i, road in enumerate(roads):
+        w = f"roads[{i}]"
+        code = road_code(road, w)
+        if code is None:
+            continue
+        pts = _xyz(_get(road, "geometry", w, list), f"{w}.geometry")
+        if not len(pts):
+            continue
+        if not np.isfinite(pts).all():
+            raise DataError("non-finite map point", key=f"{w}.geometry")
+        if code in POLYGONS:
+            pts = np.concatenate([pts, pts[:1]])
+        xyz.append(pts)
+        types.append(code)
+        ids.append(int(road.get("id", i)))
+    if not xyz:
+        z = np.zeros((0, 3), np.float32)
+        return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
+                         valid=np.zeros(0, bool))
+    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
+    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
+    return Roadgraph(xyz=points.astype(np.float32),
+                     dir=polyline_directions(points, poly).astype(np.float32),
+                     type=np.asarray(types, np.int32)[poly],
+                     id=np.asarray(ids, np.int64)[poly].astype(np.int32),
+                     valid=np.ones(len(points), bool))
+
+
+def _decode_lights(tl_states) -> TrafficLights:
+    if not isinstance(tl_states, dict):
+        raise DataError(f"expected an object keyed by lane id, got {type(tl_states).__name__}",
+                        key="tl_states")
+    num = len(tl_states)
+    state = np.zeros((num, NUM_STEPS), np.int32)
+    valid = np.zeros((num, NUM_STEPS), bool)
+    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
+    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    for slot, (lane, tl) in enumerate(tl_states.items()):
+        w = f"tl_states.{lane}"
+        steps = _get(tl, "time_index", w, list)
+        names = _get(tl, "state", w, list)
+        coords = [_get(tl, c, w, list) for c in "xyz"]
+        if any(len(a) != len(steps) for a in (names, *coords)):
+            raise DataError("state, x, y, z and time_index differ in length", key=w)
+        for k, t in enumerate(steps):
+            if not isinstance(t, int) or not 0 <= t < NUM_STEPS:
+                raise DataError(f"time index {t!r} outside 0..{NUM_STEPS - 1}",
+                                key=f"{w}.time_index")
+            if names[k] not in LIGHT_STATES:
+                raise DataError(f"unknown light state {names[k]!r}", key=f"{w}.state")
+            state[slot, t], valid[slot, t] = LIGHT_STATES[names[k]], True
+            lane_id[slot, t] = int(lane)
+            pos[:, slot, t] = [float(c[k]) for c in coords]
+    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])
+
+
+def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+    """Decode one parsed GPUDrive JSON scenario (raises :class:`DataError` naming the key)."""
+    if not isinstance(desc, dict):
+        raise DataError(f"expected a JSON object, got {type(desc).__name__}")
+    objects = _get(desc, "objects", "", list)
+    if not objects:
+        raise DataError("no objects", key="objects")
+    trajectory, metadata, ids = _decode_objects(objects)
+    meta = _get(desc, "metadata", "", dict)
+    sdc = _get(meta, "sdc_track_index", "metadata", int)
+    if not 0 <= sdc < len(objects):
+        raise DataError(f"sdc_track_index is {sdc} with {len(objects)} objects",
+                        key="metadata.sdc_track_index")
+    is_sdc = np.zeros(len(objects), bool)
+    is_sdc[sdc] = True
+    ttp = np.zeros(len(objects), bool)
+    for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list)):
+        index = _get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
+        if 0 <= index < len(objects):
+            ttp[index] = True
+    interest = _get(meta, "objects_of_interest", "metadata", list)
+    metadata = metadata.replace(is_sdc=is_sdc, tracks_to_predict=ttp,
+                                objects_of_interest=np.isin(ids, np.asarray(interest, np.int64)))
+    sid = _get(desc, "scenario_id", "", str)
+    try:
+        sid_bytes = encode_scenario_id(sid)
+    except (UnicodeEncodeError, ValueError) as err:
+        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    return Scenario(trajectory=trajectory, metadata=metadata,
+                    roadgraph=_decode_roads(_get(desc, "roads", "", list), max_spacing),
+                    traffic_lights=_decode_lights(desc.get("tl_states", {})),
+                    scenario_id=sid_bytes)
+
+
+def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+    """The scenario of one GPUDrive JSON file; a malformed file raises one :class:`DataError`
+    naming the file and the key."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            desc = json.load(f)
+    except OSError as err:
+        raise DataError(f"cannot open: {err.strerror}", file=path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DataError(f"not valid JSON ({err})", file=path) from None
+    try:
+        return decode_gpudrive(desc, max_spacing)
+    except DataError as err:
+        raise DataError(err.problem, file=path, key=err.key) from None
+    except (TypeError, ValueError, KeyError, AttributeError) as err:
+        raise DataError(f"malformed scenario ({type(err).__name__}: {err})", file=path) from None

@@ -1,0 +1,257 @@
+"""One way in for data: :func:`open_scenarios` reads whatever a data path names.
+
+A data path is a filter output folder (``manifest.jsonl``: its kept scenarios), or files of any
+registered format (:mod:`igdrivsim.data.formats`) named by a file, folder, glob, ``name@N`` or a
+list of those. ``egos="all"`` turns every scenario into one per eligible vehicle
+(:mod:`igdrivsim.data.egos`). Training, validation, evaluation, statistics, the streamed input
+and the Gymnasium environment all read through here; :func:`count_scenarios`,
+:func:`data_identity` and :func:`scenario_refs` answer the questions they ask of a path without
+reading it whole.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterator
+
+import numpy as np
+
+from igdrivsim.data.egos import PAPER_FILTER, as_ego, check_egos, ego_slot, expand_egos
+from igdrivsim.data.filter import FilterConfig
+from igdrivsim.data.formats import count_records, format_of
+from igdrivsim.data.manifest import COUNTS, MANIFEST, iter_manifest_scenarios, read_manifest
+from igdrivsim.data.reader import (
+    PathSpec,
+    ReadStats,
+    ScenarioRecord,
+    expand_paths,
+    iter_file,
+    iter_scenarios,
+)
+from igdrivsim.data.scenario import (
+    DEFAULT_CAPS,
+    Capacities,
+    Scenario,
+    decode_scenario_id,
+    fit_to_capacities,
+)
+from igdrivsim.errors import DataError
+
+
+def manifest_of(path) -> str | None:
+    """``PATH/manifest.jsonl`` when ``path`` is a filter output folder, else None; a filter
+    folder without one (an unfinished run) is a one-line :class:`DataError`."""
+    if not isinstance(path, str | os.PathLike) or not os.path.isdir(path):
+        return None
+    manifest = os.path.join(os.fspath(path), MANIFEST)
+    if os.path.isfile(manifest):
+        return manifest
+    if os.path.isfile(os.path.join(os.fspath(path), COUNTS)):
+        raise DataError(f"a filter output folder without {MANIFEST} (an unfinished "
+                        "`igdrivsim filter` run?)", file=os.fspath(path))
+    return None
+
+
+def _fit(rec: ScenarioRecord, caps: Capacities | None) -> ScenarioRecord:
+    return rec if caps is None else rec._replace(scenario=fit_to_capacities(rec.scenario, caps))
+
+
+def _from_manifest(manifest: str, caps, egos: str, config: FilterConfig, limit: int,
+                   workers: int, check_ids: bool, progress: bool) -> Iterator[ScenarioRecord]:
+    entries = read_manifest(manifest, kept_only=True)
+    per_ego = any("ego" in e for e in entries)  # written by `filter --egos all`
+    if egos == "sdc" and not per_ego and limit:
+        entries = entries[:limit]
+    wanted: dict[tuple[str, int], list[dict]] = {}
+    for e in entries:
+        wanted.setdefault((e["file"], e["record"]), []).append(e)
+    first = [group[0] for group in wanted.values()]
+    decode_caps = None if egos == "all" or per_ego else caps
+    done: dict[tuple[str, int], object] = {}
+    order = iter(wanted)
+    nxt = next(order, None)
+    # each file is read once, front to back; the records come out in the manifest's order
+    for entry, scenario in iter_manifest_scenarios(first, decode_caps, workers,
+                                                   check_ids=check_ids, progress=progress):
+        done[(entry["file"], entry["record"])] = scenario
+        while nxt is not None and nxt in done:
+            yield from _manifest_records(nxt, done.pop(nxt), wanted[nxt], caps, egos, per_ego,
+                                         config)
+            nxt = next(order, None)
+
+
+def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, egos: str,
+                      per_ego: bool, config: FilterConfig) -> Iterator[ScenarioRecord]:
+    file, record = ref
+    rec = ScenarioRecord(file, record, format_of(file).name, scenario)
+    if per_ego:
+        for e in lines:
+            slot = ego_slot(scenario, e["ego"])
+            if slot is None:
+                raise DataError(f"manifest line {e['line']}: no object {e['ego']}",
+                                file=file, record=record)
+            yield from _egos_of(rec, caps, config, only=slot)
+    elif egos == "all":
+        yield from _egos_of(rec, caps, config)
+    else:
+        for _ in lines:  # a line repeated reads twice, as it is written
+            yield rec
+
+
+def _egos_of(rec: ScenarioRecord, caps, config: FilterConfig, only: int | None = None
+             ) -> Iterator[ScenarioRecord]:
+    """The record once per eligible ego (``only``: that slot, taken as it is)."""
+    if only is not None:
+        ego = as_ego(rec.scenario, only)
+        info = {"id": decode_scenario_id(ego.scenario_id),
+                "object_id": int(np.asarray(rec.scenario.metadata.id)[only]),
+                "logged_sdc": bool(np.asarray(rec.scenario.metadata.is_sdc)[only])}
+        yield _fit(rec._replace(scenario=ego, ego=info), caps)
+        return
+    for scenario, info in expand_egos(rec.scenario, config):
+        yield _fit(rec._replace(scenario=scenario, ego=info), caps)
+
+
+def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
+                   egos: str = "sdc", filter_config: FilterConfig = PAPER_FILTER,
+                   limit: int = 0, skip_bad: bool = False, stats: ReadStats | None = None,
+                   workers: int = 0, check_ids: bool = True,
+                   progress: bool = False) -> Iterator[ScenarioRecord]:
+    """Stream the scenarios ``path`` names as :class:`ScenarioRecord`, fitted to ``caps``
+    (None: native sizes), at most ``limit`` of them (0: all).
+
+    ``path``: a filter output folder (its kept rows; per-ego rows when the filter ran with
+    ``--egos all``), or files of any registered format (file, folder, glob, ``name@N``, or a
+    list of those, each read in turn). ``egos``: ``"sdc"`` reads each scenario as logged;
+    ``"all"`` yields one scenario per vehicle eligible under ``filter_config``
+    (:mod:`igdrivsim.data.egos`), each record's ``ego`` saying which. ``skip_bad``, ``stats``,
+    ``workers`` and ``progress`` are the reader's (:func:`~igdrivsim.data.reader.iter_scenarios`).
+    """
+    check_egos(egos)
+    if not isinstance(path, str | os.PathLike):
+        count = 0
+        for item in path:
+            for rec in open_scenarios(item, caps, egos=egos, filter_config=filter_config,
+                                      limit=limit - count if limit else 0, skip_bad=skip_bad,
+                                      stats=stats, workers=workers, check_ids=check_ids,
+                                      progress=progress):
+                yield rec
+                count += 1
+            if limit and count >= limit:
+                return
+        return
+    manifest = manifest_of(path)
+    if manifest is not None:
+        records = _from_manifest(manifest, caps, egos, filter_config, limit, workers, check_ids,
+                                 progress)
+    else:
+        decode_caps = caps if egos == "sdc" else None
+        records = iter_scenarios(path, decode_caps, skip_bad, stats, workers, progress=progress)
+        if egos == "all":
+            records = (e for rec in records for e in _egos_of(rec, caps, filter_config))
+    for count, rec in enumerate(records, 1):
+        yield rec
+        if limit and count >= limit:
+            return
+
+
+def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | None:
+    """How many scenarios :func:`open_scenarios` yields for ``data``, at most ``max_scenarios``
+    (0: no cap), for a progress bar's total: the kept rows of a filter manifest, else the
+    record count of the files (cheap counts only; files past the cap are not opened). None
+    where that is not cheap or not known: every vehicle as the ego (eligibility takes a decode),
+    formats whose count decodes the file (ScenarioNet), paths that do not read (the read itself
+    reports them)."""
+    def cap(n: int) -> int:
+        return min(n, max_scenarios) if max_scenarios else n
+
+    try:
+        manifest = manifest_of(data) if isinstance(data, str | os.PathLike) else None
+        if manifest is not None:
+            entries = read_manifest(manifest)
+            if egos == "all" and not any("ego" in e for e in entries):
+                return None
+            return cap(len(entries))
+        if egos == "all":
+            return None
+        total = 0
+        for path in expand_paths(data):
+            if max_scenarios and total >= max_scenarios:
+                break
+            fmt = format_of(path)
+            if not fmt.cheap_count:
+                return None
+            total += fmt.count(path)
+        return cap(total)
+    except (DataError, OSError):
+        return None
+
+
+def data_files(data) -> list[str]:
+    """The files a data path reads: those a filter manifest points at (its folder), else the
+    files it names."""
+    manifest = manifest_of(data)
+    if manifest is not None:
+        return sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
+    return expand_paths(data)
+
+
+def data_identity(data) -> str:
+    """A string that changes when the data changes: the manifest's bytes and the files' names,
+    sizes and modification times."""
+    h = hashlib.sha256()
+    manifest = manifest_of(data)
+    if manifest is not None:
+        with open(manifest, "rb") as f:
+            h.update(f.read())
+    for name in data_files(data):
+        if not os.path.isfile(name):
+            raise DataError("the filter manifest points at a missing file", file=name)
+        st = os.stat(name)
+        h.update(f"{os.path.abspath(name)}:{st.st_size}:{st.st_mtime_ns}".encode())
+    return h.hexdigest()
+
+
+def scenario_refs(data, limit: int = 0, egos: str = "sdc",
+                  filter_config: FilterConfig = PAPER_FILTER) -> tuple[list[str], np.ndarray]:
+    """A compact index of the scenarios of ``data``: ``(files, refs [N, 3])``, each row
+    ``(file id, record, ego object id or -1 for the logged SDC)``; read one with
+    :func:`load_ref`. Only ``egos="all"`` decodes (eligibility needs the trajectories)."""
+    files: dict[str, int] = {}
+    refs: list[tuple[int, int, int]] = []
+    manifest = manifest_of(data)
+    if egos == "all" or (manifest is not None and any(
+            "ego" in e for e in read_manifest(manifest))):
+        for rec in open_scenarios(data, None, egos=egos, filter_config=filter_config,
+                                  limit=limit):
+            ego = -1 if rec.ego is None else rec.ego["object_id"]
+            refs.append((files.setdefault(rec.file, len(files)), rec.record, ego))
+    elif manifest is not None:
+        for e in read_manifest(manifest)[: limit or None]:
+            refs.append((files.setdefault(e["file"], len(files)), e["record"], -1))
+    else:
+        for name in expand_paths(data):
+            fid = files.setdefault(name, len(files))
+            for r in range(count_records(name)):
+                refs.append((fid, r, -1))
+                if limit and len(refs) >= limit:
+                    break
+            if limit and len(refs) >= limit:
+                break
+    if not refs:
+        raise DataError("no scenarios found", file=os.fspath(data))
+    return list(files), np.asarray(refs, np.int64).reshape(-1, 3)
+
+
+def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scenario:
+    """The scenario of one :func:`scenario_refs` row, fitted to ``caps``."""
+    rec = next(iter_file(file, None, start=record, stop=record + 1), None)
+    if rec is None or rec.record != record:
+        raise DataError("no such record (the file changed?)", file=file, record=record)
+    if ego < 0:
+        return _fit(rec, caps).scenario
+    slot = ego_slot(rec.scenario, ego)
+    if slot is None:
+        raise DataError(f"no object {ego} (the file changed?)", file=file, record=record)
+    return next(_egos_of(rec, caps, PAPER_FILTER, only=slot)).scenario
