@@ -22,7 +22,7 @@ import numpy as np
 from igdrivsim.data.scenario import CURRENT_INDEX, DT
 from igdrivsim.simulator.dynamics import wrap_angle
 from igdrivsim.simulator.metrics import boxes_overlap
-from igdrivsim.simulator.state import SimParams, SimState, log_sdc_row
+from igdrivsim.simulator.state import SimParams, SimState, log_sdc_row, object_trajectory
 
 # nuPlan's ego-is-comfortable bounds (nuplan-devkit docs/metrics_description.md).
 LON_ACCEL_MIN, LON_ACCEL_MAX = -4.05, 2.40  # m/s^2
@@ -155,12 +155,12 @@ def min_time_to_collision(state: SimState, params: SimParams | None = None):
     """Smallest time to collision (s) over the controlled steps, capped at ``TTC_HORIZON``.
 
     At each step after an action, the simulated SDC and every other valid object (at its logged
-    state) are extrapolated at constant velocity and heading for ``TTC_HORIZON`` s in
-    ``TTC_STEP`` s steps; the TTC is the first extrapolated time their boxes overlap. Steps where
-    the SDC is invalid, stopped (speed < ``STOPPED_SPEED``) or already overlapping (scored by
-    ``overlap``) are skipped.
+    state, or its simulated one under IDM sim agents) are extrapolated at constant velocity and
+    heading for ``TTC_HORIZON`` s in ``TTC_STEP`` s steps; the TTC is the first extrapolated
+    time their boxes overlap. Steps where the SDC is invalid, stopped (speed < ``STOPPED_SPEED``)
+    or already overlapping (scored by ``overlap``) are skipped.
     """
-    sdc, log, i = state.sdc, state.log, state.sdc_index
+    sdc, log, i = state.sdc, object_trajectory(state), state.sdc_index
     times = jnp.arange(1, int(round(TTC_HORIZON / TTC_STEP)) + 1) * TTC_STEP  # [K]
     length = jnp.take(log.length, i, axis=0)
     width = jnp.take(log.width, i, axis=0)
