@@ -7,7 +7,8 @@
   between waypoints), so it never leaves the path sideways; only its speed is controlled, by the
   Intelligent Driver Model::
 
-      a = a_max [1 - (v / v0)^delta - (s* / gap)^2],   s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))
+      a = a_max [1 - (v / v0)^delta - (s* / gap)^2]
+      s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))
 
   with ``dv = v - v_lead``. The leader is the nearest object (the SDC included, at its simulated
   pose) whose box comes within half the agent's width of the path ahead (the agent's box swept

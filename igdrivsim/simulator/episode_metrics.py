@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.data.scenario import CURRENT_INDEX, DT
+from igdrivsim.simulator import metrics as step_rules
 from igdrivsim.simulator.dynamics import wrap_angle
 from igdrivsim.simulator.metrics import boxes_overlap
 from igdrivsim.simulator.state import SimParams, SimState, log_sdc_row, object_trajectory
@@ -188,3 +189,12 @@ def min_time_to_collision(state: SimState, params: SimParams | None = None):
 def ttc_compliant(state: SimState, params: SimParams | None = None):
     """1.0 when the time to collision is never below ``TTC_BOUND`` (nuPlan's 0.95 s)."""
     return (min_time_to_collision(state, params) >= TTC_BOUND).astype(jnp.float32)
+
+
+def at_fault_overlap(state: SimState, params: SimParams | None = None):
+    """1.0 when the SDC is at fault for an overlap at some controlled step (nuPlan's rule:
+    :func:`igdrivsim.simulator.metrics.at_fault_overlap`), with every object where the sim
+    agents put it."""
+    steps = jnp.arange(CURRENT_INDEX + 1, state.sdc.x.shape[-1])
+    hits = jax.lax.map(lambda t: step_rules.at_fault_overlap(state.replace(timestep=t)), steps)
+    return jnp.any(hits).astype(jnp.float32)
