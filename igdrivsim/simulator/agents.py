@@ -64,6 +64,9 @@ class IdmParams:
     lookahead: float = 20.0  # m beyond the desired gap s0 + v T at the agent's speed
     path_samples: int = 4  # chords of the path ahead the leader is searched along
     parked_distance: float = 1.0  # m: a vehicle whose log stays this close is parked
+    # the IDM drives the moving vehicles nearest to the SDC at step 10, at most this many (the
+    # others replay their log): the leader search costs agents x objects per step
+    max_agents: int = 32
 
     def __post_init__(self):
         for name in ("desired_speed", "max_accel", "comfort_decel", "exponent", "lookahead"):
@@ -72,6 +75,8 @@ class IdmParams:
         for name in ("min_gap", "time_headway", "parked_distance"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"IdmParams.{name} must be >= 0, got {getattr(self, name)}")
+        if self.max_agents < 1:
+            raise ConfigError(f"IdmParams.max_agents must be >= 1, got {self.max_agents}")
         if self.path_samples < 1:
             raise ConfigError(f"IdmParams.path_samples must be >= 1, got {self.path_samples}")
 
@@ -86,10 +91,13 @@ class AgentState:
     """Every object's simulated trajectory and the IDM agents' own state (one scenario).
 
     ``x, y, yaw, vel_x, vel_y, valid`` ``[O, T]``: the log up to the current step and for the
-    objects left on replay; the agents' simulated states after step 10. ``path_*`` ``[O, T]``:
-    each object's logged path (invalid steps filled with the last valid pose) and its arc length
-    from step 10 (constant). ``arc``, ``speed`` ``[O]``: where each agent is on its path and
-    its speed. ``idm`` / ``parked`` ``[O]``: which objects the IDM drives / holds still.
+    objects left on replay; the agents' simulated states after step 10. ``idm`` / ``parked``
+    ``[O]``: which objects the IDM drives / holds still. The IDM agents' own state is per agent
+    slot ``[N]`` (``N = min(max_agents, O)``): ``slot`` the object index, ``slot_ok`` whether
+    the slot holds an agent, ``path_*`` ``[N, T]`` each agent's logged path (invalid steps
+    filled with the last valid pose) and its arc length from step 10, ``path_end`` /
+    ``end_pose`` ``[N]`` / ``[N, 3]`` its length and last valid
+    pose (constant); ``arc``, ``speed`` ``[N]``: where each agent is on its path and its speed.
     """
 
     x: jax.Array
@@ -103,10 +111,13 @@ class AgentState:
     path_yaw: jax.Array
     path_arc: jax.Array
     path_end: jax.Array
+    end_pose: jax.Array
     arc: jax.Array
     speed: jax.Array
     idm: jax.Array
     parked: jax.Array
+    slot: jax.Array
+    slot_ok: jax.Array
 
 
 def _fill_forward(a, valid):
@@ -156,104 +167,117 @@ def init_agents(log, metadata, sdc_index, params: IdmParams) -> AgentState:
     future = valid & (jnp.arange(t) >= c)
     far = jnp.hypot(log.x - xs[:, None], log.y - ys[:, None]) > params.parked_distance
     parked = controlled & ~jnp.any(far & future, axis=-1)
-    speed = jnp.hypot(log.vel_x[:, c], log.vel_y[:, c])
+    moving = controlled & ~parked
+    d2 = (xs - xs[sdc_index]) ** 2 + (ys - ys[sdc_index]) ** 2
+    key, slot = jax.lax.top_k(jnp.where(moving, -d2, -jnp.inf), min(params.max_agents, o))
+    ok = jnp.isfinite(key)
+    idm = jnp.zeros((o,), bool).at[slot].set(ok)
+    speed = jnp.hypot(log.vel_x[slot, c], log.vel_y[slot, c])
+    end_pose = jnp.stack([jnp.take_along_axis(v, last[:, None], axis=-1)[:, 0]
+                          for v in (px, py, pyaw)], axis=-1)
     return AgentState(
         x=log.x, y=log.y, yaw=log.yaw, vel_x=log.vel_x, vel_y=log.vel_y, valid=valid,
-        path_x=px, path_y=py, path_yaw=pyaw, path_arc=arc, path_end=end,
-        arc=jnp.zeros((o,), arc.dtype), speed=jnp.where(parked, 0.0, speed).astype(arc.dtype),
-        idm=controlled & ~parked, parked=parked)
+        path_x=px[slot], path_y=py[slot], path_yaw=pyaw[slot], path_arc=arc[slot],
+        path_end=end[slot], end_pose=end_pose[slot],
+        arc=jnp.zeros(slot.shape, arc.dtype), speed=jnp.where(ok, speed, 0.0).astype(arc.dtype),
+        idm=idm, parked=parked, slot=slot.astype(jnp.int32), slot_ok=ok)
 
 
 def _on_path(a: AgentState, s):
-    """Poses at arc lengths ``s [O, K]`` along each object's path: ``(x, y, yaw)`` ``[O, K]``;
-    past the path's end, straight on along its last heading."""
+    """Poses at arc lengths ``s [N, K]`` along each agent's path: ``(x, y, yaw)`` ``[N, K]``;
+    past the path's end, straight on along its last heading. One gather per waypoint end of
+    the packed ``[O, T, 4]`` path (gathers are dear under ``vmap`` on XLA:CPU)."""
     arc = a.path_arc  # [O, T]
     t = arc.shape[-1]
-    k = jnp.sum(arc[:, None, 1:] <= s[..., None], axis=-1)  # [O, K]
-    k = jnp.clip(k, 0, t - 2)
-    take = lambda v, i: jnp.take_along_axis(v, i, axis=-1)  # noqa: E731
-    x0, y0, yaw0, s0 = take(a.path_x, k), take(a.path_y, k), take(a.path_yaw, k), take(arc, k)
-    x1, y1, yaw1, s1 = (take(a.path_x, k + 1), take(a.path_y, k + 1), take(a.path_yaw, k + 1),
-                        take(arc, k + 1))
+    k = jnp.clip(jnp.sum(arc[:, None, 1:] <= s[..., None], axis=-1), 0, t - 2)  # [O, K]
+    packed = jnp.stack([a.path_x, a.path_y, a.path_yaw, arc], axis=-1)  # [O, T, 4]
+    w0 = jnp.take_along_axis(packed, k[..., None], axis=1)  # [O, K, 4]
+    w1 = jnp.take_along_axis(packed, k[..., None] + 1, axis=1)
+    x0, y0, yaw0, s0 = w0[..., 0], w0[..., 1], w0[..., 2], w0[..., 3]
+    x1, y1, yaw1, s1 = w1[..., 0], w1[..., 1], w1[..., 2], w1[..., 3]
     u = jnp.clip((s - s0) / jnp.maximum(s1 - s0, 1e-6), 0.0, 1.0)
     dyaw = (yaw1 - yaw0 + jnp.pi) % (2 * jnp.pi) - jnp.pi
     x, y, yaw = x0 + u * (x1 - x0), y0 + u * (y1 - y0), yaw0 + u * dyaw
     # beyond the end: the last valid pose, then straight on along its heading
-    last = jnp.sum(arc[:, 1:] < a.path_end[:, None], axis=-1) + 1
-    last = jnp.minimum(last, t - 1)[:, None]
-    ex, ey, eyaw = take(a.path_x, last), take(a.path_y, last), take(a.path_yaw, last)
-    over = jnp.maximum(s - a.path_end[:, None], 0.0)
-    past = s > a.path_end[:, None]
+    end = a.path_end[:, None]
+    ex, ey, eyaw = a.end_pose[:, 0:1], a.end_pose[:, 1:2], a.end_pose[:, 2:3]
+    over = jnp.maximum(s - end, 0.0)
+    past = s > end
     x = jnp.where(past, ex + over * jnp.cos(eyaw), x)
     y = jnp.where(past, ey + over * jnp.sin(eyaw), y)
     yaw = jnp.where(past, eyaw, yaw)
     return x, y, (yaw + jnp.pi) % (2 * jnp.pi) - jnp.pi
 
 
+def _at(a, t):
+    """``a[:, t]`` of ``[N, T]`` for a scalar step ``t``."""
+    return jax.lax.dynamic_index_in_dim(a, t, axis=1, keepdims=False)
+
+
 def leader_gaps(a: AgentState, objects, lights, t, params: IdmParams):
-    """``(gap [O], lead_speed [O])``: bumper-to-bumper distance along its path from each agent
+    """``(gap [N], lead_speed [N])``: bumper-to-bumper distance along its path from each agent
     to its leader (``inf`` when none within the lookahead) and the leader's speed along the
     agent's heading. ``objects``: every object now (an ``ObjectState``-like ``[O]``, the SDC at
-    its simulated pose); ``lights``: ``TrafficLights [L, T]``; ``t`` the current step."""
+    its simulated pose); ``lights``: ``TrafficLights [L, T]``; ``t`` the current step.
+
+    The path ahead is ``path_samples`` chords; each chord is one elementwise pass over the
+    agents x objects array (no small reductions, which are slow under ``vmap`` on XLA:CPU).
+    """
     p = params
-    o = a.arc.shape[0]
-    k = p.path_samples
-    v = a.speed
-    reach = p.lookahead + p.min_gap + v * p.time_headway  # [O]
-    s = a.arc[:, None] + reach[:, None] * jnp.linspace(0.0, 1.0, k + 1)[None]  # [O, K+1]
-    sx, sy, _ = _on_path(a, s)
-    dx, dy = jnp.diff(sx, axis=-1), jnp.diff(sy, axis=-1)  # chords [O, K]
-    ln = jnp.maximum(jnp.hypot(dx, dy), 1e-6)
-    ux, uy = dx / ln, dy / ln
-    start = jnp.concatenate([jnp.zeros((o, 1)), jnp.cumsum(ln, axis=-1)[:, :-1]], axis=-1)
-    hl_self = 0.5 * objects.length
-    hw_self = 0.5 * objects.width
+    o = objects.x.shape[0]
+    reach = p.lookahead + p.min_gap + a.speed * p.time_headway  # [N]
+    fractions = jnp.linspace(0.0, 1.0, p.path_samples + 1)
+    sx, sy, _ = _on_path(a, a.arc[:, None] + reach[:, None] * fractions[None])  # [O, K+1]
+    hl_i = 0.5 * objects.length[a.slot][:, None]  # agents [N, 1]
+    hw_i = 0.5 * objects.width[a.slot][:, None]
+    cj, sj = jnp.cos(objects.yaw)[None], jnp.sin(objects.yaw)[None]  # objects [1, O]
+    hl_j, hw_j = 0.5 * objects.length[None], 0.5 * objects.width[None]
+    cand = objects.valid[None] & (jnp.arange(o)[None] != a.slot[:, None])  # [N, O]
+    red = _at(lights.valid, t) & jnp.isin(_at(lights.state, t), jnp.asarray(RED_LIGHT_STATES))
+    lx, ly = _at(lights.x, t)[None], _at(lights.y, t)[None]  # [1, L]
+    n = a.slot.shape[0]
+    obj_gap = jnp.full((n, o), jnp.inf)
+    light_gap = jnp.full((n, lx.shape[-1]), jnp.inf)
+    start = jnp.zeros((n, 1))
+    for k in range(p.path_samples):
+        ax, ay = sx[:, k:k + 1], sy[:, k:k + 1]
+        dx, dy = sx[:, k + 1:k + 2] - ax, sy[:, k + 1:k + 2] - ay
+        ln = jnp.maximum(jnp.sqrt(dx * dx + dy * dy), 1e-6)
+        ux, uy = dx / ln, dy / ln
 
-    def along_path(cx, cy):
-        """Lateral distance to the path and arc distance along it, ``[O(agent), N, K]``."""
-        rx = cx[None, :, None] - sx[:, None, :-1]
-        ry = cy[None, :, None] - sy[:, None, :-1]
-        proj = rx * ux[:, None] + ry * uy[:, None]
-        u = jnp.clip(proj, 0.0, ln[:, None])
-        lat = jnp.hypot(rx - u * ux[:, None], ry - u * uy[:, None])
-        ahead = (proj > 0) | (jnp.arange(k) > 0)  # the first chord: the centre must be ahead
-        return lat, start[:, None] + u, ahead
+        def along(cx, cy, ax=ax, ay=ay, ux=ux, uy=uy, ln=ln, k=k, start=start):
+            """Squared lateral distance to the chord, distance along the path, ahead."""
+            rx, ry = cx - ax, cy - ay
+            proj = rx * ux + ry * uy
+            u = jnp.clip(proj, 0.0, ln)
+            qx, qy = rx - u * ux, ry - u * uy
+            return qx * qx + qy * qy, start + u, (proj > 0) if k == 0 else True
 
-    # objects: their box's extent across and along each chord
-    lat, dist, ahead = along_path(objects.x, objects.y)
-    cj, sj = jnp.cos(objects.yaw)[None, :, None], jnp.sin(objects.yaw)[None, :, None]
-    cos_rel = jnp.abs(cj * ux[:, None] + sj * uy[:, None])
-    sin_rel = jnp.abs(sj * ux[:, None] - cj * uy[:, None])
-    hl, hw = 0.5 * objects.length[None, :, None], 0.5 * objects.width[None, :, None]
-    across = lat - (hl * sin_rel + hw * cos_rel)
-    gap = dist - (hl * cos_rel + hw * sin_rel) - hl_self[:, None, None]
-    on = (across < hw_self[:, None, None]) & ahead & objects.valid[None, :, None]
-    on = on & ~jnp.eye(o, dtype=bool)[:, :, None] & (dist <= reach[:, None, None])
-    gap = jnp.min(jnp.where(on, gap, jnp.inf), axis=-1)  # [O, O]
-    j = jnp.argmin(gap, axis=-1)
-    obj_gap = jnp.take_along_axis(gap, j[:, None], axis=-1)[:, 0]
-    yaw_i = jnp.take_along_axis(a.yaw, jnp.full((o, 1), t), axis=-1)[:, 0]
-    lead_v = (objects.vel_x[j] * jnp.cos(yaw_i) + objects.vel_y[j] * jnp.sin(yaw_i))
-    lead_v = jnp.maximum(lead_v, 0.0)
-
-    # red lights: a stopped leader of zero size at the stop point
-    state = jnp.take_along_axis(lights.state, jnp.full((lights.state.shape[0], 1), t), -1)[:, 0]
-    lvalid = jnp.take_along_axis(lights.valid, jnp.full((lights.state.shape[0], 1), t), -1)[:, 0]
-    lx = jnp.take_along_axis(lights.x, jnp.full((lights.state.shape[0], 1), t), -1)[:, 0]
-    ly = jnp.take_along_axis(lights.y, jnp.full((lights.state.shape[0], 1), t), -1)[:, 0]
-    red = lvalid & jnp.isin(state, jnp.asarray(RED_LIGHT_STATES))
-    llat, ldist, lahead = along_path(lx, ly)
-    lgap = ldist - hl_self[:, None, None]
-    lon = (llat < hw_self[:, None, None]) & lahead & red[None, :, None] & (lgap > 0)
-    lon = lon & (ldist <= reach[:, None, None])
-    light_gap = jnp.min(jnp.where(lon, lgap, jnp.inf), axis=(-1, -2))
-    use_light = light_gap < obj_gap
-    return (jnp.where(use_light, light_gap, obj_gap),
-            jnp.where(use_light, 0.0, jnp.where(jnp.isfinite(obj_gap), lead_v, 0.0)))
+        lat2, dist, ahead = along(objects.x[None], objects.y[None])
+        cos_rel = jnp.abs(cj * ux + sj * uy)
+        sin_rel = jnp.abs(sj * ux - cj * uy)
+        room = hw_i + hl_j * sin_rel + hw_j * cos_rel  # the box within the swept width
+        gap = dist - (hl_j * cos_rel + hw_j * sin_rel) - hl_i
+        on = cand & (lat2 < room * room) & ahead & (dist <= reach[:, None])
+        obj_gap = jnp.minimum(obj_gap, jnp.where(on, gap, jnp.inf))
+        lat2, dist, ahead = along(lx, ly)
+        lgap = dist - hl_i
+        lon = red[None] & (lat2 < hw_i * hw_i) & ahead & (lgap > 0) & (dist <= reach[:, None])
+        light_gap = jnp.minimum(light_gap, jnp.where(lon, lgap, jnp.inf))
+        start = start + ln
+    j = jnp.argmin(obj_gap, axis=-1)
+    gap = jnp.min(obj_gap, axis=-1)
+    yaw_i = _at(a.yaw, t)[a.slot]
+    lead_v = jnp.maximum(objects.vel_x[j] * jnp.cos(yaw_i) + objects.vel_y[j] * jnp.sin(yaw_i),
+                         0.0)
+    light = jnp.min(light_gap, axis=-1)
+    use_light = light < gap
+    return (jnp.where(use_light, light, gap),
+            jnp.where(use_light | ~jnp.isfinite(gap), 0.0, lead_v))
 
 
 def idm_accel(v, gap, lead_v, params: IdmParams):
-    """The IDM acceleration ``[O]`` (``gap`` ``inf``: free road)."""
+    """The IDM acceleration ``[N]`` (``gap`` ``inf``: free road)."""
     p = params
     dv = v - lead_v
     desired = p.min_gap + jnp.maximum(0.0, v * p.time_headway
@@ -271,19 +295,20 @@ def step_agents(a: AgentState, objects, lights, t, params: IdmParams) -> AgentSt
     acc = jnp.where(a.arc >= a.path_end, jnp.minimum(acc, -params.comfort_decel), acc)
     v1 = jnp.maximum(a.speed + acc * DT, 0.0)
     arc1 = a.arc + 0.5 * (a.speed + v1) * DT
-    arc1 = jnp.where(a.idm, arc1, a.arc)
-    v1 = jnp.where(a.idm, v1, 0.0)
+    arc1 = jnp.where(a.slot_ok, arc1, a.arc)
+    v1 = jnp.where(a.slot_ok, v1, 0.0)
     x, y, yaw = (q[:, 0] for q in _on_path(a, arc1[:, None]))
     t1 = jnp.minimum(t + 1, a.x.shape[-1] - 1)
-    moved = a.idm | a.parked
-    # parked: the pose at step 10
-    x = jnp.where(a.parked, a.x[:, CURRENT_INDEX], x)
-    y = jnp.where(a.parked, a.y[:, CURRENT_INDEX], y)
-    yaw = jnp.where(a.parked, a.yaw[:, CURRENT_INDEX], yaw)
 
-    def put(old, new):
-        return old.at[:, t1].set(jnp.where(moved, jnp.asarray(new, old.dtype), old[:, t1]))
+    def put(old, new, still):
+        """Column ``t1`` of ``old [O, T]``: the agents' ``new [N]``, the parked ``still``."""
+        col = _at(old, t1)
+        col = col.at[a.slot].set(jnp.where(a.slot_ok, jnp.asarray(new, old.dtype), col[a.slot]))
+        col = jnp.where(a.parked, jnp.asarray(still, old.dtype), col)  # the pose at step 10
+        return jax.lax.dynamic_update_index_in_dim(old, col, t1, axis=1)
 
-    return a.replace(x=put(a.x, x), y=put(a.y, y), yaw=put(a.yaw, yaw),
-                     vel_x=put(a.vel_x, v1 * jnp.cos(yaw)), vel_y=put(a.vel_y, v1 * jnp.sin(yaw)),
-                     valid=put(a.valid, True), arc=arc1, speed=v1.astype(a.speed.dtype))
+    c = CURRENT_INDEX
+    return a.replace(x=put(a.x, x, a.x[:, c]), y=put(a.y, y, a.y[:, c]),
+                     yaw=put(a.yaw, yaw, a.yaw[:, c]), vel_x=put(a.vel_x, v1 * jnp.cos(yaw), 0.0),
+                     vel_y=put(a.vel_y, v1 * jnp.sin(yaw), 0.0), valid=put(a.valid, True, True),
+                     arc=arc1, speed=v1.astype(a.speed.dtype))
