@@ -223,9 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--idm", nargs="+", required=True, metavar="DIR",
                         help="the same drivers evaluated with --agents idm")
     parser.add_argument("--out", required=True, help="report folder (tables/, figures/)")
-    parser.add_argument("--header", default="", help="a line under the title (provenance)")
     args = parser.parse_args(argv)
-    for path in build(args.log, args.idm, args.out, args.header):
+    for path in build(args.log, args.idm, args.out):
         print(f"wrote {path}")
     return 0
 

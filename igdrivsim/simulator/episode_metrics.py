@@ -23,7 +23,13 @@ from igdrivsim.data.scenario import CURRENT_INDEX, DT
 from igdrivsim.simulator import metrics as step_rules
 from igdrivsim.simulator.dynamics import wrap_angle
 from igdrivsim.simulator.metrics import boxes_overlap
-from igdrivsim.simulator.state import SimParams, SimState, log_sdc_row, object_trajectory
+from igdrivsim.simulator.state import (
+    ObjectState,
+    SimParams,
+    SimState,
+    log_sdc_row,
+    object_trajectory,
+)
 
 # nuPlan's ego-is-comfortable bounds (nuplan-devkit docs/metrics_description.md).
 LON_ACCEL_MIN, LON_ACCEL_MAX = -4.05, 2.40  # m/s^2
@@ -195,6 +201,16 @@ def at_fault_overlap(state: SimState, params: SimParams | None = None):
     """1.0 when the SDC is at fault for an overlap at some controlled step (nuPlan's rule:
     :func:`igdrivsim.simulator.metrics.at_fault_overlap`), with every object where the sim
     agents put it."""
-    steps = jnp.arange(CURRENT_INDEX + 1, state.sdc.x.shape[-1])
-    hits = jax.lax.map(lambda t: step_rules.at_fault_overlap(state.replace(timestep=t)), steps)
-    return jnp.any(hits).astype(jnp.float32)
+    traj, sdc, i = object_trajectory(state), state.sdc, state.sdc_index
+    is_sdc = jnp.arange(traj.x.shape[0]) == i
+
+    def at(t):
+        pick = lambda a, b=None: a[:, t] if b is None else jnp.where(is_sdc, b[t], a[:, t])  # noqa: E731
+        obj = ObjectState(x=pick(traj.x, sdc.x), y=pick(traj.y, sdc.y),
+                          yaw=pick(traj.yaw, sdc.yaw), vel_x=pick(traj.vel_x, sdc.vel_x),
+                          vel_y=pick(traj.vel_y, sdc.vel_y), length=pick(traj.length),
+                          width=pick(traj.width), valid=pick(traj.valid, sdc.valid))
+        return step_rules.at_fault_objects(obj, i)
+
+    steps = jnp.arange(CURRENT_INDEX + 1, sdc.x.shape[-1])
+    return jnp.any(jax.lax.map(at, steps)).astype(jnp.float32)

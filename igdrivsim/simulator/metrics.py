@@ -116,8 +116,12 @@ def at_fault_overlap(state: SimState):
     fault (nuPlan counts side hits only when the ego spans several lanes, which needs a lane
     map; this package does not count them).
     """
-    obj = current_objects(state)
-    i = state.sdc_index
+    return at_fault_objects(current_objects(state), state.sdc_index)
+
+
+def at_fault_objects(obj, i):
+    """:func:`at_fault_overlap` of objects ``obj`` (an ``ObjectState`` ``[..., O]``, the SDC
+    in slot ``i [...]``)."""
     ex, ey, eyaw = (_take(a, i)[..., None] for a in (obj.x, obj.y, obj.yaw))
     el, ew = _take(obj.length, i)[..., None], _take(obj.width, i)[..., None]
     hit = boxes_overlap(ex, ey, el, ew, eyaw, obj.x, obj.y, obj.length, obj.width, obj.yaw)

@@ -350,7 +350,7 @@ def simulated_trajectory(state: SimState) -> Trajectory:
 def object_trajectory(state: SimState) -> Trajectory:
     """Every object's ``[..., O, T]`` trajectory as simulated by the sim agents (the log under
     ``"log"`` agents); the SDC row is its log (see :func:`simulated_trajectory`)."""
-    a = state.agents
+    a = getattr(state, "agents", None)
     if a is None:
         return state.log
     return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y,
