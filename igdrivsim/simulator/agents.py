@@ -1,11 +1,12 @@
 """Sim agents: who moves the objects other than the SDC (``SimParams.agents``).
 
 * ``"log"`` (the default and the paper's setting): every other object replays its log.
-* ``"idm"``: reactive traffic after Waymax's ``IDMRoutePolicy``. Each *vehicle* other than the
-  SDC, valid at the current step (10), follows its own logged path: its position is a point of
-  the logged polyline at arc length ``s`` and its heading the logged heading there (interpolated
-  between waypoints), so it never leaves the path sideways; only its speed is controlled, by the
-  Intelligent Driver Model::
+* ``"idm"``: reactive traffic after Waymax's ``IDMRoutePolicy``. Each moving *vehicle* other
+  than the SDC, valid at the current step (10), follows its own logged path (the
+  ``max_agents`` nearest the SDC at step 10; any others replay their log): its position is a
+  point of the logged polyline at arc length ``s`` and its heading the logged heading there
+  (interpolated between waypoints), so it never leaves the path sideways; only its speed is
+  controlled, by the Intelligent Driver Model::
 
       a = a_max [1 - (v / v0)^delta - (s* / gap)^2]
       s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))
