@@ -50,11 +50,12 @@ from igdrivsim.evaluation.schema import (
     table_settings,
 )
 from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.simulator import episode_metrics as em
 
-AT_FAULT = next(m for m in registry.REGISTRY if m.key == "at_fault_overlap")
+AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
 METRICS = (METRIC_BY_KEY["overlap_rate"], AT_FAULT, METRIC_BY_KEY["offroad_rate"],
            METRIC_BY_KEY["max_log_divergence"])
-HEADERS = {"overlap_rate": "overlap rate (%)", "at_fault_overlap": "at-fault overlap rate (%)",
+HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} rate (%)",
            "offroad_rate": "offroad rate (%)", "max_log_divergence": "max log divergence (m)"}
 CONDITIONS = ("log", "idm")
 FIGURE = "fig7_reactive"
