@@ -196,3 +196,12 @@ def test_idm_parameters_are_written_with_the_run():
     record = dataclasses.asdict(IDM)
     assert record["agents"] == "idm" and record["idm"]["desired_speed"] == 30.0
     assert record["idm"]["min_gap"] == 2.0 and record["idm"]["time_headway"] == 2.0
+
+
+def test_training_against_idm_agents_is_a_config_option():
+    from igdrivsim.training.config import get_profile, with_overrides
+
+    config = with_overrides(get_profile("smoke"), ["training.sim_agents=idm"])
+    assert config.sim_params.agents == "idm" and get_profile("smoke").sim_params.agents == "log"
+    with pytest.raises(ConfigError, match="training.sim_agents"):
+        with_overrides(get_profile("smoke"), ["training.sim_agents=waymax"]).validate()
