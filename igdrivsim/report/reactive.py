@@ -196,6 +196,8 @@ def reactive_figure(table: pd.DataFrame, out_dir: str | Path) -> list[Path]:
                           for s, m in zip(part.setting, part.method, strict=True)], fontsize=7)
         ax.invert_yaxis()
         ax.set_xlabel(HEADERS[key])
+        if "%" in HEADERS[key]:  # a rate: its axis is 0-100 (wide t-intervals are cut)
+            ax.set_xlim(-5, 105)
         ax.grid(axis="x", alpha=0.3)
     axes[0][0].legend(title="sim agents", fontsize=8)
     fig.suptitle("Every driver under log-replay and IDM sim agents (mean, 95% CI over seeds)")
