@@ -85,7 +85,15 @@ def test_every_output_exists_and_parses(done):
     refs = pd.read_csv(work / "evals" / "references" / "per_scenario.csv")
     assert set(refs.method) == {"expert", "constant_velocity"}
     assert refs[refs.method == "expert"].log_divergence.max() < 0.2
-    for stage in ("data", "filter_training", "maze", "render", "report"):
+    # every driver under log replay and IDM agents: Table I's companion and Fig. 7
+    reactive = (paper / "tables" / "reactive.md").read_text()
+    assert "## at-fault overlap rate (%)" in reactive and "| Circ r=4 | BC-RL |" in reactive
+    assert "| -- | Expert (its own log) |" in reactive and "| Occlusion | BC |" in reactive
+    assert (paper / "figures" / "fig7_reactive.pdf").read_bytes().startswith(b"%PDF")
+    idm = json.loads((work / "evals_idm" / "bc" / "eval_config.json").read_text())
+    assert idm["sim"]["agents"] == "idm" and idm["sim"]["idm"]["desired_speed"] == 30.0
+    assert info["sim"]["agents"] == "log"
+    for stage in ("data", "filter_training", "maze", "render", "report", "reactive"):
         assert (work / "logs" / f"{stage}.log").is_file()
         assert (work / "stages" / f"{stage}.json").is_file()
 
@@ -101,7 +109,7 @@ def test_rerun_skips_and_reevaluation_gives_same_tables(done, capsys):
     third = make(work.parent)
     third.run()
     tex = shutil.which("latexmk") or (shutil.which("pdflatex") and shutil.which("bibtex"))
-    assert third.ran == {"evaluate_bc", "report"} | ({"pdf"} if tex else set())
+    assert third.ran == {"evaluate_bc", "report", "reactive"} | ({"pdf"} if tex else set())
     assert _without_provenance(paper / "tables" / "table1.md") == _without_provenance(before)
 
 

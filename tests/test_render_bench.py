@@ -62,6 +62,8 @@ def test_bench_cli_writes_rows(tmp_path, capsys, distinct):
     result = json.loads(out.read_text())
     assert result["distinct"] is distinct
     rows = result["rows"]
-    assert [(r["batch"], r["impl"]) for r in rows] == [(2, "igdrivsim")]
-    assert rows[0]["scenario_steps_per_s"] > 0 and rows[0]["offroad_steps"] == 0
-    assert "igdrivsim" in capsys.readouterr().out
+    assert [(r["batch"], r["impl"], r["agents"]) for r in rows] == [
+        (2, "igdrivsim", "log"), (2, "igdrivsim+idm", "idm")]  # both sim agents in one run
+    assert all(r["scenario_steps_per_s"] > 0 and r["offroad_steps"] == 0 for r in rows)
+    out = capsys.readouterr().out
+    assert "igdrivsim+idm" in out and "idm cost" in out

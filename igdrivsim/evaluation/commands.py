@@ -1,6 +1,8 @@
 """``igdrivsim evaluate RUN_DIR --data DIR --out DIR [--actions sample|greedy|mean]
-[--references]`` evaluates every seed of a trained run on the validation scenarios of ``DIR``
-under the run's own observation setting (:mod:`igdrivsim.evaluation.evaluate`).
+[--references] [--agents log|idm]`` evaluates every seed of a trained run on the validation
+scenarios of ``DIR`` under the run's own observation setting
+(:mod:`igdrivsim.evaluation.evaluate`), with the other objects replaying their log or driven
+by IDM sim agents (``--agents``).
 ``--references`` also (or, without RUN_DIR, only) evaluates the discretised expert replay and the
 constant-velocity baseline (into ``OUT/references/`` when a run is evaluated too).
 """
@@ -18,6 +20,7 @@ from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.evaluate import evaluate_references, evaluate_run
 from igdrivsim.io import require_folder
 from igdrivsim.policy.act import ACTION_MODES
+from igdrivsim.simulator.agents import AGENTS
 from igdrivsim.training.run import Run
 
 
@@ -41,6 +44,10 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--like", default=None, metavar="RUN_DIR",
                         help="for --references without RUN_DIR: use this run's data "
                              "capacities and simulator settings")
+    parser.add_argument("--agents", choices=AGENTS, default=None,
+                        help="who moves the other objects: log (replay, the paper's) or idm "
+                             "(reactive IDM vehicles on their logged paths); default: the "
+                             "run's own setting (log)")
     parser.add_argument("--limit", dest="max_scenarios", type=int, default=0, metavar="N",
                         help="evaluate at most N validation scenarios (0: all)")
     deprecated_alias(parser, "--max-scenarios", "max_scenarios", type=int)
@@ -61,7 +68,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
         evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
-                     args.seed, progress, egos=args.egos)
+                     args.seed, progress, egos=args.egos,
+                     agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:
         sim = caps = None
@@ -71,7 +79,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
             caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
-                            progress, egos=args.egos)
+                            progress, egos=args.egos,
+                            agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     return 0
 

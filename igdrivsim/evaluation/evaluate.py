@@ -49,17 +49,20 @@ def _check_sizes(max_scenarios: int, batch_size: int) -> None:
 
 def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
-                 progress: bool = True, scenarios=None, egos: str = "sdc") -> Path:
+                 progress: bool = True, scenarios=None, egos: str = "sdc",
+                 agents: str | None = None) -> Path:
     """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
 
     ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``;
-    ``egos="all"``: every eligible vehicle of ``data`` as the ego.
+    ``egos="all"``: every eligible vehicle of ``data`` as the ego; ``agents`` (``"log"`` /
+    ``"idm"``; None: the run's own) picks the sim agents.
     """
     import pandas as pd  # heavy: pandas is needed only here
 
     _check_sizes(max_scenarios, batch_size)
     run = Run.open(run_dir)
     config, params, seeds = run.config, run.params(), list(run.config.seeds)
+    sim = with_agents(config.sim_params, agents)
     if scenarios is None:
         scenarios = load_validation(data, config.capacities, max_scenarios, progress, egos)
     ids = scenario_ids_of(scenarios)
@@ -68,7 +71,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
                                   setting=settings, obs_config=config.obs_config,
-                                  params=config.sim_params, actions=actions,
+                                  params=sim, actions=actions,
                                   batch_size=batch_size, seed=seed, progress=bar.update,
                                   episode_metrics=True)
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
@@ -78,17 +81,18 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     return _write(out, per_step, per_scenario, dict(
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
-        num_scenarios=len(ids), sim=dataclasses.asdict(config.sim_params),
+        num_scenarios=len(ids), sim=dataclasses.asdict(sim),
         trained=trained_record(run), **({} if egos == "sdc" else {"egos": egos})))
 
 
 def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
-                        scenarios=None, egos: str = "sdc") -> Path:
-    """Evaluate the discretised expert and constant velocity; write their tidy CSVs."""
+                        scenarios=None, egos: str = "sdc", agents: str | None = None) -> Path:
+    """Evaluate the discretised expert and constant velocity; write their tidy CSVs
+    (``agents``: the sim agents, None: ``sim``'s)."""
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
-    sim = sim or SimParams()
+    sim = with_agents(sim or SimParams(), agents)
     if scenarios is None:
         scenarios = load_validation(data, caps, max_scenarios, progress, egos)
     n = int(scenarios.scenario_id.shape[0])
@@ -98,6 +102,11 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
     return _write(out, per_step, per_scenario, dict(
         references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim),
         **({} if egos == "sdc" else {"egos": egos})))
+
+
+def with_agents(sim: SimParams, agents: str | None) -> SimParams:
+    """``sim`` with its sim agents replaced by ``agents`` (None: as it is)."""
+    return sim if agents is None else dataclasses.replace(sim, agents=agents)
 
 
 def _write(out, per_step, per_scenario, info: dict) -> Path:

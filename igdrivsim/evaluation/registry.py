@@ -80,6 +80,9 @@ REGISTRY: list[ScenarioMetric] = [
     ScenarioMetric("ttc_compliant", "TTC within bound", "%", 100.0, True,
                    "nuPlan time-to-collision-within-bound (>= 0.95 s)",
                    episode=em.ttc_compliant),
+    ScenarioMetric("at_fault_overlap", "at-fault overlap", "%", 100.0, False,
+                   "nuPlan / V-Max at-fault collision (no rear or side hits)",
+                   episode=em.at_fault_overlap),
     ScenarioMetric("pdm_score", "PDM-style score", "score", 1.0, True,
                    "NAVSIM PDM score (our NC, DAC, EP, TTC, C)", derive=pdm_score),
 ]

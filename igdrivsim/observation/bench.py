@@ -13,9 +13,11 @@ metric's cost. Results kept in the repository: docs/bench/.
 
 Both run the discretised expert with the observation of ``--setting`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
-log divergence). The scenario is a real one tiled to the batch size (``--distinct``: different
-scenarios of ``--data``). Results: one JSON line per (batch, implementation) and a table;
-``--out FILE`` also writes them as JSON (atomically).
+log divergence). ``--agents log,idm`` (the default) times the ``igdrivsim`` path with the other
+objects replaying their log and as IDM sim agents (:mod:`igdrivsim.simulator.agents`) in the same
+run (column ``igdrivsim+idm``, and their ratio). The scenario is a real one tiled to the batch
+size (``--distinct``: different scenarios of ``--data``). Results: one JSON line per (batch,
+implementation) and a table; ``--out FILE`` also writes them as JSON (atomically).
 
 This is the one episode loop not on the simulator's runner
 (:func:`igdrivsim.simulator.rollout.run_episode`), on purpose: it times the observation
@@ -45,6 +47,7 @@ from igdrivsim.machine import machine_record
 from igdrivsim.observation import ObservationConfig, get_setting, observe
 from igdrivsim.observation.commands import _data_path
 from igdrivsim.simulator import dynamics
+from igdrivsim.simulator.agents import AGENTS
 from igdrivsim.simulator.metrics import step_metrics
 from igdrivsim.simulator.roadgraph import road_edges_from_roadgraph
 from igdrivsim.simulator.rollout import expert_discrete_action
@@ -90,20 +93,21 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
     episode_keys = jax.random.split(key, state.timestep.shape[0])
 
-    # Only what changes is carried through the scan (the SDC's simulated trajectory and the
-    # timestep); the log and the roadgraph are loop constants, so XLA never copies them.
+    # Only what changes is carried through the scan (the SDC's simulated trajectory, the sim
+    # agents and the timestep); the log and the roadgraph are loop constants, so XLA never
+    # copies them.
     def body(carry, _):
-        sdc, t = carry
-        st = state.replace(sdc=sdc, timestep=t)
+        sdc, t, agents = carry
+        st = state.replace(sdc=sdc, timestep=t, agents=agents)
         step_keys = jax.vmap(jax.random.fold_in)(episode_keys, st.timestep)
         obs = jax.vmap(lambda s, e, k: observe(s, setting, e, k, obs_config))(
             st, episode_keys, step_keys)
         action = dynamics.undiscretize(expert_discrete_action(st, params))
         st = step(st, action, params)
         out = (step_metrics(st, params), _checksum(obs))
-        return (st.sdc, st.timestep), (out + (obs,) if collect else out)
+        return (st.sdc, st.timestep, st.agents), (out + (obs,) if collect else out)
 
-    _, outs = jax.lax.scan(body, (state.sdc, state.timestep), None,
+    _, outs = jax.lax.scan(body, (state.sdc, state.timestep, state.agents), None,
                            length=params.num_controlled_steps)
     return jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), outs)
 
@@ -146,6 +150,9 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
     deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--impls", default=",".join(IMPLS),
                         help=f"implementations to time (default {','.join(IMPLS)})")
+    parser.add_argument("--agents", default="log,idm",
+                        help="sim agents to time the igdrivsim path under (comma list of "
+                             "log, idm; the naive path runs under log only)")
     parser.add_argument("--repeats", type=int, default=2, help="timed calls per cell (best)")
     parser.add_argument("--skip-naive-above", type=int, default=10**9,
                         help="do not time the naive path above this batch size")
@@ -173,11 +180,16 @@ def bench_sim_command(args) -> int:
     impls = [i.strip() for i in args.impls.split(",") if i.strip()]
     if not impls or any(i not in IMPLS for i in impls):
         raise ConfigError(f"--impls must be a comma-separated subset of {','.join(IMPLS)}")
-    fns = {name: jax.jit(lambda sc, k, impl=name: episode(
-        sc, k, impl=impl, setting_name=args.setting)) for name in impls}
+    agents = [a.strip() for a in args.agents.split(",") if a.strip()]
+    if not agents or any(a not in AGENTS for a in agents):
+        raise ConfigError(f"--agents must be a comma-separated subset of {','.join(AGENTS)}")
+    cells = [(i, a) for i in impls for a in agents if i != "naive" or a == "log"]
+    sims = {a: SimParams(agents=a) for a in agents}
+    fns = {label(i, a): jax.jit(lambda sc, k, impl=i, p=sims[a]: episode(
+        sc, k, impl=impl, setting_name=args.setting, params=p)) for i, a in cells}
     steps = DEFAULT_PARAMS.num_controlled_steps
     rows: list[dict] = []
-    bar = tqdm(total=len(batches) * len(impls), desc="bench sim", unit="cell")
+    bar = tqdm(total=len(batches) * len(fns), desc="bench sim", unit="cell")
     for b in batches:
         sc = _batch(pool, b)
         for name, fn in fns.items():
@@ -186,7 +198,8 @@ def bench_sim_command(args) -> int:
                 continue
             compile_s, sec, cpu, out = time_episode(fn, sc, key, args.repeats)
             metrics = out[0]
-            row = {"batch": b, "impl": name, "scenario_steps_per_s": round(b * steps / sec, 1),
+            row = {"batch": b, "impl": name, "agents": "idm" if name.endswith("+idm") else "log",
+                   "scenario_steps_per_s": round(b * steps / sec, 1),
                    "scenario_steps_per_cpu_s": round(b * steps / cpu, 1),
                    "seconds_per_call": round(sec, 4), "cpu_seconds_per_call": round(cpu, 4),
                    "first_call_s": round(compile_s, 2),
@@ -197,10 +210,11 @@ def bench_sim_command(args) -> int:
             bar.update()
             tqdm.write(json.dumps(row))
     bar.close()
+    names = list(fns)
     print("scenario-steps per second (wall clock):")
-    print(format_table(rows, impls))
+    print(format_table(rows, names))
     print("scenario-steps per CPU-second of this process (robust to a shared CPU):")
-    print(format_table(rows, impls, "scenario_steps_per_cpu_s"))
+    print(format_table(rows, names, "scenario_steps_per_cpu_s"))
     if args.out:
         atomic_write_json(args.out, {"data": path, "distinct": args.distinct, "rows": rows,
                                      "jax": jax.__version__, "steps_per_episode": steps,
@@ -208,11 +222,20 @@ def bench_sim_command(args) -> int:
     return 0
 
 
+def label(impl: str, agents: str) -> str:
+    """A cell's name: the implementation, ``+idm`` under IDM sim agents."""
+    return impl if agents == "log" else f"{impl}+{agents}"
+
+
 def format_table(rows: list[dict], impls: list[str], field: str = "scenario_steps_per_s") -> str:
-    """A plain-text table: ``field`` per batch and implementation, and the speedup over naive."""
+    """A plain-text table: ``field`` per batch and implementation, the speedup over naive, and
+    the cost of IDM agents (log / idm rate: how many times slower a step is under IDM)."""
     head = f"{'batch':>6}" + "".join(f" {i:>15}" for i in impls)
-    others = [i for i in impls if i != "naive"] if "naive" in impls else []
+    others = ([i for i in impls if i != "naive" and not i.endswith("+idm")]
+              if "naive" in impls else [])
     head += "".join(f" {i + '/naive':>12}" for i in others)
+    idm = [i for i in impls if i.endswith("+idm") and i[:-4] in impls]
+    head += "".join(f" {'idm cost':>9}" for _ in idm)
     lines = [head]
     for b in sorted({r["batch"] for r in rows}):
         rate = {r["impl"]: r[field] for r in rows if r["batch"] == b}
@@ -220,5 +243,7 @@ def format_table(rows: list[dict], impls: list[str], field: str = "scenario_step
             f" {rate[i]:>15,.0f}" if i in rate else f" {'-':>15}" for i in impls)
         line += "".join(f" {rate[i] / rate['naive']:>11.1f}x" if "naive" in rate and i in rate
                         else f" {'-':>12}" for i in others)
+        line += "".join(f" {rate[i[:-4]] / rate[i]:>8.2f}x" if i in rate and i[:-4] in rate
+                        else f" {'-':>9}" for i in idm)
         lines.append(line)
     return "\n".join(lines)

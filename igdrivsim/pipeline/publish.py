@@ -75,7 +75,7 @@ class Publisher:
         Each file names the code of the stages behind it as their stamps recorded it (a
         republish from cached stages keeps their commits)."""
         missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
-        if not {"report", "real_logs"} & self.ran and not missing:
+        if not {"report", "real_logs", "reactive"} & self.ran and not missing:
             return []
         updates = self.training_config().training.num_updates
         entry = provenance.Entry(
@@ -126,7 +126,7 @@ class Publisher:
 
     def of_this_run(self, stage: str) -> bool:
         """A stage of this run: not the training or evaluation of another run's methods."""
-        part = stage.removeprefix("train_").removeprefix("evaluate_")
+        part = stage.removeprefix("train_").removeprefix("evaluate_").removesuffix("_idm")
         return part in (stage, "references") or any(
             part == m or part.startswith(f"{m}-") for m in self.methods)
 

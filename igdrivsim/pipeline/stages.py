@@ -6,6 +6,8 @@ parts over one worker process per CPU core, :mod:`igdrivsim.pipeline.planning`; 
 settings and seeds in one program), ``evaluate`` (each part, plus the reference actors),
 ``maze``
 (paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance),
+``reactive`` (beyond the paper: every run and the references evaluated again with IDM sim
+agents, ``WORK/evals_idm``, and Table I's companion, :mod:`igdrivsim.report.reactive`),
 ``real_logs`` (beyond the paper: the runs and references on the real scenarios of ``--samples``
 or of ``igdrivsim samples``' cache, :mod:`igdrivsim.report.real_logs`; skipped without
 them) and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
@@ -60,6 +62,9 @@ from igdrivsim.training.cost import MAZE_CPU_S
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 from igdrivsim.training.run import CHECKPOINTS, DONE, Run, is_complete
+
+# sim agents -> (evaluation folder, stage-name suffix, extra ``igdrivsim evaluate`` arguments)
+EVAL_FOLDERS = {"log": ("evals", "", []), "idm": ("evals_idm", "_idm", ["--agents", "idm"])}
 
 
 @dataclass
@@ -167,21 +172,37 @@ class Pipeline(Publisher, StageRunner):
         return ["--data", val_manifest, "--batch-size", self.profile.eval_batch,
                 "--limit", self.profile.eval_max_scenarios]
 
-    def run_evaluate(self, name: str, val_manifest: Path, echo: bool = True) -> None:
-        out = self.work / "evals" / name
-        self.stage(f"evaluate_{name}", [["igdrivsim", "evaluate", self.work / "runs" / name,
-                                         "--out", out, *self._eval_common(val_manifest)]],
-                   depends=[f"train_{name}", "filter_validation"],
-                   outputs=[out / PER_SCENARIO_FILE], echo=echo)
+    def run_evaluate(self, name: str, val_manifest: Path, echo: bool = True,
+                     agents: str = "log") -> None:
+        """Evaluate run ``name`` (``agents``: the sim agents; ``idm`` into ``evals_idm``)."""
+        folder, suffix, extra = EVAL_FOLDERS[agents]
+        out = self.work / folder / name
+        self.stage(f"evaluate_{name}{suffix}", [[
+            "igdrivsim", "evaluate", self.work / "runs" / name, "--out", out,
+            *self._eval_common(val_manifest), *extra]],
+            depends=[f"train_{name}", "filter_validation"],
+            outputs=[out / PER_SCENARIO_FILE], echo=echo)
 
-    def run_references(self, like: str, val_manifest: Path, echo: bool = True) -> None:
+    def run_references(self, like: str, val_manifest: Path, echo: bool = True,
+                       agents: str = "log") -> None:
         """The reference actors, with the capacities and simulator settings of run ``like``."""
-        out = self.work / "evals" / "references"
-        self.stage("evaluate_references", [[
+        folder, suffix, extra = EVAL_FOLDERS[agents]
+        out = self.work / folder / "references"
+        self.stage(f"evaluate_references{suffix}", [[
             "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / like,
-            "--out", out, *self._eval_common(val_manifest)]],
+            "--out", out, *self._eval_common(val_manifest), *extra]],
             depends=["filter_validation", f"train_{like}"],
             outputs=[out / PER_SCENARIO_FILE], echo=echo)
+
+    def run_reactive(self, parts: Sequence[str]) -> None:
+        """Table I's companion: every driver under log-replay and IDM sim agents
+        (:mod:`igdrivsim.report.reactive`, tables/reactive.md and Fig. 7)."""
+        self.stage("reactive", [[
+            "python", "-m", "igdrivsim.report.reactive", "--log", self.work / "evals",
+            "--idm", self.work / "evals_idm", "--out", self.staged]],
+            depends=["evaluate_references", "evaluate_references_idm",
+                     *[f"evaluate_{p}{s}" for p in parts for s in ("", "_idm")]],
+            outputs=[self.staged / "tables" / "reactive.md"])
 
     def run_speed_walk(self, val_manifest: Path, echo: bool = True) -> None:
         """The speed-walk diagnostic of the validation scenarios (no trained policy)."""
@@ -432,8 +453,14 @@ class Pipeline(Publisher, StageRunner):
                 p.method, tm, vm, e, p), after=("teacher",)) for p in second]
         jobs += [lanes.Job(f"evaluate_{p.name}", lambda e, p=p: self.run_evaluate(p.name, vm, e),
                            after=(f"train_{p.name}",)) for p in (*first, *second)]
+        jobs += [lanes.Job(f"evaluate_{p.name}_idm",
+                           lambda e, p=p: self.run_evaluate(p.name, vm, e, agents="idm"),
+                           after=(f"train_{p.name}",)) for p in (*first, *second)]
         jobs += [lanes.Job("evaluate_references",
                            lambda e: self.run_references(like.name, vm, e),
+                           after=(f"train_{like.name}",)),
+                 lanes.Job("evaluate_references_idm",
+                           lambda e: self.run_references(like.name, vm, e, agents="idm"),
                            after=(f"train_{like.name}",)),
                  lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
                  lanes.Job("render", lambda e: self.run_render(val, e))]
@@ -441,6 +468,7 @@ class Pipeline(Publisher, StageRunner):
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
                     *[f"evaluate_{p.name}" for p in (*first, *second)]]
         self.run_report(self.work / "evals", upstream, [p.name for p in (*first, *second)])
+        self.run_reactive([p.name for p in (*first, *second)])
         self.run_real_logs()
         self.publish()
         self.write_results()

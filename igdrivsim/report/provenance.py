@@ -67,6 +67,8 @@ STAGE_SOURCES = (
     (("figures/fig1",), ("render",)),
     (("tables/speed_walk", "generated/speed_walk"), ("speed_walk", "report")),
     (("tables/real_logs",), ("data", "filter_*", "teacher", "train_*", "real_logs")),
+    (("tables/reactive", "figures/fig7_reactive"),
+     ("data", "filter_*", "teacher", "train_*", "evaluate_*", "reactive")),
 )
 REPORT_STAGES = ("data", "filter_*", "teacher", "train_*", "evaluate_*", "report")
 def stages_behind(rel: str, stamped: Sequence[str]) -> list[str]:

@@ -20,9 +20,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.data.scenario import CURRENT_INDEX, DT
+from igdrivsim.simulator import metrics as step_rules
 from igdrivsim.simulator.dynamics import wrap_angle
 from igdrivsim.simulator.metrics import boxes_overlap
-from igdrivsim.simulator.state import SimParams, SimState, log_sdc_row
+from igdrivsim.simulator.state import (
+    ObjectState,
+    SimParams,
+    SimState,
+    log_sdc_row,
+    object_trajectory,
+)
 
 # nuPlan's ego-is-comfortable bounds (nuplan-devkit docs/metrics_description.md).
 LON_ACCEL_MIN, LON_ACCEL_MAX = -4.05, 2.40  # m/s^2
@@ -155,12 +162,12 @@ def min_time_to_collision(state: SimState, params: SimParams | None = None):
     """Smallest time to collision (s) over the controlled steps, capped at ``TTC_HORIZON``.
 
     At each step after an action, the simulated SDC and every other valid object (at its logged
-    state) are extrapolated at constant velocity and heading for ``TTC_HORIZON`` s in
-    ``TTC_STEP`` s steps; the TTC is the first extrapolated time their boxes overlap. Steps where
-    the SDC is invalid, stopped (speed < ``STOPPED_SPEED``) or already overlapping (scored by
-    ``overlap``) are skipped.
+    state, or its simulated one under IDM sim agents) are extrapolated at constant velocity and
+    heading for ``TTC_HORIZON`` s in ``TTC_STEP`` s steps; the TTC is the first extrapolated
+    time their boxes overlap. Steps where the SDC is invalid, stopped (speed < ``STOPPED_SPEED``)
+    or already overlapping (scored by ``overlap``) are skipped.
     """
-    sdc, log, i = state.sdc, state.log, state.sdc_index
+    sdc, log, i = state.sdc, object_trajectory(state), state.sdc_index
     times = jnp.arange(1, int(round(TTC_HORIZON / TTC_STEP)) + 1) * TTC_STEP  # [K]
     length = jnp.take(log.length, i, axis=0)
     width = jnp.take(log.width, i, axis=0)
@@ -188,3 +195,22 @@ def min_time_to_collision(state: SimState, params: SimParams | None = None):
 def ttc_compliant(state: SimState, params: SimParams | None = None):
     """1.0 when the time to collision is never below ``TTC_BOUND`` (nuPlan's 0.95 s)."""
     return (min_time_to_collision(state, params) >= TTC_BOUND).astype(jnp.float32)
+
+
+def at_fault_overlap(state: SimState, params: SimParams | None = None):
+    """1.0 when the SDC is at fault for an overlap at some controlled step (nuPlan's rule:
+    :func:`igdrivsim.simulator.metrics.at_fault_overlap`), with every object where the sim
+    agents put it."""
+    traj, sdc, i = object_trajectory(state), state.sdc, state.sdc_index
+    is_sdc = jnp.arange(traj.x.shape[0]) == i
+
+    def at(t):
+        pick = lambda a, b=None: a[:, t] if b is None else jnp.where(is_sdc, b[t], a[:, t])  # noqa: E731
+        obj = ObjectState(x=pick(traj.x, sdc.x), y=pick(traj.y, sdc.y),
+                          yaw=pick(traj.yaw, sdc.yaw), vel_x=pick(traj.vel_x, sdc.vel_x),
+                          vel_y=pick(traj.vel_y, sdc.vel_y), length=pick(traj.length),
+                          width=pick(traj.width), valid=pick(traj.valid, sdc.valid))
+        return step_rules.at_fault_objects(obj, i)
+
+    steps = jnp.arange(CURRENT_INDEX + 1, sdc.x.shape[-1])
+    return jnp.any(jax.lax.map(at, steps)).astype(jnp.float32)

@@ -83,6 +83,63 @@ def overlap(state: SimState):
     return jnp.any(hit & others, axis=-1) & _take(obj.valid, i)
 
 
+STOPPED_SPEED = 0.05  # m/s: nuPlan's stopped ego / stopped object threshold
+BEHIND_ANGLE = 150.0  # degrees: nuPlan's "agent behind the ego" tolerance
+
+
+def _segment_hits_box(ax, ay, bx, by, cx, cy, length, width, yaw):
+    """Whether segments ``A -> B`` meet oriented boxes (centre ``c``; broadcasting): the
+    segment in the box's frame clipped against its two slabs (Liang-Barsky)."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    p0x, p0y = (ax - cx) * c + (ay - cy) * s, -(ax - cx) * s + (ay - cy) * c
+    p1x, p1y = (bx - cx) * c + (by - cy) * s, -(bx - cx) * s + (by - cy) * c
+    lo, hi = jnp.zeros_like(p0x), jnp.ones_like(p0x)
+    ok = jnp.ones(p0x.shape, bool)
+    for p0, p1, h in ((p0x, p1x, 0.5 * length), (p0y, p1y, 0.5 * width)):
+        d = p1 - p0
+        flat = jnp.abs(d) < 1e-9
+        safe = jnp.where(flat, 1.0, d)
+        t1, t2 = (-h - p0) / safe, (h - p0) / safe
+        lo = jnp.where(flat, lo, jnp.maximum(lo, jnp.minimum(t1, t2)))
+        hi = jnp.where(flat, hi, jnp.minimum(hi, jnp.maximum(t1, t2)))
+        ok = ok & jnp.where(flat, jnp.abs(p0) <= h, True)
+    return ok & (lo <= hi)
+
+
+def at_fault_overlap(state: SimState):
+    """``bool[...]``: an overlap the SDC is at fault for (nuPlan's rule, as V-Max's).
+
+    For each object the SDC overlaps, in nuPlan's order: the SDC stopped (speed < 0.05 m/s):
+    not at fault; the object stopped: at fault; the object's centre behind the SDC (more than
+    150 degrees from its heading, a rear hit): not at fault; the SDC's front bumper (the segment
+    between its front corners) meets the object's box: at fault; otherwise a side hit: not at
+    fault (nuPlan counts side hits only when the ego spans several lanes, which needs a lane
+    map; this package does not count them).
+    """
+    return at_fault_objects(current_objects(state), state.sdc_index)
+
+
+def at_fault_objects(obj, i):
+    """:func:`at_fault_overlap` of objects ``obj`` (an ``ObjectState`` ``[..., O]``, the SDC
+    in slot ``i [...]``)."""
+    ex, ey, eyaw = (_take(a, i)[..., None] for a in (obj.x, obj.y, obj.yaw))
+    el, ew = _take(obj.length, i)[..., None], _take(obj.width, i)[..., None]
+    hit = boxes_overlap(ex, ey, el, ew, eyaw, obj.x, obj.y, obj.length, obj.width, obj.yaw)
+    hit = hit & obj.valid & (jnp.arange(obj.x.shape[-1]) != i[..., None])
+    ego_moving = jnp.hypot(_take(obj.vel_x, i), _take(obj.vel_y, i))[..., None] >= STOPPED_SPEED
+    stopped = jnp.hypot(obj.vel_x, obj.vel_y) < STOPPED_SPEED
+    c, s = jnp.cos(eyaw), jnp.sin(eyaw)
+    lon = (obj.x - ex) * c + (obj.y - ey) * s
+    lat = -(obj.x - ex) * s + (obj.y - ey) * c
+    behind = jnp.abs(jnp.arctan2(lat, lon)) > jnp.deg2rad(BEHIND_ANGLE)
+    fx, fy = ex + 0.5 * el * c, ey + 0.5 * el * s  # front bumper centre
+    front = _segment_hits_box(fx - 0.5 * ew * s, fy + 0.5 * ew * c,
+                              fx + 0.5 * ew * s, fy - 0.5 * ew * c,
+                              obj.x, obj.y, obj.length, obj.width, obj.yaw)
+    fault = hit & ego_moving & (stopped | (~behind & front))
+    return jnp.any(fault, axis=-1) & _take(obj.valid, i)
+
+
 def box_corners(x, y, length, width, yaw):
     """The four corners of boxes ``[...]`` as ``(cx, cy)``, each ``[..., 4]`` (counter-clockwise
     from front-left)."""

@@ -47,6 +47,7 @@ from igdrivsim.data.scenario import (
     decode_scenario_id,
 )
 from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.simulator import agents as sim_agents
 from igdrivsim.simulator import dynamics
 from igdrivsim.simulator.roadgraph import RoadEdges, select_road_edges
 
@@ -66,6 +67,9 @@ class SimParams:
     last), so a fixed number of nearest points reaches k times farther (WOMD samples its
     polylines every 0.5 m; 1: the map as stored, Waymax's); see :func:`thin_roadgraph`. The
     offroad metric's road edges are selected before the thinning and keep full resolution.
+    ``agents``: who moves the other objects, ``"log"`` (replay, the paper's) or ``"idm"``
+    (reactive IDM vehicles on their logged paths, :mod:`igdrivsim.simulator.agents`), with
+    ``idm`` their parameters (Waymax's defaults).
     """
 
     dynamics: str = "delta_local"
@@ -73,8 +77,11 @@ class SimParams:
     edge_capacity: int = 8192
     offroad_method: str = "point"
     roadgraph_stride: int = 1
+    agents: str = "log"
+    idm: sim_agents.IdmParams = sim_agents.IdmParams()
 
     def __post_init__(self):
+        sim_agents.check_agents(self.agents)
         if self.dynamics not in dynamics.DYNAMICS:
             raise ConfigError(f"SimParams.dynamics must be one of {sorted(dynamics.DYNAMICS)}, "
                               f"got {self.dynamics!r}")
@@ -128,6 +135,7 @@ class SimState:
     sdc: SdcTrajectory
     sdc_index: jax.Array
     timestep: jax.Array
+    agents: sim_agents.AgentState | None = None  # every object simulated, under "idm" agents
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -227,10 +235,15 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
         x=path_x, y=path_y, yaw=_row(traj.yaw, sdc_index), vel_x=_row(traj.vel_x, sdc_index),
         vel_y=_row(traj.vel_y, sdc_index), valid=path_valid & past,
     )
+    agents = None
+    if params.agents == "idm":
+        agents = vmap_batch(lambda lg, md, i: sim_agents.init_agents(lg, md, i, params.idm),
+                            sdc_index.ndim)(traj, sc.metadata, sdc_index)
     return SimState(
         log=traj, metadata=sc.metadata, roadgraph=roadgraph, road_edges=road_edges,
         traffic_lights=sc.traffic_lights, scenario_id=sc.scenario_id, sdc=sdc,
         sdc_index=sdc_index, timestep=jnp.full(sdc_index.shape, CURRENT_INDEX, jnp.int32),
+        agents=agents,
     )
 
 
@@ -271,13 +284,23 @@ def _check_concrete_action(action) -> None:
 
 
 def step(state: SimState, action, params: SimParams = SimParams()) -> SimState:
-    """Advance one step: the SDC applies ``action`` (float ``[..., 3]``), the rest replay the log.
+    """Advance one step: the SDC applies ``action`` (float ``[..., 3]``), the other objects
+    replay the log (``params.agents == "log"``) or move as IDM agents from the objects now.
 
     Actions are clipped to the bounds; a concrete (host) non-finite action raises
     :class:`~igdrivsim.errors.DataError`, a traced one is replaced by the zero action. The SDC's
     validity at ``t + 1`` is its logged validity. Stepping at timestep 90 keeps timestep 90.
     """
     _check_concrete_action(action)
+    if (state.agents is None) != (params.agents == "log"):
+        raise ConfigError(f"the state was reset for other sim agents than {params.agents!r}: "
+                          "reset and step with the same SimParams")
+    agents = state.agents
+    if agents is not None:
+        objects = current_objects(state)
+        agents = vmap_batch(lambda a, ob, lt, t: sim_agents.step_agents(a, ob, lt, t, params.idm),
+                            state.timestep.ndim)(agents, objects, state.traffic_lights,
+                                                 state.timestep)
     forward, _ = dynamics.DYNAMICS[params.dynamics]
     x, y, yaw, _ = sdc_pose(state)
     nx, ny, nyaw, vx, vy = forward(x, y, yaw, jnp.asarray(action, jnp.float32))
@@ -292,13 +315,13 @@ def step(state: SimState, action, params: SimParams = SimParams()) -> SimState:
     sdc = SdcTrajectory(x=put(s.x, nx), y=put(s.y, ny), yaw=put(s.yaw, nyaw),
                         vel_x=put(s.vel_x, vx), vel_y=put(s.vel_y, vy),
                         valid=put(s.valid, log_valid1))
-    return state.replace(sdc=sdc, timestep=t1)
+    return state.replace(sdc=sdc, timestep=t1, agents=agents)
 
 
 def current_objects(state: SimState) -> ObjectState:
     """All objects at the current step, ``[..., O]``; the SDC row holds its simulated state."""
     t = state.timestep
-    lg = state.log
+    lg = object_trajectory(state)
     is_sdc = jnp.arange(lg.x.shape[-2]) == state.sdc_index[..., None]
     s = state.sdc
 
@@ -316,12 +339,22 @@ def current_objects(state: SimState) -> ObjectState:
 
 def simulated_trajectory(state: SimState) -> Trajectory:
     """The full ``[..., O, T]`` trajectory with the SDC row replaced by its simulation."""
-    lg = state.log
+    lg = object_trajectory(state)
     is_sdc = (jnp.arange(lg.x.shape[-2]) == state.sdc_index[..., None])[..., None]
     s = state.sdc
     sub = {"x": s.x, "y": s.y, "yaw": s.yaw, "vel_x": s.vel_x, "vel_y": s.vel_y, "valid": s.valid}
     return lg.replace(**{k: jnp.where(is_sdc, v[..., None, :], getattr(lg, k))
                          for k, v in sub.items()})
+
+
+def object_trajectory(state: SimState) -> Trajectory:
+    """Every object's ``[..., O, T]`` trajectory as simulated by the sim agents (the log under
+    ``"log"`` agents); the SDC row is its log (see :func:`simulated_trajectory`)."""
+    a = getattr(state, "agents", None)
+    if a is None:
+        return state.log
+    return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y,
+                             valid=a.valid)
 
 
 def num_objects(state: SimState) -> int:

@@ -75,3 +75,42 @@ def straight_road(caps: Capacities = TOY_CAPS,
                  RG_ROAD_EDGE_BOUNDARY, 3)
     sc = sc.replace(scenario_id=encode_scenario_id(scenario_id))
     return sc
+
+
+def following(gap: float = 40.0, speed: float = 10.0, leader_speed: float = 0.0,
+              caps: Capacities = TOY_CAPS, scenario_id: str = "toy-following") -> Scenario:
+    """Slot 1 a car driving along ``y = 0`` at ``speed`` from ``x = 0`` (its log runs through
+    whatever is ahead); slot 2 a car ``gap`` m ahead (centre to centre) at ``leader_speed``;
+    the SDC (slot 0) parked out of the way at ``y = -30``. Roadgraph as :func:`straight_road`."""
+    sc = straight_road(caps, scenario_id=scenario_id)
+    t = (np.arange(NUM_STEPS) - 10) * 0.1
+    set_object(sc, 0, -50.0, -30.0, 0.0, sdc=True)
+    set_object(sc, 1, speed * t, 0.0, 0.0)
+    set_object(sc, 2, gap + leader_speed * t, 0.0, 0.0)
+    return sc
+
+
+def curve(radius: float = 40.0, start_speed: float = 4.0, log_speed: float = 20.0,
+          caps: Capacities = TOY_CAPS, scenario_id: str = "toy-curve") -> Scenario:
+    """Slot 1 a car on a circle of ``radius`` (counter-clockwise from ``(0, -radius)``),
+    ``start_speed`` up to step 11 then ``log_speed``; the SDC parked far away."""
+    sc = straight_road(caps, scenario_id=scenario_id)
+    steps = np.arange(NUM_STEPS)
+    v = np.where(steps <= 10, start_speed, log_speed)
+    arc = np.concatenate([[0.0], np.cumsum(v[:-1] * 0.1)]) - 10 * start_speed * 0.1
+    ang = arc / radius
+    set_object(sc, 0, -500.0, -500.0, 0.0, sdc=True)
+    set_object(sc, 1, radius * np.sin(ang), -radius * np.cos(ang), ang)
+    set_object(sc, 2, 0.0, 0.0, 0.0, valid=np.zeros(NUM_STEPS, bool))
+    return sc
+
+
+def red_light(stop_x: float = 40.0, speed: float = 10.0, caps: Capacities = TOY_CAPS,
+              scenario_id: str = "toy-red-light") -> Scenario:
+    """:func:`following` without the car ahead and with a traffic light red at every step whose
+    stop point is ``(stop_x, 0)``."""
+    sc = following(speed=speed, caps=caps, scenario_id=scenario_id)
+    sc.trajectory.valid[2] = False
+    tl = sc.traffic_lights
+    tl.state[0], tl.valid[0], tl.x[0], tl.y[0] = 4, True, stop_x, 0.0  # LANE_STATE_STOP
+    return sc

@@ -26,6 +26,7 @@ from igdrivsim.errors import ConfigError
 from igdrivsim.observation import ObservationConfig, stack_settings, superset_config
 from igdrivsim.policy.network import NUM_BINS, POOLED_NETWORK, PolicyConfig
 from igdrivsim.simulator import SimParams
+from igdrivsim.simulator.agents import AGENTS
 from igdrivsim.training.methods import DEFAULT_METHOD, get_method, method_param_defaults
 
 
@@ -98,6 +99,10 @@ class TrainConfig:
     # values of the methods' own hyper-parameters (``--set method.NAME=VALUE``; a method reads
     # its declared ``params``, with their defaults where not set here): ((name, value), ...)
     method_params: tuple = ()
+    # who moves the other objects in the closed-loop episodes (BC-RL's rollouts, validation
+    # curves, and the run's evaluation unless ``igdrivsim evaluate --agents``): "log" (replay,
+    # the paper's) or "idm" (reactive IDM vehicles; igdrivsim.simulator.agents)
+    sim_agents: str = "log"
 
     def __post_init__(self):
         object.__setattr__(self, "method_params", tuple(sorted(
@@ -169,7 +174,8 @@ class RunConfig:
     def sim_params(self) -> SimParams:
         """Simulator settings of this run (the observable map's resolution; the offroad
         metric's road-edge selection keeps its defaults)."""
-        return SimParams(roadgraph_stride=self.observation.roadgraph_stride)
+        return SimParams(roadgraph_stride=self.observation.roadgraph_stride,
+                         agents=self.training.sim_agents)
 
     def _check_ranges(self) -> None:
         """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
@@ -189,6 +195,9 @@ class RunConfig:
         the method decides filled in (the auxiliary head)."""
         t, d = self.training, self.data
         method = get_method(t.method)  # a registered method, else a one-line error
+        if t.sim_agents not in AGENTS:
+            raise ConfigError(f"training.sim_agents must be one of {', '.join(AGENTS)}, "
+                              f"got {t.sim_agents!r}")
         if method.teacher and not t.teacher:
             raise ConfigError(f"method {t.method!r} needs a privileged teacher: set "
                               "training.teacher=RUN (a run trained with the full setting)")

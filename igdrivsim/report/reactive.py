@@ -1,0 +1,236 @@
+"""Table I's companion under reactive traffic: every driver judged with log-replay and IDM agents.
+
+Beyond the paper. Inputs are two evaluation folders of tidy CSVs (``igdrivsim evaluate``) of the
+same drivers on the same validation scenarios: one with the other objects replaying their log
+(``--log``, Table I's evaluations) and one with them driven by IDM sim agents (``--idm``,
+``igdrivsim evaluate --agents idm``; :mod:`igdrivsim.simulator.agents`). For every setting's
+BC and BC-RL and for the reference actors (constant velocity, the discretised expert replaying
+its log), each metric's mean over seeds of the seed means with its 95% t-interval over seeds
+under each, and the difference log minus idm with Table I's test: a two-level bootstrap over
+seeds, then paired scenarios (:func:`igdrivsim.evaluation.aggregate.paired_difference`), Holm
+over every cell of the table; bold where significant.
+
+Metrics: Table I's per-scenario ones (overlap rate, offroad rate, max log divergence) and the
+registry's at-fault overlap (nuPlan's rule: no rear or side hits; docs/metrics.md).
+
+``python -m igdrivsim.report.reactive --log DIR --idm DIR --out PAPER`` writes
+``tables/reactive.md``, ``tables/reactive.csv`` and ``figures/fig7_reactive.{pdf,png}`` (the
+pipeline's ``reactive`` stage).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from igdrivsim.errors import DataError, run_command
+from igdrivsim.evaluation import registry
+from igdrivsim.evaluation.aggregate import (
+    ALPHA,
+    TEST_NAME,
+    TEST_SEED,
+    holm_adjust,
+    load_evaluations,
+    paired_difference,
+    summarize,
+)
+from igdrivsim.evaluation.schema import (
+    BC,
+    BC_RL,
+    METHOD_LABELS,
+    METRIC_BY_KEY,
+    REFERENCE_SETTING,
+    REFERENCES,
+    setting_short,
+    table_settings,
+)
+from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.simulator import episode_metrics as em
+
+AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
+METRICS = (METRIC_BY_KEY["overlap_rate"], AT_FAULT, METRIC_BY_KEY["offroad_rate"],
+           METRIC_BY_KEY["max_log_divergence"])
+HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} rate (%)",
+           "offroad_rate": "offroad rate (%)", "max_log_divergence": "max log divergence (m)"}
+CONDITIONS = ("log", "idm")
+FIGURE = "fig7_reactive"
+
+
+def _cube(frame: pd.DataFrame, scenarios: pd.Index) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` of one driver, at the tables' scale."""
+    cols = [m.column for m in METRICS]
+    part = frame.set_index(["seed", "scenario_id"])[cols]
+    seeds = sorted(part.index.get_level_values(0).unique())
+    full = pd.MultiIndex.from_product([seeds, scenarios], names=["seed", "scenario_id"])
+    scale = np.array([m.scale for m in METRICS])
+    return part.reindex(full).to_numpy(float).reshape(len(seeds), len(scenarios), -1) * scale
+
+
+def _complete(frame: pd.DataFrame) -> set:
+    """Scenarios with every metric for every seed of ``frame``."""
+    ok = frame.dropna(subset=[m.column for m in METRICS]).groupby("scenario_id").seed.nunique()
+    return set(ok.index[ok == frame.seed.nunique()])
+
+
+def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
+    """The ``(setting, method)`` pairs evaluated under both: every setting's BC-RL and BC (in
+    Table I's order), then the reference actors."""
+    both = set(zip(log.setting, log.method, strict=True)) & set(
+        zip(idm.setting, idm.method, strict=True))
+    out = [(s, m) for s in table_settings(log, idm) for m in (BC, BC_RL) if (s, m) in both]
+    return out + [(REFERENCE_SETTING, m) for m in REFERENCES if (REFERENCE_SETTING, m) in both]
+
+
+def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_000
+                   ) -> pd.DataFrame:
+    """One row per (driver, metric): means and intervals under log and idm, and the
+    difference log - idm with its bootstrap interval, p, Holm p and significance."""
+    pairs = drivers(log, idm)
+    if not pairs:
+        raise DataError("no driver was evaluated under both log and idm agents")
+    summaries = {c: summarize(f, metrics=METRICS) for c, f in (("log", log), ("idm", idm))}
+    rows = []
+    for setting, method in pairs:
+        a = log[(log.setting == setting) & (log.method == method)]
+        b = idm[(idm.setting == setting) & (idm.method == method)]
+        scenarios = pd.Index(sorted(_complete(a) & _complete(b)), name="scenario_id")
+        seed = [TEST_SEED, zlib.crc32(f"{setting}/{method}".encode())]
+        if scenarios.size:
+            c = paired_difference(_cube(a, scenarios), _cube(b, scenarios), n_resamples, seed)
+        else:
+            c = {k: np.full(len(METRICS), np.nan) for k in ("diff", "lo", "hi", "p", "mde")}
+        for i, metric in enumerate(METRICS):
+            row = dict(setting=setting, method=method, metric=metric.key)
+            for cond, summary in summaries.items():
+                s = summary[(summary.setting == setting) & (summary.method == method)
+                            & (summary.metric == metric.key)]
+                s = s.iloc[0] if len(s) else None
+                row[f"{cond}_mean"] = np.nan if s is None else float(s["mean"])
+                row[f"{cond}_ci_low"] = np.nan if s is None else float(s.ci_low)
+                row[f"{cond}_ci_high"] = np.nan if s is None else float(s.ci_high)
+                row[f"{cond}_seeds"] = 0 if s is None else int(s.n_seeds)
+            row.update(diff=float(c["diff"][i]), diff_low=float(c["lo"][i]),
+                       diff_high=float(c["hi"][i]), p_value=float(c["p"][i]),
+                       mde=float(c["mde"][i]), n_pairs=int(scenarios.size))
+            rows.append(row)
+    out = pd.DataFrame(rows)
+    out["p_holm"] = holm_adjust(out.p_value.to_numpy())
+    out["significant"] = out.p_holm < ALPHA
+    return out
+
+
+def _num(value: float, digits: int) -> str:
+    return "--" if not np.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _cell(row: pd.Series, cond: str, digits: int) -> str:
+    mean = _num(row[f"{cond}_mean"], digits)
+    if not np.isfinite(row[f"{cond}_ci_low"]):
+        return mean
+    return f"{mean} [{_num(row[f'{cond}_ci_low'], digits)}, {_num(row[f'{cond}_ci_high'], digits)}]"
+
+
+def _diff_cell(row: pd.Series, digits: int) -> str:
+    if not np.isfinite(row["diff"]):
+        return "--"
+    text = (f"{row['diff']:+.{digits}f} [{row.diff_low:+.{digits}f}, "
+            f"{row.diff_high:+.{digits}f}]")
+    return f"**{text}**" if row.significant else text
+
+
+def driver_label(setting: str, method: str) -> tuple[str, str]:
+    """The table's setting and driver cells."""
+    if setting == REFERENCE_SETTING:
+        label = "Expert (its own log)" if method == "expert" else METHOD_LABELS[method]
+        return "--", label
+    return setting_short(setting), METHOD_LABELS.get(method, method)
+
+
+def reactive_markdown(table: pd.DataFrame, header: str = "") -> str:
+    """``tables/reactive.md``: per driver and metric, log, idm and log - idm."""
+    lines = ["# Every driver under log-replay and IDM sim agents (beyond the paper)", ""]
+    if header:
+        lines += [header, ""]
+    n = int(table.n_pairs.max()) if len(table) else 0
+    lines += [
+        "Each cell: the mean over seeds of each seed's mean over the validation scenarios, with "
+        "its 95% t-interval over seeds (none for the references: one deterministic run). "
+        "*log*: the other objects replay their log (Table I); *idm*: the vehicles follow their "
+        "logged paths with IDM speed (Waymax's defaults: desired speed 30 m/s, minimum gap 2 m, "
+        "headway 2 s; docs/reactive.md). *log - idm*: the difference on the same scenarios "
+        f"({n} at most), its 95% interval ({TEST_NAME}, over the {len(table)} cells of this "
+        f"table); bold where the Holm-adjusted p is below {ALPHA}.", ""]
+    for metric in METRICS:
+        digits = 2 if metric.key == "max_log_divergence" else 1
+        lines += [f"## {HEADERS[metric.key]}", "",
+                  "| setting | driver | log | idm | log - idm [95% CI] |", "|---|---|---|---|---|"]
+        for _, row in table[table.metric == metric.key].iterrows():
+            setting, label = driver_label(row.setting, row.method)
+            lines.append(f"| {setting} | {label} | {_cell(row, 'log', digits)} | "
+                         f"{_cell(row, 'idm', digits)} | {_diff_cell(row, digits)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def reactive_figure(table: pd.DataFrame, out_dir: str | Path) -> list[Path]:
+    """Fig. 7: per metric, each driver's mean under log and idm with its interval."""
+    from igdrivsim.report.figures import plt, save_figure  # lazy: matplotlib
+
+    keys = [m.key for m in METRICS]
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4.6), squeeze=False)
+    for ax, key in zip(axes[0], keys, strict=True):
+        part = table[table.metric == key].reset_index(drop=True)
+        y = np.arange(len(part))
+        for k, (cond, colour) in enumerate((("log", "#4C4C4C"), ("idm", "#E15759"))):
+            mean = part[f"{cond}_mean"].to_numpy(float)
+            lo = np.nan_to_num(mean - part[f"{cond}_ci_low"].to_numpy(float))
+            hi = np.nan_to_num(part[f"{cond}_ci_high"].to_numpy(float) - mean)
+            ax.errorbar(mean, y + (k - 0.5) * 0.3, xerr=[np.maximum(lo, 0), np.maximum(hi, 0)],
+                        fmt="o", color=colour, label=cond, ms=4, capsize=2)
+        ax.set_yticks(y, [" ".join(driver_label(s, m)).strip("- ")
+                          for s, m in zip(part.setting, part.method, strict=True)], fontsize=7)
+        ax.invert_yaxis()
+        ax.set_xlabel(HEADERS[key])
+        if "%" in HEADERS[key]:  # a rate: its axis is 0-100 (wide t-intervals are cut)
+            ax.set_xlim(-5, 105)
+        ax.grid(axis="x", alpha=0.3)
+    axes[0][0].legend(title="sim agents", fontsize=8)
+    fig.suptitle("Every driver under log-replay and IDM sim agents (mean, 95% CI over seeds)")
+    fig.tight_layout()
+    return save_figure(fig, out_dir, FIGURE)
+
+
+def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path, header: str = "",
+          n_resamples: int = 10_000) -> list[Path]:
+    """Read both evaluations and write the table, its numbers and the figure under ``out``."""
+    _, log = load_evaluations(log_dirs)
+    _, idm = load_evaluations(idm_dirs)
+    table = reactive_table(log, idm, n_resamples)
+    out = Path(out)
+    written = [atomic_write_csv(out / "tables" / "reactive.csv", table.round(6)),
+               atomic_write_text(out / "tables" / "reactive.md",
+                                 reactive_markdown(table, header))]
+    return written + reactive_figure(table, out / "figures")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.reactive",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--log", nargs="+", required=True, metavar="DIR",
+                        help="evaluations with log-replay agents (Table I's)")
+    parser.add_argument("--idm", nargs="+", required=True, metavar="DIR",
+                        help="the same drivers evaluated with --agents idm")
+    parser.add_argument("--out", required=True, help="report folder (tables/, figures/)")
+    args = parser.parse_args(argv)
+    for path in build(args.log, args.idm, args.out):
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_command("python -m igdrivsim.report.reactive", main))
