@@ -10,7 +10,7 @@ Stop signs and traffic lights (stop at red, at yellow when comfortable) act as s
 
 from __future__ import annotations
 
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -207,6 +207,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         c_s = s_route[c_rows]
         order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
         c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
+        c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
     half = agent.length / 2
     sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
     pos, v = agent.s0, agent.v0
@@ -232,8 +233,8 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                 gap, v_lead = ks[i] - front, max(vs[i], 0.0)
         if cross_rows:
             commit = v * v / (2 * B_MAX * 0.6)
-            i0 = int(np.searchsorted(c_s, front + commit, side="right"))
-            i1 = int(np.searchsorted(c_s, front + LOOKAHEAD, side="left"))
+            i0 = bisect_right(c_list, front + commit)
+            i1 = bisect_left(c_list, front + LOOKAHEAD)
             if i1 > i0:
                 d = c_s[i0:i1] - front
                 eta = d / np.maximum(v, np.sqrt(agent.accel * d))
@@ -356,15 +357,18 @@ def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
 
 
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Separating-axis test for convex quads given as corners ``[..., 4, 2]``."""
+    """Separating-axis test for convex quads given as corners ``[..., 4, 2]`` (the normals of
+    each quad's first two edges; a projection is ``x * nx + y * ny``)."""
     hit = np.ones(a.shape[:-2], bool)
     for poly in (a, b):
-        edges = np.roll(poly, -1, axis=-2) - poly
-        axes = np.stack([-edges[..., 1], edges[..., 0]], -1)[..., :2, :]  # 2 axes per rectangle
         for i in range(2):
-            ax = axes[..., i, None, :]
-            pa, pb = (a * ax).sum(-1), (b * ax).sum(-1)
+            edge = poly[..., i + 1, :] - poly[..., i, :]
+            nx, ny = -edge[..., 1:], edge[..., :1]
+            pa = a[..., 0] * nx + a[..., 1] * ny
+            pb = b[..., 0] * nx + b[..., 1] * ny
             hit &= (pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))
+            if not hit.any():
+                return hit
     return hit
 
 

@@ -120,20 +120,23 @@ def generate_command(args: argparse.Namespace) -> int:
                 todo.append((split, path, indices))
     total = sum(len(r) for _, _, r in todo)
     start = time.perf_counter()
-    pool = ProcessPoolExecutor(args.workers) if args.workers > 1 else None
+    # Every shard's chunks go to the pool at once (no worker waits at a shard's end); the
+    # shards are written in order as their chunks come back.
+    chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
+               for i in range(indices.start, indices.stop, CHUNK)] for split, _, indices in todo]
+    flat = [chunk for shard in chunks for chunk in shard]
+    pool = ProcessPoolExecutor(args.workers) if args.workers > 1 and flat else None
     try:
+        results = (pool.map(_encode_chunk, *zip(*flat, strict=True)) if pool
+                   else (_encode_chunk(*c) for c in flat))
         with tqdm(total=total, desc="generating", unit="scn",
                   disable=getattr(args, "no_progress", False)) as bar:
-            for split, path, indices in todo:
+            for (_, path, _), shard in zip(todo, chunks, strict=True):
                 os.makedirs(os.path.dirname(path), exist_ok=True)
-                chunks = [(args.seed, split, i, min(i + CHUNK, indices.stop), config,
-                           args.compact)
-                          for i in range(indices.start, indices.stop, CHUNK)]
-                results = (pool.map(_encode_chunk, *zip(*chunks, strict=True)) if pool
-                           else (_encode_chunk(*c) for c in chunks))
 
-                def records(results=results):
-                    for chunk in results:
+                def records(shard=shard):
+                    for _ in shard:
+                        chunk = next(results)
                         yield from chunk
                         bar.update(len(chunk))
 
