@@ -15,6 +15,8 @@ from igdrivsim.data.synthetic.agents import (
     _occupancy,
     box_corners,
     boxes_overlap,
+    collides,
+    collides_any,
 )
 from igdrivsim.data.synthetic.commands import shard_paths
 from igdrivsim.data.synthetic.generator import plan_scenario, scenario_rng
@@ -96,3 +98,15 @@ def test_shards_do_not_depend_on_workers_or_shard_count(tmp_path):
                             for _, r, _ in tfrecord.iter_frames(path)]
     assert len(records[1]) == 10
     assert records[1] == records[2]
+
+
+def test_collides_any_is_any_pairwise_collision():
+    _, planned = plan_scenario(scenario_rng(0, 3))
+    hits = 0
+    for i, agent in enumerate(planned):
+        for others in (planned[:i], planned[i + 1:], planned[:i] + planned[i + 1:]):
+            expected = any(collides(agent, b) for b in others)
+            assert collides_any(agent, others) == expected
+        # a copy of itself collides: every valid step overlaps
+        hits += collides_any(agent, [agent])
+    assert hits == len(planned)

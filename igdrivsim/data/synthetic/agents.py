@@ -397,3 +397,33 @@ def collides(a: Agent, b: Agent) -> bool:
     ca = box_corners(a.xy[near], a.yaw[near], a.length, a.width)
     cb = box_corners(b.xy[near], b.yaw[near], b.length, b.width)
     return bool(boxes_overlap(ca, cb).any())
+
+
+def collides_any(a: Agent, others: list[Agent]) -> bool:
+    """Whether ``a`` collides with one of ``others`` (:func:`collides` of each, in one batch)."""
+    if a.route.kind in PARALLEL:
+        others = [b for b in others
+                  if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]
+    if not others:
+        return False
+    valid = np.stack([b.valid for b in others]) & a.valid  # [N, T]
+    reach = a.reach + np.array([b.reach for b in others])
+    blo, bhi = np.array([b.lo for b in others]), np.array([b.hi for b in others])
+    meet = valid.any(1) & ~((a.lo[0] - reach > bhi[:, 0]) | (a.hi[0] + reach < blo[:, 0])
+                            | (a.lo[1] - reach > bhi[:, 1]) | (a.hi[1] + reach < blo[:, 1]))
+    if not meet.any():
+        return False
+    keep = np.flatnonzero(meet)
+    reach, valid = reach[keep], valid[keep]
+    xy = np.stack([others[k].xy for k in keep])  # [N, T, 2]
+    d = (a.xy[None] - xy).reshape(-1, 2)
+    near = valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)
+                    < (reach * reach)[:, None])
+    n, t = np.nonzero(near)
+    if len(n) == 0:
+        return False
+    size = np.array([(others[k].length, others[k].width) for k in keep])
+    yaw = np.stack([others[k].yaw for k in keep])
+    ca = box_corners(a.xy[t], a.yaw[t], a.length, a.width)
+    cb = box_corners(xy[n, t], yaw[n, t], size[n, 0], size[n, 1])
+    return bool(boxes_overlap(ca, cb).any())
