@@ -37,6 +37,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "data": ("igdrivsim.data.bench", "scenarios/s read and decoded"),
     "sim": ("igdrivsim.observation.bench", "scenario-steps/s of reset + 80 steps"),
     "train": ("igdrivsim.training.bench", "training updates/s and scenario-steps/s"),
+    "pipeline": ("igdrivsim.pipeline.bench", "a reproduction's core-seconds per stage"),
 }
 
 
@@ -54,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (module, help_) in COMMANDS.items():
         _add(sub, name, module, help_)
     bench = sub.add_parser("bench", help="speed benchmarks",
-                           description="speed benchmarks: igdrivsim bench {data,sim,train}"
+                           description="speed benchmarks: igdrivsim bench {data,sim,train,pipeline}"
                            ).add_subparsers(dest="bench", required=True)
     for name, (module, help_) in BENCHES.items():
         _add(bench, name, module, help_, prefix="bench_")

@@ -1,6 +1,7 @@
 """Resumable stages: run a command line as a named stage, stamp it when complete (with the
-code it ran: commit, dirty flag, diff hash, and its seconds over every invocation that worked
-on it), skip it when stamped, log it, and stop every running stage on an interrupt."""
+code it ran: commit, dirty flag, diff hash, its seconds over every invocation that worked on it
+and its processes' CPU seconds in the invocation that completed it), skip it when stamped, log
+it, and stop every running stage on an interrupt."""
 
 from __future__ import annotations
 
@@ -118,6 +119,7 @@ class StageRunner:
         self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
         start, code = time.time(), provenance.code_state(REPO_ROOT)  # the code it runs
+        cpu: list[float] = []  # CPU seconds of this invocation's commands (user + system)
         self.running[name] = start - self.spent(name)  # as if begun with the earlier seconds
         try:
             with open(log, "a", encoding="utf-8") as fh:
@@ -125,7 +127,7 @@ class StageRunner:
                 for argv in commands:
                     fh.write("$ " + " ".join(map(str, argv)) + "\n")
                     fh.flush()
-                    rc = self._run(list(map(str, argv)), fh, name if not echo else None)
+                    rc = self._run(list(map(str, argv)), fh, name if not echo else None, cpu)
                     if rc != 0:
                         raise StageError(f"stage '{name}' failed (exit {rc}); read {log}")
             missing = [str(p) for p in outputs if not Path(p).exists()]
@@ -138,8 +140,8 @@ class StageRunner:
         finally:
             del self.running[name]
         atomic_write_text(self.stamp_path(name), json.dumps(dict(
-            stage=name, seconds=round(seconds, 1), commands=[list(map(str, c))
-                                                             for c in commands],
+            stage=name, seconds=round(seconds, 1), cpu_seconds=round(sum(cpu), 1),
+            commands=[list(map(str, c)) for c in commands],
             finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text, code=code),
             indent=2) + "\n")
         self.spent_path(name).unlink(missing_ok=True)
@@ -149,9 +151,17 @@ class StageRunner:
             f" ({seconds:.0f} s with the invocations before)" if seconds > elapsed + 1 else ""))
         return True
 
-    def _run(self, argv: list[str], fh, beat: str | None = None) -> int:
+    def _run(self, argv: list[str], fh, beat: str | None = None,
+             cpu: list[float] | None = None) -> int:
+        """Run one command; append its CPU seconds (its process and the workers it waited for;
+        this process's, in process) to ``cpu``."""
+        cpu = [] if cpu is None else cpu
         if self.in_process and argv[0] in ("igdrivsim", "python"):
-            return self._run_in_process(argv, fh)
+            before = time.process_time()
+            try:
+                return self._run_in_process(argv, fh)
+            finally:
+                cpu.append(time.process_time() - before)
         if argv[0] == "igdrivsim":
             argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
         elif argv[0] == "python":
@@ -194,7 +204,13 @@ class StageRunner:
             raise
         finally:
             self.children.discard(proc)
-        return proc.wait()
+        try:  # wait4: this child's own CPU time, whatever runs beside it
+            _, status, usage = os.wait4(proc.pid, 0)
+        except ChildProcessError:  # already reaped
+            return proc.wait()
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        cpu.append(usage.ru_utime + usage.ru_stime)
+        return proc.returncode
 
     def stop(self) -> None:
         """Stop every running stage process (an interrupted run; rerunning resumes)."""

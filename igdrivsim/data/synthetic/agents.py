@@ -10,7 +10,7 @@ Stop signs and traffic lights (stop at red, at yellow when comfortable) act as s
 
 from __future__ import annotations
 
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,37 +74,44 @@ def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
     return v
 
 
-def _occupancy(agent: Agent, s_route: np.ndarray, yaw_route: np.ndarray, other: Agent):
-    """Where and when ``other`` covers ``agent``'s route: ``(rows, occ [k, T], along [k, T])``.
+def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
+    """Where and when the moving ``others`` cover ``agent``'s route, all at once:
+    ``(rows [P], occ [P, T], along [P, T])``, one row per (other, route point near its path),
+    other by other (in ``others``' order), points ascending.
 
-    ``along`` is other's speed along the route direction (NaN where its heading is not aligned,
-    i.e. it is cross traffic). ``rows`` indexes route points near other's path (pruned)."""
+    ``along`` is the other's speed along the route direction (NaN where its heading is not
+    aligned, i.e. it is cross traffic). A point is near an other's path when it lies in the
+    bounding box of its valid centres grown by its reach and ``agent``'s half width + 1 m;
+    rows where the other never covers the point are left out."""
     pts = agent.route.points
     lo, hi = agent.route.bounds
-    reach = other.reach + agent.width / 2 + 1.0
-    if (other.lo[0] - reach > hi[0] or other.hi[0] + reach < lo[0]
-            or other.lo[1] - reach > hi[1] or other.hi[1] + reach < lo[1]):
-        return pts[:0, 0].astype(int), None, None
-    rows = np.flatnonzero(np.all((pts >= other.lo - reach) & (pts <= other.hi + reach), axis=1))
-    if len(rows) == 0:
-        return rows, None, None
-    # A standing object occupies the same points at every step: compute one step, broadcast.
-    steps = slice(0, 1) if other.static else slice(None)
-    xy, yaw = other.xy[steps], other.yaw[steps]
-    d = pts[rows, None, :] - xy[None]
+    none = (np.zeros(0, int), np.zeros((0, T), bool), np.zeros((0, T)))
+    if not others:
+        return none
+    reach = np.array([o.reach for o in others]) + agent.width / 2 + 1.0
+    olo, ohi = np.array([o.lo for o in others]), np.array([o.hi for o in others])
+    meets = ((olo - reach[:, None] <= hi) & (ohi + reach[:, None] >= lo)).all(1)
+    if not meets.any():
+        return none
+    others = [o for o, m in zip(others, meets, strict=True) if m]
+    olo, ohi = olo[meets] - reach[meets, None], ohi[meets] + reach[meets, None]
+    j, k = np.nonzero(((pts >= olo[:, None]) & (pts <= ohi[:, None])).all(2))
+    if len(k) == 0:
+        return none
+    xy = np.stack([o.xy for o in others])  # [O, T, 2]
+    yaw = np.stack([o.yaw for o in others])
+    size = np.array([(o.length, o.width) for o in others])
     c, s = np.cos(yaw), np.sin(yaw)
-    dx = np.abs(d[..., 0] * c + d[..., 1] * s) - other.length / 2
-    dy = np.abs(-d[..., 0] * s + d[..., 1] * c) - other.width / 2
-    dist = np.maximum(dx, dy)
-    occ = np.broadcast_to(dist < agent.width / 2 + 0.4, (len(rows), T)) & other.valid[None]
-    if not occ.any():
-        return rows[:0], None, None
-    yaw = np.broadcast_to(yaw, (T,))
+    d = pts[k, None, :] - xy[j]  # [P, T, 2]
+    dx = np.abs(d[..., 0] * c[j] + d[..., 1] * s[j]) - size[j, :1] / 2
+    dy = np.abs(-d[..., 0] * s[j] + d[..., 1] * c[j]) - size[j, 1:] / 2
+    occ = (np.maximum(dx, dy) < agent.width / 2 + 0.4) & np.stack([o.valid for o in others])[j]
     keep = occ.any(1)
-    rows, occ = rows[keep], occ[keep]
-    cosang = np.cos(yaw[None] - yaw_route[rows, None])
-    along = np.where(cosang > 0.75, other.speed[None] * cosang, np.nan)
-    return rows, occ, along
+    j, k, occ = j[keep], k[keep], occ[keep]
+    cosang = np.cos(yaw[j] - yaw_route[k, None])
+    speed = np.stack([o.speed for o in others])
+    along = np.where(cosang > 0.75, speed[j] * cosang, np.nan)
+    return k, occ, along
 
 
 def _may_cover(agent: Agent, xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
@@ -173,22 +180,21 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         if (~aligned).any():
             k = np.unique(rows[~aligned])
             cross_rows.append(k), cross_occ.append(np.ones((len(k), T), bool))
-    parallel = agent.route.kind in PARALLEL
-    for other in planned:
-        if other.static and other.valid.all():
-            continue
-        if parallel and other.route.kind in PARALLEL and other.route.group != agent.route.group:
-            continue  # another lane of the road: at least a lane's width away
-        if other.role == "stroller" and agent.route.kind in ON_ROAD:
-            continue  # a pedestrian on the sidewalk, 2 m outside the road edge
-        rows, occ, along = _occupancy(agent, s_route, yaw_route, other)
-        if len(rows) == 0:
-            continue
+    group, parallel = agent.route.group, agent.route.kind in PARALLEL
+    on_road = agent.route.kind in ON_ROAD
+    # every planned agent that is not standing (a standing one that is planned is valid at
+    # every step, above), but neither another lane of the road (at least a lane's width away)
+    # nor, for a road user, a pedestrian on the sidewalk (2 m outside the road edge)
+    moving = [o for o in planned if not o.static
+              and not (parallel and o.route.kind in PARALLEL and o.route.group != group)
+              and not (on_road and o.role == "stroller")]
+    rows, occ, along = _occupancy(agent, yaw_route, moving)
+    if len(rows):
         k, t = np.nonzero(occ & ~np.isnan(along))
         follow_rows.append(rows[k]), follow_t.append(t), follow_v.append(along[k, t])
         cross = occ & np.isnan(along)
-        if cross.any():
-            keep = cross.any(1)
+        keep = cross.any(1)
+        if keep.any():
             cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
     # Follow obstacles per step: sorted route distances and leader speeds.
     follow = [([], [])] * T
@@ -207,6 +213,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         c_s = s_route[c_rows]
         order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
         c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
+        c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
     half = agent.length / 2
     sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
     pos, v = agent.s0, agent.v0
@@ -232,8 +239,8 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                 gap, v_lead = ks[i] - front, max(vs[i], 0.0)
         if cross_rows:
             commit = v * v / (2 * B_MAX * 0.6)
-            i0 = int(np.searchsorted(c_s, front + commit, side="right"))
-            i1 = int(np.searchsorted(c_s, front + LOOKAHEAD, side="left"))
+            i0 = bisect_right(c_list, front + commit)
+            i1 = bisect_left(c_list, front + LOOKAHEAD)
             if i1 > i0:
                 d = c_s[i0:i1] - front
                 eta = d / np.maximum(v, np.sqrt(agent.accel * d))
@@ -356,15 +363,18 @@ def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
 
 
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Separating-axis test for convex quads given as corners ``[..., 4, 2]``."""
+    """Separating-axis test for convex quads given as corners ``[..., 4, 2]`` (the normals of
+    each quad's first two edges; a projection is ``x * nx + y * ny``)."""
     hit = np.ones(a.shape[:-2], bool)
     for poly in (a, b):
-        edges = np.roll(poly, -1, axis=-2) - poly
-        axes = np.stack([-edges[..., 1], edges[..., 0]], -1)[..., :2, :]  # 2 axes per rectangle
         for i in range(2):
-            ax = axes[..., i, None, :]
-            pa, pb = (a * ax).sum(-1), (b * ax).sum(-1)
+            edge = poly[..., i + 1, :] - poly[..., i, :]
+            nx, ny = -edge[..., 1:], edge[..., :1]
+            pa = a[..., 0] * nx + a[..., 1] * ny
+            pb = b[..., 0] * nx + b[..., 1] * ny
             hit &= (pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))
+            if not hit.any():
+                return hit
     return hit
 
 
@@ -386,4 +396,34 @@ def collides(a: Agent, b: Agent) -> bool:
         return False
     ca = box_corners(a.xy[near], a.yaw[near], a.length, a.width)
     cb = box_corners(b.xy[near], b.yaw[near], b.length, b.width)
+    return bool(boxes_overlap(ca, cb).any())
+
+
+def collides_any(a: Agent, others: list[Agent]) -> bool:
+    """Whether ``a`` collides with one of ``others`` (:func:`collides` of each, in one batch)."""
+    if a.route.kind in PARALLEL:
+        others = [b for b in others
+                  if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]
+    if not others:
+        return False
+    valid = np.stack([b.valid for b in others]) & a.valid  # [N, T]
+    reach = a.reach + np.array([b.reach for b in others])
+    blo, bhi = np.array([b.lo for b in others]), np.array([b.hi for b in others])
+    meet = valid.any(1) & ~((a.lo[0] - reach > bhi[:, 0]) | (a.hi[0] + reach < blo[:, 0])
+                            | (a.lo[1] - reach > bhi[:, 1]) | (a.hi[1] + reach < blo[:, 1]))
+    if not meet.any():
+        return False
+    keep = np.flatnonzero(meet)
+    reach, valid = reach[keep], valid[keep]
+    xy = np.stack([others[k].xy for k in keep])  # [N, T, 2]
+    d = (a.xy[None] - xy).reshape(-1, 2)
+    near = valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)
+                    < (reach * reach)[:, None])
+    n, t = np.nonzero(near)
+    if len(n) == 0:
+        return False
+    size = np.array([(others[k].length, others[k].width) for k in keep])
+    yaw = np.stack([others[k].yaw for k in keep])
+    ca = box_corners(a.xy[t], a.yaw[t], a.length, a.width)
+    cb = box_corners(xy[n, t], yaw[n, t], size[n, 0], size[n, 1])
     return bool(boxes_overlap(ca, cb).any())

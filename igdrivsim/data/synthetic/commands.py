@@ -30,6 +30,15 @@ from igdrivsim.io import atomic_write_json, read_json, require_folder
 CHUNK = 8  # scenarios per worker task
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and of its finished worker processes: the
+    cost of generating, which a machine shared with other work does not distort."""
+    import resource  # Unix only
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
 def shard_paths(out: str, split: str, shards: int) -> list[str]:
     return [os.path.join(out, split, f"{split}_tfexample.tfrecord-{k:05d}-of-{shards:05d}")
             for k in range(shards)]
@@ -119,21 +128,24 @@ def generate_command(args: argparse.Namespace) -> int:
             if args.overwrite or not os.path.exists(path):
                 todo.append((split, path, indices))
     total = sum(len(r) for _, _, r in todo)
-    start = time.perf_counter()
-    pool = ProcessPoolExecutor(args.workers) if args.workers > 1 else None
+    start, cpu = time.perf_counter(), _cpu_seconds()
+    # Every shard's chunks go to the pool at once (no worker waits at a shard's end); the
+    # shards are written in order as their chunks come back.
+    chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
+               for i in range(indices.start, indices.stop, CHUNK)] for split, _, indices in todo]
+    flat = [chunk for shard in chunks for chunk in shard]
+    pool = ProcessPoolExecutor(args.workers) if args.workers > 1 and flat else None
     try:
+        results = (pool.map(_encode_chunk, *zip(*flat, strict=True)) if pool
+                   else (_encode_chunk(*c) for c in flat))
         with tqdm(total=total, desc="generating", unit="scn",
                   disable=getattr(args, "no_progress", False)) as bar:
-            for split, path, indices in todo:
+            for (_, path, _), shard in zip(todo, chunks, strict=True):
                 os.makedirs(os.path.dirname(path), exist_ok=True)
-                chunks = [(args.seed, split, i, min(i + CHUNK, indices.stop), config,
-                           args.compact)
-                          for i in range(indices.start, indices.stop, CHUNK)]
-                results = (pool.map(_encode_chunk, *zip(*chunks, strict=True)) if pool
-                           else (_encode_chunk(*c) for c in chunks))
 
-                def records(results=results):
-                    for chunk in results:
+                def records(shard=shard):
+                    for _ in shard:
+                        chunk = next(results)
                         yield from chunk
                         bar.update(len(chunk))
 
@@ -141,12 +153,14 @@ def generate_command(args: argparse.Namespace) -> int:
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
-    seconds = time.perf_counter() - start
+    seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
     if args.plot:
         scenarios = [generate_scenario(args.seed, i, "training", config)
                      for i in range(min(args.plot, args.train))]
         save_pictures(scenarios, os.path.join(args.out, "pictures"))
     print(json.dumps({"out": args.out, "generated": total, "seconds": round(seconds, 2),
                       "scenarios_per_s": round(total / seconds, 2) if total else None,
+                      "cpu_seconds": round(cpu, 2),
+                      "cpu_ms_per_scenario": round(1000 * cpu / total, 1) if total else None,
                       "skipped_shards": sum(k for _, k in plan.values()) - len(todo)}))
     return 0

@@ -30,7 +30,7 @@ from igdrivsim.data.scenario import (
     fit_to_capacities,
 )
 from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.agents import Agent, box_corners, collides, plan
+from igdrivsim.data.synthetic.agents import Agent, box_corners, collides_any, plan
 from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
@@ -356,7 +356,7 @@ def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
         b, r = boxes[: len(planned)], agent.reach
         near = np.flatnonzero((b[:, 0] - r <= agent.hi[0]) & (b[:, 2] + r >= agent.lo[0])
                               & (b[:, 1] - r <= agent.hi[1]) & (b[:, 3] + r >= agent.lo[1]))
-        if any(collides(agent, planned[k]) for k in near):
+        if collides_any(agent, [planned[k] for k in near]):
             if agent.is_sdc:
                 return None
             continue
