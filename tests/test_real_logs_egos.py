@@ -102,6 +102,7 @@ def test_full_bc_read_outs_sit_beside_the_sampled_actions(tmp_path):
     assert modes.loc["mean", "real_vs_cv_win"] == 0.0
     assert (modes.real_vs_cv_egos == 12).all() and (modes.real_vs_cv_sources == 4).all()
     md = real_logs_markdown(real_log_table(_frame()), "logs", "synthetic", modes.reset_index())
+    assert "Real: logs (12 egos from 4 source scenarios). " in md
     section = md[md.index("## Full BC's action read-outs"):]
     assert "| sampled (Table I's protocol) | 12 (4) | 75% [" in section
     assert "| greedy (most likely) | 12 (4) | 100% [" in section
@@ -123,7 +124,7 @@ def test_results_page_and_readme_read_the_real_log_comparison(tmp_path):
     page = "\n".join(_real_logs(tables))
     assert "On real logs (12 egos from 4 source scenarios" in page
     assert "| Full | BC | 12 (4) | 75% [" in page
-    assert "| mean | 12 (4) | 100% [" in page
+    assert "| mean | 12 (4) | 100% [" in page and "| sampled (Table I) | 12 (4) | 75% [" in page
     readme = " ".join(_real_logs(tables, headline="docs/results.md"))
     assert "Full BC stays closer to the log than constant velocity on 75% of the egos" in readme
     assert "| Full |" not in readme and "docs/results.md#on-real-logs" in readme

@@ -231,6 +231,15 @@ def _label(row: pd.Series) -> tuple[str, str]:
     return setting, method
 
 
+def _egos_text(table: pd.DataFrame) -> str:
+    """`` (N egos from M source scenarios)``: the real logs' constant-velocity row's counts."""
+    cv = table[table.method == CONSTANT_VELOCITY]
+    if cv.empty or not {"real_n", "real_sources"} <= set(cv.columns) or pd.isna(
+            cv.real_n.iloc[0]) or pd.isna(cv.real_sources.iloc[0]):
+        return ""
+    return f" ({int(cv.real_n.iloc[0])} egos from {int(cv.real_sources.iloc[0])} source scenarios)"
+
+
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
                        readouts: pd.DataFrame | None = None) -> str:
     """The table as Markdown: per metric a validation and a real column, N beside each value;
@@ -238,7 +247,8 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
     head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
-             f"Real: {real_label}. Validation: {validation_label}. Each value is the mean "
+             f"Real: {real_label}{_egos_text(table)}. Validation: {validation_label}. "
+             "Each value is the mean "
              "over seeds of each seed's mean over scenarios; N is the number of scenarios "
              "(egos, when every vehicle is the ego in turn). "
              "The last column: a learned driver's real log divergence minus constant "

@@ -23,6 +23,8 @@ from igdrivsim.report.real_logs import real_logs_summary
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.text import wrap
 
+READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, when not its own
+
 
 def _vs_cv(row: pd.Series) -> str:
     """``x% [lo, hi]; r.rrx [lo, hi]``: a driver's share of egos closer to the log than constant
@@ -59,7 +61,8 @@ def _readouts(tables: Path) -> list[str]:
            "| actions | N egos (sources) | closer than CV [95% CI] | mean / CV [95% CI] "
            "| median - CV (m) |", "|---|---|---|---|---|"]
     for _, r in modes.iterrows():
-        out.append(f"| {r.actions} | {int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
+        name = READOUTS.get(r.actions, r.actions)
+        out.append(f"| {name} | {int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
                    f"{_vs_cv(r)} | {r.real_vs_cv_median:+.2f} |")
     return out
 
@@ -85,11 +88,11 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
     settings = [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]
     ego_table = []
     if "real_vs_cv_win" in table and table.real_vs_cv_win.notna().any():
-        ego_table = ["Against constant velocity, ego by ego: the share of egos where the driver "
-                     "stays closer to the log (a tie counts half) and its mean log divergence "
-                     "over constant velocity's, with 95% intervals (bootstrap over source "
-                     "scenarios, then seeds); N egos (source scenarios). All statistics: "
-                     "[real_logs.md](PAPER/tables/real_logs.md).", "",
+        ego_table = [*wrap("Against constant velocity, ego by ego: the share of egos where the "
+                           "driver stays closer to the log (a tie counts half) and its mean log "
+                           "divergence over constant velocity's, with 95% intervals (bootstrap "
+                           "over source scenarios, then seeds); N egos (source scenarios). All "
+                           "statistics: [real_logs.md](PAPER/tables/real_logs.md)."), "",
                      "| setting | method | N egos (sources) | closer than CV [95% CI] "
                      "| mean / CV [95% CI] |", "|---|---|---|---|---|"]
         for setting in settings:
