@@ -4,6 +4,8 @@ the Markdown's second table and the summary sentence; the main table still reads
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -141,3 +143,41 @@ def test_evaluation_rows_name_their_source_log_and_the_logged_sdc():
     out = with_origins(rows, origins)
     assert out.source.tolist() == ["log", "log", "other", "plain"]
     assert out.logged_sdc.tolist()[:2] == [1.0, 0.0] and out.logged_sdc[2:].isna().all()
+
+
+def test_real_logs_stage_reads_every_location_with_every_ego(tmp_path, monkeypatch):
+    """The stage evaluates every run and the references on all real locations at once with
+    ``--egos all`` and no limit, and Full BC's run under the greedy and mean read-outs."""
+    from types import SimpleNamespace
+
+    from igdrivsim.pipeline import stages
+    from igdrivsim.pipeline.profiles import PROFILES
+
+    work = tmp_path / "work"
+    configs = {"bc": ("bc", ("full", "circular_r4")), "bc_rl": ("bc_rl", ("full",))}
+    for name in configs:
+        (work / "runs" / name).mkdir(parents=True)
+        (work / "runs" / name / stages.DONE).write_text("")
+        (work / "evals" / name).mkdir(parents=True)
+    monkeypatch.setattr(stages.Run, "open", classmethod(lambda cls, p: SimpleNamespace(
+        config=SimpleNamespace(training=SimpleNamespace(method=configs[Path(p).name][0]),
+                               settings=configs[Path(p).name][1]))))
+    pipe = stages.Pipeline(PROFILES["smoke"], work, tmp_path / "paper",
+                           samples=("A", "B"), samples_given=("B",))
+    seen = {}
+    monkeypatch.setattr(pipe, "stage", lambda name, commands, **kw: seen.update(
+        {name: [list(map(str, c)) for c in commands]}))
+    pipe.run_real_logs()
+    commands = seen["real_logs"]
+    evaluations = [c for c in commands if c[:2] == ["igdrivsim", "evaluate"]]
+    assert len(evaluations) == 2 + 1 + len(stages.READOUTS)  # runs, references, read-outs
+    for c in evaluations:
+        i = c.index("--data")
+        assert c[i + 1:i + 3] == ["A", "B"] and c[c.index("--egos") + 1] == "all"
+        assert c[c.index("--limit") + 1] == "0"
+    readouts = [c for c in evaluations if "--actions" in c]
+    assert [c[c.index("--actions") + 1] for c in readouts] == list(stages.READOUTS)
+    assert all(c[2].endswith("/runs/bc") for c in readouts)
+    assert "--readouts" in commands[-1]
+    assert pipe.command_text().endswith("--samples B")
+
