@@ -3,13 +3,13 @@
 #
 # usage: bash scripts/reproduce.sh [--profile smoke|quick|laptop|gpu|paper] [--data DIR | --data TRAIN VAL]
 #                                  [--out DIR] [--obs a,b] [--methods a,b] [--set SECTION.FIELD=VALUE ...]
-#                                  [--samples DIR] [--workers N] [--in-process] [--no-progress] [--help]
+#                                  [--samples DIR ...] [--workers N] [--in-process] [--no-progress] [--help]
 # Defaults: --profile laptop, synthetic data, --out outputs/<profile>/ (report in paper/), the
 # paper's six settings, --methods bc_rl,bc, --workers 0 (one per CPU core).
 # Stages: data (synthetic, unless --data) -> filter -> train -> evaluate -> speed walk -> maze
 # -> render Fig. 1 -> report (tables, figures, docs/results.md) -> real logs -> PDF (if latexmk).
-# --samples DIR: real scenarios (igdrivsim samples --out DIR fetches the public WOMD ones; else
-# the samples cache) for Fig. 1 and the real-log table; without them both are skipped/synthetic.
+# --samples DIR ...: real scenarios besides the samples cache (igdrivsim samples fetches the public
+# WOMD ones) for Fig. 1 and the real-log table; without any both are skipped/synthetic.
 # Resumable: rerun the same command after an interruption; complete stages are skipped.
 # Logs: <work>/logs/<stage>.log (work = outputs/<profile>/, or --out).
 # Python: $PYTHON, else the active virtual environment's, else python3 on PATH. When igdrivsim

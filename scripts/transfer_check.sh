@@ -2,7 +2,8 @@
 # Does a synthetic motion model teach drivers that hold up on real logs? Generates the laptop
 # profile's synthetic data (3,072 training / 512 validation scenarios, seed 0) with MOTION,
 # filters it, trains Full BC (laptop profile, 3 seeds, 1,000 updates) and evaluates it and the
-# reference actors on the synthetic validation set and on each real set; then
+# reference actors on the synthetic validation set and on each real set (every vehicle that
+# passes the scenario filter as the ego in turn); then
 # python -m igdrivsim.report.transfer compares every WORK/MOTION folder in WORK/transfer.md.
 #
 #   bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]
@@ -21,8 +22,10 @@ Resumable: rerun the same command after an interruption.
   WORK           the check's folder: WORK/MOTION/{data,filtered,cache,runs,evals_*} (required)
   MOTION         the generator's motion model: default or calibrated (required)
   NAME=LOCATION  real sets (default: womd_samples=the igdrivsim samples cache,
-                 nuscenes=../shared/data/scenarionet/sd_nuscenes*.pkl and
-                 womd_scenario=../shared/data/scenarionet/sd_waymo*.pkl when present)
+                 nuscenes=../shared/data/scenarionet/sd_nuscenes*.pkl,
+                 womd_scenario=../shared/data/scenarionet/sd_waymo*.pkl and
+                 gpudrive=../shared/data/gpudrive when present); every vehicle that
+                 passes the scenario filter is the ego in turn on each
 Environment variables:
   PYTHON   the Python with igdrivsim (default: python3)
   -h, --help  print this help and exit (runs nothing)
@@ -34,6 +37,7 @@ WORK="${1:?usage: bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]
 MOTION="${2:?usage: bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]}"; shift 2
 PYTHON="${PYTHON:-python3}"; I=("$PYTHON" -m igdrivsim.cli)
 REPO="$(cd "$(dirname "$0")/.." && pwd)"; SHARED="$REPO/../shared/data/scenarionet"
+GPUDRIVE="$REPO/../shared/data/gpudrive"
 REAL=("$@")
 if [ ${#REAL[@]} -eq 0 ]; then
     CACHE=$("$PYTHON" -c "from igdrivsim.data import samples; print(samples.find_samples() or '')")
@@ -42,6 +46,7 @@ if [ ${#REAL[@]} -eq 0 ]; then
              "evaluating on the other real sets only" >&2; fi
     compgen -G "$SHARED/sd_nuscenes*.pkl" >/dev/null && REAL+=("nuscenes=$SHARED/sd_nuscenes*.pkl")
     compgen -G "$SHARED/sd_waymo*.pkl" >/dev/null && REAL+=("womd_scenario=$SHARED/sd_waymo*.pkl")
+    compgen -G "$GPUDRIVE/*.json" >/dev/null && REAL+=("gpudrive=$GPUDRIVE")
 fi
 W="$WORK/$MOTION"; mkdir -p "$W/logs"; cd "$W"
 [ -f logs/generated ] || { "${I[@]}" generate --motion "$MOTION" --out data --train 3072 \
@@ -61,8 +66,9 @@ for set in "validation=filtered/validation" "${REAL[@]}"; do
     for who in bc references; do
         [ -f "evals_$name/$who/per_scenario.csv" ] && continue
         like=(runs/bc); [ "$who" = references ] && like=(--references --like runs/bc)
+        egos=sdc; [ "$name" = validation ] || egos=all  # real logs: every vehicle as the ego
         "${I[@]}" evaluate "${like[@]}" --out "evals_$name/$who" --data "$where" \
-            --batch-size 32 --limit 0 --no-progress >> logs/evaluate.log
+            --egos "$egos" --batch-size 32 --limit 0 --no-progress >> logs/evaluate.log
     done
 done
 echo "$MOTION: evaluated on validation and ${#REAL[@]} real set(s)"

@@ -18,7 +18,7 @@ import pytest
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.registry import SCENARIO_COLUMNS
-from igdrivsim.evaluation.schema import PER_STEP_COLUMNS
+from igdrivsim.evaluation.schema import ORIGIN_COLUMNS, PER_STEP_COLUMNS
 from igdrivsim.pipeline.cli import main as pipeline_main
 from igdrivsim.pipeline.profiles import PROFILES
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError
@@ -73,7 +73,8 @@ def test_every_output_exists_and_parses(done):
         steps = pd.read_csv(work / "evals" / run / "per_step.csv")
         scen = pd.read_csv(work / "evals" / run / "per_scenario.csv")
         assert list(steps.columns) == list(PER_STEP_COLUMNS)
-        assert list(scen.columns) == list(SCENARIO_COLUMNS)
+        assert list(scen.columns) == list(SCENARIO_COLUMNS) + list(ORIGIN_COLUMNS)
+        assert (scen.source == scen.scenario_id).all() and (scen.logged_sdc == 1).all()
         assert set(scen.method) == {method} and scen.seed.nunique() == PROFILES["smoke"].seeds
         assert set(scen.setting) == set(SETTINGS)
         assert steps.step.max() == 80 and scen[["overlap", "offroad"]].isin([0, 1]).all().all()

@@ -4,6 +4,8 @@ the Markdown's second table and the summary sentence; the main table still reads
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -76,3 +78,106 @@ def test_paired_cells_read_without_egos_as_dashes():
                               ratio_lo=0.95, ratio_hi=1.22, ratio_mde=0.19))
     assert cells == ["79 (30)", "48% [37, 59]", "-0.14 [-0.60, +0.31]",
                      "1.08x [0.95, 1.22], MDE 0.19"]
+
+
+def _readout_folder(tmp_path, actions: str, shift: float):
+    """Full BC's rows under another action read-out, ``shift`` m from the sampled ones."""
+    import json
+
+    folder = tmp_path / "readouts" / actions
+    folder.mkdir(parents=True)
+    bc = _frame()
+    bc = bc[bc.method == "bc"].assign(log_divergence=lambda f: f.log_divergence + shift)
+    bc.to_csv(folder / "per_scenario.csv", index=False)
+    (folder / "eval_config.json").write_text(json.dumps({"actions": actions}))
+
+
+def test_full_bc_read_outs_sit_beside_the_sampled_actions(tmp_path):
+    from igdrivsim.report.real_logs import readout_table
+
+    _readout_folder(tmp_path, "greedy", -5.0)  # closer than CV on every ego
+    _readout_folder(tmp_path, "mean", +5.0)  # farther on every ego
+    modes = readout_table(_frame(), tmp_path / "readouts").set_index("actions")
+    assert list(modes.index) == ["sample", "greedy", "mean"]
+    assert modes.loc["sample", "real_vs_cv_win"] == pytest.approx(0.75)
+    assert modes.loc["greedy", "real_vs_cv_win"] == 1.0
+    assert modes.loc["mean", "real_vs_cv_win"] == 0.0
+    assert (modes.real_vs_cv_egos == 12).all() and (modes.real_vs_cv_sources == 4).all()
+    md = real_logs_markdown(real_log_table(_frame()), "logs", "synthetic", modes.reset_index())
+    assert "Real: logs (12 egos from 4 source scenarios). " in md
+    section = md[md.index("## Full BC's action read-outs"):]
+    assert "| sampled (Table I's protocol) | 12 (4) | 75% [" in section
+    assert "| greedy (most likely) | 12 (4) | 100% [" in section
+    assert "| mean (expected level) | 12 (4) | 0% [" in section
+
+
+def test_results_page_and_readme_read_the_real_log_comparison(tmp_path):
+    """docs/results.md's real-log section and the README's sentence come from real_logs.csv
+    and real_logs_readouts.csv: every setting's drivers against CV with N, Full BC's line."""
+    from igdrivsim.report.real_logs import readout_table
+    from igdrivsim.report.real_logs_page import real_logs_section as _real_logs
+
+    tables = tmp_path / "tables"
+    tables.mkdir()
+    real_log_table(_frame()).to_csv(tables / "real_logs.csv", index=False)
+    _readout_folder(tmp_path, "mean", -5.0)
+    readout_table(_frame(), tmp_path / "readouts").to_csv(tables / "real_logs_readouts.csv",
+                                                          index=False)
+    page = "\n".join(_real_logs(tables))
+    assert "On real logs (12 egos from 4 source scenarios" in page
+    assert "| Full | BC | 12 (4) | 75% [" in page
+    assert "| mean | 12 (4) | 100% [" in page and "| sampled (Table I) | 12 (4) | 75% [" in page
+    readme = " ".join(_real_logs(tables, headline="docs/results.md"))
+    assert "Full BC stays closer to the log than constant velocity on 75% of the egos" in readme
+    assert "| Full |" not in readme and "docs/results.md#on-real-logs" in readme
+
+
+def test_evaluation_rows_name_their_source_log_and_the_logged_sdc():
+    """The reader's origins: windows of one long log share their source; without origins
+    (scenarios given stacked) the source is the ego id's scenario part."""
+    from igdrivsim.evaluation.rollout import with_origins
+
+    rows = pd.DataFrame({"scenario_id": ["log_0#3", "log_91#3", "other#7", "plain"]})
+    origins = [dict(scenario_id="log_0#3", source="log", logged_sdc=True),
+               dict(scenario_id="log_91#3", source="log", logged_sdc=False)]
+    out = with_origins(rows, origins)
+    assert out.source.tolist() == ["log", "log", "other", "plain"]
+    assert out.logged_sdc.tolist()[:2] == [1.0, 0.0] and out.logged_sdc[2:].isna().all()
+
+
+def test_real_logs_stage_reads_every_location_with_every_ego(tmp_path, monkeypatch):
+    """The stage evaluates every run and the references on all real locations at once with
+    ``--egos all`` and no limit, and Full BC's run under the greedy and mean read-outs."""
+    from types import SimpleNamespace
+
+    from igdrivsim.pipeline import stages
+    from igdrivsim.pipeline.profiles import PROFILES
+
+    work = tmp_path / "work"
+    configs = {"bc": ("bc", ("full", "circular_r4")), "bc_rl": ("bc_rl", ("full",))}
+    for name in configs:
+        (work / "runs" / name).mkdir(parents=True)
+        (work / "runs" / name / stages.DONE).write_text("")
+        (work / "evals" / name).mkdir(parents=True)
+    monkeypatch.setattr(stages.Run, "open", classmethod(lambda cls, p: SimpleNamespace(
+        config=SimpleNamespace(training=SimpleNamespace(method=configs[Path(p).name][0]),
+                               settings=configs[Path(p).name][1]))))
+    pipe = stages.Pipeline(PROFILES["smoke"], work, tmp_path / "paper",
+                           samples=("A", "B"), samples_given=("B",))
+    seen = {}
+    monkeypatch.setattr(pipe, "stage", lambda name, commands, **kw: seen.update(
+        {name: [list(map(str, c)) for c in commands]}))
+    pipe.run_real_logs()
+    commands = seen["real_logs"]
+    evaluations = [c for c in commands if c[:2] == ["igdrivsim", "evaluate"]]
+    assert len(evaluations) == 2 + 1 + len(stages.READOUTS)  # runs, references, read-outs
+    for c in evaluations:
+        i = c.index("--data")
+        assert c[i + 1:i + 3] == ["A", "B"] and c[c.index("--egos") + 1] == "all"
+        assert c[c.index("--limit") + 1] == "0"
+    readouts = [c for c in evaluations if "--actions" in c]
+    assert [c[c.index("--actions") + 1] for c in readouts] == list(stages.READOUTS)
+    assert all(c[2].endswith("/runs/bc") for c in readouts)
+    assert "--readouts" in commands[-1]
+    assert pipe.command_text().endswith("--samples B")
+

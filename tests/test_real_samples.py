@@ -12,6 +12,7 @@ import os
 import pickle
 import sys
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -293,7 +294,7 @@ def test_reproduce_checks_samples_before_any_stage(tmp_path, monkeypatch):
     from igdrivsim.pipeline.cli import resolve_samples
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    assert resolve_samples(None) is None
+    assert resolve_samples(None) == ()
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="igdrivsim samples --out"):
         resolve_samples(str(tmp_path / "empty"))
@@ -302,7 +303,12 @@ def test_reproduce_checks_samples_before_any_stage(tmp_path, monkeypatch):
     path = tmp_path / "mine" / "0.pkl"  # any real data location is taken as it is
     path.parent.mkdir()
     path.write_bytes(_legacy_bytes(monkeypatch))
-    assert resolve_samples(str(path.parent)) == str(path.parent)
+    assert resolve_samples(str(path.parent)) == (str(path.parent),)
+    other = tmp_path / "more" / "1.pkl"  # several locations: each once, in order
+    other.parent.mkdir()
+    other.write_bytes(_legacy_bytes(monkeypatch))
+    assert resolve_samples([str(path.parent), str(other.parent), str(path.parent)]) == (
+        str(path.parent), str(other.parent))
 
 
 def test_render_says_whether_the_scene_is_synthetic_or_real(tmp_path, monkeypatch):
@@ -332,3 +338,26 @@ def test_public_samples_replay_within_5_cm(capsys):
     assert len(lines) == 6 and {d["source_id"] for d in lines} == {
         sid for _, _, sid in samples.FILES.values()}
     assert all(d["replay_max_log_divergence"] < 0.05 for d in lines)
+
+
+def test_every_real_location_is_read_with_each_ego_s_source_log():
+    """Several real locations at once, every vehicle as the ego: each scenario's origin names
+    its source log (a window of a ScenarioNet log: the log, not the window) and whether it is
+    the logged SDC."""
+    from igdrivsim.data import Capacities
+    from igdrivsim.data.validation import load_scenarios
+
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
+    log = shared / "scenarionet" / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"
+    json_dir = shared / "gpudrive"
+    if not log.is_file() or not json_dir.is_dir():
+        pytest.skip(f"real samples absent ({shared}): licences keep them out of the repository")
+    scenarios, origins = load_scenarios([str(log), str(json_dir)], Capacities(), egos="all")
+    assert len(origins) == int(scenarios.scenario_id.shape[0])
+    by_source = {}
+    for o in origins:
+        by_source.setdefault(o["source"], []).append(o)
+    windows = {o["scenario_id"].split("#")[0] for o in by_source["eb4b91b10ca94ff2"]}
+    assert windows and all(w.startswith("eb4b91b10ca94ff2_") for w in windows)  # window, log
+    assert {"db4edc9bd0c9d18c", "bada21415c031740"} <= set(by_source)
+    assert any(o["logged_sdc"] for o in origins) and not all(o["logged_sdc"] for o in origins)

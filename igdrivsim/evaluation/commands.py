@@ -28,10 +28,11 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("runs", nargs="*", metavar="RUN_DIR",
                         help="training run folder(s) (config.json + checkpoints); one output "
                              "sub-folder per run when several are given")
-    parser.add_argument("--data", required=True,
+    parser.add_argument("--data", required=True, nargs="+", metavar="DATA",
                         help="validation data: a filter output folder (manifest.jsonl) or "
                              "files of any format read (WOMD TFRecords, ScenarioNet .pkl, "
-                             "GPUDrive .json; file, folder, glob, name@N)")
+                             "GPUDrive .json; file, folder, glob, name@N); several locations "
+                             "are read in turn, as one set")
     parser.add_argument("--out", required=True, help="output folder for the tidy CSVs")
     parser.add_argument("--actions", choices=ACTION_MODES, default="sample",
                         help="how the policy picks its action level: sample (the paper's "
@@ -65,6 +66,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         Run.open(run)  # every folder is a run before any is evaluated
     progress = not args.no_progress
+    if isinstance(args.data, list):  # one location as itself, several as a list read in turn
+        args.data = args.data[0] if len(args.data) == 1 else args.data
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
         evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,

@@ -11,13 +11,14 @@ import jax
 from tqdm import tqdm
 
 from igdrivsim.data import Capacities
-from igdrivsim.data.validation import load_validation
+from igdrivsim.data.validation import load_scenarios
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.rollout import (
     evaluate_policy,
     reference_frames,
     scenario_ids_of,
     tidy_frames,
+    with_origins,
 )
 from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, PER_STEP_FILE
 from igdrivsim.io import atomic_write_csv, atomic_write_json
@@ -47,7 +48,7 @@ def _check_sizes(max_scenarios: int, batch_size: int) -> None:
         raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
 
 
-def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sample",
+def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
                  progress: bool = True, scenarios=None, egos: str = "sdc",
                  agents: str | None = None) -> Path:
@@ -63,8 +64,10 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     run = Run.open(run_dir)
     config, params, seeds = run.config, run.params(), list(run.config.seeds)
     sim = with_agents(config.sim_params, agents)
+    origins = None  # where each scenario comes from (the per-scenario rows' source)
     if scenarios is None:
-        scenarios = load_validation(data, config.capacities, max_scenarios, progress, egos)
+        scenarios, origins = load_scenarios(data, config.capacities, max_scenarios, progress,
+                                            egos)
     ids = scenario_ids_of(scenarios)
     settings, method = list(config.settings), config.training.method
     label = ",".join(settings)
@@ -77,7 +80,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
               for g, name in enumerate(settings)]
     per_step = pd.concat([f[0] for f in frames], ignore_index=True)
-    per_scenario = pd.concat([f[1] for f in frames], ignore_index=True)
+    per_scenario = with_origins(pd.concat([f[1] for f in frames], ignore_index=True), origins)
     return _write(out, per_step, per_scenario, dict(
         run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
@@ -85,7 +88,7 @@ def evaluate_run(run_dir: str, data: str, out: str | Path, actions: str = "sampl
         trained=trained_record(run), **({} if egos == "sdc" else {"egos": egos})))
 
 
-def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
+def evaluate_references(data, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
                         scenarios=None, egos: str = "sdc", agents: str | None = None) -> Path:
     """Evaluate the discretised expert and constant velocity; write their tidy CSVs
@@ -93,12 +96,14 @@ def evaluate_references(data: str, out: str | Path, caps=None, sim=None,
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = with_agents(sim or SimParams(), agents)
+    origins = None
     if scenarios is None:
-        scenarios = load_validation(data, caps, max_scenarios, progress, egos)
+        scenarios, origins = load_scenarios(data, caps, max_scenarios, progress, egos)
     n = int(scenarios.scenario_id.shape[0])
     with _bar(2 * n, "evaluate references", progress) as bar:
         per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
                                                   progress=bar.update)
+    per_scenario = with_origins(per_scenario, origins)
     return _write(out, per_step, per_scenario, dict(
         references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim),
         **({} if egos == "sdc" else {"egos": egos})))

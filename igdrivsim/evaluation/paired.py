@@ -27,11 +27,12 @@ share's interval is then Wilson's score interval with one trial per source scena
 conservative sample size: egos of one scene count once).
 
 Ego ids: when every vehicle of a scenario is the ego in turn, an ego's ``scenario_id`` is
-``<source scenario id>#<object id>`` (:data:`EGO_SEPARATOR`); :func:`source_of` gives back the
-source, and a frame's ``source`` column, where present, takes precedence. With one ego per
-scenario (the logged SDC) the source is the scenario itself; so are the windows of one long
-log (ScenarioNet's ``<log id>_<first step>``, hashed when long), unless a ``source`` column
-names their log.
+``<source scenario id>#<object id>`` (the data layer's
+:data:`~igdrivsim.data.scenario.EGO_SEPARATOR`); :func:`source_of` gives back the source, and
+a frame's ``source`` column, which evaluation writes (the reader's source log: the windows of
+one long ScenarioNet log share it), takes precedence. Without that column, with one ego per
+scenario (the logged SDC) the source is the scenario itself, and so is each window of a long
+log.
 """
 
 from __future__ import annotations
@@ -44,10 +45,8 @@ import pandas as pd
 from scipy import stats
 
 from igdrivsim.evaluation.aggregate import CONFIDENCE, N_RESAMPLES, minimum_detectable_effect
-from igdrivsim.evaluation.schema import REFERENCE_SETTING
+from igdrivsim.evaluation.schema import REFERENCE_SETTING, SOURCE_COLUMN
 
-EGO_SEPARATOR = "#"  # ego id = <source scenario id>#<object id>
-SOURCE_COLUMN = "source"  # an evaluation row's source scenario, where the CSV records it
 BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
 # the statistics, in the order of their columns (each with _lo, _hi; all but median with _mde)
@@ -55,18 +54,24 @@ STATISTICS = ("win", "median", "ratio", "diff")
 
 
 def source_of(scenario_id: str) -> str:
-    """The source scenario of an ego id ``<scenario id>#<object id>``: the part before the last
-    ``#``; an id without one (one ego per scenario) is its own source."""
-    source, sep, _ = str(scenario_id).rpartition(EGO_SEPARATOR)
-    return source if sep else str(scenario_id)
+    """The source scenario of an ego id ``<scenario id>#<object id>`` (the data layer's
+    :func:`~igdrivsim.data.scenario.split_ego_id`, the one place the separator lives); an id
+    without one (one ego per scenario) is its own source."""
+    from igdrivsim.data.scenario import split_ego_id  # lazy: the tables import without JAX
+
+    return split_ego_id(str(scenario_id))[0]
 
 
 def sources(frame: pd.DataFrame) -> pd.Series:
-    """Each row's source scenario: the frame's ``source`` column, else :func:`source_of` of its
-    ``scenario_id``."""
-    if SOURCE_COLUMN in frame.columns:
-        return frame[SOURCE_COLUMN].astype(str)
-    return frame["scenario_id"].astype(str).map(source_of)
+    """Each row's source scenario: the frame's ``source`` column (written by evaluation), else
+    (a row of an older CSV) :func:`source_of` of its ``scenario_id``."""
+    ids = frame["scenario_id"].astype(str)
+    given = frame[SOURCE_COLUMN] if SOURCE_COLUMN in frame.columns else pd.Series(
+        float("nan"), index=frame.index)
+    missing = given.isna() | (given.astype(str) == "")
+    if not missing.any():
+        return given.astype(str)
+    return given.astype(str).where(~missing, ids.map(source_of))
 
 
 def source_map(frame: pd.DataFrame) -> dict[str, str]:

@@ -31,9 +31,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from igdrivsim.data.scenario import decode_scenario_id
+from igdrivsim.data.scenario import decode_scenario_id, split_ego_id
 from igdrivsim.evaluation import registry
-from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS, REFERENCE_SETTING
+from igdrivsim.evaluation.schema import (
+    LOGGED_SDC_COLUMN,
+    PER_SCENARIO_COLUMNS,
+    PER_STEP_COLUMNS,
+    REFERENCE_SETTING,
+    SOURCE_COLUMN,
+)
 from igdrivsim.policy import closed_loop
 from igdrivsim.policy.closed_loop import (
     DEFAULT_SIM_PARAMS,
@@ -130,6 +136,18 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
             pd.DataFrame(scen_rows, columns=list(registry.scenario_columns())))
 
 
+def with_origins(per_scenario: pd.DataFrame, origins: list[dict] | None) -> pd.DataFrame:
+    """``per_scenario`` with the :data:`~igdrivsim.evaluation.schema.ORIGIN_COLUMNS` last: each
+    row's source log and whether its ego is the logged SDC, from the reader's ``origins``
+    (:func:`igdrivsim.data.validation.origin_of`, one per scenario id); without them (scenarios
+    given stacked) the source is the id's scenario part and ``logged_sdc`` unknown (empty)."""
+    by_id = {o["scenario_id"]: o for o in origins or ()}
+    ids = per_scenario["scenario_id"].astype(str)
+    source = ids.map(lambda s: by_id[s]["source"] if s in by_id else split_ego_id(s)[0])
+    logged = ids.map(lambda s: float(by_id[s]["logged_sdc"]) if s in by_id else float("nan"))
+    return per_scenario.assign(**{SOURCE_COLUMN: source, LOGGED_SDC_COLUMN: logged})
+
+
 def scenario_ids_of(scenarios) -> list[str]:
     """Decoded scenario ids of stacked scenarios ``[N]``."""
     ids = np.asarray(scenarios.scenario_id)
@@ -153,5 +171,5 @@ def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_si
 __all__ = [
     "EVAL_SEED", "REFERENCE_ACTORS", "StepOutputs", "evaluate_policy", "evaluate_reference",
     "reference_frames",
-    "scenario_ids_of", "tidy_frames",
+    "scenario_ids_of", "tidy_frames", "with_origins",
 ]

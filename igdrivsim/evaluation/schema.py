@@ -95,6 +95,11 @@ PER_SCENARIO_COLUMNS = (
     "max_log_divergence", "overlap", "offroad",  # per-scenario: max, any overlap, any offroad
     "log_divergence", "overlap_steps", "offroad_steps",  # per-step values averaged over steps
 )
+# Where each per-scenario row's scenario comes from, written after the metrics' columns:
+# ``source``, the source log (windows of one long log and the egos of one scene share it: the
+# paired statistics' clusters), and ``logged_sdc``, whether the ego is the log's SDC.
+SOURCE_COLUMN, LOGGED_SDC_COLUMN = "source", "logged_sdc"
+ORIGIN_COLUMNS = (SOURCE_COLUMN, LOGGED_SDC_COLUMN)
 
 
 @dataclass(frozen=True)

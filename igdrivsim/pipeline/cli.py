@@ -69,27 +69,33 @@ def build_parser() -> argparse.ArgumentParser:
                         help="do not echo stage output and progress bars on the terminal (the "
                              "logs in WORK/logs/ are complete either way)")
     deprecated_alias(parser, "--quiet", "quiet", action="store_true")
-    parser.add_argument("--samples", default=None, metavar="DIR",
-                        help="real scenarios for Fig. 1 and the real-log table: the folder of "
-                             "igdrivsim samples, or any WOMD / ScenarioNet / GPUDrive "
-                             "location (default: the samples cache when fetched, else none: "
-                             "synthetic Fig. 1, no real-log table)")
+    parser.add_argument("--samples", "--real", dest="samples", nargs="+", action="extend",
+                        default=None, metavar="DIR",
+                        help="real scenarios for Fig. 1 and the real-log table, besides the "
+                             "samples cache (always used when fetched): folders of igdrivsim "
+                             "samples, or any WOMD / ScenarioNet / GPUDrive locations (several "
+                             "allowed, repeatable); none and no cache: synthetic Fig. 1, no "
+                             "real-log table")
     return parser
 
 
-def resolve_samples(where: str | None) -> str | None:
-    """The real-scenario location of ``--samples`` (``igdrivsim samples``' folder, or any data
-    location), else the verified samples cache, else None."""
-    if where is None:
-        found = samples.find_samples()
-        return None if found is None else str(found)
-    if (found := samples.find_samples(where)) is not None:
-        return str(found)
-    if Path(where).is_dir() and not any(Path(where).iterdir()):
-        raise ConfigError(f"--samples {where}: empty; fetch the public samples there with: "
-                          f"igdrivsim samples --out {where}")
-    expand_paths(where)  # names files, else a one-line error (before any stage)
-    return where
+def resolve_samples(given: list[str] | str | None) -> tuple[str, ...]:
+    """Every real-scenario location of the run: the verified samples cache (when fetched),
+    then each ``--samples`` location (``igdrivsim samples``' folder, or any data location),
+    each once."""
+    found = samples.find_samples()
+    out = [] if found is None else [str(found)]
+    for where in [given] if isinstance(given, str) else (given or []):
+        if (folder := samples.find_samples(where)) is not None:
+            where = str(folder)
+        elif Path(where).is_dir() and not any(Path(where).iterdir()):
+            raise ConfigError(f"--samples {where}: empty; fetch the public samples there with: "
+                              f"igdrivsim samples --out {where}")
+        else:
+            expand_paths(where)  # names files, else a one-line error (before any stage)
+        if not any(Path(where).resolve() == Path(o).resolve() for o in out):
+            out.append(where)
+    return tuple(out)
 
 
 def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
@@ -141,7 +147,7 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                     quiet=args.quiet, settings=settings, methods=methods,
                     overrides=tuple(args.overrides), workers=args.workers,
                     samples=resolve_samples(args.samples),
-                    samples_given=args.samples is not None)
+                    samples_given=tuple(args.samples or ()))
 
 
 def _interrupt(signum, frame) -> None:

@@ -65,8 +65,8 @@ class Publisher:
             args += ["--methods", ",".join(self.methods)]
         for override in self.overrides:
             args += ["--set", override]
-        if self.samples_given and self.samples is not None:
-            args += ["--samples", str(self.samples)]
+        if self.samples_given:
+            args += ["--samples", *map(str, self.samples_given)]
         return provenance.command_line(args)
 
     def publish(self) -> list[str]:

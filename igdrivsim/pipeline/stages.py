@@ -8,11 +8,12 @@ settings and seeds in one program), ``evaluate`` (each part, plus the reference 
 (paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance),
 ``reactive`` (beyond the paper: every run and the references evaluated again with IDM sim
 agents, ``WORK/evals_idm``, and Table I's companion, :mod:`igdrivsim.report.reactive`),
-``real_logs`` (beyond the paper: the runs and references on the real scenarios of ``--samples``
-or of ``igdrivsim samples``' cache, :mod:`igdrivsim.report.real_logs`; skipped without
-them) and ``pdf`` (when ``latexmk`` is installed). Methods with a privileged teacher (``--methods
-bc,bc_rl,dagger,advisor``) come after the others: a ``teacher`` stage picks the run whose
-full setting drives better on validation, and they train the other settings with it
+``real_logs`` (beyond the paper: the runs and references on every real scenario at hand, the
+``igdrivsim samples`` cache and each ``--samples`` location, every vehicle as the ego in turn,
+:mod:`igdrivsim.report.real_logs`; skipped without them) and ``pdf`` (when ``latexmk`` is
+installed). Methods with a privileged teacher (``--methods bc,bc_rl,dagger,advisor``) come
+after the others: a ``teacher`` stage picks the run whose full setting drives better on
+validation, and they train the other settings with it
 (``report`` then adds Table II and Fig. 6).
 
 Resumability: a stage that completes writes ``WORK/stages/<stage>.json``; a later invocation
@@ -47,7 +48,7 @@ from pathlib import Path
 from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.schema import METHODS, PER_SCENARIO_FILE
+from igdrivsim.evaluation.schema import BC, METHODS, PER_SCENARIO_FILE
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
@@ -65,6 +66,8 @@ from igdrivsim.training.run import CHECKPOINTS, DONE, Run, is_complete
 
 # sim agents -> (evaluation folder, stage-name suffix, extra ``igdrivsim evaluate`` arguments)
 EVAL_FOLDERS = {"log": ("evals", "", []), "idm": ("evals_idm", "_idm", ["--agents", "idm"])}
+# Full BC's action read-outs on the real logs beside Table I's sampled actions (policy.act)
+READOUTS = ("greedy", "mean")
 
 
 @dataclass
@@ -82,11 +85,18 @@ class Pipeline(Publisher, StageRunner):
     methods: tuple[str, ...] = METHODS
     overrides: tuple[str, ...] = ()  # ``section.field=value`` for every training run
     workers: int = 0  # worker processes (0: one per CPU core; two on an accelerator)
-    samples: str | None = None  # real scenarios (igdrivsim samples): Fig. 1, real_logs stage
-    samples_given: bool = False  # --samples on the command line (else found in the cache)
+    # real scenarios: the samples cache and every --samples location (Fig. 1, real_logs stage)
+    samples: tuple[str, ...] = ()
+    samples_given: tuple[str, ...] = ()  # the --samples locations typed on the command line
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
+        if isinstance(self.samples, str | Path):
+            self.samples = (str(self.samples),)
+        self.samples = tuple(map(str, self.samples or ()))
+        if isinstance(self.samples_given, str | Path):
+            self.samples_given = (str(self.samples_given),)
+        self.samples_given = tuple(map(str, self.samples_given or ()))
         self.settings = tuple(self.settings or self.profile.settings)
         for i, name in enumerate(self.settings):  # any registered setting or '+' composition
             if stack_settings(self.settings[:i + 1]) is None:
@@ -232,8 +242,8 @@ class Pipeline(Publisher, StageRunner):
         # Fig. 1 shows a real scenario when one is at hand: the user's data, else the public
         # samples (--samples), else the shared one; else a synthetic one (the figure says which)
         files = expand_paths(val)
-        if self.train_data is None and self.samples is not None:
-            files = expand_paths(self.samples)[:1]
+        if self.train_data is None and self.samples:
+            files = expand_paths(list(self.samples))[:1]
         elif self.train_data is None and DEFAULT_DATA.is_file():
             files = [str(DEFAULT_DATA)]
         if not files:
@@ -244,32 +254,53 @@ class Pipeline(Publisher, StageRunner):
 
     @property
     def samples_label(self) -> str:
-        if self.samples is not None and samples.find_samples(Path(self.samples).parent) == Path(
-                self.samples):
-            return (f"{len(samples.FILES)} public WOMD logs ({samples.PACKAGE}'s wheel, igdrivsim "
-                    "samples) in 91-step windows")
-        return f"real scenarios in {self.samples}"
+        """What the real scenarios are: each location of :attr:`samples`, in words."""
+        def label(where: str) -> str:
+            if samples.find_samples(Path(where).parent) == Path(where):
+                return (f"{len(samples.FILES)} public WOMD logs ({samples.PACKAGE}'s wheel, "
+                        "igdrivsim samples) in 91-step windows")
+            return f"the real scenarios in {where}"
+
+        return "; ".join(map(label, self.samples)) + (
+            ", every vehicle that passes the scenario filter as the ego in turn")
+
+    def full_bc_run(self, runs: Sequence[str]) -> str | None:
+        """The run among ``runs`` (folder names) that trained BC on the full setting."""
+        for name in runs:
+            config = Run.open(self.work / "runs" / name).config
+            if config.training.method == BC and TEACHER_SETTING in config.settings:
+                return name
+        return None
 
     def run_real_logs(self) -> None:
-        """Beyond the paper: every trained run and the reference actors on the real scenarios
-        of ``--samples``, beside their validation numbers (tables/real_logs.{md,tex})."""
+        """Beyond the paper: every trained run and the reference actors on every real scenario
+        at hand (the samples cache and each ``--samples`` location), every vehicle that passes
+        the filter as the ego (``--egos all``), beside their validation numbers; Full BC also
+        under the greedy and mean action read-outs (:data:`READOUTS`), beside Table I's
+        sampled actions (tables/real_logs.{md,tex,csv}, real_logs_readouts.csv)."""
         runs = sorted(p.name for p in (self.work / "runs").glob("*")
                       if is_complete(p) and (self.work / "evals" / p.name).is_dir())
-        if self.samples is None or not runs:
+        if not self.samples or not runs:
             why = "no evaluated run" if self.samples else (
                 "no real samples (igdrivsim samples fetches them; then --samples DIR)")
             self._say(f"real_logs: {why}, skipped")
             return
-        out = self.work / "evals_real"
-        common = ["--data", self.samples, "--batch-size", self.profile.eval_batch,
-                  "--limit", self.profile.eval_max_scenarios]  # as on validation (0: all)
+        out, readouts = self.work / "evals_real", self.work / "evals_real_readouts"
+        # every ego of every real location (real egos are few: no --limit)
+        common = ["--data", *self.samples, "--egos", "all", "--batch-size",
+                  self.profile.eval_batch, "--limit", 0]
         commands = [["igdrivsim", "evaluate", self.work / "runs" / r, "--out", out / r, *common]
                     for r in runs]
         commands += [["igdrivsim", "evaluate", "--references", "--like",
-                      self.work / "runs" / runs[-1], "--out", out / "references", *common],
-                     ["python", "-m", "igdrivsim.report.real_logs", "--real", out,
+                      self.work / "runs" / runs[-1], "--out", out / "references", *common]]
+        full_bc = self.full_bc_run(runs)
+        if full_bc is not None:
+            commands += [["igdrivsim", "evaluate", self.work / "runs" / full_bc, "--out",
+                          readouts / mode, "--actions", mode, *common] for mode in READOUTS]
+        commands += [["python", "-m", "igdrivsim.report.real_logs", "--real", out,
                       "--synthetic", self.work / "evals", "--out", self.staged / "tables",
-                      "--real-label", self.samples_label, "--synthetic-label", self.data_label]]
+                      "--real-label", self.samples_label, "--synthetic-label", self.data_label,
+                      *(["--readouts", readouts] if full_bc is not None else [])]]
         self.stage("real_logs", commands,
                    depends=[*[f"evaluate_{r}" for r in runs], "evaluate_references"],
                    outputs=[self.staged / "tables" / "real_logs.md"])

@@ -12,10 +12,12 @@ real scenarios, the check's power is part of its result. Heavy tails (a few egos
 velocity and with the expert ego by ego (:mod:`igdrivsim.evaluation.paired`): the share of
 egos where it stays closer to the log, the median paired difference and the mean ratio with its
 minimum detectable effect, with 95% intervals from a bootstrap over source scenarios, then
-seeds, and the numbers of egos and of source scenarios.
+seeds, and the numbers of egos and of source scenarios. A third table gives Full BC under
+Table I's sampled actions beside its greedy and mean read-outs (``--readouts``).
 
 ``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
-``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` and a one-sentence
+``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` (and the read-outs'
+``real_logs_readouts.csv``) and a one-sentence
 summary for the report's abstract, ``real_logs_summary.tex`` (the pipeline's ``real_logs``
 stage); ``--from-markdown real_logs.md`` rebuilds the last two from a written table.
 """
@@ -34,16 +36,18 @@ from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
     BC,
     CONSTANT_VELOCITY,
+    EVAL_CONFIG,
     EXPERT,
     METHOD_LABELS,
     METRIC_BY_KEY,
+    PER_SCENARIO_FILE,
     REFERENCES,
     SETTINGS,
     STEP_METRICS,
     setting_short,
     table_settings,
 )
-from igdrivsim.io import atomic_write_text
+from igdrivsim.io import atomic_write_text, read_json
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -161,6 +165,51 @@ def _paired_markdown(table: pd.DataFrame) -> list[str]:
             "| " + " | ".join(head) + " |", "|" + "---|" * len(head), *lines]
 
 
+# Full BC under each action read-out (policy.act.ACTION_MODES), Table I's sampled one first
+READOUT_SETTING = "full"
+READOUT_LABELS = {"sample": "sampled (Table I's protocol)", "greedy": "greedy (most likely)",
+                  "mean": "mean (expected level)"}
+READOUT_COLUMNS = ["actions", *[f"real_vs_cv_{k}" for k in PAIRED_STATS]]
+
+
+def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFrame:
+    """Full BC against constant velocity, ego by ego on the real logs, under each action
+    read-out: Table I's sampled actions (``real``'s rows), then each evaluation folder under
+    ``readouts`` (its ``eval_config.json`` names the read-out) against ``real``'s constant
+    velocity; one row per read-out with :data:`PAIRED_STATS` (``real_vs_cv_`` prefixed)."""
+    frames = {"sample": real}
+    cv = real[real.method == CONSTANT_VELOCITY]
+    for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
+        csv = config.parent / PER_SCENARIO_FILE
+        if csv.is_file():
+            frames[str(read_json(config, {}).get("actions", config.parent.name))] = pd.concat(
+                [load_evaluations([config.parent])[1], cv], ignore_index=True)
+    rows = []
+    for actions in sorted(frames, key=lambda a: list(READOUT_LABELS).index(a)
+                          if a in READOUT_LABELS else len(READOUT_LABELS)):
+        c = compare_on_egos(frames[actions], READOUT_SETTING, BC, CONSTANT_VELOCITY)
+        if c["n_egos"]:
+            rows.append({"actions": actions, **{
+                f"real_vs_cv_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
+                for k in PAIRED_STATS}})
+    return pd.DataFrame(rows, columns=READOUT_COLUMNS)
+
+
+def readout_markdown(readouts: pd.DataFrame) -> list[str]:
+    """The read-out table's lines (none with fewer than two read-outs)."""
+    if len(readouts) < 2:
+        return []
+    lines = ["", "## Full BC's action read-outs on the real logs", "",
+             "Table I's protocol samples each action from the policy; beside it, the most "
+             "likely action (greedy) and the expected action under the policy's distribution "
+             "(mean), each against constant velocity, ego by ego (as above).", "",
+             "| actions | " + " | ".join(PAIRED_HEAD) + " |", "|---|" + "---|" * len(PAIRED_HEAD)]
+    for _, row in readouts.iterrows():
+        lines.append(f"| {READOUT_LABELS.get(row.actions, row.actions)} | "
+                     + " | ".join(paired_cells(row, "real_vs_cv_")) + " |")
+    return lines
+
+
 def _vs_cv_cell(row: pd.Series) -> str:
     if pd.isna(row.get("real_vs_cv_diff")):
         return "--"
@@ -182,12 +231,24 @@ def _label(row: pd.Series) -> tuple[str, str]:
     return setting, method
 
 
-def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str) -> str:
-    """The table as Markdown: per metric a validation and a real column, N beside each value."""
+def _egos_text(table: pd.DataFrame) -> str:
+    """`` (N egos from M source scenarios)``: the real logs' constant-velocity row's counts."""
+    cv = table[table.method == CONSTANT_VELOCITY]
+    if cv.empty or not {"real_n", "real_sources"} <= set(cv.columns) or pd.isna(
+            cv.real_n.iloc[0]) or pd.isna(cv.real_sources.iloc[0]):
+        return ""
+    return f" ({int(cv.real_n.iloc[0])} egos from {int(cv.real_sources.iloc[0])} source scenarios)"
+
+
+def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
+                       readouts: pd.DataFrame | None = None) -> str:
+    """The table as Markdown: per metric a validation and a real column, N beside each value;
+    then the ego-by-ego table and Full BC's action read-outs (:func:`readout_table`)."""
     head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
-             f"Real: {real_label}. Validation: {validation_label}. Each value is the mean "
+             f"Real: {real_label}{_egos_text(table)}. Validation: {validation_label}. "
+             "Each value is the mean "
              "over seeds of each seed's mean over scenarios; N is the number of scenarios "
              "(egos, when every vehicle is the ego in turn). "
              "The last column: a learned driver's real log divergence minus constant "
@@ -200,7 +261,8 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
         cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS
                                   for s in SOURCES] + [_vs_cv_cell(row)]
         lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines + _paired_markdown(table)) + "\n"
+    extra = [] if readouts is None else readout_markdown(readouts)
+    return "\n".join(lines + _paired_markdown(table) + extra) + "\n"
 
 
 def _tex(text: str) -> str:
@@ -285,15 +347,19 @@ def _summary_tex(table: pd.DataFrame) -> str:
 
 
 def write_tables(real: str | Path, validation: str | Path | None, out: str | Path,
-                 real_label: str, validation_label: str) -> list[Path]:
-    """Read both evaluation folders, write ``out/real_logs.{md,tex,csv}`` and
+                 real_label: str, validation_label: str,
+                 readouts: str | Path | None = None) -> list[Path]:
+    """Read both evaluation folders (and Full BC's read-outs, ``readouts``), write
+    ``out/real_logs.{md,tex,csv}``, ``out/real_logs_readouts.csv`` and
     ``out/real_logs_summary.tex``; returns the paths."""
     real_frame = load_evaluations([real])[1]
     validation_frame = load_evaluations([validation])[1] if validation else None
     table = real_log_table(real_frame, validation_frame)
+    modes = readout_table(real_frame, readouts)
     out = Path(out)
     return [atomic_write_text(out / "real_logs.md",
-                              real_logs_markdown(table, real_label, validation_label)),
+                              real_logs_markdown(table, real_label, validation_label, modes)),
+            atomic_write_text(out / "real_logs_readouts.csv", modes.to_csv(index=False)),
             atomic_write_text(out / "real_logs.tex",
                               real_logs_latex(table, real_label, validation_label)),
             *write_numbers(table, out)]
@@ -343,6 +409,9 @@ def main(argv: list[str] | None = None) -> int:
                              "real_logs_summary.tex from a written real_logs.md")
     parser.add_argument("--synthetic", dest="validation", default=None,
                         help="evaluations on the (synthetic) validation set (folder)")
+    parser.add_argument("--readouts", default=None, metavar="DIR",
+                        help="Full BC evaluated on the real logs under other action read-outs "
+                             "(one folder each: igdrivsim evaluate --actions greedy|mean)")
     parser.add_argument("--out", required=True, help="tables folder")
     parser.add_argument("--real-label", default="real scenarios", help="what the real data are")
     parser.add_argument("--synthetic-label", dest="validation_label",
@@ -356,7 +425,7 @@ def main(argv: list[str] | None = None) -> int:
             paths = write_numbers(table_from_markdown(text), Path(args.out))
         elif args.real:
             paths = write_tables(args.real, args.validation, args.out, args.real_label,
-                                 args.validation_label)
+                                 args.validation_label, args.readouts)
         else:
             raise ConfigError("give --real DIR (evaluations) or --from-markdown FILE")
         print("wrote " + ", ".join(map(str, paths)))

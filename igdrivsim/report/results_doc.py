@@ -34,8 +34,10 @@ from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
 from igdrivsim.report import methods_table
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
+from igdrivsim.report.real_logs_page import real_logs_section
 from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import table1_markdown
+from igdrivsim.report.text import WIDTH, wrap  # noqa: F401 (WIDTH: the README's prose width)
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 # the README's block near the top: measured run times and the choice of profile (optional)
@@ -44,26 +46,6 @@ CURVES_SUMMARY = "curves_summary.csv"
 RUN_TIMES = "run_times.csv"
 _HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
              ("overlap", "overlap (%)"))
-# the width of the prose lines the report writes into the README
-WIDTH = 96
-# a word of markdown: code spans, links and durations whole (they hold spaces), else non-space
-# runs
-_WORD = re.compile(r"(?:\d+ h \d+ min|`[^`\n]*`|\[[^\]\n]*\]\([^)\s]*\)|\S)+")
-
-
-def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
-    """``text`` as lines of at most ``width`` characters, continuation lines prefixed by
-    ``indent``; a code span or a link is never split (a longer one stands on its own line)."""
-    lines, line = [], ""
-    for word in _WORD.findall(text):
-        if line.strip() and len(line) + 1 + len(word) > width:
-            lines.append(line)
-            line = indent + word
-        else:
-            line = f"{line} {word}" if line.strip() else line + word
-    return lines + [line] if line else lines
-
-
 def _bullet(text: str) -> list[str]:
     return wrap("- " + text, indent="  ")
 
@@ -180,7 +162,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
         closing += (f" The run took {wall_text(wall)} from its first stage's start to the "
                     "report (`tables/run_times.csv`).")
     closing += f" Full results: [{results_link}]({results_link})."
-    real = _real_logs(paper / "tables", headline=results_link)
+    real = real_logs_section(paper / "tables", headline=results_link)
     return "\n".join([*out, "", *wrap(closing), *(["", *real] if real else [])]) + "\n"
 
 
@@ -315,46 +297,6 @@ def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
     return _demote(methods_table.table2_markdown(full, tests_all, header)) + [""]
 
 
-def _real_logs(tables: Path, headline: str | None = None) -> list[str]:
-    """The drivers on real logs (``tables/real_logs.csv``, the ``real_logs`` stage): the
-    summary sentence, and (not ``headline``) each learned method's log divergence per setting
-    next to constant velocity's, on the real scenarios and on validation, with N; nothing
-    without real logs. ``headline``: the link to the full results (the README's block)."""
-    table = read_table(tables / "real_logs.csv")
-    if table is None or table.empty:
-        return []
-    from igdrivsim.report.real_logs import real_logs_summary  # lazy: reads evaluations' schema
-
-    sentence = real_logs_summary(table)
-    if sentence is None:
-        return []
-    if headline:
-        return wrap(sentence.rstrip(".") + " (mean log divergence per step; per setting: "
-                    f"[{headline}]({headline}#on-real-logs)).")
-    learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
-
-    def cell(row: pd.DataFrame, source: str) -> str:
-        if row.empty or pd.isna(row[f"{source}_log_divergence"].iloc[0]):
-            return "--"
-        value = row[f"{source}_log_divergence"].iloc[0]
-        return f"{value:.2f} (N={int(row[f'{source}_n'].iloc[0])})"
-
-    head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
-            for m in learned]
-    out = ["## On real logs", "", *wrap(sentence), "",
-           "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
-           "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
-           "| setting | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
-    for setting in [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]:
-        rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
-        out.append(f"| {setting_short(setting)} | " + " | ".join(
-            cell(r, src) for src in ("real", "validation") for r in rows) + " |")
-    cv = table[table.method == CONSTANT_VELOCITY]
-    out.append("| constant velocity | " + " | ".join(
-        cell(cv, src) for src in ("real", "validation") for _ in learned) + " |")
-    return [*out, ""]
-
-
 def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
     """The whole run as one markdown page; ``paper_link``: the paper folder relative to the
     page (for its links)."""
@@ -373,7 +315,7 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            f"{_scope(prov, summary)}.", "", "## Run time", "",
            *([run_line(paper), ""] if run_line(paper) else []),
            *_run_times(read_table(tables / RUN_TIMES)),
-           *_real_logs(tables),
+           *real_logs_section(tables),
            "## Competence against the reference actors", "", *_competence(summary),
            *_demote(table1_markdown(summary, tests if tests is not None else
                                     pd.DataFrame(columns=["method"]), header)), "",

@@ -192,8 +192,9 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         "Means are over seeds of each seed's mean over the N scenarios; differences with a "
         "95% hierarchical-bootstrap interval (seeds, then paired scenarios; egos of one source "
         "scenario together), its p-value and "
-        "the minimum detectable effect (MDE, 80% power). Log divergence in m, offroad and "
-        "overlap in % of steps.",
+        "the minimum detectable effect (MDE, 80% power). On the real sets every vehicle that "
+        "passes the scenario filter is the ego in turn (N: egos). Log divergence in m, "
+        "offroad and overlap in % of steps.",
         "",
         "| data | motion | N | BC log div. | CV log div. | BC / CV | BC - CV log div. "
         "| BC offroad | CV offroad | BC overlap | CV overlap |",
