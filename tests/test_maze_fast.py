@@ -1,0 +1,50 @@
+"""The maze study's shortcuts change no number: evaluation stops once every episode has ended
+(same returns as stepping ``max_steps`` times), a stage split over seed parts gives the seeds'
+results of one whole run, and each program compiles once. Small shapes (7x7 maze, GRU-8)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from igdrivsim.core.episode import run_episode
+from maze import env as E
+from maze.network import init_stacked, make_policy
+from maze.rollout import evaluate, policy_actor
+
+P = E.make_params(size=7, max_steps=40)
+MODEL = make_policy(8, P)
+
+
+def evaluate_every_step(net_params, key, num_episodes, kind):
+    """The reference: ``max_steps`` steps whether or not the episodes have ended."""
+    key_reset, key_act = jax.random.split(key)
+    state = jax.vmap(E.reset, (0, None))(jax.random.split(key_reset, num_episodes), P)
+
+    def env_step(env_state, action):
+        state, _, over = env_state
+        nxt, reward, done = jax.vmap(E.step, (0, 0, None))(state, action, P)
+        live = ~over
+        state = jax.tree.map(
+            lambda a, b: jnp.where(live.reshape(live.shape + (1,) * (a.ndim - 1)), a, b),
+            nxt, state)
+        return (state, jnp.zeros_like(over), over | done), (jnp.where(live, reward, 0.0), live)
+
+    start = (state, jnp.ones(num_episodes, bool), jnp.zeros(num_episodes, bool))
+    _, _, (reward, live) = run_episode(
+        env_step, policy_actor(MODEL, net_params, P, kind), start, key_act, P.max_steps,
+        carry=jnp.zeros((num_episodes, MODEL.hidden)), record=lambda step: step.out)
+    return reward.sum(0).mean(), live.sum(0).mean()
+
+
+@pytest.mark.parametrize("kind", ["full", "partial"])
+def test_evaluation_stopping_early_gives_the_same_numbers(kind):
+    nets = init_stacked(MODEL, jax.random.PRNGKey(0), 3, P.obs_dim)
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    fast = jax.jit(jax.vmap(lambda n, k: evaluate(MODEL, n, k, 32, P, kind)))(nets, keys)
+    slow = jax.jit(jax.vmap(lambda n, k: evaluate_every_step(n, k, 32, kind)))(nets, keys)
+    np.testing.assert_allclose(np.asarray(fast[0]), np.asarray(slow[0]), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(fast[1]), np.asarray(slow[1]), rtol=1e-6)
+    assert (np.asarray(fast[1]) > 0).all()
