@@ -1,6 +1,5 @@
-"""The maze study's shortcuts change no number: evaluation stops once every episode has ended
-(same returns as stepping ``max_steps`` times), a stage split over seed parts gives the seeds'
-results of one whole run, and each program compiles once. Small shapes (7x7 maze, GRU-8)."""
+"""The maze evaluation's early stop changes no number: it stops once every episode has ended,
+with the returns and lengths of stepping ``max_steps`` times. Small shapes (7x7 maze, GRU-8)."""
 
 from __future__ import annotations
 

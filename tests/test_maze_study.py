@@ -35,6 +35,15 @@ def run(tmp_path_factory):
     return study, out, summary
 
 
+def test_each_program_compiles_once(run):
+    """Both seed parts (one seed each) and every curve share one compiled program per
+    function: no recompilation between stages, parts or chunks."""
+    study, out, _ = run
+    assert study.compiled() == dict.fromkeys(study.programs(), 1)
+    meta = json.loads((out / "out/maze_config.json").read_text())
+    assert meta["compiled_programs"] == study.compiled()
+
+
 def test_ppo_learns_on_a_tiny_maze(run):
     _, out, _ = run
     curves = pd.read_csv(out / "out/figures/fig2_maze.csv")
@@ -76,7 +85,10 @@ def test_study_writes_every_output_and_resumes(run, capsys):
 
 
 def test_runs_are_deterministic(run):
+    """A curve trained on all seeds at once repeats the study's, trained one seed part at a
+    time (the parts' seeds keep their keys and initial parameters)."""
     study, out, _ = run
+    assert S.seed_parts(TINY) == [(0,), (1,)]
     with tqdm(disable=True) as bar:
         rerun = pd.DataFrame(S.run_rl(study, "rl_partial", True, bar)["records"])
     curves = pd.read_csv(out / "out/figures/fig2_maze.csv")
