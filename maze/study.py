@@ -298,14 +298,16 @@ def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | Non
     state = study.ppo_init(keys, net, jnp.full(rows, partial),
                            jnp.full(rows, total, jnp.int32))
     eval_key = _key(cfg, curve_id, 2)
-    points = [(0, *study.eval_rows(state.params, partial, eval_key, seeds=seeds))]
-    t0 = time.perf_counter()
     n_chunks = total // cfg.chunk_updates
+    # the final point and the one the plateau test compares it with: final_eval_rounds rounds
+    rounds = {n_chunks: cfg.final_eval_rounds, extended.plateau_point(n_chunks):
+              cfg.final_eval_rounds}
+    points = [(0, *study.eval_rows(state.params, partial, eval_key, rounds.get(0, 1), seeds))]
+    t0 = time.perf_counter()
     for c in range(n_chunks):
         state, _ = study.ppo_chunk(state)
-        last = c == n_chunks - 1
         ret, length = study.eval_rows(state.params, partial, jax.random.fold_in(eval_key, c + 1),
-                                      cfg.final_eval_rounds if last else 1, seeds)
+                                      rounds.get(c + 1, 1), seeds)
         points.append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, ret, length))
         bar.update(1)
         bar.set_postfix_str(f"{name} return {ret.mean():.2f}")

@@ -1,15 +1,23 @@
 """The maze evaluation's early stop changes no number: it stops once every episode has ended,
-with the returns and lengths of stepping ``max_steps`` times. Small shapes (7x7 maze, GRU-8)."""
+with the returns and lengths of stepping ``max_steps`` times (small shapes: 7x7 maze, GRU-8).
+The plateau test compares two points evaluated alike."""
 
 from __future__ import annotations
+
+import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
+from tqdm import tqdm
 
 from igdrivsim.core.episode import run_episode
 from maze import env as E
+from maze import extended
+from maze import study as S
 from maze.network import init_stacked, make_policy
 from maze.rollout import evaluate, policy_actor
 
@@ -47,3 +55,45 @@ def test_evaluation_stopping_early_gives_the_same_numbers(kind):
     np.testing.assert_allclose(np.asarray(fast[0]), np.asarray(slow[0]), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(fast[1]), np.asarray(slow[1]), rtol=1e-6)
     assert (np.asarray(fast[1]) > 0).all()
+
+
+class _CountingStudy:
+    """Stands in for :class:`maze.study.Study` in :func:`maze.study.run_rl`: training does
+    nothing, each evaluation records its rounds."""
+
+    def __init__(self, cfg):
+        self.cfg, self.rounds = cfg, []
+
+    def init_params(self, *_):
+        return None
+
+    def ppo_init(self, *_):
+        return types.SimpleNamespace(params=None)
+
+    def ppo_chunk(self, state):
+        return state, None
+
+    def eval_rows(self, _params, _partial, _key, rounds=1, seeds=None):
+        self.rounds.append(rounds)
+        n = len(seeds)
+        return np.zeros(n), np.zeros(n)
+
+
+@pytest.mark.parametrize("updates", [10, 40, 50, 80, 160])
+def test_plateau_compares_points_evaluated_alike(updates):
+    """The point the plateau test compares the final one with is evaluated with the final
+    point's rounds (and no other point is)."""
+    cfg = dataclasses.replace(S.StudyConfig(), seeds=2, rl_partial_updates=updates)
+    fake = _CountingStudy(cfg)
+    with tqdm(disable=True) as bar:
+        rows = pd.DataFrame(S.run_rl(fake, "rl_partial", True, bar)["records"])
+    chunks = updates // cfg.chunk_updates
+    compared = extended.plateau_point(chunks)
+    assert len(fake.rounds) == chunks + 1
+    assert [i for i, r in enumerate(fake.rounds) if r > 1] == sorted({compared, chunks})
+    assert set(fake.rounds) <= {1, cfg.final_eval_rounds}
+    # plateau() compares the final point with exactly that point
+    progress = sorted(rows.progress.unique())
+    rise = rows.assign(**{"return": rows.progress.map(
+        lambda p: 1.0 if p == progress[-1] else (0.5 if p == progress[compared] else 0.0))})
+    assert extended.plateau(rise, "rl_partial", 0.1)["rise_last_quarter"] == pytest.approx(0.5)
