@@ -20,7 +20,10 @@ import argparse
 import dataclasses
 import hashlib
 import json
+import os
 import pickle
+import platform
+import shlex
 import sys
 import threading
 import time
@@ -44,6 +47,7 @@ from igdrivsim.io import (
     require_folder,
 )
 from igdrivsim.lanes import Job, run_jobs
+from igdrivsim.machine import code_state, machine_record
 from maze import extended, report
 from maze.bc import BCConfig, collect_demos, make_bc
 from maze.dagger import DAggerConfig, make_dagger
@@ -402,12 +406,27 @@ def outputs(cfg: StudyConfig) -> tuple[str, ...]:
     return OUTPUTS + (BASELINE_OUTPUTS if cfg.baselines else ())
 
 
+def cpu_text() -> str:
+    """``<CPU model>, <N> cores`` of this machine (what provenance names as the device)."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
+
+
 def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
-              study: Study | None = None, progress: bool = True) -> pd.DataFrame:
+              study: Study | None = None, progress: bool = True,
+              command: str | None = None) -> pd.DataFrame:
     """Run (or resume) the study and write every output; returns the summary table.
 
     ``study`` reuses already compiled functions (tests); it must have been built from ``cfg``.
-    ``progress`` False turns the progress bar off (``--no-progress``).
+    ``progress`` False turns the progress bar off (``--no-progress``). ``command``: the command
+    line that ran it (recorded in ``maze_config.json`` for provenance).
     """
     cfg.validate()
     require_folder(out, "--out")
@@ -534,7 +553,10 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
             "bc_loss_per_chunk": np.stack([np.asarray(merged[c]["losses"])[:, 0]
                                            for c in BC_CURVES], 1).tolist(),
             "baseline_metrics": {n: merged[n]["metrics"] for n in order[5:] if n in merged},
-            "jax": jax.__version__, "device": str(jax.devices()[0])}
+            "jax": jax.__version__, "device": str(jax.devices()[0]),
+            # what provenance records of this run (igdrivsim.report.provenance maze)
+            "code": code_state(), "machine": {**machine_record(), "command": command,
+                                              "cpu": cpu_text()}}
     atomic_write_json(config_path, meta, indent=2)
     print(summary.to_string(index=False))
     print(f"maze study: {status}")
@@ -596,8 +618,15 @@ def study_command(args: argparse.Namespace) -> int:
         for path in replot(args.out):
             print(f"wrote {path}")
         return 0
-    run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress)
+    run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress,
+              command=command_text("python -m maze.study", args.argv))
     return 0
+
+
+def command_text(prog: str, argv: list[str] | None) -> str:
+    """The command line ``prog ARGV...`` (``sys.argv`` when ``argv`` is None), quoted."""
+    argv = sys.argv[1:] if argv is None else argv
+    return " ".join([prog, *(shlex.quote(str(a)) for a in argv)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -608,6 +637,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only redraw Fig. 2 and 2b from OUT's figures/fig2_maze.csv and "
                              "maze_config.json (no training)")
     args = parser.parse_args(argv)
+    args.argv = argv
     return run_command("maze study", study_command, args)
 
 

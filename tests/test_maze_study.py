@@ -31,7 +31,8 @@ def run(tmp_path_factory):
     """One tiny study (PPO on full obs. long enough to learn, so BC has a real expert)."""
     out = tmp_path_factory.mktemp("maze")
     study = S.Study(TINY)
-    summary = S.run_study(TINY, out / "out", out / "work", study=study)
+    summary = S.run_study(TINY, out / "out", out / "work", study=study,
+                          command="python -m maze --out OUT")
     return study, out, summary
 
 
@@ -42,6 +43,21 @@ def test_each_program_compiles_once(run):
     assert study.compiled() == dict.fromkeys(study.programs(), 1)
     meta = json.loads((out / "out/maze_config.json").read_text())
     assert meta["compiled_programs"] == study.compiled()
+
+
+def test_provenance_records_the_run_alone(run):
+    """``python -m igdrivsim.report.provenance maze`` records the run's own command, machine,
+    wall time and code for each of its outputs, and stamps its markdown table."""
+    from igdrivsim.report import provenance
+
+    _, out, _ = run
+    written = provenance.record_maze(out / "out")
+    assert "tables/maze_summary.md" in written and "maze_config.json" in written
+    entry = provenance.load(out / "out")["figures/fig2_maze.png"]
+    assert entry["command"] == "python -m maze --out OUT" and set(entry["stages"]) == {"maze"}
+    assert entry["wall_s"] > 0 and "cores" in entry["device"]
+    table = (out / "out/tables/maze_summary.md").read_text()
+    assert table.splitlines()[2].startswith("Provenance: written by `python -m maze --out OUT`")
 
 
 def test_ppo_learns_on_a_tiny_maze(run):
