@@ -25,7 +25,6 @@ import pickle
 import platform
 import shlex
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -49,16 +48,15 @@ from igdrivsim.io import (
 from igdrivsim.lanes import Job, run_jobs
 from igdrivsim.machine import code_state, machine_record
 from maze import extended, report
-from maze.bc import BCConfig, collect_demos, make_bc
-from maze.dagger import DAggerConfig, make_dagger
+from maze.bc import BCConfig
+from maze.compiled import Program, Study, _key  # noqa: F401 (Program: re-exported)
+from maze.dagger import DAggerConfig
 from maze.env import make_params
 from maze.extended import records as _records
-from maze.mixed import MixedConfig, make_mixed
-from maze.network import init_stacked, make_policy, without_aux
+from maze.mixed import MixedConfig
 from maze.oracles import reference_returns
-from maze.ppo import PPOConfig, make_ppo
+from maze.ppo import PPOConfig
 from maze.render import save_frames
-from maze.rollout import evaluate
 
 BC_CURVES = {  # name -> (expert curve, expert partial?, imitator partial?)
     "bc_full_from_full": ("rl_full", False, False),
@@ -137,156 +135,11 @@ def config_dict(cfg: StudyConfig) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def _key(cfg: StudyConfig, *path: int) -> jax.Array:
-    return extended.stage_key(cfg.seed, *path)
-
-
 def seed_parts(cfg: StudyConfig) -> list[tuple[int, ...]]:
     """The seeds split into ``cfg.seed_parts`` contiguous parts: each stage runs once per part
     (``vmap`` over the part's seeds), so two lanes share even the longest curve."""
     return [tuple(int(i) for i in p) for p in np.array_split(np.arange(cfg.seeds),
                                                              cfg.seed_parts) if len(p)]
-
-
-class Program:
-    """A ``jit``ted function compiled ahead of time once per argument shapes, behind a lock:
-    two lanes calling it at once compile it once, and the study counts what it compiled."""
-
-    def __init__(self, fn):
-        self.jitted = jax.jit(fn)
-        self.lock = threading.Lock()
-        self.executables: dict = {}
-        self.seconds = 0.0
-
-    @staticmethod
-    def signature(args) -> tuple:
-        return (jax.tree.structure(args), tuple(
-            (tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False)))
-            for x in jax.tree.leaves(args)))
-
-    def executable(self, *args):
-        """The compiled program for ``args`` (arrays or ``jax.ShapeDtypeStruct``)."""
-        key = self.signature(args)
-        with self.lock:
-            if key not in self.executables:
-                t0 = time.perf_counter()
-                self.executables[key] = self.jitted.lower(*args).compile()
-                self.seconds += time.perf_counter() - t0
-            return self.executables[key]
-
-    def __call__(self, *args):
-        return self.executable(*args)(*args)
-
-    def shape(self, *args):
-        """The output's shapes (``jax.eval_shape``), without compiling."""
-        return jax.eval_shape(self.jitted, *args)
-
-
-class Study:
-    """Compiled functions shared by every stage (one compile each for all curves and seed parts
-    of one size: :meth:`warm` compiles them all first, in parallel)."""
-
-    def __init__(self, cfg: StudyConfig):
-        self.cfg = cfg
-        self.params = make_params(cfg.size, cfg.receptive_field, cfg.max_steps)
-        self.model = make_policy(cfg.hidden, self.params)
-        ppo_init, ppo_chunk = make_ppo(self.model, self.params, cfg.ppo, cfg.chunk_updates)
-        self.ppo_init = Program(jax.vmap(ppo_init))
-        self.ppo_chunk = Program(jax.vmap(ppo_chunk))
-        bc_init, bc_chunk = make_bc(self.model, cfg.bc, cfg.bc_chunk_epochs)
-        self.bc_init = Program(jax.vmap(bc_init))
-        self.bc_chunk = Program(jax.vmap(bc_chunk))
-        self.collect = Program(jax.vmap(
-            lambda p, k, e, i: collect_demos(self.model, p, k, cfg.bc, self.params, e, i)))
-        self.evaluate = Program(jax.vmap(
-            lambda p, k, partial: evaluate(self.model, p, k, cfg.eval_episodes, self.params,
-                                           partial)))
-
-        self._baselines = None
-
-    def _build_baselines(self):
-        """Compiled DAgger and BC+PPO/ADVISOR functions (built on first use)."""
-        if self._baselines is None:
-            cfg = self.cfg
-            self.mixed_model = make_policy(cfg.hidden, self.params, aux_head=True)
-            m_init, m_chunk = make_mixed(self.mixed_model, self.model, self.params, cfg.ppo,
-                                         cfg.mixed, cfg.chunk_updates)
-            d_init, d_iter = make_dagger(self.model, self.model, self.params, cfg.dagger)
-            self._baselines = (Program(jax.vmap(m_init)), Program(jax.vmap(m_chunk)),
-                               Program(jax.vmap(d_init)), Program(jax.vmap(d_iter)))
-        return self._baselines
-
-    mixed_init = property(lambda self: self._build_baselines()[0])
-    mixed_chunk = property(lambda self: self._build_baselines()[1])
-    dagger_init = property(lambda self: self._build_baselines()[2])
-    dagger_iter = property(lambda self: self._build_baselines()[3])
-
-    def programs(self) -> dict[str, Program]:
-        names = ["ppo_init", "ppo_chunk", "bc_init", "bc_chunk", "collect", "evaluate"]
-        if self._baselines is not None:
-            names += ["mixed_init", "mixed_chunk", "dagger_init", "dagger_iter"]
-        return {n: getattr(self, n) for n in names}
-
-    def compiled(self) -> dict[str, int]:
-        """Programs compiled so far, per function."""
-        return {n: len(p.executables) for n, p in self.programs().items()}
-
-    def compile_seconds(self) -> float:
-        return sum(p.seconds for p in self.programs().values())
-
-    def warm(self, rows: int, lanes: int) -> None:
-        """Compile every program a stage of ``rows`` seeds calls, on ``lanes`` threads (the
-        largest first), so that no stage waits for another's compilation."""
-        cfg = self.cfg
-        which = tuple(range(rows))
-        net = self.init_params(0, cfg.seeds, which)
-        keys = jnp.stack([_key(cfg, 0, j) for j in which])
-        flags, totals = jnp.zeros(rows, bool), jnp.ones(rows, jnp.int32)
-        demos = self.collect.shape(net, keys, flags, flags)
-        tasks = [(self.ppo_chunk, (self.ppo_init.shape(keys, net, flags, totals),)),
-                 (self.bc_chunk, (self.bc_init.shape(keys, net, demos),))]
-        if cfg.baselines:
-            mixed_net = self.init_mixed_params(0, cfg.seeds, which)
-            tasks += [(self.mixed_chunk, (self.mixed_init.shape(keys, mixed_net, flags, totals),
-                                          net)),
-                      (self.dagger_iter, (self.dagger_init.shape(keys, net), net)),
-                      (self.mixed_init, (keys, mixed_net, flags, totals)),
-                      (self.dagger_init, (keys, net))]
-        tasks += [(self.evaluate, (net, keys, flags)), (self.collect, (net, keys, flags, flags)),
-                  (self.ppo_init, (keys, net, flags, totals)), (self.bc_init, (keys, net, demos))]
-        run_jobs([Job(str(i), lambda _echo, p=p, a=a: p.executable(*a))
-                  for i, (p, a) in enumerate(tasks)], lanes)
-
-    @staticmethod
-    def strip_aux(net_params):
-        return without_aux(net_params)
-
-    def init_params(self, curve: int, rows: int, which: Sequence[int] | None = None):
-        """Initial parameters of ``rows`` seeds (only the seeds ``which``, when given)."""
-        return init_stacked(self.model, _key(self.cfg, curve, 0), rows, self.params.obs_dim,
-                            which)
-
-    def init_mixed_params(self, curve: int, rows: int, which: Sequence[int] | None = None):
-        self._build_baselines()
-        return init_stacked(self.mixed_model, _key(self.cfg, curve, 0), rows,
-                            self.params.obs_dim, which)
-
-    def eval_rows(self, net_params, partial: bool, key: jax.Array, rounds: int = 1,
-                  seeds: Sequence[int] | None = None):
-        """Mean return and length per row (seed) over ``rounds * eval_episodes`` episodes;
-        ``seeds``: the rows are these seeds of the study (the keys they have in the whole)."""
-        rows = jax.tree.leaves(net_params)[0].shape[0]
-        flags = jnp.full(rows, partial)
-
-        def keys(r):
-            split = jax.random.split(jax.random.fold_in(key, r),
-                                     rows if seeds is None else self.cfg.seeds)
-            return split if seeds is None else split[np.asarray(seeds)]
-
-        out = [self.evaluate(net_params, keys(r), flags) for r in range(rounds)]
-        ret = np.mean([np.asarray(o[0]) for o in out], axis=0)
-        length = np.mean([np.asarray(o[1]) for o in out], axis=0)
-        return ret, length
 
 
 def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | None = None,
