@@ -27,7 +27,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> None:
         summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
-                                  progress=not args.no_progress)
+                                  progress=not args.no_progress,
+                                  command=study.command_text("python -m maze", argv))
         atomic_write_csv(args.out / "summary.csv", summary)
 
     return run_command("maze", body)

@@ -10,6 +10,7 @@ partial RL bound.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
@@ -32,22 +33,33 @@ def stage_key(seed: int, *path: int) -> jax.Array:
     return key
 
 
-def records(curve: str, unit: str, points: list, seeds: int) -> list[dict]:
-    """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``."""
+def records(curve: str, unit: str, points: list, seeds: int | Sequence[int]) -> list[dict]:
+    """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``; ``seeds``: the
+    seeds of the points' rows (a count: ``range(seeds)``)."""
+    seeds = range(seeds) if isinstance(seeds, int) else seeds
     rows = []
     last = len(points) - 1
     for i, (step, ret, length) in enumerate(points):
-        for s in range(seeds):
-            rows.append({"curve": curve, "seed": s, "progress": i / last, "step": step,
-                         "unit": unit, "return": float(ret[s]), "length": float(length[s]),
+        for r, s in enumerate(seeds):
+            rows.append({"curve": curve, "seed": int(s), "progress": i / last, "step": step,
+                         "unit": unit, "return": float(ret[r]), "length": float(length[r]),
                          "final": i == last})
     return rows
 
 
+def plateau_point(chunks: int) -> int:
+    """The point (0: before training, ``chunks``: the final one) that :func:`plateau` compares
+    the final point with: the last at or before 3/4 of the run. The RL stages evaluate it with
+    as many episodes as the final point, so that the rise is not mostly the noise of a 1-round
+    evaluation (partial RL: about 0.08 of SD with 256 episodes x 10 seeds, against a tolerance
+    of 0.1, which failed a flat curve about one time in ten)."""
+    return int(np.floor(0.75 * chunks + 1e-9))
+
+
 def plateau(curves: pd.DataFrame, curve: str, tol: float, optimum: float | None = None) -> dict:
     """Convergence test: the seed-mean return rose by less than ``tol`` over the last quarter of
-    training (final point vs. the last point at or before 3/4 of the run), or it is within 2% of
-    a known exact ``optimum`` (the full-observation shortest path)."""
+    training (final point vs. :func:`plateau_point`, the last point at or before 3/4 of the run),
+    or it is within 2% of a known exact ``optimum`` (the full-observation shortest path)."""
     mean = curves[curves.curve == curve].groupby("progress")["return"].mean()
     if mean.empty:
         return {"converged": False, "rise_last_quarter": float("nan"), "tol": tol}
@@ -58,47 +70,53 @@ def plateau(curves: pd.DataFrame, curve: str, tol: float, optimum: float | None 
             "at_optimum": bool(at_optimum)}
 
 
-def run_dagger(study, experts: dict, bar: tqdm) -> dict:
-    """DAgger from the full-observation expert, ``vmap`` over seeds, one eval per iteration."""
-    cfg, s = study.cfg, study.cfg.seeds
+def run_dagger(study, experts: dict, bar: tqdm, seeds: Sequence[int] | None = None) -> dict:
+    """DAgger from the full-observation expert, ``vmap`` over ``seeds`` (all; the expert's rows
+    are these seeds), one eval per iteration."""
+    cfg = study.cfg
+    seeds = tuple(range(cfg.seeds)) if seeds is None else tuple(seeds)
     t0 = time.perf_counter()
     teacher = experts["rl_full"]
-    net = study.init_params(7, s)
-    state = study.dagger_init(jnp.stack([stage_key(cfg.seed, 7, 1, j) for j in range(s)]), net)
+    net = study.init_params(7, cfg.seeds, seeds)
+    state = study.dagger_init(jnp.stack([stage_key(cfg.seed, 7, 1, j) for j in seeds]), net)
     eval_key = stage_key(cfg.seed, 7, 2)
-    points = [(0, *study.eval_rows(state.params, True, eval_key))]
+    points = [(0, *study.eval_rows(state.params, True, eval_key, seeds=seeds))]
     metrics = []
     for i in range(cfg.dagger.iterations):
         state, m = study.dagger_iter(state, teacher)
         metrics.append({k: np.asarray(v).mean(axis=0).tolist() for k, v in m.items()})
         last = i == cfg.dagger.iterations - 1
         ret, length = study.eval_rows(state.params, True, jax.random.fold_in(eval_key, i + 1),
-                                      cfg.final_eval_rounds if last else 1)
+                                      cfg.final_eval_rounds if last else 1, seeds)
         points.append(((i + 1) * cfg.dagger.steps_per_collection, ret, length))
         bar.update(1)
         bar.set_postfix_str(f"dagger return {ret.mean():.2f}")
-    return {"records": records("dagger_partial_from_full", "env_steps_per_seed", points, s),
+    return {"records": records("dagger_partial_from_full", "env_steps_per_seed", points, seeds),
             "metrics": metrics, "seconds": time.perf_counter() - t0}
 
 
 def run_mixed(study, experts: dict, bar: tqdm,
-              names: tuple[str, ...] = tuple(MIXED_CURVES)) -> dict:
-    """BC+PPO and/or ADVISOR (``names``) in one program (``vmap`` over methods x seeds)."""
-    cfg, s = study.cfg, study.cfg.seeds
+              names: tuple[str, ...] = tuple(MIXED_CURVES),
+              seeds: Sequence[int] | None = None) -> dict:
+    """BC+PPO and/or ADVISOR (``names``) in one program (``vmap`` over methods x ``seeds``)."""
+    cfg = study.cfg
+    seeds = tuple(range(cfg.seeds)) if seeds is None else tuple(seeds)
+    s = len(seeds)
     ids = [8 + list(MIXED_CURVES).index(c) for c in names]  # stable PRNG paths per curve
     n = len(names)
     t0 = time.perf_counter()
     teacher = jax.tree.map(lambda x: jnp.concatenate([x] * n), experts["rl_full"])
     net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
-                       *[study.init_mixed_params(i, s) for i in ids])
-    keys = jnp.stack([stage_key(cfg.seed, i, 1, j) for i in ids for j in range(s)])
+                       *[study.init_mixed_params(i, cfg.seeds, seeds) for i in ids])
+    keys = jnp.stack([stage_key(cfg.seed, i, 1, j) for i in ids for j in seeds])
     flags = jnp.repeat(jnp.array([MIXED_CURVES[c] for c in names]), s)
     state = study.mixed_init(keys, net, flags, jnp.full(n * s, cfg.mixed_updates, jnp.int32))
 
     def evaluate_all(chunk: int, rounds: int = 1):
         plain = study.strip_aux(state.params)
         return [study.eval_rows(jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], plain), True,
-                                jax.random.fold_in(stage_key(cfg.seed, ids[i], 2), chunk), rounds)
+                                jax.random.fold_in(stage_key(cfg.seed, ids[i], 2), chunk), rounds,
+                                seeds)
                 for i in range(n)]
 
     points = [[(0, *r)] for r in evaluate_all(0)]
@@ -116,7 +134,7 @@ def run_mixed(study, experts: dict, bar: tqdm,
                                      for c, p in zip(names, points, strict=True)))
     rows = []
     for i, c in enumerate(names):
-        rows += records(c, "env_steps_per_seed", points[i], s)
+        rows += records(c, "env_steps_per_seed", points[i], seeds)
     return {"records": rows, "metrics": metrics, "seconds": time.perf_counter() - t0}
 
 

@@ -9,6 +9,7 @@ at every episode start (``first``), unlike the original code whose state was nev
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 
 import flax.linen as nn
 import jax
@@ -87,11 +88,14 @@ def _init_one(model: GRUPolicy, obs_dim: int):
                                         jnp.zeros((1, 1, obs_dim)), jnp.ones((1, 1), bool)))
 
 
-def init_stacked(model: GRUPolicy, key: jax.Array, num_seeds: int, obs_dim: int):
-    """Parameters for ``num_seeds`` seeds, initialised one seed at a time and stacked.
+def init_stacked(model: GRUPolicy, key: jax.Array, num_seeds: int, obs_dim: int,
+                 which: Sequence[int] | None = None):
+    """Parameters for ``num_seeds`` seeds (only the seeds ``which``, when given: a part of the
+    seeds gets the parameters it has in the whole), initialised one seed at a time and stacked.
 
     (Initialising under ``vmap`` was seen to hang in the orthogonal initialiser.)
     """
     init = _init_one(model, obs_dim)
-    per_seed = [init(k) for k in jax.random.split(key, num_seeds)]
+    keys = jax.random.split(key, num_seeds)
+    per_seed = [init(keys[i]) for i in (range(num_seeds) if which is None else which)]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_seed)

@@ -20,9 +20,13 @@ import argparse
 import dataclasses
 import hashlib
 import json
+import os
 import pickle
+import platform
+import shlex
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
@@ -42,17 +46,17 @@ from igdrivsim.io import (
     require_folder,
 )
 from igdrivsim.lanes import Job, run_jobs
+from igdrivsim.machine import code_state, machine_record
 from maze import extended, report
-from maze.bc import BCConfig, collect_demos, make_bc
-from maze.dagger import DAggerConfig, make_dagger
+from maze.bc import BCConfig
+from maze.compiled import Program, Study, _key  # noqa: F401 (Program: re-exported)
+from maze.dagger import DAggerConfig
 from maze.env import make_params
 from maze.extended import records as _records
-from maze.mixed import MixedConfig, make_mixed
-from maze.network import init_stacked, make_policy, without_aux
+from maze.mixed import MixedConfig
 from maze.oracles import reference_returns
-from maze.ppo import PPOConfig, make_ppo
+from maze.ppo import PPOConfig
 from maze.render import save_frames
-from maze.rollout import evaluate
 
 BC_CURVES = {  # name -> (expert curve, expert partial?, imitator partial?)
     "bc_full_from_full": ("rl_full", False, False),
@@ -80,24 +84,27 @@ class StudyConfig:
     max_steps: int = 200
     hidden: int = 64  # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU
     ppo: PPOConfig = PPOConfig()
-    rl_full_updates: int = 50  # PPO lr 2e-3: the five curves in under 3 minutes on 2 cores
-    rl_partial_updates: int = 80
+    rl_full_updates: int = 60  # 30 ended at 9.24, below the exact optimum's 2% (9.51)
+    rl_partial_updates: int = 480  # 320 ended at 7.86 and rose 0.14 over the last quarter
     chunk_updates: int = 10
-    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=12, num_minibatches=16)
-    bc_chunk_epochs: int = 2  # epochs between evaluations of the BC curves
-    eval_episodes: int = 256
-    final_eval_rounds: int = 4
+    bc: BCConfig = BCConfig(num_envs=64, num_steps=768, epochs=6, num_minibatches=32)
+    bc_chunk_epochs: int = 1  # epochs between evaluations of the BC curves
+    eval_episodes: int = 128
+    final_eval_rounds: int = 8  # the final point (and the plateau test's): 1,024 episodes
     baselines: bool = True  # Fig. 2b: DAgger, BC+PPO, ADVISOR (full expert -> partial student)
     dagger: DAggerConfig = DAggerConfig()
     mixed: MixedConfig = MixedConfig(alpha=MAZE_ADVISOR_ALPHA)
     mixed_updates: int = 60
     plateau_tol: float = 0.1  # RL "converged": return rose < this over the last quarter
     lanes: int = 2  # stages run in 2 threads (1: one after another); results are the same
+    seed_parts: int = 2  # each stage runs once per part of the seeds (vmap over the part)
 
     def validate(self) -> None:
         make_params(self.size, self.receptive_field, self.max_steps)
         if self.seeds < 1:
             raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
+        if self.seed_parts < 1:
+            raise ConfigError(f"seed_parts must be >= 1, got {self.seed_parts}")
         if self.hidden < 1:
             raise ConfigError(f"--hidden must be >= 1, got {self.hidden}")
         for name in ("rl_full_updates", "rl_partial_updates") + (
@@ -128,112 +135,62 @@ def config_dict(cfg: StudyConfig) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def _key(cfg: StudyConfig, *path: int) -> jax.Array:
-    return extended.stage_key(cfg.seed, *path)
+def seed_parts(cfg: StudyConfig) -> list[tuple[int, ...]]:
+    """The seeds split into ``cfg.seed_parts`` contiguous parts: each stage runs once per part
+    (``vmap`` over the part's seeds), so two lanes share even the longest curve."""
+    return [tuple(int(i) for i in p) for p in np.array_split(np.arange(cfg.seeds),
+                                                             cfg.seed_parts) if len(p)]
 
 
-class Study:
-    """Compiled functions shared by every stage (one compile each for all curves)."""
-
-    def __init__(self, cfg: StudyConfig):
-        self.cfg = cfg
-        self.params = make_params(cfg.size, cfg.receptive_field, cfg.max_steps)
-        self.model = make_policy(cfg.hidden, self.params)
-        ppo_init, ppo_chunk = make_ppo(self.model, self.params, cfg.ppo, cfg.chunk_updates)
-        self.ppo_init = jax.jit(jax.vmap(ppo_init))
-        self.ppo_chunk = jax.jit(jax.vmap(ppo_chunk))
-        bc_init, bc_chunk = make_bc(self.model, cfg.bc, cfg.bc_chunk_epochs)
-        self.bc_init = jax.jit(jax.vmap(bc_init))
-        self.bc_chunk = jax.jit(jax.vmap(bc_chunk))
-        self.collect = jax.jit(jax.vmap(
-            lambda p, k, e, i: collect_demos(self.model, p, k, cfg.bc, self.params, e, i)))
-        self.evaluate = jax.jit(jax.vmap(
-            lambda p, k, partial: evaluate(self.model, p, k, cfg.eval_episodes, self.params,
-                                           partial)))
-
-        self._baselines = None
-
-    def _build_baselines(self):
-        """Compiled DAgger and BC+PPO/ADVISOR functions (built on first use)."""
-        if self._baselines is None:
-            cfg = self.cfg
-            self.mixed_model = make_policy(cfg.hidden, self.params, aux_head=True)
-            m_init, m_chunk = make_mixed(self.mixed_model, self.model, self.params, cfg.ppo,
-                                         cfg.mixed, cfg.chunk_updates)
-            d_init, d_iter = make_dagger(self.model, self.model, self.params, cfg.dagger)
-            self._baselines = (jax.jit(jax.vmap(m_init)), jax.jit(jax.vmap(m_chunk)),
-                               jax.jit(jax.vmap(d_init)), jax.jit(jax.vmap(d_iter)))
-        return self._baselines
-
-    mixed_init = property(lambda self: self._build_baselines()[0])
-    mixed_chunk = property(lambda self: self._build_baselines()[1])
-    dagger_init = property(lambda self: self._build_baselines()[2])
-    dagger_iter = property(lambda self: self._build_baselines()[3])
-
-    @staticmethod
-    def strip_aux(net_params):
-        return without_aux(net_params)
-
-    def init_params(self, curve: int, rows: int):
-        return init_stacked(self.model, _key(self.cfg, curve, 0), rows, self.params.obs_dim)
-
-    def init_mixed_params(self, curve: int, rows: int):
-        self._build_baselines()
-        return init_stacked(self.mixed_model, _key(self.cfg, curve, 0), rows,
-                            self.params.obs_dim)
-
-    def eval_rows(self, net_params, partial: bool, key: jax.Array, rounds: int = 1):
-        """Mean return and length per row (seed) over ``rounds * eval_episodes`` episodes."""
-        rows = jax.tree.leaves(net_params)[0].shape[0]
-        flags = jnp.full(rows, partial)
-        out = [self.evaluate(net_params, jax.random.split(jax.random.fold_in(key, r), rows), flags)
-               for r in range(rounds)]
-        ret = np.mean([np.asarray(o[0]) for o in out], axis=0)
-        length = np.mean([np.asarray(o[1]) for o in out], axis=0)
-        return ret, length
-
-
-def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | None = None) -> dict:
-    """PPO curve ``name`` (``updates`` overrides the config's length)."""
+def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | None = None,
+           seeds: Sequence[int] | None = None) -> dict:
+    """PPO curve ``name`` (``updates`` overrides the config's length) for ``seeds`` (all)."""
     cfg = study.cfg
+    seeds = tuple(range(cfg.seeds)) if seeds is None else tuple(seeds)
+    rows = len(seeds)
     total = updates or getattr(cfg, f"{name}_updates")
     curve_id = 1 if name == "rl_full" else 2  # stable small ints for the PRNG keys
-    net = study.init_params(curve_id, cfg.seeds)
-    keys = jnp.stack([_key(cfg, curve_id, 1, s) for s in range(cfg.seeds)])
-    state = study.ppo_init(keys, net, jnp.full(cfg.seeds, partial),
-                           jnp.full(cfg.seeds, total, jnp.int32))
+    net = study.init_params(curve_id, cfg.seeds, seeds)
+    keys = jnp.stack([_key(cfg, curve_id, 1, s) for s in seeds])
+    state = study.ppo_init(keys, net, jnp.full(rows, partial),
+                           jnp.full(rows, total, jnp.int32))
     eval_key = _key(cfg, curve_id, 2)
-    points = [(0, *study.eval_rows(state.params, partial, eval_key))]
-    t0 = time.perf_counter()
     n_chunks = total // cfg.chunk_updates
+    # the final point and the one the plateau test compares it with: final_eval_rounds rounds
+    rounds = {n_chunks: cfg.final_eval_rounds, extended.plateau_point(n_chunks):
+              cfg.final_eval_rounds}
+    points = [(0, *study.eval_rows(state.params, partial, eval_key, rounds.get(0, 1), seeds))]
+    t0 = time.perf_counter()
     for c in range(n_chunks):
         state, _ = study.ppo_chunk(state)
-        last = c == n_chunks - 1
         ret, length = study.eval_rows(state.params, partial, jax.random.fold_in(eval_key, c + 1),
-                                      cfg.final_eval_rounds if last else 1)
+                                      rounds.get(c + 1, 1), seeds)
         points.append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, ret, length))
         bar.update(1)
         bar.set_postfix_str(f"{name} return {ret.mean():.2f}")
     seconds = time.perf_counter() - t0
-    return {"records": _records(name, "env_steps_per_seed", points, cfg.seeds),
+    return {"records": _records(name, "env_steps_per_seed", points, seeds),
             "params": jax.device_get(state.params), "seconds": seconds}
 
 
-def run_bc(study: Study, experts: dict, bar: tqdm, names: tuple[str, ...] = tuple(BC_CURVES)
-           ) -> dict:
-    """The BC curves ``names`` (``vmap`` over curves x seeds)."""
+def run_bc(study: Study, experts: dict, bar: tqdm, names: tuple[str, ...] = tuple(BC_CURVES),
+           seeds: Sequence[int] | None = None) -> dict:
+    """The BC curves ``names`` (``vmap`` over curves x ``seeds``; the experts' rows are these
+    seeds)."""
     cfg = study.cfg
+    seeds = tuple(range(cfg.seeds)) if seeds is None else tuple(seeds)
     ids = [3 + list(BC_CURVES).index(c) for c in names]  # stable PRNG paths per curve
-    n, s = len(names), cfg.seeds
+    n, s = len(names), len(seeds)
     t0 = time.perf_counter()
     expert = jax.tree.map(lambda *xs: jnp.concatenate(xs),
                           *[experts[BC_CURVES[c][0]] for c in names])
     e_flags = jnp.repeat(jnp.array([BC_CURVES[c][1] for c in names]), s)
     i_flags = jnp.repeat(jnp.array([BC_CURVES[c][2] for c in names]), s)
-    keys = jnp.stack([_key(cfg, i, 1, j) for i in ids for j in range(s)])
+    keys = jnp.stack([_key(cfg, i, 1, j) for i in ids for j in seeds])
     demos = study.collect(expert, keys, e_flags, i_flags)
-    net = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[study.init_params(i, s) for i in ids])
-    state = study.bc_init(jnp.stack([_key(cfg, i, 3, j) for i in ids for j in range(s)]),
+    net = jax.tree.map(lambda *xs: jnp.concatenate(xs),
+                       *[study.init_params(i, cfg.seeds, seeds) for i in ids])
+    state = study.bc_init(jnp.stack([_key(cfg, i, 3, j) for i in ids for j in seeds]),
                           net, demos)
 
     def evaluate_all(chunk: int, rounds: int = 1):
@@ -241,7 +198,8 @@ def run_bc(study: Study, experts: dict, bar: tqdm, names: tuple[str, ...] = tupl
         for i, c in enumerate(names):
             rows = jax.tree.map(lambda x, i=i: x[i * s:(i + 1) * s], state.params)
             out.append(study.eval_rows(rows, BC_CURVES[c][2],
-                                       jax.random.fold_in(_key(cfg, ids[i], 2), chunk), rounds))
+                                       jax.random.fold_in(_key(cfg, ids[i], 2), chunk), rounds,
+                                       seeds))
         return out
 
     points = [[(0, *r)] for r in evaluate_all(0)]
@@ -257,9 +215,28 @@ def run_bc(study: Study, experts: dict, bar: tqdm, names: tuple[str, ...] = tupl
         bar.set_postfix_str(f"bc loss {np.round(losses[-1], 3).tolist()}")
     records = []
     for i, c in enumerate(names):
-        records += _records(c, "bc_epochs", points[i], s)
+        records += _records(c, "bc_epochs", points[i], seeds)
     return {"records": records, "seconds": time.perf_counter() - t0,
             "losses": np.asarray(losses).tolist()}
+
+
+def _part_path(folder: Path, name: str, part: tuple[int, ...]) -> Path:
+    return folder / f"{name}.seeds{part[0]}-{part[-1]}.pkl"
+
+
+def _merge(results: list[dict], weights: list[int]) -> dict:
+    """One stage's results over the seed parts: records joined, seconds summed, per-chunk
+    losses and metrics averaged (weighted by the parts' seeds)."""
+    out = {"records": [r for res in results for r in res["records"]],
+           "seconds": sum(res["seconds"] for res in results)}
+    if "losses" in results[0]:
+        out["losses"] = np.average([np.asarray(r["losses"]) for r in results], axis=0,
+                                   weights=weights).tolist()
+    if "metrics" in results[0]:
+        out["metrics"] = [{k: np.average([np.asarray(r["metrics"][i][k]) for r in results],
+                                         axis=0, weights=weights).tolist() for k in m}
+                          for i, m in enumerate(results[0]["metrics"])]
+    return out
 
 
 def _cached(path: Path, fn):
@@ -282,12 +259,27 @@ def outputs(cfg: StudyConfig) -> tuple[str, ...]:
     return OUTPUTS + (BASELINE_OUTPUTS if cfg.baselines else ())
 
 
+def cpu_text() -> str:
+    """``<CPU model>, <N> cores`` of this machine (what provenance names as the device)."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
+
+
 def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
-              study: Study | None = None, progress: bool = True) -> pd.DataFrame:
+              study: Study | None = None, progress: bool = True,
+              command: str | None = None) -> pd.DataFrame:
     """Run (or resume) the study and write every output; returns the summary table.
 
     ``study`` reuses already compiled functions (tests); it must have been built from ``cfg``.
-    ``progress`` False turns the progress bar off (``--no-progress``).
+    ``progress`` False turns the progress bar off (``--no-progress``). ``command``: the command
+    line that ran it (recorded in ``maze_config.json`` for provenance).
     """
     cfg.validate()
     require_folder(out, "--out")
@@ -312,65 +304,82 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
                   for name in ("rl_full", "rl_partial")}
     bc = {"bc": resolved["bc"], "bc_chunk_epochs": cfg.bc_chunk_epochs}
     full = {**shared, "rl_full_updates": cfg.rl_full_updates}
-    stage_dirs["bc_full"] = work / digest({**full, **bc})
-    stage_dirs["bc_partial"] = work / digest(
-        {**shared, "rl_partial_updates": cfg.rl_partial_updates, **bc})
+    stage_dirs.update({c: work / digest({**shared, f"{BC_CURVES[c][0]}_updates": resolved[
+        f"{BC_CURVES[c][0]}_updates"], **bc}) for c in BC_CURVES})
     stage_dirs["dagger"] = work / digest({**full, "dagger": resolved["dagger"]})
     for name in extended.MIXED_CURVES:
         stage_dirs[name] = work / digest({**full, "mixed": resolved["mixed"], "curve": name,
                                           "mixed_updates": cfg.mixed_updates})
     study = study or Study(cfg)
+    parts = seed_parts(cfg)
     mixed_ticks = cfg.mixed_updates // cfg.chunk_updates
     ticks = {"rl_full": cfg.rl_full_updates // cfg.chunk_updates,
              "rl_partial": cfg.rl_partial_updates // cfg.chunk_updates,
-             "bc_full": cfg.bc.epochs // cfg.bc_chunk_epochs,
-             "bc_partial": cfg.bc.epochs // cfg.bc_chunk_epochs}
+             **dict.fromkeys(BC_CURVES, cfg.bc.epochs // cfg.bc_chunk_epochs)}
     if cfg.baselines:
         ticks.update(dagger=cfg.dagger.iterations, **dict.fromkeys(extended.MIXED_CURVES,
                                                                    mixed_ticks))
     t_start, cpu_start = time.perf_counter(), time.process_time()
-    with tqdm(total=sum(ticks.values()), desc="maze study", unit="chunk",
+    with tqdm(total=sum(ticks.values()) * len(parts), desc="maze study", unit="chunk",
               dynamic_ncols=True, disable=not progress) as bar:
 
-        results: dict = {}
+        results: dict = {}  # (stage, part) -> its result
+        cached_parts = {(n, k) for n in ticks for k, part in enumerate(parts)
+                        if _part_path(stage_dirs[n], n, part).exists()}
+        if len(cached_parts) < len(ticks) * len(parts):  # something to train: compile first
+            for rows in sorted({len(p) for p in parts}):
+                study.warm(rows, cfg.lanes)
 
-        def stage(name: str, inputs: tuple[str, ...], fn) -> Job:
-            def cached(_echo: bool):
-                experts = {n: results[n]["params"] for n in inputs}
-                out, hit = _cached(stage_dirs[name] / f"{name}.pkl", lambda: fn(experts))
-                bar.update(ticks[name] if hit else 0)
-                results[name] = out
-            return Job(name, cached, inputs)
+        def stage(name: str, inputs: tuple[str, ...], fn) -> list[Job]:
+            jobs = []
+            for k, part in enumerate(parts):
+                def cached(_echo: bool, k=k, part=part):
+                    experts = {n: results[n, k]["params"] for n in inputs}
+                    out, hit = _cached(_part_path(stage_dirs[name], name, part),
+                                       lambda: fn(experts, part))
+                    bar.update(ticks[name] if hit else 0)
+                    results[name, k] = out
+                jobs.append(Job(f"{name}@{k}", cached, tuple(f"{n}@{k}" for n in inputs)))
+            return jobs
 
-        full_bc = tuple(c for c in BC_CURVES if BC_CURVES[c][0] == "rl_full")
-        # the first ready stage in this order starts in the first free lane
-        jobs = [stage("rl_full", (), lambda _: run_rl(study, "rl_full", False, bar)),
-                stage("rl_partial", (), lambda _: run_rl(study, "rl_partial", True, bar)),
-                stage("bc_full", ("rl_full",), lambda e: run_bc(study, e, bar, full_bc)),
-                stage("bc_partial", ("rl_partial",), lambda e: run_bc(
-                    study, e, bar, tuple(c for c in BC_CURVES if c not in full_bc)))]
+        # the first ready stage in this order starts in the first free lane: the longest first
+        jobs = [*stage("rl_partial", (), lambda _, p: run_rl(study, "rl_partial", True, bar,
+                                                             seeds=p)),
+                *stage("rl_full", (), lambda _, p: run_rl(study, "rl_full", False, bar,
+                                                          seeds=p))]
+        for c in BC_CURVES:
+            jobs += stage(c, (BC_CURVES[c][0],), lambda e, p, c=c: run_bc(study, e, bar, (c,), p))
         if cfg.baselines:
-            bc_rl, advisor = extended.MIXED_CURVES
-            jobs += [stage(advisor, ("rl_full",),
-                           lambda e: extended.run_mixed(study, e, bar, (advisor,))),
-                     stage(bc_rl, ("rl_full",),
-                           lambda e: extended.run_mixed(study, e, bar, (bc_rl,))),
-                     stage("dagger", ("rl_full",), lambda e: extended.run_dagger(study, e, bar))]
+            for name in extended.MIXED_CURVES:
+                jobs += stage(name, ("rl_full",), lambda e, p, name=name: extended.run_mixed(
+                    study, e, bar, (name,), p))
+            jobs += stage("dagger", ("rl_full",),
+                          lambda e, p: extended.run_dagger(study, e, bar, p))
         run_jobs(jobs, cfg.lanes)
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    order = ["rl_full", "rl_partial", "bc_full", "bc_partial", "dagger", *extended.MIXED_CURVES]
-    curves = pd.DataFrame([r for n in order if n in results for r in results[n]["records"]])
+    order = ["rl_full", "rl_partial", *BC_CURVES, "dagger", *extended.MIXED_CURVES]
+    weights = [len(p) for p in parts]
+    merged = {n: _merge([results[n, k] for k in range(len(parts))], weights)
+              for n in order if (n, 0) in results}
+    curves = pd.DataFrame([r for n in order if n in merged for r in merged[n]["records"]])
+    curves = curves.assign(_order=pd.factorize(curves.curve)[0]).sort_values(
+        ["_order", "progress", "seed"], kind="stable").drop(columns="_order").reset_index(
+        drop=True)
     summary = report.summarise(curves)
     refs = reference_returns(study.params)
     plateaus = {n: extended.plateau(curves, n, cfg.plateau_tol, opt) for n, opt in (
         ("rl_full", refs["oracle_full"][0]), ("rl_partial", None))}
     converged = {n: p["converged"] for n, p in plateaus.items()}
-    timings = {f"{n}_s": r["seconds"] for n, r in results.items()}
-    timings.update(this_invocation_wall_s=wall, this_invocation_cpu_s=cpu)
+    timings = {f"{n}_s": r["seconds"] for n, r in merged.items()}
+    compiled = study.compiled()
+    timings.update(compile_s=study.compile_seconds(), this_invocation_wall_s=wall,
+                   this_invocation_cpu_s=cpu)
     status = "; ".join(
         f"{n}: {'converged' if p['converged'] else 'NOT converged'} (rose "
         f"{p['rise_last_quarter']:.2f} over the last quarter; criterion < {p['tol']}"
         + (", within 2% of the exact optimum)" if p.get("at_optimum") else ")")
+        + f" after {getattr(cfg, n + '_updates')} updates, "
+        f"{getattr(cfg, n + '_updates') * cfg.ppo.steps_per_update:,} env steps per seed"
         for n, p in plateaus.items())
     note = (f"{cfg.seeds} seeds, GRU-{cfg.hidden}; PPO lr {cfg.ppo.lr}, "
             f"{cfg.rl_full_updates * cfg.ppo.steps_per_update:,} (full) / "
@@ -380,7 +389,8 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
                f"transitions; BC+PPO (w_BC {cfg.mixed.w_bc}, w_RL {cfg.mixed.w_rl}) and ADVISOR "
                f"(alpha {cfg.mixed.alpha}) {cfg.mixed_updates * cfg.ppo.steps_per_update:,} env "
                "steps per seed. " if cfg.baselines else "")
-            + f"Plateau test: {status}. Stage seconds (compile included): "
+            + f"Plateau test: {status}. Stage seconds (summed over {len(parts)} seed parts, "
+            "compile excluded): "
             + ", ".join(f"{k} {v:.0f}" for k, v in timings.items()))
     atomic_write_csv(out / "figures/fig2_maze.csv", curves)
     atomic_write_csv(out / "tables/maze_summary.csv", summary)
@@ -392,14 +402,19 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
                                 out / "figures/fig2b_maze_baselines")
     save_frames(out / "figures/maze_frames.png")
     meta = {"config": resolved, "references": {k: list(v) for k, v in refs.items()},
-            "timings_s": timings, "plateau": plateaus,
-            "bc_loss_per_chunk": np.concatenate([results["bc_full"]["losses"],
-                                                 results["bc_partial"]["losses"]], 1).tolist(),
-            "baseline_metrics": {n: results[n]["metrics"] for n in order[4:] if n in results},
-            "jax": jax.__version__, "device": str(jax.devices()[0])}
+            "timings_s": timings, "compiled_programs": compiled, "plateau": plateaus,
+            "bc_loss_per_chunk": np.stack([np.asarray(merged[c]["losses"])[:, 0]
+                                           for c in BC_CURVES], 1).tolist(),
+            "baseline_metrics": {n: merged[n]["metrics"] for n in order[5:] if n in merged},
+            "jax": jax.__version__, "device": str(jax.devices()[0]),
+            # what provenance records of this run (igdrivsim.report.provenance maze)
+            "code": code_state(), "machine": {**machine_record(), "command": command,
+                                              "cpu": cpu_text()}}
     atomic_write_json(config_path, meta, indent=2)
     print(summary.to_string(index=False))
     print(f"maze study: {status}")
+    print("maze study: compiled " + ", ".join(f"{n} x{c}" for n, c in compiled.items())
+          + f" ({timings['compile_s']:.0f} s)")
     print(f"maze study: wrote {', '.join(outputs(cfg))} under {out} ({wall:.0f} s wall, "
           f"{cpu:.0f} s CPU)")
     return summary
@@ -456,8 +471,15 @@ def study_command(args: argparse.Namespace) -> int:
         for path in replot(args.out):
             print(f"wrote {path}")
         return 0
-    run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress)
+    run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress,
+              command=command_text("python -m maze.study", args.argv))
     return 0
+
+
+def command_text(prog: str, argv: list[str] | None) -> str:
+    """The command line ``prog ARGV...`` (``sys.argv`` when ``argv`` is None), quoted."""
+    argv = sys.argv[1:] if argv is None else argv
+    return " ".join([prog, *(shlex.quote(str(a)) for a in argv)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -468,6 +490,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only redraw Fig. 2 and 2b from OUT's figures/fig2_maze.csv and "
                              "maze_config.json (no training)")
     args = parser.parse_args(argv)
+    args.argv = argv
     return run_command("maze study", study_command, args)
 
 

@@ -31,8 +31,33 @@ def run(tmp_path_factory):
     """One tiny study (PPO on full obs. long enough to learn, so BC has a real expert)."""
     out = tmp_path_factory.mktemp("maze")
     study = S.Study(TINY)
-    summary = S.run_study(TINY, out / "out", out / "work", study=study)
+    summary = S.run_study(TINY, out / "out", out / "work", study=study,
+                          command="python -m maze --out OUT")
     return study, out, summary
+
+
+def test_each_program_compiles_once(run):
+    """Both seed parts (one seed each) and every curve share one compiled program per
+    function: no recompilation between stages, parts or chunks."""
+    study, out, _ = run
+    assert study.compiled() == dict.fromkeys(study.programs(), 1)
+    meta = json.loads((out / "out/maze_config.json").read_text())
+    assert meta["compiled_programs"] == study.compiled()
+
+
+def test_provenance_records_the_run_alone(run):
+    """``python -m igdrivsim.report.provenance maze`` records the run's own command, machine,
+    wall time and code for each of its outputs, and stamps its markdown table."""
+    from igdrivsim.report import provenance
+
+    _, out, _ = run
+    written = provenance.record_maze(out / "out")
+    assert "tables/maze_summary.md" in written and "maze_config.json" in written
+    entry = provenance.load(out / "out")["figures/fig2_maze.png"]
+    assert entry["command"] == "python -m maze --out OUT" and set(entry["stages"]) == {"maze"}
+    assert entry["wall_s"] > 0 and "cores" in entry["device"]
+    table = (out / "out/tables/maze_summary.md").read_text()
+    assert table.splitlines()[2].startswith("Provenance: written by `python -m maze --out OUT`")
 
 
 def test_ppo_learns_on_a_tiny_maze(run):
@@ -76,7 +101,10 @@ def test_study_writes_every_output_and_resumes(run, capsys):
 
 
 def test_runs_are_deterministic(run):
+    """A curve trained on all seeds at once repeats the study's, trained one seed part at a
+    time (the parts' seeds keep their keys and initial parameters)."""
     study, out, _ = run
+    assert S.seed_parts(TINY) == [(0,), (1,)]
     with tqdm(disable=True) as bar:
         rerun = pd.DataFrame(S.run_rl(study, "rl_partial", True, bar)["records"])
     curves = pd.read_csv(out / "out/figures/fig2_maze.csv")

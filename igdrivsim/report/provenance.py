@@ -336,6 +336,38 @@ def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
     return list(files_rel)
 
 
+MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, its config)
+
+
+def record_maze(paper: Path) -> list[str]:
+    """Entries for the maze study's outputs under ``paper`` written by ``python -m maze --out
+    PAPER`` run alone (outside the pipeline): its command, device, wall time, date and code
+    as its ``maze_config.json`` recorded them (stage ``maze``); the markdown tables get the
+    line. Returns the files given an entry."""
+    paper = Path(paper)
+    meta = read_json(paper / "maze_config.json")
+    machine, code = meta.get("machine"), meta.get("code")
+    if not isinstance(machine, dict) or not isinstance(code, dict) or not machine.get("command"):
+        raise ConfigError(f"{paper / 'maze_config.json'}: no command, machine or code recorded "
+                          "(written by an older maze study: rerun python -m maze --out PAPER)")
+    entry = Entry(command=machine["command"], run="default",
+                  profile=f"maze {meta['config']['profile']}", updates=None, commit="",
+                  device=machine.get("cpu") or "device not recorded",
+                  wall_s=meta.get("timings_s", {}).get("this_invocation_wall_s"),
+                  date=machine.get("date") or today(),
+                  note="the maze study run alone").with_stages({"maze": code})
+    files, rels = load(paper), [r for r in outputs(paper) if r.startswith(MAZE_PREFIXES)
+                                and not r.startswith("generated/")]
+    for rel in rels:
+        files[rel] = entry.record()
+        if rel.endswith(".md"):
+            path = paper / rel
+            atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
+                                                   entry.line()))
+    save(paper, files)
+    return rels
+
+
 def missing(paper: Path) -> list[str]:
     """Outputs under ``paper`` without an entry."""
     files = load(paper)
@@ -374,13 +406,14 @@ def main(argv: Iterable[str] | None = None) -> int:
     outputs without an entry and the entries without their stage commits (exit 1 when there is
     one; entries published before per-stage provenance are counted, not failed); ``derived
     FILE... --from SOURCE --command CMD``: record files that CMD wrote from SOURCE's numbers
-    outside the pipeline."""
+    outside the pipeline; ``maze``: record the outputs of ``python -m maze --out PAPER`` run
+    alone (:func:`record_maze`)."""
     repo = Path(__file__).resolve().parents[2]
     parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.provenance",
                                      description=main.__doc__, formatter_class=FORMATTER)
-    parser.add_argument("action", choices=("backfill", "check", "derived"),
-                        help="backfill the missing entries, check them, or record derived "
-                             "files")
+    parser.add_argument("action", choices=("backfill", "check", "derived", "maze"),
+                        help="backfill the missing entries, check them, record derived "
+                             "files, or record a maze study run alone")
     parser.add_argument("files", nargs="*", metavar="FILE",
                         help="derived: the files written (relative to --paper)")
     parser.add_argument("--from", dest="source", default=None, metavar="SOURCE",
@@ -395,6 +428,10 @@ def main(argv: Iterable[str] | None = None) -> int:
             if not (args.files and args.source and args.command):
                 raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
             for rel in derived(paper, args.files, args.source, args.command, repo):
+                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
+            return 0
+        if args.action == "maze":
+            for rel in record_maze(paper):
                 print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
             return 0
         if args.action == "backfill":
