@@ -40,9 +40,12 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
     monkeypatch.setattr(pipe, "run_filter", lambda a, b: (Path(a), Path(b)))
     monkeypatch.setattr(pipe, "run_train", lambda m, a, b, echo=True, part=None: fake(
         f"train_{part.name if part else m}", echo, 1.5))
-    monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True: fake(f"evaluate_{m}", echo))
-    monkeypatch.setattr(pipe, "run_references",
-                        lambda m, v, echo=True: fake("evaluate_references", echo))
+    suffix = {"log": "", "idm": "_idm"}  # the sim agents' stage-name suffix
+    monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True, agents="log": fake(
+        f"evaluate_{m}{suffix[agents]}", echo))
+    monkeypatch.setattr(pipe, "run_references", lambda m, v, echo=True, agents="log": fake(
+        f"evaluate_references{suffix[agents]}", echo))
+    monkeypatch.setattr(pipe, "run_reactive", lambda parts: fake("reactive", True, 0.1))
     monkeypatch.setattr(pipe, "run_speed_walk", lambda v, echo=True: fake("speed_walk", echo))
     monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
     monkeypatch.setattr(pipe, "run_render", lambda v, echo=True: fake("render", echo))
@@ -63,11 +66,14 @@ def test_methods_train_side_by_side_and_report_progress(tmp_path, monkeypatch, c
     pipe.run()
     spans = _spans(pipe.times)
     assert set(spans) == {"train_bc_rl", "evaluate_bc_rl", "train_bc", "evaluate_bc",
-                          "evaluate_references", "speed_walk", "maze", "render", "report"}
+                          "evaluate_references", "speed_walk", "maze", "render", "report",
+                          "evaluate_bc_rl_idm", "evaluate_bc_idm", "evaluate_references_idm",
+                          "reactive"}
     (a0, a1), (b0, b1) = spans["train_bc_rl"], spans["train_bc"]
     assert a0 < b1 and b0 < a1  # the two trainings overlap in time
-    assert spans["report"][0] >= max(end for _, end in spans.values() if end != spans[
-        "report"][1]) - 1e-3  # the report waits for both lanes
+    assert spans["report"][0] >= max(end for name, (_, end) in spans.items() if name not in (
+        "report", "reactive")) - 1e-3  # the report waits for both lanes
+    assert spans["reactive"][0] >= spans["report"][1] - 1e-3  # after every evaluation
     err = capsys.readouterr().err
     assert "train_bc: step 2/2 train_bc" in err or "train_bc: step 1/2" in err
     assert "step 2/2 train_bc_rl" in (pipe.work / "logs" / "train_bc_rl.log").read_text()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import multiprocessing
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -134,7 +135,9 @@ def generate_command(args: argparse.Namespace) -> int:
     chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
                for i in range(indices.start, indices.stop, CHUNK)] for split, _, indices in todo]
     flat = [chunk for shard in chunks for chunk in shard]
-    pool = ProcessPoolExecutor(args.workers) if args.workers > 1 and flat else None
+    # forkserver: a fork of a process whose JAX runtime holds threads can deadlock
+    pool = (ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context(
+        "forkserver")) if args.workers > 1 and flat else None)
     try:
         results = (pool.map(_encode_chunk, *zip(*flat, strict=True)) if pool
                    else (_encode_chunk(*c) for c in flat))
