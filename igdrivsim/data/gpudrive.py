@@ -44,8 +44,7 @@ from igdrivsim.data.scenario import (
 )
 from igdrivsim.data.womd_proto import (
     DEFAULT_MAX_SPACING,
-    densify_polylines,
-    polyline_directions,
+    roadgraph_from_polylines,
 )
 from igdrivsim.errors import DataError
 
@@ -150,17 +149,7 @@ def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
         xyz.append(pts)
         types.append(code)
         ids.append(int(road.get("id", i)))
-    if not xyz:
-        z = np.zeros((0, 3), np.float32)
-        return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
-                         valid=np.zeros(0, bool))
-    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
-    return Roadgraph(xyz=points.astype(np.float32),
-                     dir=polyline_directions(points, poly).astype(np.float32),
-                     type=np.asarray(types, np.int32)[poly],
-                     id=np.asarray(ids, np.int64)[poly].astype(np.int32),
-                     valid=np.ones(len(points), bool))
+    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
 
 
 def _decode_lights(tl_states) -> TrafficLights:

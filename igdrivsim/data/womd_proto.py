@@ -147,6 +147,23 @@ def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return d
 
 
+def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int],
+                             max_spacing: float) -> Roadgraph:
+    """The roadgraph of typed polylines (``xyz[i]`` ``[V_i, 3]`` of type ``types[i]`` and id
+    ``ids[i]``), densified to ``max_spacing``: one place for every reader's map."""
+    if not xyz:
+        z = np.zeros((0, 3), np.float32)
+        return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
+                         valid=np.zeros(0, bool))
+    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
+    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
+    return Roadgraph(xyz=points.astype(np.float32),
+                     dir=polyline_directions(points, poly).astype(np.float32),
+                     type=np.asarray(types, np.int32)[poly],
+                     id=np.asarray(ids, np.int64)[poly].astype(np.int32),
+                     valid=np.ones(len(points), bool))
+
+
 def _decode_map(features, max_spacing: float) -> Roadgraph:
     xyz, types, ids = [], [], []
     for feature in features:
@@ -173,17 +190,7 @@ def _decode_map(features, max_spacing: float) -> Roadgraph:
         xyz.append(points)
         types.append(rg_type)
         ids.append(feature.id)
-    if not xyz:
-        return Roadgraph(xyz=np.zeros((0, 3), np.float32), dir=np.zeros((0, 3), np.float32),
-                         type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
-                         valid=np.zeros(0, bool))
-    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
-    return Roadgraph(xyz=points.astype(np.float32),
-                     dir=polyline_directions(points, poly).astype(np.float32),
-                     type=np.asarray(types, np.int32)[poly],
-                     id=np.asarray(ids, np.int64)[poly].astype(np.int32),
-                     valid=np.ones(len(points), bool))
+    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
 
 
 def _decode_lights(dynamic_states) -> TrafficLights:

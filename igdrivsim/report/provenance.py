@@ -327,13 +327,7 @@ def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
     for rel in files_rel:
         if not (paper / rel).is_file():
             raise ConfigError(f"{paper / rel}: no such output to record")
-        files[rel] = entry.record()
-        if rel.endswith(".md"):
-            path = paper / rel
-            atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
-                                                   entry.line()))
-    save(paper, files)
-    return list(files_rel)
+    return _record(paper, files, list(files_rel), entry)
 
 
 MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, its config)
@@ -358,6 +352,11 @@ def record_maze(paper: Path) -> list[str]:
                   note="the maze study run alone").with_stages({"maze": code})
     files, rels = load(paper), [r for r in outputs(paper) if r.startswith(MAZE_PREFIXES)
                                 and not r.startswith("generated/")]
+    return _record(paper, files, rels, entry)
+
+
+def _record(paper: Path, files: dict, rels: list[str], entry) -> list[str]:
+    """Give each of ``rels`` ``entry``'s record (its line atop a markdown table) and save."""
     for rel in rels:
         files[rel] = entry.record()
         if rel.endswith(".md"):
