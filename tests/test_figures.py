@@ -177,7 +177,7 @@ def test_maze_baselines_axis_has_thousands_separators_and_units(maze_curves):
         ax = fig.axes[0]
         fig.canvas.draw()
         ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
-        assert "600,000" in ticks and not any("00000" in t for t in ticks)
+        assert any(t.endswith(",000") for t in ticks) and not any("00000" in t for t in ticks)
         assert ax.get_xlabel().endswith("(steps)") and "(reward" in ax.get_ylabel()
     finally:
         plt.close(fig)

@@ -217,7 +217,7 @@ def test_maze_study_no_progress(flag, progress, tmp_path, monkeypatch):
 
     seen = []
 
-    def fake_run_study(cfg, out, work, force=False, study=None, progress=True):
+    def fake_run_study(cfg, out, work, force=False, study=None, progress=True, command=None):
         seen.append(progress)
 
     monkeypatch.setattr(S, "run_study", fake_run_study)
