@@ -45,8 +45,10 @@ LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # training at the rates measured then was 300 x 6 x (0.770 + 1.882) = 4,774 CPU-s; the remaining
 # 1,211 CPU-s are the data, filter, evaluations, Fig. 1, report and PDF, and the maze study: 524-534
 # CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
-MAZE_CPU_S = 534.0
-LAPTOP_OTHER_CPU_S = 1211.0 - MAZE_CPU_S
+LAPTOP_OTHER_CPU_S = 1211.0 - 534.0
+# The maze study with its converged references and baselines: `python -m maze` on 2 quiet cores
+# printed 205 s wall, 399 s CPU (2026-11-28).
+MAZE_CPU_S = 399.0
 # One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H100 (16 CPU
 # cores), `igdrivsim bench train --profiles gpu --method M`: BC 0.067 s per update, BC-RL 0.236 s,
 # after a first update (compile) of 63 s. The same network at 3 seeds on one H200 took 0.0262 /
