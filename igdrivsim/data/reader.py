@@ -233,27 +233,6 @@ def load_scenario(path: str | os.PathLike, index: int = 0,
     raise DataError(f"no record {index} (file has fewer records)", file=path, record=index)
 
 
-def load_records(refs: Iterable[tuple[str, int]], caps: Capacities = DEFAULT_CAPS
-                 ) -> Iterator[Scenario]:
-    """Scenarios by ``(file, record)`` reference, e.g. the kept rows of a filter manifest.
-
-    References are grouped per file and read in one pass per file, yielding in the given order.
-    """
-    refs = list(refs)
-    by_file: dict[str, set[int]] = {}
-    for f, r in refs:
-        by_file.setdefault(os.fspath(f), set()).add(int(r))
-    cache: dict[tuple[str, int], Scenario] = {}
-    for f, wanted in by_file.items():
-        for rec in iter_file(f, caps, start=min(wanted), stop=max(wanted) + 1):
-            if rec.record in wanted:
-                cache[(f, rec.record)] = rec.scenario
-        for r in wanted - {rec_r for (ff, rec_r) in cache if ff == f}:
-            raise DataError(f"no record {r} (file has fewer records)", file=f, record=r)
-    for f, r in refs:
-        yield cache[(os.fspath(f), int(r))]
-
-
 def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
     """Unbatched scenarios from scenarios that may carry leading batch dimensions."""
     for s in scenarios:
