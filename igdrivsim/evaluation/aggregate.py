@@ -265,9 +265,9 @@ def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA,
     return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)) * np.asarray(se, float)
 
 
-def _setting_seed(setting: str) -> list[int]:
-    """A fixed, per-setting RNG seed (independent of which other settings were evaluated)."""
-    return [TEST_SEED, zlib.crc32(setting.encode())]
+def statistic_seed(*names: str) -> list[int]:
+    """A fixed bootstrap seed per comparison (independent of which others were made)."""
+    return [TEST_SEED, zlib.crc32("/".join(names).encode())]
 
 
 def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
@@ -317,7 +317,7 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
             xa = scenario_cube(sub, method, scenarios)
             xb = scenario_cube(sub, baseline, scenarios)
             if scenarios.size:
-                c = paired_difference(xa, xb, n_resamples, _setting_seed(setting))
+                c = paired_difference(xa, xb, n_resamples, statistic_seed(setting))
                 diffs, lows, highs, ses, ps = c["diff"], c["lo"], c["hi"], c["se"], c["p"]
             else:
                 diffs = lows = highs = ses = ps = np.full(len(METRICS), np.nan)

@@ -19,7 +19,6 @@ frame's ``source`` column, else :func:`source_of` its ``scenario_id``.
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Sequence
 
 import numpy as np
@@ -29,12 +28,13 @@ from scipy import stats
 from igdrivsim.evaluation.aggregate import (
     CONFIDENCE,
     N_RESAMPLES,
+    TEST_SEED,
     minimum_detectable_effect,
     resample_counts,
+    statistic_seed,
 )
 from igdrivsim.evaluation.schema import REFERENCE_SETTING, SOURCE_COLUMN
 
-BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
 # the statistics, in the order of their columns (each with _lo, _hi; all but median with _mde)
 STATISTICS = ("win", "median", "ratio", "diff")
@@ -94,7 +94,7 @@ def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
 
 def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Sequence,
                           n_resamples: int = N_RESAMPLES,
-                          seed: int | Sequence[int] = BOOTSTRAP_SEED,
+                          seed: int | Sequence[int] = TEST_SEED,
                           confidence: float = CONFIDENCE) -> dict[str, float]:
     """Win share, median paired difference, mean ratio and mean difference of ``driver``
     ``(seeds, egos)`` against ``reference`` ``(egos,)`` or ``(seeds, egos)``, each with ``_lo``,
@@ -170,11 +170,6 @@ def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference:
     return (a[egos].to_numpy(float).reshape(len(a), len(egos)),
             b[egos].to_numpy(float).mean(axis=0),
             [source[str(e)] for e in egos])
-
-
-def statistic_seed(*names: str) -> list[int]:
-    """A fixed bootstrap seed per comparison (independent of which others were made)."""
-    return [BOOTSTRAP_SEED, zlib.crc32("/".join(names).encode())]
 
 
 def compare_on_egos(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,

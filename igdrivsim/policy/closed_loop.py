@@ -144,11 +144,12 @@ def _device_multiple(size: int) -> int:
     return -(-size // count) * count
 
 
-def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
+def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> StepOutputs:
+    """``parts`` concatenated (or stacked: ``join=np.stack``) field by field."""
     scenario = None if parts[0].scenario is None else {
-        k: np.concatenate([p.scenario[k] for p in parts], axis=axis) for k in parts[0].scenario}
-    return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis=axis)
-                         for f in StepOutputs.FIELDS), scenario)
+        k: join([p.scenario[k] for p in parts], **kw) for k in parts[0].scenario}
+    return StepOutputs(*(join([getattr(p, f) for p in parts], **kw) for f in StepOutputs.FIELDS),
+                       scenario)
 
 
 def _pad_batch(batch, size: int):
@@ -185,7 +186,7 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
         parts.append(outs.map(lambda a, n=stop - start: a[:n]))
         if progress:
             progress(stop - start)
-    return _concat(parts, axis=0)
+    return _join(parts, axis=0)
 
 
 def _episode_keys(base, num_seeds: int, index: np.ndarray):
@@ -224,10 +225,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                                   batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
                                   progress=progress, episode_metrics=episode_metrics)
                   for g, n in enumerate(names)]
-        scenario = None if groups[0].scenario is None else {
-            k: np.stack([o.scenario[k] for o in groups]) for k in groups[0].scenario}
-        return StepOutputs(*(np.stack([getattr(o, f) for o in groups]) for f in
-                             StepOutputs.FIELDS), scenario)
+        return _join(groups, np.stack)
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     base = jax.random.key(seed)
@@ -244,7 +242,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
         parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
         if progress:
             progress(stop - start)
-    out = _concat(parts, axis=2)
+    out = _join(parts, axis=2)
     if single:
         out = out.map(lambda a: a[0])
     return out
