@@ -23,7 +23,6 @@ from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 
 
-# ------------------------------------------------------------------------------------ CLI
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", formatter_class=DefaultsFormatter,
                                      description=(

@@ -93,7 +93,6 @@ class Pipeline(Publisher, StageRunner):
         # stages now running -> when they began, moved back by their earlier invocations' seconds
         self.running: dict[str, float] = {}
 
-    # --------------------------------------------------------------------------- stages
     @property
     def data_label(self) -> str:
         if self.train_data is None:
