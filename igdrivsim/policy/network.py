@@ -231,11 +231,6 @@ class DrivingPolicy(nn.Module):
             parts.append(history)
         return self.trunk(jnp.concatenate(parts, axis=-1))
 
-    def core(self, carry, x, reset):
-        """The recurrent part: ``(carry, encoded x, reset) -> (carry, GRU output)``."""
-        carry = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(carry), carry)
-        return self.gru(carry, x)
-
     def _logits(self, mlp, out, y, sdc_speed):
         logits = dense_2d(out, mlp(y))
         logits = logits.reshape(*logits.shape[:-1], NUM_ACTION_DIMS, self.config.num_bins)
@@ -258,7 +253,8 @@ class DrivingPolicy(nn.Module):
         h, past = split_carry(self.config, carry)
         history, past = step_history(self.config, obs.sdc_speed, obs.sdc_yaw_rate, past, reset)
         x = self.encode(obs, history)
-        h, y = self.core(h, x, reset)
+        h = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(h), h)
+        h, y = self.gru(h, x)
         logits, value, _ = self.heads(head_inputs(self.config, y, x), obs.sdc_speed)
         return jnp.concatenate([h, past], -1), logits, value
 
