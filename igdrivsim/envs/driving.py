@@ -12,6 +12,7 @@ last step the episode's Table I metrics. Observation: a ``Dict`` of the
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -121,15 +122,11 @@ def _observation_space(config: ObservationConfig) -> spaces.Dict:
 
 
 def _to_numpy(obs: Observation) -> dict[str, np.ndarray]:
+    """The observation's fields as the space's NumPy arrays (the masks as ``int8``)."""
     obs = jax.device_get(obs)
-    return {
-        "objects": np.asarray(obs.objects, np.float32),
-        "objects_valid": np.asarray(obs.objects_valid, np.int8),
-        "roadgraph": np.asarray(obs.roadgraph, np.float32),
-        "roadgraph_valid": np.asarray(obs.roadgraph_valid, np.int8),
-        "sdc_speed": np.asarray(obs.sdc_speed, np.float32).reshape(1),
-        "sdc_yaw_rate": np.asarray(obs.sdc_yaw_rate, np.float32).reshape(1),
-    }
+    return {f.name: np.asarray(getattr(obs, f.name),
+                               np.int8 if f.name.endswith("_valid") else np.float32)
+            for f in dataclasses.fields(obs)}
 
 
 def _load(data, caps: Capacities, max_scenarios: int | None, egos: str = "sdc"
