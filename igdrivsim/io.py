@@ -1,12 +1,10 @@
-"""Atomic file writers (write to a temp file in the target's folder, then ``os.replace`` it),
-and the one reader of the JSON records they write (:func:`read_json`).
+"""Atomic file writers (a temp file in the target's folder, then ``os.replace``) and the one
+reader of the JSON records they write (:func:`read_json`).
 
-Every output of the package (data shards, manifests, configs, metrics, tables, figures, GIFs)
-goes through these helpers, so a reader or a resumed pipeline never sees a half-written file:
-an error or a crash mid-write leaves the old file (or no file), and errors remove the temp file
-(a killed process may leave one behind, hidden as ``.<name>.*``). Files get ordinary permissions,
-``0o666`` minus the umask, not ``mkstemp``'s private 0600. There is no fsync: this guards
-against process crashes, not power loss.
+Every output of the package goes through them, so a reader or a resumed pipeline never sees a
+half-written file: an error leaves the old file (or none) and removes the temp file (a killed
+process may leave a hidden ``.<name>.*``). Files get ``0o666`` minus the umask. No fsync: this
+guards against process crashes, not power loss.
 """
 
 from __future__ import annotations
@@ -29,9 +27,8 @@ _REQUIRED = object()
 
 
 def read_json(path: str | os.PathLike[str], default: Any = _REQUIRED) -> dict:
-    """The JSON object (a dict) in ``path``. Missing, unreadable, not JSON or not an object: a
-    one-line :class:`~igdrivsim.errors.DataError` naming the file, or ``default`` when one is
-    given (a stamp or a cache that is then redone)."""
+    """The JSON object in ``path``; when it is missing, unreadable or not an object, ``default``
+    if given, else a :class:`~igdrivsim.errors.DataError` naming the file."""
     try:
         record = json.loads(Path(path).read_text(encoding="utf-8"))
         if not isinstance(record, dict):
@@ -44,8 +41,7 @@ def read_json(path: str | os.PathLike[str], default: Any = _REQUIRED) -> dict:
 
 
 def require_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
-    """``path`` as a folder to write into, refused up front (before any work) when a file is
-    there: ``ConfigError`` naming the option."""
+    """``path`` as a folder to write into, refused up front when a file is there."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{option} {path}: a file is there, not a folder")
@@ -93,11 +89,8 @@ def _publish(tmp: Path, path: Path) -> None:
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], mode: str = "wb",
                 **open_kwargs: Any) -> Iterator[IO[Any]]:
-    """Yield an open temp file next to ``path``; on a clean exit it replaces ``path``.
-
-    ``mode`` and ``open_kwargs`` (e.g. ``encoding``) go to :func:`os.fdopen`. On an exception
-    the temp file is removed and ``path`` is left as it was.
-    """
+    """Yield an open temp file (``mode``, ``open_kwargs`` as :func:`os.fdopen`) next to ``path``
+    that replaces ``path`` on a clean exit."""
     path = Path(path)
     fd, tmp = _temp_for(path, ".tmp")
     try:
@@ -116,12 +109,8 @@ def atomic_path(path: str | os.PathLike[str], mode: str = "wb",
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
                  suffix: str | None = None) -> Path:
-    """Call ``write(tmp)`` with a temp path next to ``path``, then move it into place.
-
-    For libraries that want a file name (GIF writers, ``to_csv`` with compression): the temp
-    name ends with ``suffix``, by default ``path``'s, so they infer the same format as ``path``
-    would give. Returns ``path``.
-    """
+    """Call ``write(tmp)`` with a temp path next to ``path`` ending with ``suffix`` (default:
+    ``path``'s, for libraries that infer the format from it), then move it into place."""
     path = Path(path)
     fd, tmp = _temp_for(path, path.suffix if suffix is None else suffix)
     os.close(fd)
@@ -164,10 +153,8 @@ def atomic_write_csv(path: str | os.PathLike[str], frame: Any) -> Path:
 
 
 def atomic_savefig(fig: Any, path: str | os.PathLike[str], **kwargs: Any) -> Path:
-    """Save a matplotlib figure atomically; the format is ``path``'s suffix (not the temp name's).
-
-    Without a suffix, matplotlib's ``savefig.format`` is used (and no extension is appended).
-    """
+    """Save a matplotlib figure atomically in the format of ``path``'s suffix (without one,
+    matplotlib's ``savefig.format``)."""
     fmt = kwargs.pop("format", None) or Path(path).suffix.lstrip(".")
     if not fmt:
         import matplotlib  # heavy, and only for a figure saved without a suffix

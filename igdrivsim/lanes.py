@@ -1,11 +1,7 @@
 """A local pool of lanes: each lane is a thread running one job at a time; a job starts once the
-jobs it needs are done, the first ready one in the given order. One machine only (several
-machines: ``jax.distributed``, igdrivsim train).
-
-It runs the pipeline's stages (each lane drives one stage's processes) and the maze study's
-stages (:mod:`maze.study`: a jitted JAX call releases the GIL and an XLA CPU program of the
-maze's size runs on one core, so two lanes keep both cores of a 2-core machine busy). A job's
-result must not depend on the lane it ran in or on timing.
+jobs it needs are done, the first ready one in the given order. It runs the pipeline's and the
+maze study's stages (jitted JAX calls release the GIL). A job's result must not depend on its
+lane or on timing.
 """
 
 from __future__ import annotations

@@ -43,10 +43,8 @@ OWN_OUTPUTS = ("paper", "docs/results.md", "README.md")
 
 
 def code_state(repo: str | Path = PACKAGE_REPO) -> dict:
-    """The code of git checkout ``repo`` (its top level; default: this package's checkout):
-    ``{"commit", "dirty", "diff_hash"}``, ``diff_hash`` the first 12 hex digits of the sha256
-    of ``git diff HEAD`` when dirty (None when clean). The pipeline's own outputs
-    (:data:`OWN_OUTPUTS`) do not count. All None outside a git checkout or without git."""
+    """``{"commit", "dirty", "diff_hash"}`` of the git checkout ``repo`` (``diff_hash``: 12 hex
+    digits of the sha256 of ``git diff HEAD`` but :data:`OWN_OUTPUTS`); all None outside one."""
     repo = Path(repo).resolve()
 
     def git(*args: str) -> bytes:

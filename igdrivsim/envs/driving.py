@@ -1,28 +1,18 @@
 """The driving task as a Gymnasium environment (id ``IGDrivSim/Driving-v0``) and as pure,
 batched JAX functions.
 
-One scenario per episode: ``reset`` picks a scenario (``options={"index": i}`` or at random from
-the seeded ``np_random``) and returns the imitator's observation under the chosen observation
-setting at the current step (10); each ``step`` moves the SDC with the action (every other
-object replays its log) for ``SimParams.num_controlled_steps`` (80) steps, after which the
-episode is truncated (the log ends). Reward: ``-1[overlap] - 1[offroad]``. ``info`` holds the
-step's metrics (``overlap``, ``offroad``, ``log_divergence``, ``valid``), the ``timestep`` and
-``scenario_id``, and at the last step the episode's ``overlap_rate``, ``offroad_rate`` and
-``max_log_divergence`` (as in Table I).
-
-Observation: a ``Dict`` of the fields of :class:`igdrivsim.observation.Observation` as NumPy
-arrays (``float32``; the ``*_valid`` masks as ``int8`` ``MultiBinary``). Action: the
-discretised delta action ``MultiDiscrete([257, 257, 257])`` (the expert's bins), or with
-``continuous=True`` the delta ``(dx, dy, dyaw)`` as a ``Box`` within the action bounds.
-
-For speed, :func:`driving_functions` gives jitted ``reset``/``step`` for one scenario and
-``batch_reset``/``batch_step`` vmapped over a batch (``EnvState`` pytrees, no host round trip),
-plus the discretised expert's action; the Gymnasium class is a thin host wrapper around them.
-Only the public simulator and observation API is used.
+One scenario per episode (``options={"index": i}`` or drawn from ``np_random``): the
+observation under the setting from step 10, ``SimParams.num_controlled_steps`` steps, then
+truncation. Reward ``-1[overlap] - 1[offroad]``; ``info`` holds the step's metrics, and at the
+last step the episode's Table I metrics. Observation: a ``Dict`` of the
+:class:`~igdrivsim.observation.Observation` fields (masks ``int8``). Action: the expert's bins
+``MultiDiscrete([257] * 3)``, or with ``continuous=True`` a ``Box`` of ``(dx, dy, dyaw)``.
+:func:`driving_functions` gives the jitted (and batched) pure functions the class wraps.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -72,12 +62,8 @@ class EnvState:
 
 
 class DrivingFunctions(NamedTuple):
-    """Jitted pure functions of one configuration (see :func:`driving_functions`).
-
-    ``reset(scenario, key) -> (state, obs)``; ``step(state, action) -> (state, obs, reward,
-    done, metrics)``; ``expert(state) -> int32[3]`` (the discretised expert's bins). The
-    ``batch_*`` versions take and return a leading batch axis on every argument.
-    """
+    """Jitted ``reset(scenario, key) -> (state, obs)``, ``step(state, action) -> (state, obs,
+    reward, done, metrics)``, ``expert(state) -> int32[3]``, and their ``batch_*`` versions."""
 
     reset: Any
     step: Any
@@ -96,8 +82,7 @@ def _observe(state: EnvState, setting, config: ObservationConfig) -> Observation
 def driving_functions(setting: str = "full", params: SimParams = DEFAULT_PARAMS,
                       config: ObservationConfig = DEFAULT_CONFIG,
                       continuous: bool = False) -> DrivingFunctions:
-    """The environment's pure functions for an observation ``setting`` (a preset name, composed
-    with ``+``); cached, so environments of one configuration share the compilation."""
+    """The environment's pure functions for an observation ``setting`` (cached)."""
     obs_setting = get_setting(setting)
     last = CURRENT_INDEX + params.num_controlled_steps
 
@@ -137,15 +122,11 @@ def _observation_space(config: ObservationConfig) -> spaces.Dict:
 
 
 def _to_numpy(obs: Observation) -> dict[str, np.ndarray]:
+    """The observation's fields as the space's NumPy arrays (the masks as ``int8``)."""
     obs = jax.device_get(obs)
-    return {
-        "objects": np.asarray(obs.objects, np.float32),
-        "objects_valid": np.asarray(obs.objects_valid, np.int8),
-        "roadgraph": np.asarray(obs.roadgraph, np.float32),
-        "roadgraph_valid": np.asarray(obs.roadgraph_valid, np.int8),
-        "sdc_speed": np.asarray(obs.sdc_speed, np.float32).reshape(1),
-        "sdc_yaw_rate": np.asarray(obs.sdc_yaw_rate, np.float32).reshape(1),
-    }
+    return {f.name: np.asarray(getattr(obs, f.name),
+                               np.int8 if f.name.endswith("_valid") else np.float32)
+            for f in dataclasses.fields(obs)}
 
 
 def _load(data, caps: Capacities, max_scenarios: int | None, egos: str = "sdc"
@@ -177,10 +158,8 @@ class DrivingEnv(gym.Env):
                  params: SimParams = DEFAULT_PARAMS, config: ObservationConfig = DEFAULT_CONFIG,
                  caps: Capacities = DEFAULT_CAPS, max_scenarios: int | None = None,
                  egos: str = "sdc"):
-        """``data``: any data path (:func:`~igdrivsim.data.source.open_scenarios`: WOMD,
-        ScenarioNet, GPUDrive JSON, a filter output folder), or :class:`Scenario` objects; all
-        of it is loaded (``max_scenarios`` caps how many). ``egos="all"``: one scenario per
-        eligible vehicle (:mod:`igdrivsim.data.egos`)."""
+        """``data``: any data path (:func:`~igdrivsim.data.source.open_scenarios`) or
+        :class:`Scenario` objects, all loaded (at most ``max_scenarios``)."""
         if not isinstance(setting, str):
             raise ConfigError(f"setting must be a preset name, got {setting!r}")
         self.setting = get_setting(setting).name

@@ -1,31 +1,20 @@
 """Aggregate tidy evaluation CSVs across seeds: means, 95% confidence intervals, effects vs BC.
 
-Statistics used, and why:
+- **Mean and 95% CI over seeds**: each seed's mean over the validation scenarios, then the mean
+  of the seed means with a t interval (``n - 1`` degrees of freedom), the paper's "mean over
+  three seeds with 95% CI".
+- **Effect of a method vs BC: two-level bootstrap.** Seeds are resampled with replacement within
+  each method (independent runs), then scenarios with the *same* resampled ids for both methods
+  and every seed (scenario difficulty is the largest variance). The 95% interval is the
+  percentile interval of ``N_RESAMPLES`` replicates, the p-value ``2 min(P*(d <= 0),
+  P*(d >= 0))`` add-one smoothed. With 3 seeds the seed level is coarse and slightly optimistic.
+- **Holm over every cell of the table** (settings x metrics x methods): a cell is significant,
+  bold in Table I, when its Holm-adjusted p is below ``ALPHA``.
+- **Minimum detectable effect** ``(z_{1-a/2} + z_{0.8}) * SE`` at ``a = ALPHA`` (``mde``) and
+  at ``ALPHA / n_cells`` (``mde_holm``).
 
-- **Mean and 95% CI over seeds.** Each seed (one independently trained policy) gives one
-  number per metric: its mean over the validation scenarios. The table reports the mean of the
-  seed means and a t-distribution interval over them (``n - 1`` degrees of freedom), which is
-  what "mean over three seeds with 95% CI" means in the paper.
-- **Effect of a method vs the baseline (BC): two-level bootstrap.** The difference of means
-  varies with the trained seeds *and* with the validation scenarios, so both are resampled:
-  seeds with replacement within each method (independent training runs, not paired), then
-  scenarios with replacement, the *same* resampled scenario ids for both methods and every seed
-  (all are evaluated on the same scenarios, whose difficulty is the largest source of
-  variance). The statistic is the difference of the resampled grand means; the 95% interval is
-  the percentile interval of ``N_RESAMPLES`` replicates and the two-sided p-value
-  ``2 min(P*(d <= 0), P*(d >= 0))`` (add-one smoothed, so never 0). With few seeds the seed
-  level is coarse (3 seeds give 10 distinct resamples) and the bootstrap variance of a mean of
-  ``S`` seeds is ``(S-1)/S`` of the unbiased one, so the interval is somewhat optimistic about
-  seed variance; it is still far more honest than conditioning on the trained seeds.
-- **Multiplicity: Holm over every cell of the table** (all settings x metrics x compared
-  methods). A cell is significant, and bold in Table I, when its Holm-adjusted p is below
-  ``ALPHA``, i.e. when the percentile interval at the Holm-adjusted level excludes 0.
-- **Minimum detectable effect** per cell: ``(z_{1-a/2} + z_{0.8}) * SE`` with ``SE`` the
-  bootstrap standard deviation of the difference, at ``a = ALPHA`` (``mde``) and at the
-  strictest Holm level ``ALPHA / n_cells`` (``mde_holm``, the bound for the first Holm step).
-
-Every bootstrap uses a fixed random seed per setting, so rerunning the report gives identical
-tables. Welch's t-test over the seed means is kept in ``tests.csv`` as a check.
+A fixed seed per setting makes the tables reproducible; Welch's t-test over the seed means is
+kept in ``tests.csv`` as a check.
 """
 
 from __future__ import annotations
@@ -57,7 +46,6 @@ CONFIDENCE = 0.95
 POWER = 0.8
 TEST_NAME = ("two-level bootstrap over seeds and paired scenarios, two-sided, "
              "Holm-corrected over all cells")
-TEST_SHORT = "hierarchical bootstrap + Holm"
 N_RESAMPLES = 10_000
 TEST_SEED = 0
 _CHUNK = 2_000  # resamples per block: bounds memory at CHUNK x n_scenarios counts
@@ -74,10 +62,8 @@ def _ends_with_line_end(path: Path) -> bool:
 
 def read_csv_checked(path: str | Path, columns: Iterable[str],
                      complete: Iterable[str] = ()) -> pd.DataFrame:
-    """Read a tidy CSV and check that it has ``columns``, that it ends with a whole row (a
-    line end), and values in every row for the ``complete`` columns (identifiers; metrics may
-    be empty: a scenario without a valid step has none); DataError names the file (and the
-    first incomplete row: 1 is the first after the header) otherwise."""
+    """Read a tidy CSV checked for ``columns``, a whole last row and values in every row for the
+    ``complete`` columns (identifiers); a DataError names the file and row otherwise."""
     path = Path(path)
     try:
         cut_off = not _ends_with_line_end(path)
@@ -105,11 +91,8 @@ def read_csv_checked(path: str | Path, columns: Iterable[str],
 
 
 def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Concatenate every ``per_step.csv`` / ``per_scenario.csv`` under the given folders.
-
-    A folder may hold the CSVs itself or in sub-folders (one per evaluated run). Returns
-    ``(per_step, per_scenario)``; raises :class:`DataError` when nothing is found.
-    """
+    """``(per_step, per_scenario)``: every ``per_step.csv`` / ``per_scenario.csv`` under the
+    folders (or their sub-folders) concatenated; a :class:`DataError` when none is found."""
     steps, scenarios = [], []
     for root in map(Path, paths):
         if not root.exists():
@@ -131,9 +114,8 @@ def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.Data
 
 
 def seed_means(per_scenario: pd.DataFrame, metrics: Sequence = METRICS) -> pd.DataFrame:
-    """Long table ``setting, method, seed, metric, value``: each seed's mean over scenarios,
-    scaled as in Table I (percent for the rates). ``metrics``: Table I's by default, or the
-    registry's (:mod:`igdrivsim.evaluation.registry`); a column the CSVs lack is skipped."""
+    """Long table ``setting, method, seed, metric, value``: each seed's mean over scenarios at
+    Table I's scale (``metrics``: Table I's or the registry's; a missing column is skipped)."""
     rows = []
     grouped = per_scenario.groupby(["setting", "method", "seed"], sort=True)
     for metric in metrics:
@@ -190,25 +172,23 @@ def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE,
                                        "ci_high", "n_seeds", "n_scenarios"])
 
 
-def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
-    """``(n_resamples, n)`` bootstrap weights: counts of each index in a resample, over ``n``."""
+def resample_counts(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
+    """``(n_resamples, n)`` integer counts of each of ``n`` items in a resample of size ``n``."""
     idx = rng.integers(0, n, size=(n_resamples, n)) + n * np.arange(n_resamples)[:, None]
-    return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n) / n
+    return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n)
+
+
+def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
+    return resample_counts(rng, n_resamples, n) / n
 
 
 def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_RESAMPLES,
                            seed: int | Sequence[int] = TEST_SEED,
                            clusters: Sequence | None = None) -> np.ndarray:
-    """Bootstrap replicates of ``mean(xa) - mean(xb)`` resampling seeds, then paired scenarios.
-
-    ``xa``: ``(seeds_a, scenarios, k)`` and ``xb``: ``(seeds_b, scenarios, k)``, the same
-    scenarios in the same order (``k`` metrics share the resamples). Seeds are resampled within
-    each method; one scenario resample is shared by both methods and all seeds. ``clusters``:
-    each scenario's cluster (its source scenario, when several egos come from one scene,
-    :func:`igdrivsim.evaluation.paired.sources`): clusters are resampled with all their
-    scenarios; all distinct (or None) is the plain scenario resample. Returns
-    ``(n_resamples, k)``. Vectorised: a resample's grand mean is ``w_seed @ X @ w_scenario``.
-    """
+    """``(n_resamples, k)`` bootstrap replicates of ``mean(xa) - mean(xb)``, ``xa``/``xb``
+    ``(seeds, scenarios, k)`` over the same scenarios: seeds resampled within each method, one
+    scenario resample shared by both (whole ``clusters`` of scenarios from one scene, when
+    given). A resample's grand mean is ``w_seed @ X @ w_scenario``."""
     xa, xb = np.asarray(xa, float), np.asarray(xb, float)
     if xa.ndim == 2:
         xa, xb = xa[..., None], xb[..., None]
@@ -252,10 +232,9 @@ def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
 def paired_difference(a: np.ndarray, b: np.ndarray, n_resamples: int = N_RESAMPLES,
                       seed: int | Sequence[int] = TEST_SEED, confidence: float = CONFIDENCE,
                       clusters: Sequence | None = None) -> dict[str, np.ndarray]:
-    """``a - b`` over the same scenarios (``(seeds, scenarios, metrics)`` each): the means,
-    the difference, its interval (:func:`hierarchical_bootstrap`: seeds, then paired
-    scenarios, or their ``clusters``), its standard error, the bootstrap p-value and the
-    minimum detectable effect (level ``ALPHA``, power ``POWER``), per metric."""
+    """``a - b`` over the same scenarios per metric: the means, the difference, its
+    :func:`hierarchical_bootstrap` interval, standard error, p-value and minimum detectable
+    effect."""
     reps = hierarchical_bootstrap(a, b, n_resamples, seed, clusters)
     lo, hi = np.percentile(reps, [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2],
                            axis=0)
@@ -286,16 +265,15 @@ def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA,
     return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)) * np.asarray(se, float)
 
 
-def _setting_seed(setting: str) -> list[int]:
-    """A fixed, per-setting RNG seed (independent of which other settings were evaluated)."""
-    return [TEST_SEED, zlib.crc32(setting.encode())]
+def statistic_seed(*names: str) -> list[int]:
+    """A fixed bootstrap seed per comparison (independent of which others were made)."""
+    return [TEST_SEED, zlib.crc32("/".join(names).encode())]
 
 
 def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
                   keys: Sequence[str] | None = None) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` array of one method's metric values at Table I's scale
-    (percent for the rates), the scenarios in the given order (NaN where a seed lacks one);
-    ``keys``: the metrics (default: Table I's)."""
+    """``(seeds, scenarios, metrics)`` array of one method's values at Table I's scale, NaN where
+    a seed lacks a scenario (``keys``: the metrics, default Table I's)."""
     metrics = METRICS if keys is None else [METRIC_BY_KEY[k] for k in keys]
     cols = [m.column for m in metrics]
     scale = np.array([m.scale for m in metrics])
@@ -321,17 +299,10 @@ def complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
 def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
                     methods: Sequence[str] | None = None, alpha: float = ALPHA,
                     n_resamples: int = N_RESAMPLES, power: float = POWER) -> pd.DataFrame:
-    """Each method against ``baseline`` per setting and metric (see the module docstring).
-
-    ``methods``: the compared methods (default: every learned method but the baseline, i.e.
-    all except the reference actors). Returns one row per (method, setting, metric) with
-    ``mean_a`` (method), ``mean_b`` (baseline), ``diff`` (their difference on the scenarios all
-    seeds share), the bootstrap ``ci_low``/``ci_high`` (95%), ``se``, ``p_value``, the Holm
-    ``p_holm`` over all rows, ``significant`` (``p_holm < alpha``), ``better`` (the method with
-    the lower value when significant, every Table I metric being lower-is-better, else ""),
-    ``mde`` / ``mde_holm`` (minimum detectable effect at ``alpha`` / at ``alpha / n_rows``),
-    ``p_welch`` (Welch over seed means) and the counts.
-    """
+    """Each method (default: every learned one) against ``baseline`` per setting and metric, one
+    row each (see the module docstring): means, ``diff`` on the scenarios all seeds share, its
+    interval, ``p_value``, Holm ``p_holm``, ``significant``, ``better`` (the lower, when
+    significant), ``mde``/``mde_holm``, ``p_welch`` and the counts."""
     if methods is None:
         present = per_scenario.method.unique()
         methods = sorted(m for m in present if m != baseline and m not in REFERENCES)
@@ -346,7 +317,7 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
             xa = scenario_cube(sub, method, scenarios)
             xb = scenario_cube(sub, baseline, scenarios)
             if scenarios.size:
-                c = paired_difference(xa, xb, n_resamples, _setting_seed(setting))
+                c = paired_difference(xa, xb, n_resamples, statistic_seed(setting))
                 diffs, lows, highs, ses, ps = c["diff"], c["lo"], c["hi"], c["se"], c["p"]
             else:
                 diffs = lows = highs = ses = ps = np.full(len(METRICS), np.nan)

@@ -28,9 +28,7 @@ from igdrivsim.training.run import Run
 
 
 def trained_record(run: Run) -> dict:
-    """What the evaluation record says of the parameters it evaluated: the code that trained
-    them (``code``, ``code_resumed``), on how many scenarios and for how many updates, so that
-    a report reads an evaluation folder alone."""
+    """What the evaluation record says of the code, scenarios and updates that trained it."""
     return {k: run.record[k] for k in ("code", "code_resumed", "num_scenarios", "num_updates")
             if k in run.record}
 
@@ -52,12 +50,8 @@ def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
                  progress: bool = True, scenarios=None, egos: str = "sdc",
                  agents: str | None = None) -> Path:
-    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``.
-
-    ``scenarios`` (stacked, already fitted to the run's capacities) skips reading ``data``;
-    ``egos="all"``: every eligible vehicle of ``data`` as the ego; ``agents`` (``"log"`` /
-    ``"idm"``; None: the run's own) picks the sim agents.
-    """
+    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``
+    (``scenarios``: stacked and fitted to the run, instead of ``data``)."""
     import pandas as pd  # heavy: pandas is needed only here
 
     _check_sizes(max_scenarios, batch_size)
@@ -115,8 +109,7 @@ def with_agents(sim: SimParams, agents: str | None) -> SimParams:
 
 
 def _write(out, per_step, per_scenario, info: dict) -> Path:
-    """Write the tidy CSVs and the evaluation record (process 0 only when several processes
-    evaluate together: they all hold the same gathered outputs)."""
+    """Write the tidy CSVs and the evaluation record (process 0 only)."""
     out = Path(out)
     if jax.process_index() != 0:
         return out

@@ -1,70 +1,54 @@
 """Paired statistics of a driver against a reference over egos, that survive heavy tails.
 
 On real logs a few egos diverge by 15 m or more, so a mean difference has little power; these
-statistics compare a driver with a reference (constant velocity, the expert) ego by ego:
+compare a driver with a reference (constant velocity, the expert) ego by ego:
 
-- **Win share**: the share of (ego, seed) pairs where the driver's value (log divergence) is
-  lower than the reference's on the same ego (a tie counts one half), i.e. the share of egos
-  where the driver stays closer to the log, averaged over the driver's seeds.
-- **Median paired difference**: the median over egos of ``driver - reference``, the driver's
-  value being its mean over seeds on that ego. One ego with a huge divergence moves it by at
-  most one rank, where it moves a mean without bound.
-- **Mean ratio**: the driver's mean over seeds and egos over the reference's mean over egos,
-  with its **minimum detectable effect** ``(z_{0.975} + z_{0.8}) * SE``
-  (:func:`igdrivsim.evaluation.aggregate.minimum_detectable_effect`): the smallest departure
-  from a ratio of 1 a two-sided level-0.05 test detects with 80% power. The mean difference
-  (``diff``) comes with its interval and MDE too, for the tables that show it.
+- **Win share**: the share of (ego, seed) pairs where the driver's log divergence is lower than
+  the reference's on the same ego (a tie counts one half).
+- **Median paired difference** over egos of ``driver - reference`` (the driver's seed mean).
+- **Mean ratio** of the driver's mean to the reference's, with its **minimum detectable
+  effect** (:func:`igdrivsim.evaluation.aggregate.minimum_detectable_effect`); the mean
+  difference ``diff`` too.
 
-Intervals (95%, percentile) come from a **hierarchical bootstrap**: source scenarios are
-resampled with replacement and every ego of a drawn source comes with it (egos of one scene
-share its map, traffic and difficulty, so they are one cluster, not independent draws); then
-the driver's seeds are resampled with replacement (independently trained policies). The
-reference is taken per ego as its mean over its seeds (the references are deterministic). Each
-resample is a weighted statistic (source counts x seed counts), computed for blocks of
-resamples at once; a fixed RNG seed makes reruns identical. Where the driver wins on every
-ego or on none, every resample agrees and the percentile interval is a point, so the win
-share's interval is then Wilson's score interval with one trial per source scenario (the
-conservative sample size: egos of one scene count once).
-
-Ego ids: when every vehicle of a scenario is the ego in turn, an ego's ``scenario_id`` is
-``<source scenario id>#<object id>`` (the data layer's
-:data:`~igdrivsim.data.scenario.EGO_SEPARATOR`); :func:`source_of` gives back the source, and
-a frame's ``source`` column, which evaluation writes (the reader's source log: the windows of
-one long ScenarioNet log share it), takes precedence. Without that column, with one ego per
-scenario (the logged SDC) the source is the scenario itself, and so is each window of a long
-log.
+95% percentile intervals come from a **hierarchical bootstrap**: source scenarios with every
+ego of a drawn source (egos of one scene are one cluster), then the driver's seeds; the
+reference is its mean over seeds per ego. Where the driver wins on every ego or on none, the
+win share's interval is Wilson's, one trial per source scenario. An ego's source is the
+frame's ``source`` column, else :func:`source_of` its ``scenario_id``.
 """
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
-from igdrivsim.evaluation.aggregate import CONFIDENCE, N_RESAMPLES, minimum_detectable_effect
+from igdrivsim.evaluation.aggregate import (
+    CONFIDENCE,
+    N_RESAMPLES,
+    TEST_SEED,
+    minimum_detectable_effect,
+    resample_counts,
+    statistic_seed,
+)
 from igdrivsim.evaluation.schema import REFERENCE_SETTING, SOURCE_COLUMN
 
-BOOTSTRAP_SEED = 0
 _CHUNK = 500  # resamples per block: bounds memory at CHUNK x n_egos floats (a few arrays)
 # the statistics, in the order of their columns (each with _lo, _hi; all but median with _mde)
 STATISTICS = ("win", "median", "ratio", "diff")
 
 
 def source_of(scenario_id: str) -> str:
-    """The source scenario of an ego id ``<scenario id>#<object id>`` (the data layer's
-    :func:`~igdrivsim.data.scenario.split_ego_id`, the one place the separator lives); an id
-    without one (one ego per scenario) is its own source."""
+    """The source scenario of an ego id ``<scenario id>#<object id>`` (itself without one)."""
     from igdrivsim.data.scenario import split_ego_id  # lazy: the tables import without JAX
 
     return split_ego_id(str(scenario_id))[0]
 
 
 def sources(frame: pd.DataFrame) -> pd.Series:
-    """Each row's source scenario: the frame's ``source`` column (written by evaluation), else
-    (a row of an older CSV) :func:`source_of` of its ``scenario_id``."""
+    """Each row's source scenario: its ``source`` column, else :func:`source_of` its id."""
     ids = frame["scenario_id"].astype(str)
     given = frame[SOURCE_COLUMN] if SOURCE_COLUMN in frame.columns else pd.Series(
         float("nan"), index=frame.index)
@@ -79,16 +63,9 @@ def source_map(frame: pd.DataFrame) -> dict[str, str]:
     return dict(zip(frame["scenario_id"].astype(str), sources(frame), strict=True))
 
 
-def _counts(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
-    """``(n_resamples, n)`` integer counts of each of ``n`` items in a resample of size ``n``."""
-    idx = rng.integers(0, n, size=(n_resamples, n)) + n * np.arange(n_resamples)[:, None]
-    return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n)
-
-
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Row-wise median of ``values`` ``(B, n)`` with non-negative integer ``weights`` ``(B, n)``
-    (counts): the mean of the lower and upper weighted medians, so unit weights give
-    :func:`numpy.median`."""
+    """Row-wise median of ``values`` ``(B, n)`` with integer ``weights`` (counts): the mean of
+    the lower and upper weighted medians, as :func:`numpy.median` for unit weights."""
     order = np.argsort(values, axis=1, kind="stable")
     v = np.take_along_axis(values, order, axis=1)
     cum = np.cumsum(np.take_along_axis(weights, order, axis=1), axis=1)
@@ -102,8 +79,7 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
                 seed_counts: np.ndarray, ego_counts: np.ndarray) -> np.ndarray:
     """``(B, 4)``: win share, median difference, mean ratio and mean difference under ``B``
-    weightings
-    (``seed_counts`` ``(B, S)`` over the driver's seeds, ``ego_counts`` ``(B, E)``)."""
+    weightings of the driver's seeds ``(B, S)`` and the egos ``(B, E)``."""
     n_seeds = seed_counts.sum(axis=1, keepdims=True)
     per_ego = seed_counts @ driver / n_seeds  # (B, E): the driver's seed mean on each ego
     win_ego = seed_counts @ wins / n_seeds
@@ -118,18 +94,12 @@ def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
 
 def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Sequence,
                           n_resamples: int = N_RESAMPLES,
-                          seed: int | Sequence[int] = BOOTSTRAP_SEED,
+                          seed: int | Sequence[int] = TEST_SEED,
                           confidence: float = CONFIDENCE) -> dict[str, float]:
-    """Win share, median paired difference and mean ratio of ``driver`` ``(seeds, egos)``
-    against ``reference`` ``(egos,)`` or ``(reference seeds, egos)``, with 95% intervals from
-    the hierarchical bootstrap (sources, then the driver's seeds; see the module docstring).
-
-    ``source``: each ego's source scenario (egos of one source are resampled together).
-    Returns ``win, win_lo, win_hi, win_mde`` (the smallest departure from a share of 0.5
-    detectable), ``median, median_lo, median_hi``, ``ratio, ratio_lo, ratio_hi, ratio_mde``
-    (from a ratio of 1), ``diff, diff_lo, diff_hi, diff_mde`` (the mean difference, from 0),
-    ``n_egos``, ``n_sources``, ``n_seeds``; NaN statistics without egos.
-    """
+    """Win share, median paired difference, mean ratio and mean difference of ``driver``
+    ``(seeds, egos)`` against ``reference`` ``(egos,)`` or ``(seeds, egos)``, each with ``_lo``,
+    ``_hi`` (and but the median ``_mde``), and ``n_egos``, ``n_sources``, ``n_seeds``; egos of
+    one ``source`` are resampled together (see the module docstring)."""
     driver = np.atleast_2d(np.asarray(driver, float))
     reference = np.asarray(reference, float)
     if reference.ndim == 2:
@@ -151,9 +121,9 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
     with np.errstate(invalid="ignore", divide="ignore"):  # a zero reference mean: inf ratio
         for start in range(0, n_resamples, _CHUNK):
             m = min(_CHUNK, n_resamples - start)
-            ego_counts = _counts(rng, m, len(uniques))[:, codes]
+            ego_counts = resample_counts(rng, m, len(uniques))[:, codes]
             reps[start:start + m] = _statistics(driver, wins, reference,
-                                                _counts(rng, m, n_seeds), ego_counts)
+                                                resample_counts(rng, m, n_seeds), ego_counts)
     q = [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2]
     lo, hi = np.nanpercentile(reps, q, axis=0)
     se = np.nanstd(np.where(np.isfinite(reps), reps, np.nan), axis=0, ddof=1)
@@ -180,10 +150,9 @@ def wilson_interval(share: float, n: int, confidence: float = CONFIDENCE
 
 def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
                column: str = "log_divergence") -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """``(driver (seeds, egos), reference (egos,), sources)`` of one ``column`` from tidy
-    per-scenario rows: ``method`` in ``setting`` against ``reference`` (its rows in any setting
-    when it has none in ``setting``, the references' being :data:`REFERENCE_SETTING`), on the
-    egos every seed of both evaluated with a value, in id order."""
+    """``(driver (seeds, egos), reference (egos,), sources)`` of one ``column``: ``method`` in
+    ``setting`` against ``reference`` (in :data:`REFERENCE_SETTING` when not in ``setting``),
+    on the egos every seed of both has a value for, in id order."""
     ours = per_scenario[(per_scenario.setting == setting) & (per_scenario.method == method)]
     ref = per_scenario[per_scenario.method == reference]
     if (ref.setting == setting).any():
@@ -203,16 +172,10 @@ def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference:
             [source[str(e)] for e in egos])
 
 
-def statistic_seed(*names: str) -> list[int]:
-    """A fixed bootstrap seed per comparison (independent of which others were made)."""
-    return [BOOTSTRAP_SEED, zlib.crc32("/".join(names).encode())]
-
-
 def compare_on_egos(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
                     column: str = "log_divergence", n_resamples: int = N_RESAMPLES
                     ) -> dict[str, float]:
-    """:func:`paired_ego_statistics` of ``method`` in ``setting`` against ``reference`` on
-    the egos both were evaluated on (see :func:`ego_arrays`), seeded per comparison."""
+    """:func:`paired_ego_statistics` of :func:`ego_arrays`, seeded per comparison."""
     driver, ref, source = ego_arrays(per_scenario, setting, method, reference, column)
     return paired_ego_statistics(driver, ref, source, n_resamples,
                                  statistic_seed(setting, method, reference, column))

@@ -1,14 +1,10 @@
 """The registry of per-scenario metrics beyond Table I: the one place a metric is added.
 
-Each :class:`ScenarioMetric` names its ``per_scenario.csv`` column, its label and unit for the
-supplementary table and figure, its direction, its source, and how it is computed: either
-``episode`` (``(final_state, params) -> f32[]``, run once per episode inside the jitted rollout)
-or ``derive`` (from the other per-scenario columns of a row, Table I's included). The rollout
-(:func:`episode_values`), the CSV columns (:data:`SCENARIO_COLUMNS`), the supplementary table
-and the figure all iterate over :data:`REGISTRY`; adding a metric is one entry below (its
-function in :mod:`igdrivsim.simulator.episode_metrics`; docs/EXTENDING.md). :func:`register`
-adds one at run time, in the calling process only. Definitions and sources:
-``docs/metrics.md``.
+A :class:`ScenarioMetric` names its ``per_scenario.csv`` column, label, unit, direction and
+source, and is computed by ``episode`` (``(final_state, params) -> f32[]`` inside the jitted
+rollout) or ``derive`` (from the other columns of a row). The rollout, the CSV columns, the
+supplementary table and figure iterate over :data:`REGISTRY`; :func:`register` adds one at run
+time. Definitions: docs/metrics.md; adding one: docs/EXTENDING.md.
 """
 
 from __future__ import annotations
@@ -107,9 +103,7 @@ def columns() -> tuple[str, ...]:
 
 
 def scenario_columns() -> tuple[str, ...]:
-    """The columns per_scenario.csv is written with: Table I's
-    (:data:`~igdrivsim.evaluation.schema.PER_SCENARIO_COLUMNS`), then this registry's (an older
-    CSV may lack them)."""
+    """The columns per_scenario.csv is written with: Table I's, then this registry's."""
     return PER_SCENARIO_COLUMNS + columns()
 
 

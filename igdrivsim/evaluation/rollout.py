@@ -1,26 +1,15 @@
 """Closed-loop evaluation rollouts -> tidy per-step and per-scenario metrics.
 
-A learned policy is evaluated as in the paper: after the 10 warm-up steps replayed from the log
-(``reset``; the GRU sees their observations, as in training), it drives the SDC for 80 steps
-under its own observation setting, sampling its action from the three categoricals
-(``actions="greedy"`` takes the most likely level, ``"mean"`` the expected one; see
-:data:`igdrivsim.policy.act.ACTION_MODES`). Every episode, learned or reference, is the
-simulator's one runner (:func:`igdrivsim.simulator.rollout.run_episode`, a ``lax.scan`` over
-steps) with an actor, ``vmap``-ped over a batch of scenarios and over the seeds of a run
-(stacked parameters), so one compiled function evaluates every seed at once.
+A learned policy drives the SDC for 80 steps after the 10 logged warm-up steps (its GRU sees
+their observations), under its own setting, sampling its action (or ``greedy`` / ``mean``,
+:data:`igdrivsim.policy.act.ACTION_MODES`); the engine, ``vmap``-ped over scenarios and seeds,
+is :mod:`igdrivsim.policy.closed_loop`. The references need no training: the discretised
+expert (the floor of the metrics) and constant velocity.
 
-Two reference actors need no training and no observation: the discretised expert replay (the
-inverse dynamics to the next logged pose, quantised to the 257 levels: the floor of the metrics)
-and constant velocity (the SDC keeps its last logged velocity and heading: a naive baseline).
-
-Metric semantics (per step, after each of the 80 actions): ``overlap`` / ``offroad`` are 0/1,
-``log_divergence`` is the distance to the logged SDC position. Steps where the logged SDC is
-invalid are masked out. Per scenario: ``max_log_divergence`` (max over steps), ``overlap`` /
-``offroad`` (any step), and the per-step means ``log_divergence``, ``overlap_steps``,
-``offroad_steps``. With ``episode_metrics=True`` the final state of each episode also gives
-the registry's trajectory-level metrics (:mod:`igdrivsim.evaluation.registry`: progress,
-comfort, kinematic infeasibility, time to collision), ``StepOutputs.scenario``; their columns,
-and the registry's derived ones, follow Table I's in the per-scenario frame.
+Per step, after each action: ``overlap`` / ``offroad`` 0/1 and ``log_divergence``, masked where
+the logged SDC is invalid. Per scenario: ``max_log_divergence``, ``overlap`` / ``offroad`` (any
+step), the per-step means ``log_divergence``, ``overlap_steps``, ``offroad_steps``, then the
+registry's columns (:mod:`igdrivsim.evaluation.registry`).
 """
 
 from __future__ import annotations
@@ -50,8 +39,6 @@ from igdrivsim.policy.closed_loop import (
 from igdrivsim.simulator import SimParams
 
 
-# The engine (batches, devices, keys, the jitted episodes) is the policy layer's
-# :mod:`igdrivsim.policy.closed_loop`; evaluation adds the registry's per-episode metrics.
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
                        batch_size: int = 32, metrics_fn: Callable | None = None,
                        progress: Callable[[int], Any] | None = None,
@@ -65,25 +52,13 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
 
 def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
                     **options: Any) -> StepOutputs:
-    """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
-
-    One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
-    names: ``policy_params [G, S]``, metrics ``[G, S, N, steps]``, every setting in one
-    compiled program (settings as data) when the settings allow it. The key of scenario ``i``
-    and seed ``s`` is derived from ``seed``, ``i`` and ``s`` only (the same for every
-    setting), so results do not depend on the batch size or on which settings run together.
-    ``episode_metrics=True`` adds the registry's per-episode metrics (``scenario``, ``[S, N]``
-    or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
-    The other keyword ``options`` are :func:`igdrivsim.policy.closed_loop.evaluate_policy`'s
-    (``policy_config``, ``setting``, ``obs_config``, ``params``, ``actions``, ``batch_size``,
-    ``seed``, ``metrics_fn``, ``progress``).
-    """
+    """:func:`igdrivsim.policy.closed_loop.evaluate_policy` (``options``: its keywords), with the
+    registry's per-episode metrics (``scenario``) when ``episode_metrics``."""
     return closed_loop.evaluate_policy(
         policy_params, scenarios,
         episode_metrics=registry.episode_values if episode_metrics else None, **options)
 
 
-# ----------------------------------------------------------------------------- tidy frames
 def _masked_mean(x: np.ndarray, valid: np.ndarray, axis: int) -> np.ndarray:
     count = valid.sum(axis=axis)
     total = np.where(valid, x, 0.0).sum(axis=axis)
@@ -93,13 +68,9 @@ def _masked_mean(x: np.ndarray, valid: np.ndarray, axis: int) -> np.ndarray:
 
 def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, method: str,
                 seeds: list[int]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """``(per_step, per_scenario)`` frames in the schema's column order.
-
-    ``outputs`` holds ``[S, N, steps]`` (or ``[N, steps]`` for one seed); ``seeds`` names the
-    seed axis. Per-step rows average over scenarios (valid steps only); step ``k`` is the state
-    after the ``k``-th action (1..80). The per-scenario frame has Table I's columns, then the
-    registry's (NaN where ``outputs.scenario`` lacks them).
-    """
+    """``(per_step, per_scenario)`` frames in the schema's column order from ``outputs``
+    ``[S, N, steps]`` (or ``[N, steps]``); per-step rows average the valid steps over scenarios,
+    step ``k`` being the state after the ``k``-th action."""
     arrays = {f: np.asarray(getattr(outputs, f)) for f in StepOutputs.FIELDS}
     episode = {k: np.asarray(v, float) for k, v in (outputs.scenario or {}).items()}
     if arrays["valid"].ndim == 2:
@@ -137,10 +108,8 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
 
 
 def with_origins(per_scenario: pd.DataFrame, origins: list[dict] | None) -> pd.DataFrame:
-    """``per_scenario`` with the :data:`~igdrivsim.evaluation.schema.ORIGIN_COLUMNS` last: each
-    row's source log and whether its ego is the logged SDC, from the reader's ``origins``
-    (:func:`igdrivsim.data.validation.origin_of`, one per scenario id); without them (scenarios
-    given stacked) the source is the id's scenario part and ``logged_sdc`` unknown (empty)."""
+    """``per_scenario`` with each row's source log and whether its ego is the logged SDC last,
+    from the reader's ``origins`` (without them: the id's scenario part, and unknown)."""
     by_id = {o["scenario_id"]: o for o in origins or ()}
     ids = per_scenario["scenario_id"].astype(str)
     source = ids.map(lambda s: by_id[s]["source"] if s in by_id else split_ego_id(s)[0])

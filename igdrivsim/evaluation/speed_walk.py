@@ -3,23 +3,12 @@
 ``python -m igdrivsim.evaluation.speed_walk --data DIR [--limit N] [--out FILE.json]
 [--no-progress]``
 
-The expert's label at a step is the quantised displacement to the next logged pose from the
-*simulated* pose (Waymax's convention): it corrects the quantisation error, which the imitator
-cannot see. Relative to the level of its observed speed (the constant-velocity level), the label
-is therefore close to memoryless noise of +-1 level (0.47 m/s per step). A policy that samples
-from the best BC fit of that noise integrates it twice (speed, then position). This module
-measures that on a dataset, with no trained policy:
-
-* the labels' offsets from the constant-velocity level: their distribution, its entropy, and
-  the entropy left given the previous offset (what a recurrent policy could still predict);
-* four actors that steer like the expert (its ``dy``, ``dyaw``) but choose ``dx``
-  differently: the expert's own ``dx``; the constant-velocity level; the constant-velocity level
-  plus an offset drawn i.i.d. from the labels' own distribution; the same but drawn from the
-  labels' distribution given the actor's own previous offset. The third is what perfect BC of
-  the offsets would drive, sampled, by a policy that sees only its present speed; the fourth,
-  by one that also remembers its last speed change (``policy.speed_history``): the labels'
-  dependence on the previous offset (the expert undoes its last quantisation error) is a
-  restoring force that keeps the sampled speed from walking away.
+Relative to the constant-velocity level, the expert's ``dx`` label (which corrects the
+quantisation error the imitator cannot see) is near-memoryless noise of +-1 level; sampling a
+BC fit of it integrates it twice. Measured on a dataset without a trained policy: the label
+offsets' distribution and entropies (also given the previous offset), and four actors with
+the expert's steering and ``dx`` from the expert, the constant-velocity level, that level plus
+an i.i.d. offset, or plus an offset drawn given the actor's previous one.
 """
 
 from __future__ import annotations
@@ -49,8 +38,7 @@ OFFSETS = jnp.arange(-3, 4)  # the offsets the fourth actor draws (labels beyond
 
 
 def constant_velocity_level(state) -> jax.Array:
-    """The dx level of keeping the current (simulated) speed, ``int32[...]``, as
-    :func:`igdrivsim.policy.network.relative_to_constant_velocity` computes it."""
+    """The dx level of keeping the current (simulated) speed, ``int32[...]``."""
     t = state.timestep[..., None]
     vx = jnp.take_along_axis(state.sdc.vel_x, t, -1)[..., 0]
     vy = jnp.take_along_axis(state.sdc.vel_y, t, -1)[..., 0]
@@ -59,10 +47,9 @@ def constant_velocity_level(state) -> jax.Array:
 
 def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
             log_probs_given_previous: jax.Array, params: SimParams = PARAMS):
-    """80 steps of one actor on a batch of states at reset (the simulator's runner):
-    per-step ``(log divergence, offroad, overlap, valid, label offset)``, each ``[80, B]``.
-    ``log_probs_given_previous [7, 7]``: row ``i`` is the distribution of the next offset
-    (:data:`OFFSETS`) after offset ``OFFSETS[i]``."""
+    """80 steps of one actor on a batch of states at reset: per-step ``(log divergence, offroad,
+    overlap, valid, label offset)`` ``[80, B]`` (``log_probs_given_previous`` row ``i``: the
+    next offset's distribution after ``OFFSETS[i]``)."""
 
     def act(s, previous, k):
         levels = dynamics.discretize(expert_action(s, params))
@@ -108,9 +95,8 @@ def label_statistics(offsets: np.ndarray, valid: np.ndarray) -> dict:
 
 def transition_log_probs(offsets: np.ndarray, valid: np.ndarray, min_count: int = 20
                          ) -> np.ndarray:
-    """``[7, 7]`` log-probabilities of the next label offset given the previous one (both
-    clipped to :data:`OFFSETS`); a previous offset seen fewer than ``min_count`` times gets the
-    unconditional distribution."""
+    """``[7, 7]`` log-probabilities of the next label offset given the previous one (the
+    unconditional distribution after one seen fewer than ``min_count`` times)."""
     both = valid[1:] & valid[:-1]
     prev = np.clip(offsets[:-1][both], -3, 3) + 3
     cur = np.clip(offsets[1:][both], -3, 3) + 3
@@ -123,10 +109,8 @@ def transition_log_probs(offsets: np.ndarray, valid: np.ndarray, min_count: int 
 
 
 def measure(scenarios, seed: int = 0, batch_size: int = 64, progress: bool = False) -> dict:
-    """The label statistics and the three actors' mean metrics on stacked scenarios ``[N]``
-    (in batches of ``batch_size``; the i.i.d. offsets follow the whole set's label
-    distribution, so the labels are measured in a first pass). ``progress``: a bar on stderr
-    over the batches of all four actors."""
+    """The label statistics (a first pass) and the actors' mean metrics on stacked scenarios
+    ``[N]``, in batches of ``batch_size``."""
     n = int(np.shape(scenarios.scenario_id)[0])
     run = jax.jit(episode, static_argnames="actor")
     start = jax.jit(jax.vmap(reset))
@@ -135,7 +119,6 @@ def measure(scenarios, seed: int = 0, batch_size: int = 64, progress: bool = Fal
                file=sys.stderr, disable=not progress, dynamic_ncols=True)
 
     def over_batches(actor: str, table) -> list[np.ndarray]:
-        """The actor's per-step arrays ``[80, N]`` (batches reset again: bounded memory)."""
         parts = []
         bar.set_postfix_str(actor)
         for i in batches:

@@ -1,11 +1,6 @@
-"""What the imitator sees: the SDC-frame observation and the partial-observability models.
-
-Pipeline per step (one example; ``jax.vmap`` for batches): the setting's pose models give the
-ego's believed pose (Gaussian position noise, one offset per episode) -> the nearest objects and
-roadgraph points in that frame as features (:mod:`.features`) -> the setting's hiding models
-(fields of view, random masking; :mod:`.models`). ``PRESETS`` holds the paper's six settings
-and those registered beyond them (line-of-sight occlusion, :mod:`.occlusion`).
-:mod:`.render` draws the settings (paper Fig. 1) and rollout animations.
+"""What the imitator sees: the SDC-frame observation (:mod:`.features`, :mod:`.observe`) under
+the partial-observability settings (:mod:`.models`, :mod:`.occlusion`), and their pictures
+(:mod:`.render`).
 """
 
 from igdrivsim.observation.features import (

@@ -1,39 +1,15 @@
 """Partial-observability models, their composition into settings, and the paper's six presets.
 
-A model acts at two points of the observation pipeline (see :func:`apply_setting` and
-:func:`igdrivsim.observation.observe`):
+A model acts at two points of the observation pipeline: ``perceive_pose``, the ego's believed
+global pose (Gaussian position noise), relative to which the nearest N and their features are
+computed; and ``apply``, hiding in the SDC-frame observation (fields of view, masking): hidden
+slots become invalid with zero features and are never refilled.
 
-1. ``perceive_pose``: what the ego believes its own global pose is (Gaussian position noise).
-   The SDC-frame observation, including the choice of the nearest N, is then computed relative
-   to that belief, so every other object and road point shifts together.
-2. ``apply``: hiding in the SDC-frame observation (fields of view, random masking). Hidden slots
-   become invalid with all-zero features; slots are never refilled, i.e. the nearest N are
-   selected first and hidden afterwards (a 4 m field of view shows only what lies within 4 m).
-
-Randomness is explicit: ``episode_key`` is constant over an episode (per-episode draws such as the
-position-noise offset), ``step_key`` changes every step (per-step draws such as masking). Model
-``i`` of a setting receives ``fold_in(key, i)``, so composed models draw independently. All
-functions take ONE example; ``jax.vmap`` over examples and keys gives per-example draws.
-
-Adding a model takes one small function and a registry entry::
-
-    def hide_behind(obs, episode_key, step_key):
-        \"\"\"Hide everything behind the ego (x < 0).\"\"\"
-        obs = hide_objects(obs, object_positions(obs)[..., 0] >= 0)
-        return hide_roadgraph(obs, roadgraph_positions(obs)[..., 0] >= 0)
-
-    register_setting(ObservationSetting("front_only", (FunctionModel(hide_behind),)))
-
-A setting is a pytree whose numbers are data (:func:`flax.struct.dataclass` models): settings
-that share a structure stack along a leading axis and ``vmap`` as one program
-(:func:`stack_settings`; training and evaluation run every setting of a method together this
-way). A model that defines ``neutral()`` (itself with parameters that hide nothing) also stacks
-with settings that lack it. A complete such model is :mod:`igdrivsim.observation.occlusion`;
-``docs/EXTENDING.md`` walks through it.
-
-Settings compose: ``ObservationSetting("noisy_fov", (GaussianPositionNoise(3.0),
-CircularFieldOfView(4.0)))``, or by name with :func:`get_setting`
-(``"gaussian_noise+circular_r4"``).
+``episode_key`` is constant over an episode, ``step_key`` changes every step; model ``i`` of a
+setting draws from ``fold_in(key, i)``. Functions take ONE example. Settings of
+:func:`flax.struct.dataclass` models stack along a leading axis and ``vmap`` as one program
+(:func:`stack_settings`). Settings compose, by name with ``+`` (:func:`get_setting`). Adding a
+model: docs/EXTENDING.md.
 """
 
 from __future__ import annotations
@@ -64,11 +40,9 @@ def concrete(value: Any) -> bool:
 
 @struct.dataclass
 class ObservationModel:
-    """Base model: the identity (full observability). Subclasses override one or both hooks.
-
-    A subclass decorated with :func:`flax.struct.dataclass` is a pytree whose fields are data
-    (``struct.field(pytree_node=False)`` for the others), so settings of it stack and train
-    together; a plain frozen dataclass works everywhere but trains on its own."""
+    """Base model: the identity (full observability). Subclasses override one or both hooks; a
+    :func:`flax.struct.dataclass` subclass stacks with other settings, a plain frozen
+    dataclass trains on its own."""
 
     def perceive_pose(self, sdc_xy: jax.Array, sdc_yaw: jax.Array, episode_key: jax.Array,
                       step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -81,9 +55,8 @@ class ObservationModel:
         return obs
 
     def neutral(self) -> ObservationModel | None:
-        """This model with parameters under which it changes nothing (the padding of a setting
-        that lacks it in a stack), or ``None`` when it has none; default: ``None``, so a model
-        is never silently taken for full observability."""
+        """This model with parameters under which it changes nothing (padding a stack), or
+        ``None`` when it has none (the default)."""
         return None
 
 
@@ -114,10 +87,8 @@ class CircularFieldOfView(ObservationModel):
 
 @struct.dataclass
 class ConicFieldOfView(ObservationModel):
-    """Hides what is farther than ``radius`` or outside ``+-angle/2`` of the ego heading (+x).
-
-    Boundaries are inclusive; a point exactly at the ego position counts as visible.
-    """
+    """Hides what is farther than ``radius`` or outside ``+-angle/2`` of the ego heading (+x),
+    boundaries inclusive."""
 
     radius: float
     angle: float  # full opening angle, radians
@@ -141,11 +112,8 @@ class ConicFieldOfView(ObservationModel):
 
 @struct.dataclass
 class GaussianPositionNoise(ObservationModel):
-    """The ego believes it is at ``p + eps``, ``eps ~ N(0, sigma^2 I)`` drawn ONCE per episode.
-
-    Everything else is observed relative to that belief, so all other objects and road points
-    shift together by ``-eps`` (rotated into the ego frame). The heading is not perturbed.
-    """
+    """The ego believes it is at ``p + eps``, ``eps ~ N(0, sigma^2 I)`` drawn ONCE per episode
+    (everything else shifts together; the heading is not perturbed)."""
 
     sigma: float
 
@@ -184,10 +152,7 @@ class RandomMasking(ObservationModel):
 
 @struct.dataclass
 class FunctionModel(ObservationModel):
-    """A model from one function ``fn(obs, episode_key, step_key) -> Observation``.
-
-    Define ``fn`` at module level so the setting stays hashable and ``jit`` caches it.
-    """
+    """A model from one module-level function ``fn(obs, episode_key, step_key) -> Observation``."""
 
     fn: Callable[[Observation, jax.Array, jax.Array], Observation] = struct.field(
         pytree_node=False)
@@ -207,11 +172,9 @@ def _hide_outside(obs: Observation, inside: Callable[[jax.Array], jax.Array]) ->
 
 @struct.dataclass
 class ObservationSetting:
-    """A named composition of models, applied in order. Hashable (a static ``jit`` argument)
-    while its numbers are Python numbers; a pytree of them otherwise (:func:`stack_settings`).
-
-    Model ``i`` draws from ``fold_in(key, keys[i])`` (``keys`` None: ``i``), so a stacked
-    setting whose models sit at other positions draws as the setting alone does."""
+    """A named composition of models, applied in order (hashable while its numbers are Python
+    numbers). Model ``i`` draws from ``fold_in(key, keys[i])`` (``keys`` None: ``i``), so a
+    stacked setting draws as the setting alone does."""
 
     name: str = struct.field(pytree_node=False)
     models: tuple[ObservationModel, ...] = ()
@@ -260,11 +223,9 @@ def _stack_leaf(*values: Any) -> jax.Array:
 
 
 def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationSetting | None:
-    """``settings`` as ONE setting whose numbers carry a leading axis ``[G]`` (``vmap`` over it),
-    or ``None`` when they cannot share a program: a model that is not a pytree, a model missing
-    from a setting without a ``neutral()`` form, or two settings that order their models
-    oppositely. Each setting's models keep their order and draws; a setting lacking a model
-    gets its neutral form, which changes nothing."""
+    """``settings`` as ONE setting whose numbers carry a leading axis ``[G]`` (a setting lacking
+    a model gets its ``neutral()`` form), or ``None`` when they cannot share a program (a model
+    not a pytree or without a neutral form, or models ordered oppositely)."""
     found = [get_setting(s) for s in settings]
     rows: list[dict[Any, tuple[ObservationModel, int]]] = []
     for setting in found:
@@ -289,17 +250,13 @@ def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationS
     return ObservationSetting(",".join(s.name for s in found), tuple(models), tuple(keys))
 
 
-def _model_keys(key: jax.Array, i: Any) -> jax.Array:
-    return jax.random.fold_in(key, i)
-
-
 def perceive_pose(setting: ObservationSetting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
                   episode_key: jax.Array, step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The ego's believed pose under ``setting`` (stage 1 of the pipeline)."""
     for i, m in enumerate(setting.models):
         k = setting.key_index(i)
-        sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, _model_keys(episode_key, k),
-                                          _model_keys(step_key, k))
+        sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, jax.random.fold_in(episode_key, k),
+                                          jax.random.fold_in(step_key, k))
     return sdc_xy, sdc_yaw
 
 
@@ -308,7 +265,7 @@ def apply_setting(setting: ObservationSetting, obs: Observation, episode_key: ja
     """The hiding of every model of ``setting``, in order (stage 2 of the pipeline)."""
     for i, m in enumerate(setting.models):
         k = setting.key_index(i)
-        obs = m.apply(obs, _model_keys(episode_key, k), _model_keys(step_key, k))
+        obs = m.apply(obs, jax.random.fold_in(episode_key, k), jax.random.fold_in(step_key, k))
     return obs
 
 
@@ -345,9 +302,8 @@ PRESET_SHORT: dict[str, str] = {
 
 def register_setting(setting: ObservationSetting, title: str | None = None,
                      short: str | None = None) -> ObservationSetting:
-    """Add ``setting`` to the registry under its name: ``--obs NAME`` in every command, the
-    pipeline's ``--obs`` and the tables' and figures' columns (``title`` and ``short`` label
-    them; default: the name). Returns the setting."""
+    """Add ``setting`` to the registry (``--obs NAME`` everywhere; ``title`` and ``short`` label
+    the tables' and figures' columns, default: the name)."""
     if setting.name in PRESETS and PRESETS[setting.name] != setting:
         raise ConfigError(f"observation setting {setting.name!r} is already registered")
     PRESETS[setting.name] = setting

@@ -1,27 +1,14 @@
 """The observation pipeline: believed pose -> SDC-frame features -> hiding, for one example.
 
 ``observe(source, setting, episode_key, step_key)`` is what training and evaluation call at
-every step; the source is a simulator state or one step of a recorded episode
-(:class:`ObservationRecord`, the teacher-forced episodes BC trains on).
-:func:`observe_setting_arrays` is the same on plain arrays (tests, pictures). All take one
-example: ``jax.vmap`` them over a batch of sources and keys.
+every step, on a simulator state or one step of a recorded episode (:class:`ObservationRecord`).
 
-A recorded episode as a source: the logged (expert-driven) episode of a scenario is
-deterministic, so what the ego sees along it *before* the partial-observability model is the
-same for every setting, seed and method. :class:`ObservationRecord` holds it (computed once per
-dataset by :func:`igdrivsim.training.records.compute_records` and cached), in the TRUE ego
-frame, with more than the observation's capacities (:func:`superset_config`): every other
-object slot (``K``) and the ``M = 4 N`` nearest roadgraph points. Observing one step of it:
-
-1. the believed pose (Gaussian position noise) shifts every point by the same offset, and the
-   ``N`` nearest points / ``n`` nearest objects are re-selected around the believed position
-   from the recorded superset (without noise the recorded order is taken as is);
-2. the setting's hiding (fields of view, masking) with the same keys as on a simulator state.
-
-Without noise this equals the observation of the simulator state exactly; with noise it does
-while the ``N`` nearest points around the believed position are among the ``4 N`` nearest
-around the true one, i.e. while the offset is below the radius of the ``N`` nearest (tens of
-metres for the observation sizes in use, against an offset of a few metres).
+The logged episode is deterministic, so what the ego sees along it before the setting's models
+is recorded once per dataset (:func:`igdrivsim.training.records.compute_records`), in the TRUE
+ego frame, with more than the capacities (:func:`superset_config`). Observing a recorded step
+shifts it by the believed pose's offset, re-selects the nearest around the believed position
+and hides as on a simulator state: exactly the simulator's observation without noise, and
+with noise while the offset stays below the radius of the ``N`` nearest points.
 """
 
 from __future__ import annotations
@@ -49,14 +36,9 @@ from igdrivsim.simulator import current_objects, sdc_yaw_rate
 
 @struct.dataclass
 class ObservationRecord:
-    """One scenario's teacher-forced episode (leading axes ``[..., T=90]``), true ego frame.
-
-    Observation fields hold the features of :mod:`igdrivsim.observation.features` (positions
-    divided by 100) for the ``K`` object slots and ``M`` roadgraph points nearest the true pose,
-    nearest first; ``actions``/``action_valid`` are the discretised expert's labels of the 80
-    controlled steps (index ``t - 10``), recorded with it for training (``None`` in a one-step
-    slice).
-    """
+    """One scenario's teacher-forced episode (``[..., T=90]``): the features of the ``K``
+    objects and ``M`` roadgraph points nearest the true pose, and the discretised expert's
+    labels of the 80 controlled steps (``None`` in a one-step slice)."""
 
     objects: jax.Array  # f32[..., T, K, 6]
     objects_valid: jax.Array  # bool[..., T, K]
@@ -71,17 +53,13 @@ class ObservationRecord:
 
 
 def superset_config(obs: ObservationConfig, max_objects: int) -> ObservationConfig:
-    """What is recorded: every other object slot and four times the observed roadgraph points
-    (the ``N`` nearest around a believed position ``e`` metres off are among the ``4 N``
-    nearest around the true one while ``e`` is below the radius of the ``N`` nearest)."""
+    """What is recorded: every other object slot and four times the observed roadgraph points."""
     return ObservationConfig(max(obs.num_objects, max_objects - 1), 4 * obs.num_roadgraph_points)
 
 
 def observe_record(rec: ObservationRecord, setting, episode_key: jax.Array,
                    step_key: jax.Array, config: ObservationConfig) -> Observation:
-    """The observation of one recorded step under ``setting`` (one example: ``rec`` fields
-    ``[K, ...]`` / ``[M, ...]``); what :func:`igdrivsim.observation.observe` does with a
-    record."""
+    """The observation of one recorded step under ``setting`` (one example)."""
     yaw = rec.sdc_yaw
     zero = jnp.zeros((2,), jnp.float32)
     offset, _ = perceive_pose(setting, zero, yaw, episode_key, step_key)
@@ -90,7 +68,6 @@ def observe_record(rec: ObservationRecord, setting, episode_key: jax.Array,
     moved = jnp.any(shift != 0)
 
     def pick(xy, valid, n):
-        """The ``n`` nearest around the believed pose (the recorded order when not moved)."""
         idx, ok = nearest(jnp.sum((xy - shift) ** 2, -1), valid, n)
         first = jnp.arange(n)
         return jnp.where(moved, idx, first), jnp.where(moved, ok, valid[:n])
@@ -115,6 +92,7 @@ def episode_observations(rec: ObservationRecord, setting, episode_key: jax.Array
     return jax.vmap(lambda r, t: observe_record(
         r, setting, episode_key, jax.random.fold_in(episode_key, t), config))(per_step, steps)
 
+
 def observe_setting_arrays(
     sdc_xy: jax.Array,
     sdc_yaw: jax.Array,
@@ -128,11 +106,7 @@ def observe_setting_arrays(
     config: ObservationConfig = DEFAULT_CONFIG,
     sdc_yaw_rate: jax.Array = 0.0,
 ) -> tuple[Observation, Selection]:
-    """The observation under ``setting`` from plain arrays (see :func:`observe_arrays`).
-
-    ``sdc_xy``/``sdc_yaw`` is the ego's TRUE pose; the setting's pose models turn it into the
-    believed pose before the frame transform and the nearest-N selection.
-    """
+    """:func:`observe_arrays` under ``setting`` from the ego's TRUE pose ``sdc_xy``, ``sdc_yaw``."""
     xy, yaw = perceive_pose(setting, jnp.asarray(sdc_xy, jnp.float32),
                             jnp.asarray(sdc_yaw, jnp.float32), episode_key, step_key)
     obs, sel = observe_arrays(xy, yaw, sdc_speed, objects, sdc_index, roadgraph, config,
@@ -169,12 +143,8 @@ def observe(
     config: ObservationConfig = DEFAULT_CONFIG,
 ) -> Observation:
     """The imitator's observation (one example) under ``setting``, of a simulator state or of
-    one step of an :class:`ObservationRecord`.
-
-    Pass the SAME ``episode_key`` at every step of an episode (the position-noise offset is drawn
-    from it) and a fresh ``step_key`` per step (random masking), e.g.
-    ``jax.random.fold_in(episode_key, state.timestep)``.
-    """
+    one recorded step: the SAME ``episode_key`` at every step of an episode, a fresh
+    ``step_key`` per step (e.g. ``fold_in(episode_key, state.timestep)``)."""
     if isinstance(source, ObservationRecord):
         return observe_record(source, setting, episode_key, step_key, config)
     return observe_with_selection(source, setting, episode_key, step_key, config)[0]

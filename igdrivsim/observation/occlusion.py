@@ -1,15 +1,11 @@
-"""Line-of-sight occlusion: what lies behind another object's box, seen from the ego, is hidden.
+"""Line-of-sight occlusion (``--obs occlusion``): what lies behind another object's box, seen
+from the ego, is hidden.
 
-A model beyond the paper's six (``--obs occlusion``, composable: ``occlusion+circular_r6``).
-An object (its centre) or a road point is hidden when the straight segment from the ego (the
-origin of the ego frame) to it crosses the box of another visible object. The observation does
-not carry object sizes, so every occluder is a box of one fixed size (``length`` x ``width``,
-default 4.5 m x 2.0 m, a typical passenger car) centred on its observed position and turned by
-its observed heading; an object never occludes itself, and a box that contains the ego (an
-overlap) occludes nothing. Road points under a box are hidden too (the segment enters the box).
-Occluders are the objects still visible when the model runs: put it first in a composition so
-that every object occludes. A box of length 0 occludes nothing (the model's ``neutral()``
-form, with which a setting without occlusion trains beside one with it).
+An object (its centre) or a road point is hidden when the segment from the ego to it crosses
+the box of another visible object; the observation carries no sizes, so every occluder is a
+``length`` x ``width`` box (a typical car) at its observed pose. An object never occludes
+itself, a box containing the ego occludes nothing, and only objects still visible occlude (put
+the model first in a composition). Length 0 occludes nothing (its ``neutral()`` form).
 """
 
 from __future__ import annotations

@@ -1,19 +1,10 @@
 """Pictures of the observation models (paper Fig. 1) and a rollout animation.
 
-Each panel is drawn in the ego's TRUE frame (ego at the origin facing +x). Underneath, in light
-grey, is the scene as it is: every valid object box and every roadgraph point near the ego.
-On top, in colour, is what the imitator's observation holds, drawn at the positions the
-observation reports: under Gaussian position noise these are shifted (the ego believes it is
-elsewhere), so the coloured layer visibly slides off the grey truth. Objects the setting hides
-stay grey (dashed outline); fields of view are drawn as a dashed circle or cone.
-
-Fig. 1 has a block of panels per training profile (:data:`PROFILE_VIEWS`: the laptop profile
-the default drivers use, 16 objects and 64 roadgraph points of a map thinned to every 8th point,
-and the paper's 32 objects and 1,500 points of the full map), so it shows what each profile's
-policy observes. Axes are metres in the ego frame (x ahead, y to the left).
-
-Rendering is host-side NumPy + matplotlib (Agg backend); the observation itself comes from the
-same jitted :func:`igdrivsim.observation.observe_with_selection` that training uses.
+Each panel is drawn in the ego's TRUE frame (metres, x ahead, y left): in light grey the scene
+as it is, in colour what the observation holds at the positions it reports (under position
+noise it slides off the grey truth); hidden objects stay grey (dotted), fields of view dashed.
+Fig. 1 has a block of panels per training profile (:data:`PROFILE_VIEWS`). Host-side NumPy +
+matplotlib; the observation comes from the jitted :func:`observe_with_selection` training uses.
 """
 
 from __future__ import annotations
@@ -50,7 +41,7 @@ from igdrivsim.observation.models import (
 )
 from igdrivsim.observation.observe import observe_with_selection
 from igdrivsim.simulator import current_objects
-from igdrivsim.simulator.state import log_sdc_at, sdc_pose, thin_roadgraph
+from igdrivsim.simulator.state import thin_roadgraph
 
 # Roadgraph categories for colouring (WOMD tf.Example type codes).
 ROAD_CATEGORIES: dict[str, tuple[tuple[int, ...], str]] = {
@@ -127,9 +118,7 @@ _observe_jit = jax.jit(observe_with_selection, static_argnums=(1, 4))
 
 
 def observable_state(state: Any, stride: int) -> Any:
-    """``state`` with the observable map a run with ``roadgraph_stride=stride`` has
-    (:func:`igdrivsim.simulator.state.thin_roadgraph` around the SDC at the current step, as
-    :func:`igdrivsim.simulator.reset` does); ``state`` must hold the full map."""
+    """``state`` (holding the full map) with the observable map of ``roadgraph_stride=stride``."""
     if stride == 1:
         return state
     ref = jnp.stack([state.sdc.x[CURRENT_INDEX], state.sdc.y[CURRENT_INDEX]])
@@ -139,9 +128,8 @@ def observable_state(state: Any, stride: int) -> Any:
 def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Array,
              step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG,
              stride: int = 1) -> Snapshot:
-    """Observe ONE (unbatched) simulator state under ``setting`` with the capacities ``config``
-    of a map thinned to every ``stride``-th point, and collect what to draw (the grey scene
-    keeps the whole map)."""
+    """What to draw of ONE simulator state observed under ``setting`` with capacities ``config``
+    on the map thinned to every ``stride``-th point (the grey scene keeps the whole map)."""
     setting = get_setting(setting)
     obs, sel = _observe_jit(observable_state(state, stride), setting, episode_key, step_key,
                             config)
@@ -244,8 +232,7 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
 
 
 def panel_note(snap: Snapshot, width: int = 44) -> str:
-    """What the panel's observation holds, in lines of at most ``width`` characters (so the
-    note stays inside a panel)."""
+    """What the panel's observation holds, in lines of at most ``width`` characters."""
     parts = [f"seen: {int(snap.obj_seen.sum())}/{len(snap.obj_seen)} objects, "
              f"{len(snap.seen_road_xy):,} road points"]
     if snap.noise_offset is not None:
@@ -255,11 +242,8 @@ def panel_note(snap: Snapshot, width: int = 44) -> str:
 
 def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | None = None,
                view: float = 30.0, inset: bool = True) -> None:
-    """Draw one observation panel on ``ax`` (see the module docstring).
-
-    The panel spans ``[-view/2, 1.5 view] x [-0.75 view, 0.75 view]`` metres in the ego frame;
-    with a small field of view (and ``inset``) a zoomed inset shows the area around the ego.
-    """
+    """Draw one observation panel on ``ax``, ``[-view/2, 1.5 view] x [-0.75 view, 0.75 view]``
+    metres, with a zoomed inset around the ego under a small field of view (``inset``)."""
     draw_layers(ax, snap, setting)
     ax.set_xlim(-0.5 * view, 1.5 * view)  # more room ahead of the ego than behind
     ax.set_ylim(-0.75 * view, 0.75 * view)
@@ -315,9 +299,8 @@ def profile_views(profiles: Sequence[str]) -> list[ProfileView]:
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
                        source: str | None = None,
                        profiles: Sequence[str] = DEFAULT_PROFILES):
-    """Fig. 1: for each profile in ``profiles`` (a block titled with its capacities), one panel
-    per setting on the same (unbatched) state, which must hold the full map; returns the
-    figure. ``source`` (e.g. "real WOMD scenario ...") is said under the title."""
+    """Fig. 1: per profile a block of one panel per setting on the same (unbatched, full-map)
+    state; ``source`` is said under the title."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
@@ -368,25 +351,12 @@ def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: l
 
 
 def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[Any]:
-    """The states of a discretised-expert rollout from an (unbatched) reset state, step by step.
-
-    Uses the simulator's ``expert_action`` when available; otherwise the inverse dynamics to the
-    next logged pose, discretised (257 levels) and undiscretised, as the paper's expert.
-    """
+    """The states of a discretised-expert rollout from an (unbatched) reset state, step by step."""
     params = sim.SimParams() if params is None else params
-    expert = getattr(sim, "expert_action", None)
-
-    def fallback(s, p):
-        _, inverse = sim.dynamics.DYNAMICS[p.dynamics]
-        x, y, yaw, _ = sdc_pose(s)
-        x1, y1, yaw1, _ = log_sdc_at(s, s.timestep + 1)
-        return inverse(x, y, yaw, x1, y1, yaw1)
-
-    act = expert or fallback
 
     @jax.jit
     def advance(s):
-        a = sim.undiscretize(sim.discretize(act(s, params)))
+        a = sim.undiscretize(sim.discretize(sim.expert_action(s, params)))
         return sim.step(s, a, params)
 
     states = [state]
@@ -398,8 +368,7 @@ def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[A
 def write_rollout_animation(states: list[Any], setting: ObservationSetting | str,
                             path: str | os.PathLike, key: jax.Array, view: float = 30.0,
                             fps: int = 10, every: int = 1, progress: bool = True) -> str:
-    """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically.
-    ``progress``: a frame bar on stderr (False: none, for ``--no-progress``)."""
+    """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")

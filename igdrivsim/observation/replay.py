@@ -37,9 +37,7 @@ DEFAULT_PARAMS = SimParams()
 
 def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
     """Jitted ``f(scenario, key) -> (final_state, replay_metrics [80], log_metrics [80])`` for one
-    (unbatched) scenario, through the simulator's one runner
-    (:func:`~igdrivsim.simulator.rollout.run_episode`); cached per ``(actor, params)`` so
-    callers share the compilation."""
+    scenario, cached per ``(actor, params)``."""
     return _replay_fn(actor, params)
 
 
@@ -130,9 +128,8 @@ def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
 
 
 def _replay_total(files: list[str], limit: int | None, egos: str = "sdc") -> int | None:
-    """The replay bar's total: the scenarios of ``files`` (their record count), capped by
-    ``limit``; where counting is not cheap (ScenarioNet, every ego) or fails, ``limit`` (None:
-    no total)."""
+    """The replay bar's total: the scenarios of ``files`` capped by ``limit`` (``limit`` where
+    counting is not cheap)."""
     total = count_scenarios(files, limit or 0, egos)
     return limit if total is None else total
 

@@ -1,7 +1,4 @@
-"""Line-of-sight geometry: which objects and road points another object's box hides from the
-ego: the geometry of :mod:`igdrivsim.observation.occlusion` (the model, registered as
-``occlusion``, and its assumptions), kept apart so that it is read and tested on its own.
-"""
+"""Line-of-sight geometry of :mod:`igdrivsim.observation.occlusion`, read and tested on its own."""
 
 from __future__ import annotations
 
@@ -15,10 +12,8 @@ _EPS = 1e-6
 
 def _blocked(targets: jax.Array, centres: jax.Array, heading: jax.Array, valid: jax.Array,
              half: jax.Array) -> jax.Array:
-    """``bool[T, K]``: the segment origin -> ``targets[t]`` crosses box ``k`` (slab test).
-
-    ``centres f32[K, 2]``, ``heading f32[K, 2]`` (cos, sin), ``half f32[2]`` half length/width.
-    """
+    """``bool[T, K]``: the segment origin -> ``targets[t]`` crosses box ``k`` (slab test;
+    ``heading`` ``[K, 2]`` cos, sin; ``half`` the half length and width)."""
     cos, sin = heading[:, 0], heading[:, 1]
 
     def local(xy):  # [..., K, 2] points relative to each box, in the box's frame

@@ -2,7 +2,6 @@
 
 - :mod:`.profiles`: the profiles' sizes (data, seeds, maze study).
 - :mod:`.planning`: the machine, the grid split into parts, the wall-time estimate.
-- :mod:`.lanes`: the parts run over one worker process per core.
 - :mod:`.runner`: resumable, logged stages.
 - :mod:`.stages`: the stages in order, and publishing the report with its provenance.
 - :mod:`.cli`: the command line.

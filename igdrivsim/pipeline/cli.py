@@ -23,7 +23,6 @@ from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING
 
 
-# ------------------------------------------------------------------------------------ CLI
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="scripts/reproduce.sh", formatter_class=DefaultsFormatter,
                                      description=(
@@ -134,8 +133,7 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
         get_method(name)  # a registered method, else a one-line error naming the choices
     if any(get_method(m).teacher for m in methods):
         plain = [m for m in methods if not get_method(m).teacher]
-        chosen = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
-        if not plain or (chosen is not None and TEACHER_SETTING not in chosen):
+        if not plain or (settings is not None and TEACHER_SETTING not in settings):
             raise ConfigError("--methods: a method with a privileged teacher needs a method "
                               f"without one (bc, bc_rl) trained on the {TEACHER_SETTING!r} "
                               "setting to pick the teacher from")

@@ -65,8 +65,8 @@ def cpu_model() -> str:
 
 
 def accelerator_name() -> str | None:
-    """``"<device kind> xN"`` of JAX's default devices when they are not the CPU, asked in a
-    child process so that this one does not take GPU memory the workers need."""
+    """``"<device kind> xN"`` of JAX's non-CPU devices, asked in a child process (this one keeps
+    no GPU memory)."""
     code = ("import jax; d = jax.devices(); "
             "print('' if d[0].platform == 'cpu' else f'{d[0].device_kind} x{len(d)}')")
     env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
@@ -111,8 +111,7 @@ def default_workers(machine: Machine) -> int:
 
 @dataclass(frozen=True)
 class Part:
-    """One training process of the grid: ``method`` on ``settings``; ``name`` is its run and
-    evaluation folder (the method itself when the method is not split)."""
+    """One training process of the grid: ``method`` on ``settings``, ``name`` its folder."""
 
     method: str
     settings: tuple[str, ...]
@@ -142,11 +141,10 @@ def chunks(settings: Sequence[str], parts: int) -> list[tuple[str, ...]]:
 def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
                seconds: Callable[[str, int], float], extra: Sequence[float] = ()
                ) -> list[Part]:
-    """Split each method's settings into parts for ``workers`` workers: start with one part
-    per method and split the method of the most expensive part further until the estimated
-    wall time is within ``TOLERANCE`` of the ideal; the shortest split seen wins (the fewest
-    parts among equals). ``seconds(method,
-    n_settings)``: one part's cost; ``extra``: other jobs sharing the workers (the maze)."""
+    """Split each method's settings into parts for ``workers`` workers: from one part per method,
+    split the method of the most expensive part until the wall time is within ``TOLERANCE`` of
+    the ideal; the shortest split wins (``seconds(method, n_settings)``: one part's cost;
+    ``extra``: other jobs sharing the workers)."""
     counts = dict.fromkeys(methods, 1)
 
     def parts() -> list[Part]:
@@ -177,9 +175,8 @@ def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
 
 def part_seconds(profile: str, seeds: int, updates: int, gpu: bool
                  ) -> Callable[[str, int], float]:
-    """``seconds(method, n_settings)`` of one part from the measured per-update costs
-    (:func:`igdrivsim.training.cost.laptop_train_seconds`); equal weights for profiles the
-    costs were not measured for (the split then balances settings)."""
+    """``seconds(method, n_settings)`` of one part from the measured per-update costs (equal
+    weights for a profile without them)."""
     def seconds(method: str, n: int) -> float:
         rollout = get_method(method).rollout
         if profile not in PRICED_PROFILES:
@@ -193,11 +190,9 @@ def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
                      settings: Sequence[str], seeds: int, updates: int, workers: int,
                      gpu: bool = False, left: Callable[[str], float] = lambda stage: 1.0
                      ) -> float | None:
-    """Estimated wall seconds of the pipeline (None for a profile whose costs were not
-    measured): the training parts and the maze over the workers (then the taught methods'
-    parts), plus the other stages' measured CPU-s on 2 cores taken as serial (an upper bound,
-    on a GPU machine too). ``left(stage)``: the share of a stage (``train_<part>``, ``maze``,
-    ``report``) still to run, 0 when complete; a resumed run is priced for what is left."""
+    """Estimated wall seconds of the pipeline (None without measured costs): the training parts
+    and the maze over the workers, then the taught methods', plus the other stages' CPU-s
+    taken as serial; ``left(stage)``: the share of a stage still to run."""
     if profile not in PRICED_PROFILES:
         return None
     seconds = part_seconds(profile, seeds, updates, gpu)

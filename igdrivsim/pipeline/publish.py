@@ -71,9 +71,7 @@ class Publisher:
 
     def publish(self) -> list[str]:
         """Copy the report into ``PAPER`` with its provenance (when the report ran or a file
-        is missing there): this run's files, and another run's only where they are missing.
-        Each file names the code of the stages behind it as their stamps recorded it (a
-        republish from cached stages keeps their commits)."""
+        is missing there), each file naming the code of the stages behind it as stamped."""
         missing = [r for r in provenance.outputs(self.staged) if not (self.paper / r).exists()]
         if not {"report", "real_logs", "reactive"} & self.ran and not missing:
             return []
@@ -92,9 +90,8 @@ class Publisher:
         return published
 
     def wall_seconds(self) -> float:
-        """This run's wall time: this invocation's and those of the interrupted ones before,
-        kept per kind of run (the default run and the taught methods' run share a work folder;
-        a file from before the kinds were told apart counts as the default run's)."""
+        """This run's wall time over its invocations, kept per kind of run (the default run and
+        the taught methods' share a work folder)."""
         if self._walls_before is None:  # read once: this invocation rewrites the file
             self._walls_before = self._walls()
         return self._walls_before.get(self.kind, 0.0) + time.time() - self.started
@@ -113,8 +110,7 @@ class Publisher:
         atomic_write_json(self.work / "wall.json", walls)
 
     def trained_on(self) -> str:
-        """Where this run's training stages ran: one machine, or each machine with its parts
-        (a run resumed elsewhere, e.g. the taught methods trained on a GPU)."""
+        """Where this run's training stages ran: one machine, or each machine with its parts."""
         where: dict[str, list[str]] = {}
         for path in sorted((self.work / "stages").glob("train_*.json")):
             if self.of_this_run(path.stem):
@@ -131,8 +127,8 @@ class Publisher:
             part == m or part.startswith(f"{m}-") for m in self.methods)
 
     def run_pdf(self) -> None:
-        """Build the PDF with latexmk (or pdflatex + bibtex). A LaTeX failure is reported with
-        its log but does not fail the pipeline: every table and figure is already written."""
+        """Build the PDF with latexmk (or pdflatex + bibtex); a LaTeX failure is reported but does
+        not fail the pipeline."""
         if shutil.which("latexmk"):
             target = "pdf"
         elif shutil.which("pdflatex") and shutil.which("bibtex"):

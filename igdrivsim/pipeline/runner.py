@@ -32,10 +32,8 @@ class StageError(IGDrivSimError):
 class StageRunner:
     """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps). The dataclass that
     inherits it provides ``work``, ``quiet``, ``in_process``, ``one_thread``, ``ran``,
-    ``running``, ``stopping``, ``children`` and ``device_text`` (where the stages run: recorded
-    in each stamp, so a run resumed on another machine says which stage ran where)."""
+    ``running``, ``stopping``, ``children`` and ``device_text`` (recorded in each stamp)."""
 
-    # ----------------------------------------------------------------------- bookkeeping
     def log_path(self, stage: str) -> Path:
         return self.work / "logs" / f"{stage}.log"
 
@@ -57,8 +55,7 @@ class StageRunner:
 
     def spent(self, stage: str) -> float:
         """Seconds of a stage: the earlier (interrupted) invocations' and, while it runs, this
-        one's (the record holds both once this invocation has written it, so it is read only
-        when the stage starts)."""
+        one's."""
         if stage in self.running:
             return time.time() - self.running[stage]
         try:
@@ -67,8 +64,8 @@ class StageRunner:
             return 0.0
 
     def record_spent(self, stages: Sequence[str] | None = None) -> None:
-        """Write the seconds of ``stages`` (default: every running stage), so that a killed run
-        keeps them (called every minute while the run goes on, and when a stage fails)."""
+        """Write the seconds of ``stages`` (default: every running stage), so a killed run keeps
+        them."""
         for stage in list(self.running if stages is None else stages):
             if stage not in self.running:  # finished meanwhile (another lane)
                 continue
@@ -80,13 +77,11 @@ class StageRunner:
         return read_json(self.stamp_path(stage), {})
 
     def stamped_device(self, stage: str) -> str:
-        """Where a complete stage ran (its stamp; this machine for a stamp that predates the
-        field)."""
+        """Where a complete stage ran (this machine for a stamp without the field)."""
         return self.stamp(stage).get("device") or self.device_text
 
     def stamped_code(self, stage: str) -> dict:
-        """The code a complete stage ran (:func:`provenance.code_state` as its stamp recorded
-        it when the stage started; unknown for a stamp that predates the field)."""
+        """The code a complete stage ran, as its stamp recorded it (unknown without the field)."""
         code = self.stamp(stage).get("code")
         return dict(code) if isinstance(code, dict) else dict(provenance.UNKNOWN_CODE)
 
@@ -102,9 +97,8 @@ class StageRunner:
     def stage(self, name: str, commands: Sequence[Sequence[str]], depends: Sequence[str] = (),
               outputs: Sequence[Path] = (), echo: bool = True) -> bool:
         """Run ``commands`` (argv lists; ``igdrivsim ...`` or ``python -m ...``) as stage
-        ``name`` unless it is complete. Returns True when it ran. ``echo=False`` (stages running
-        side by side): the output goes to the log only, and the terminal gets the stage's latest
-        progress line every minute."""
+        ``name`` unless it is complete; True when it ran. ``echo=False``: the output goes to the
+        log only, the terminal gets the latest progress line every minute."""
         if self.stopping.is_set():
             raise StageError(f"stage '{name}' not started: a stage beside it failed")
         if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):

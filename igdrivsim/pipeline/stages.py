@@ -1,38 +1,18 @@
 """The whole reproduction as resumable stages (what ``scripts/reproduce.sh`` runs).
 
-Stages, in order: ``data`` (synthetic WOMD-format shards, unless ``--data``), ``filter``
-(training and validation manifests), ``train`` (6 settings x {BC, BC-RL}, the grid split into
-parts over one worker process per CPU core, :mod:`igdrivsim.pipeline.planning`; each part's
-settings and seeds in one program), ``evaluate`` (each part, plus the reference actors),
-``maze``
-(paper Fig. 2), ``render`` (Fig. 1), ``report`` (Table I, vs-paper table, Fig. 3, provenance),
-``reactive`` (beyond the paper: every run and the references evaluated again with IDM sim
-agents, ``WORK/evals_idm``, and Table I's companion, :mod:`igdrivsim.report.reactive`),
-``real_logs`` (beyond the paper: the runs and references on every real scenario at hand, the
-``igdrivsim samples`` cache and each ``--samples`` location, every vehicle as the ego in turn,
-:mod:`igdrivsim.report.real_logs`; skipped without them) and ``pdf`` (when ``latexmk`` is
-installed). Methods with a privileged teacher (``--methods bc,bc_rl,dagger,advisor``) come
-after the others: a ``teacher`` stage picks the run whose full setting drives better on
-validation, and they train the other settings with it
-(``report`` then adds Table II and Fig. 6).
+Stages, in order: ``data`` (synthetic shards, unless ``--data``), ``filter``, ``train`` (the
+grid split into parts over one worker process per core, :mod:`igdrivsim.pipeline.planning`),
+``evaluate`` (each part and the references), ``maze`` (Fig. 2), ``render`` (Fig. 1),
+``report``, ``reactive`` (everything again with IDM sim agents), ``real_logs`` (every real
+scenario at hand, every vehicle as the ego; skipped without them) and ``pdf``. Methods with a
+privileged teacher come after a ``teacher`` stage that picks the full-setting run to learn from.
 
-Resumability: a stage that completes writes ``WORK/stages/<stage>.json``; a later invocation
-skips it while that stamp exists and nothing it depends on ran again. An interrupted training
-stage resumes from its checkpoints (``igdrivsim train --resume``). Every stage logs to
-``WORK/logs/<stage>.log`` and echoes its output (progress bars) on the terminal (stages running
-side by side: their latest progress line every minute); a failing stage
-stops the pipeline with a message naming the stage and its log.
-
-Before any stage the run prints its plan: the machine, the parts, the estimated wall time
-(from measured per-update costs), and the profile to pick for a first look or on a GPU.
-
-Layout: work files (data, filtered manifests, runs, evaluations, logs, the report as written,
-``WORK/report``) under ``WORK`` (``outputs/<profile>`` by default, ``--out`` when given); the
-report files under ``PAPER`` (the repository's ``paper/`` by default, ``OUT/paper`` with
-``--out``), published there with their provenance (:mod:`igdrivsim.report.provenance`):
-a run never deletes or overwrites the files of another kind of run (Table II and Fig. 6 of the
-``--methods`` run survive the default run, and the other way round;
-:mod:`igdrivsim.pipeline.publish`).
+A completed stage writes ``WORK/stages/<stage>.json`` and is skipped while it exists and
+nothing it depends on ran again; training resumes from its checkpoints. Every stage logs to
+``WORK/logs/<stage>.log``; a failing one stops the pipeline naming its log. The run first
+prints its plan (machine, parts, estimated wall time). Work files live under ``WORK``, the
+report is published under ``PAPER`` with its provenance (:mod:`igdrivsim.pipeline.publish`),
+never overwriting another kind of run's files.
 """
 
 from __future__ import annotations
@@ -113,7 +93,6 @@ class Pipeline(Publisher, StageRunner):
         # stages now running -> when they began, moved back by their earlier invocations' seconds
         self.running: dict[str, float] = {}
 
-    # --------------------------------------------------------------------------- stages
     @property
     def data_label(self) -> str:
         if self.train_data is None:
@@ -273,11 +252,8 @@ class Pipeline(Publisher, StageRunner):
         return None
 
     def run_real_logs(self) -> None:
-        """Beyond the paper: every trained run and the reference actors on every real scenario
-        at hand (the samples cache and each ``--samples`` location), every vehicle that passes
-        the filter as the ego (``--egos all``), beside their validation numbers; Full BC also
-        under the greedy and mean action read-outs (:data:`READOUTS`), beside Table I's
-        sampled actions (tables/real_logs.{md,tex,csv}, real_logs_readouts.csv)."""
+        """Every trained run and the references on every real scenario at hand, every vehicle
+        that passes the filter as the ego; Full BC also under the :data:`READOUTS`."""
         runs = sorted(p.name for p in (self.work / "runs").glob("*")
                       if is_complete(p) and (self.work / "evals" / p.name).is_dir())
         if not self.samples or not runs:
@@ -311,8 +287,7 @@ class Pipeline(Publisher, StageRunner):
         return self.paper.resolve() == (REPO_ROOT / "paper").resolve()
 
     def run_report(self, evals: Path, upstream: Sequence[str], parts: Sequence[str]) -> None:
-        """The report of this run: its learning curves (Fig. 4) from its own ``parts``' runs
-        only, not from another run's in the same work folder (the methods run's, say)."""
+        """The report of this run (its learning curves from its own ``parts``' runs only)."""
         # results.md: published with the tables (PAPER/results.md); the default run's goes to
         # docs/results.md instead, rewritten from paper/ once published (write_results)
         page = ["--results", self.work / "results.md"] if self.default_paper else []
@@ -338,8 +313,7 @@ class Pipeline(Publisher, StageRunner):
 
     @property
     def lanes(self) -> int:
-        """Worker processes: ``--workers``, else one per core (two on an accelerator); one
-        when the stages run in this process."""
+        """Worker processes: ``--workers``, else one per core (two on an accelerator)."""
         if self.in_process:
             return 1
         return self.workers or planning.default_workers(self.machine)
@@ -350,9 +324,7 @@ class Pipeline(Publisher, StageRunner):
         return self.lanes > 1 and self.machine.accelerator is None
 
     def check_work_folder(self) -> None:
-        """Record the options in ``WORK/pipeline.json``; refuse a folder made with other data,
-        another profile or other ``--set`` overrides (its complete stages would be wrongly
-        skipped)."""
+        """Record the options in ``WORK/pipeline.json``; refuse a folder made with other ones."""
         record = json.loads(json.dumps(dict(  # JSON types, comparable with the stored record
             profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
             paper=str(self.paper), overrides=list(self.overrides))))
@@ -366,8 +338,7 @@ class Pipeline(Publisher, StageRunner):
         atomic_write_json(path, record, indent=2)
 
     def parts(self) -> tuple[list[planning.Part], list[planning.Part]]:
-        """The grid's parts: the methods without a teacher on every setting, then the taught
-        methods on the settings other than ``full`` (:func:`planning.split_grid`)."""
+        """The grid's parts: the untaught methods on every setting, then the taught ones."""
         taught = [m for m in self.methods if get_method(m).teacher]
         plain = [m for m in self.methods if m not in taught]
         updates = self.training_config().training.num_updates
@@ -385,8 +356,7 @@ class Pipeline(Publisher, StageRunner):
         return MAZE_CPU_S if self.profile.name in planning.PRICED_PROFILES else 0.0
 
     def left(self, stage: str) -> float:
-        """The share of ``stage`` still to run: 0 when complete; for a training part, the
-        updates past its latest checkpoint; else 1."""
+        """The share of ``stage`` still to run (a training part: past its latest checkpoint)."""
         if self.done(stage):
             return 0.0
         run = self.work / "runs" / stage.removeprefix("train_")

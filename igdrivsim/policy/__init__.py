@@ -11,10 +11,9 @@ from igdrivsim.policy.network import (
     init_params_per_seed,
     initial_carry,
     masked_max,
-    unroll,
 )
 
 __all__ = [
     "NUM_ACTION_DIMS", "NUM_BINS", "DrivingPolicy", "PolicyConfig", "apply_step", "count_params",
-    "init_params", "init_params_per_seed", "initial_carry", "masked_max", "unroll",
+    "init_params", "init_params_per_seed", "initial_carry", "masked_max",
 ]

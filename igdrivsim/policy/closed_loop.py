@@ -1,16 +1,9 @@
-"""The policy and the reference actors driving batches of scenarios in closed loop, for the
-training curves and the evaluation.
-
-The closed-loop rollouts of a policy (and of the simulator's
-reference actors) on stacked scenarios -> per-step metrics: the engine that both the training curves
-(:class:`igdrivsim.training.loop.Validation`) and the evaluation
-(:mod:`igdrivsim.evaluation.rollout`, which adds the metric registry's per-episode metrics and
-the tidy CSV frames) run. It lives in the policy layer, below both, so that neither imports the
-other; semantics are documented in :mod:`igdrivsim.evaluation.rollout`.
+"""The policy and the reference actors driving batches of scenarios in closed loop: the engine
+of the training curves and the evaluation (:mod:`igdrivsim.evaluation.rollout`, whose docstring
+gives the semantics), below both so that neither imports the other.
 
 ``episode_metrics``: ``None`` or a function ``(final_state, params) -> {key: f32[]}`` run once
-per episode inside the jitted rollout (a static argument: pass the same function object to
-reuse the compiled program).
+per episode inside the jitted rollout (a static argument).
 """
 
 from __future__ import annotations
@@ -64,12 +57,6 @@ class StepOutputs:
         return StepOutputs(*(fn(getattr(self, f)) for f in self.FIELDS), scenario)
 
 
-def default_metrics_fn() -> Callable:
-    """The simulator's ``step_metrics(state, params)`` (overlap, offroad, log divergence,
-    valid) of the current step."""
-    return step_metrics
-
-
 def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
     m = metrics_fn(state, params)
     valid = getattr(m, "valid", None)
@@ -79,19 +66,7 @@ def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
             jnp.asarray(m.offroad, jnp.float32), jnp.asarray(valid, bool))
 
 
-# ----------------------------------------------------------------------------------- actors
-def _reference_actor(name: str, params: SimParams):
-    """The simulator's reference actor (:data:`igdrivsim.simulator.rollout.ACTORS`)."""
-    return ACTORS[name](params)
-
-
 REFERENCE_ACTORS: tuple[str, ...] = tuple(ACTORS)  # ("expert", "constant_velocity")
-
-
-# --------------------------------------------------------------------------------- rollouts
-def _episode_values(final, params: SimParams, episode: EpisodeFn | None) -> dict:
-    """The per-episode metrics of the final state (``{}`` when not requested)."""
-    return episode(final, params) if episode is not None else {}
 
 
 def _run(state, actor, key, params: SimParams, metrics_fn, episode: EpisodeFn | None):
@@ -99,26 +74,14 @@ def _run(state, actor, key, params: SimParams, metrics_fn, episode: EpisodeFn | 
     registry's episode metrics (``{}`` unless ``episode``)."""
     final, tr = run_episode(state, actor, key, params,
                             metrics_fn=lambda s, p: _metrics(s, p, metrics_fn))
-    return tr.metrics, _episode_values(final, params, episode)
-
-
-def _reference_episode(state, actor, params: SimParams, metrics_fn,
-                       episode: EpisodeFn | None = None):
-    # reference actors draw nothing: the key is a placeholder
-    return _run(state, actor, jax.random.key(0), params, metrics_fn, episode)
+    return tr.metrics, {} if episode is None else episode(final, params)
 
 
 def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
                     obs_config: ObservationConfig, params: SimParams, actions: str, metrics_fn,
                     episode: EpisodeFn | None = None):
-    """One scenario, one seed: per-step metrics ``[steps]`` each and the registry's episode
-    metrics (``{}`` unless ``episode``).
-
-    As in training: the GRU is reset at t = 0 and warmed on the logged observations of
-    t = 0..9, then the policy drives from t = 10 (:func:`igdrivsim.policy.act.policy_actor`).
-    The episode key is fixed over the episode (position-noise offset), the step key is
-    ``fold_in(episode_key, t)`` (masking draws).
-    """
+    """One scenario, one seed (:func:`igdrivsim.policy.act.policy_actor`: the GRU warmed on the
+    logged steps 0..9, then driving): per-step metrics and the episode metrics."""
     actor = policy_actor(policy_config, policy_params, setting, obs_config, actions)
     return _run(state, actor, key, params, metrics_fn, episode)
 
@@ -127,18 +90,18 @@ def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, s
 def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn,
                      episode: EpisodeFn | None = None):
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
-    return jax.vmap(lambda s: _reference_episode(s, _reference_actor(actor_name, params), params,
-                                                 metrics_fn, episode))(state)
+    actor = ACTORS[actor_name](params)  # draws nothing: the key is a placeholder
+    return jax.vmap(lambda s: _run(s, actor, jax.random.key(0), params, metrics_fn,
+                                   episode))(state)
 
 
 @partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "actions",
                                    "metrics_fn", "episode"))
 def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
                   obs_config, params, actions, metrics_fn, episode: EpisodeFn | None = None):
-    """``policy_params`` stacked over settings and seeds ``[G, S]``; scenarios ``[B]``; keys
-    ``[S, B]`` (shared by the settings: paired draws); ``settings``: stacked
-    settings stacked ``[G]`` (:func:`~igdrivsim.observation.stack_settings`), or ``None``
-    with the static ``setting`` (``G = 1``). Outputs ``[G, S, B, steps]``."""
+    """Outputs ``[G, S, B, steps]`` of ``policy_params [G, S]`` on scenarios ``[B]`` with keys
+    ``[S, B]`` (shared by the settings); ``settings`` stacked ``[G]``, or ``None`` with the
+    static ``setting``."""
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
 
     def per_setting(policy_params, setting_value):
@@ -167,9 +130,8 @@ def _to_host(outs) -> StepOutputs:
 
 
 def _spread(tree, axis: int | None):
-    """Place arrays with ``axis`` (the scenario axis) split over every device of every process
-    (each process builds the same host batch and keeps its own part), or replicated when
-    ``axis`` is None (parameters); one device: unchanged."""
+    """Place arrays split on ``axis`` (scenarios) over every device of every process, or
+    replicated when ``axis`` is None; one device: unchanged."""
     if jax.device_count() == 1 or tree is None:
         return tree
     spec = PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), "data")
@@ -182,11 +144,12 @@ def _device_multiple(size: int) -> int:
     return -(-size // count) * count
 
 
-def _concat(parts: list[StepOutputs], axis: int) -> StepOutputs:
+def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> StepOutputs:
+    """``parts`` concatenated (or stacked: ``join=np.stack``) field by field."""
     scenario = None if parts[0].scenario is None else {
-        k: np.concatenate([p.scenario[k] for p in parts], axis=axis) for k in parts[0].scenario}
-    return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis=axis)
-                         for f in StepOutputs.FIELDS), scenario)
+        k: join([p.scenario[k] for p in parts], **kw) for k in parts[0].scenario}
+    return StepOutputs(*(join([getattr(p, f) for p in parts], **kw) for f in StepOutputs.FIELDS),
+                       scenario)
 
 
 def _pad_batch(batch, size: int):
@@ -215,7 +178,7 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
     per-episode metrics ``[N]`` of ``episode_metrics`` when given)."""
     if actor_name not in REFERENCE_ACTORS:
         raise KeyError(actor_name)
-    metrics_fn = metrics_fn or default_metrics_fn()
+    metrics_fn = metrics_fn or step_metrics
     parts = []
     for start, stop, batch in _batches(scenarios, batch_size):
         outs = _to_host(_reference_batch(batch, params=params, actor_name=actor_name,
@@ -223,7 +186,7 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
         parts.append(outs.map(lambda a, n=stop - start: a[:n]))
         if progress:
             progress(stop - start)
-    return _concat(parts, axis=0)
+    return _join(parts, axis=0)
 
 
 def _episode_keys(base, num_seeds: int, index: np.ndarray):
@@ -244,15 +207,12 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
 
     One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
-    names: ``policy_params [G, S]``, metrics ``[G, S, N, steps]``, every setting in one
-    compiled program (settings as data) when the settings allow it. The key of scenario ``i``
-    and seed ``s`` is derived from ``seed``, ``i`` and ``s`` only (the same for every
-    setting), so results do not depend on the batch size or on which settings run together.
-    ``episode_metrics`` (``(final_state, params) -> {key: f32[]}``) adds per-episode metrics
-    (``scenario``, ``[S, N]``
-    or ``[G, S, N]``); off by default (the training curves need only the per-step ones).
+    names: ``policy_params [G, S]``, metrics ``[G, S, N, steps]``, in one compiled program when
+    the settings stack. The key of scenario ``i`` and seed ``s`` depends on ``seed``, ``i`` and
+    ``s`` only, so results do not depend on the batch size or the settings run together.
+    ``episode_metrics`` adds per-episode metrics (``scenario``, ``[S, N]`` or ``[G, S, N]``).
     """
-    metrics_fn = metrics_fn or default_metrics_fn()
+    metrics_fn = metrics_fn or step_metrics
     single = isinstance(setting, str)
     names = [setting] if single else list(setting)
     if single:
@@ -265,10 +225,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                                   batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
                                   progress=progress, episode_metrics=episode_metrics)
                   for g, n in enumerate(names)]
-        scenario = None if groups[0].scenario is None else {
-            k: np.stack([o.scenario[k] for o in groups]) for k in groups[0].scenario}
-        return StepOutputs(*(np.stack([getattr(o, f) for o in groups]) for f in
-                             StepOutputs.FIELDS), scenario)
+        return _join(groups, np.stack)
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     base = jax.random.key(seed)
@@ -285,7 +242,7 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
         parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
         if progress:
             progress(stop - start)
-    out = _concat(parts, axis=2)
+    out = _join(parts, axis=2)
     if single:
         out = out.map(lambda a: a[0])
     return out
@@ -293,5 +250,5 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
 
 __all__ = [
     "DEFAULT_OBS_CONFIG", "DEFAULT_SIM_PARAMS", "EVAL_SEED", "REFERENCE_ACTORS", "EpisodeFn",
-    "StepOutputs", "default_metrics_fn", "evaluate_policy", "evaluate_reference",
+    "StepOutputs", "evaluate_policy", "evaluate_reference",
 ]

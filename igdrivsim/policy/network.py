@@ -1,17 +1,10 @@
 """The driving policy: object encoder + PointNet roadgraph encoder -> MLP -> GRU -> 3x257 heads.
 
-Two shapes of the same network, chosen by :class:`PolicyConfig`: the default pools the objects
-(a per-object MLP, a max over objects) and the road points (one max over the set); the
-original's (``object_encoder="flatten"``, ``roadgraph_pool="type"``, ``heads_see_features``;
-the ``paper`` profile) flattens the objects, pools the points per road type and feeds the heads
-the GRU output next to the encoded step.
-
-The network sees one observation step at a time (memory lives in the GRU state). For training,
-``unroll`` scans it over a sequence; ``reset`` flags zero the GRU state at every episode start
-(the original code never reset it). Observations are any pytree with the fields of
-``igdrivsim.observation.Observation``: ``objects [..., N_obj, F_obj]``, ``objects_valid
-[..., N_obj]``, ``roadgraph [..., N_rg, F_rg]``, ``roadgraph_valid [..., N_rg]``,
-``sdc_speed [..., 1]``, ``sdc_yaw_rate [..., 1]``.
+Two shapes, chosen by :class:`PolicyConfig`: the original's (objects flattened, road points
+pooled per road type, the heads reading the GRU output next to the encoded step; the ``paper``
+profile) and :data:`POOLED_NETWORK` (objects and road points max-pooled). The network sees one
+observation step at a time (memory lives in the GRU state; ``reset`` flags zero it at every
+episode start, which the original code never did); :func:`unroll_sequence` runs it over time.
 """
 
 from __future__ import annotations
@@ -36,23 +29,18 @@ NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
 
 @dataclass(frozen=True)
 class PolicyConfig:
-    """Layer widths and the encoders' shape. The defaults are the original code's network
-    (github clemgris/IGDrivSim, ``feature_extractor.py`` and ``rnn_policy.py``): objects
-    flattened -> 512 -> 512; road points 8 -> 8 -> 8, a max per road type concatenated back,
-    8 -> 8 -> 8, a max per type again, 20 x 8 -> 512; LayerNorm on both, 1024 -> 512 -> 512;
-    GRU 512; actor [GRU, features] 1024 -> 512 -> 512 -> 512 -> 3 x 257; critic 1024 -> 256 ->
-    256 -> 1: 4,255,611 parameters without the critic (the original's 4,255,099 and one ego
-    speed input more), about 10.1 MFLOP forward per step at 32 objects and 1,500 road points.
-    ``POOLED_NETWORK`` is the other shape (pooled objects and road set; the laptop profile)."""
+    """Layer widths and the encoders' shape; the defaults are the original code's network
+    (github clemgris/IGDrivSim, ``feature_extractor.py`` and ``rnn_policy.py``): 4,255,611
+    parameters without the critic (the original's and one ego speed input more), about 10.1
+    MFLOP forward per step at 32 objects and 1,500 road points."""
 
     object_hidden: tuple[int, ...] = (512, 512)  # object encoder MLP
-    # "flatten": the MLP on all objects' features flattened with the ego speed (the
-    # original's); "pool": the MLP on each object, then a masked max over objects
+    # "flatten": the MLP on all objects flattened with the ego speed (the original's); "pool":
+    # the MLP on each object, then a masked max
     object_encoder: str = "flatten"
     point_hidden: tuple[int, ...] = (8, 8, 8)  # per-point MLP of the polyline encoder
     roadgraph_hidden: tuple[int, ...] = (8, 8, 8)  # after concatenating the pooled feature
-    # "type": the points max-pooled per road type (20), broadcast back to the points of that
-    # type, and the encoder's output is the 20 pooled features side by side (the original's);
+    # "type": max-pooled per road type, the 20 types' features side by side (the original's);
     # "set": max-pooled over the whole set
     roadgraph_pool: str = "type"
     roadgraph_out: tuple[int, ...] = (512,)  # MLP after the pooled road feature
@@ -60,38 +48,27 @@ class PolicyConfig:
     gru_hidden: int = 512
     actor_hidden: tuple[int, ...] = (512, 512, 512)
     value_hidden: tuple[int, ...] = (256, 256)
-    # the actor and value heads read [GRU output, trunk output] (the original's) rather than
-    # the GRU output alone
-    heads_see_features: bool = True
-    # a value head: None, the method decides (``RunConfig.validate``: only the methods that
-    # drive learn values; a network built from an undecided config has one); without one the
-    # network returns zeros as values
+    heads_see_features: bool = True  # the heads read [GRU output, trunk output] (the original's)
+    # a value head (None: the method decides; undecided, the network has one); without one the
+    # values are zeros
     value_head: bool | None = None
     num_bins: int = NUM_BINS
     remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
-    # the dx head scores offsets from the constant-velocity displacement (speed x 0.1 s, read
-    # from the observed ego speed) instead of absolute levels: the same 257-level action space,
-    # but "keep my speed" is one bias away instead of a regression from a scalar input
+    # the dx head scores offsets from the constant-velocity displacement instead of absolute
+    # levels ("keep my speed" is one bias away)
     relative_dx: bool = False
-    # the ego speed feature (speed / 50) is multiplied by this before the trunk: at 1 a change
-    # of one dx level (0.47 m/s) moves it by 0.01, too little for a small network to read
+    # the ego speed feature (speed / 50) times this before the trunk (at 1, one dx level moves
+    # it by 0.01)
     speed_input_scale: float = 1.0
-    # every object's features carry the ego speed next to the object's own speed, both times
-    # ``speed_input_scale``, so the object encoder can form closing speeds before pooling
-    # (after it, which object was closing is lost); False: the objects as observed
+    # every object's features carry the (scaled) ego speed too, so closing speeds form before
+    # pooling
     object_ego_speed: bool = False
-    # a second actor head on the same GRU output, trained by imitation only (ADVISOR's
-    # auxiliary policy); the method decides (training/methods), acting never reads it
+    # a second actor head trained by imitation only (ADVISOR's auxiliary policy)
     aux_head: bool = False
-    # the policy keeps its last H observed speeds in its recurrent carry and sees the last H
-    # speed changes, in dx levels (0.47 m/s), next to the speed: the expert's next level
-    # depends on them (it corrects its quantisation error), which a GRU fed the speed alone
-    # does not pick up (paper/findings.tex, "The speed walk"); 0: off (the paper's network)
+    # the last H speed changes in dx levels, from speeds kept in the carry (the expert's next
+    # level corrects its quantisation error; paper/findings.tex, "The speed walk"); 0: off
     speed_history: int = 0
-    # the policy sees its last H observed yaw rates (the current one, and H - 1 kept in its
-    # carry) in dyaw levels (2 pi / 256 rad per step): the expert's steering labels are a
-    # quantisation walk too, its next level depending on its last ones, and a yaw rate is not
-    # otherwise in view (the frame turns with the ego); 0: off (the paper's network)
+    # the last H observed yaw rates in dyaw levels (H - 1 kept in the carry); 0: off
     yaw_history: int = 0
 
     def __post_init__(self):
@@ -106,9 +83,8 @@ class PolicyConfig:
 OBJECT_ENCODERS = ("pool", "flatten")
 ROADGRAPH_POOLS = ("set", "type")
 
-# The other shape of the network: each object encoded then max-pooled, the road points
-# max-pooled over the whole set, the heads on the GRU output alone (the laptop profile; with
-# the widths 512 / 256-256 / 512-512 it was a 4.15M-parameter network of 1.42 GFLOP per step).
+# The other shape: objects encoded then max-pooled, the road points max-pooled over the set,
+# the heads on the GRU output alone (the laptop profile).
 POOLED_NETWORK = dict(object_encoder="pool", roadgraph_pool="set", roadgraph_out=(),
                       heads_see_features=False)
 
@@ -133,18 +109,14 @@ def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
 
 
 def road_types(points: jax.Array, valid: jax.Array) -> jax.Array:
-    """Each point's road type ``int32[..., N]`` from the roadgraph feature's one-hot columns;
-    ``RG_NUM_TYPES`` (no type) for invalid points."""
+    """Each point's road type ``int32[..., N]`` (``RG_NUM_TYPES`` for invalid points)."""
     kind = roadgraph_kind(points)
     return jnp.where(valid, kind, RG_NUM_TYPES).astype(jnp.int32)
 
 
 def max_per_type(x: jax.Array, types: jax.Array) -> jax.Array:
-    """Max of ``x [..., N, D]`` over the points of each road type (``types int[..., N]``, from
-    :func:`road_types`): ``[..., RG_NUM_TYPES, D]``, zeros for a type with no point.
-
-    One segment max over all sets at once (each set's types offset into its own segments):
-    a scatter of N x D values, rather than a masked max over N x types x D."""
+    """Max of ``x [..., N, D]`` over the points of each road type: ``[..., RG_NUM_TYPES, D]``,
+    zeros for a type with no point (one segment max over all sets at once)."""
     lead, (n, d) = x.shape[:-2], x.shape[-2:]
     sets = math.prod(lead)
     slots = RG_NUM_TYPES + 1  # the last one collects the invalid points
@@ -155,16 +127,14 @@ def max_per_type(x: jax.Array, types: jax.Array) -> jax.Array:
 
 
 def own_type(pooled: jax.Array, types: jax.Array) -> jax.Array:
-    """Each point's row of ``pooled [..., T, F]`` (its road type's; zeros for no type):
-    ``[..., N, F]``."""
+    """Each point's road type's row of ``pooled [..., T, F]`` (zeros for no type)."""
     padded = jnp.concatenate([pooled, jnp.zeros_like(pooled[..., :1, :])], -2)
     return jnp.take_along_axis(padded, types[..., None], axis=-2)
 
 
 class PolylineEncoder(nn.Module):
-    """PointNet/MTR-style set encoder: per-point MLP, max-pool, concat back, MLP, max-pool.
-    ``by_type``: the pools are per road type and the output is the types' features side by
-    side, ``[..., 20 x D]`` (the original's)."""
+    """PointNet/MTR-style set encoder: per-point MLP, max-pool, concat back, MLP, max-pool
+    (``by_type``: per road type, the types' features side by side)."""
 
     point_hidden: Sequence[int]
     hidden: Sequence[int]
@@ -183,12 +153,9 @@ class PolylineEncoder(nn.Module):
 
 
 class PooledMLP(nn.Module):
-    """An :class:`MLP` on ``[h, pooled]``, each point's feature ``h [..., N, D]`` next to its
-    set's pooled feature ``pooled [..., D]``, without building the concatenation: the first
-    layer is ``h @ W_h + pooled @ W_p``, the pooled half computed once per set rather than once
-    per point (the same parameters and values as the concatenated form, half its cost). With
-    ``types int[..., N]`` (:func:`road_types`), ``pooled [..., T, D]`` holds one feature per
-    road type and each point gets its own type's."""
+    """An :class:`MLP` on ``[h, pooled]`` (each point next to its set's, or with ``types`` its
+    road type's, pooled feature) with the first layer ``h @ W_h + pooled @ W_p``: the pooled
+    half once per set, the same values as the concatenation at half its cost."""
 
     features: Sequence[int]
 
@@ -244,8 +211,7 @@ class DrivingPolicy(nn.Module):
             self.aux_out = nn.Dense(NUM_ACTION_DIMS * c.num_bins)
 
     def encode(self, obs, history=None):
-        """Per-step features fed to the GRU, ``[..., trunk_hidden[-1]]`` (``history``: the
-        ego-motion history features of :func:`step_history`, ``None`` without one)."""
+        """Per-step features fed to the GRU (``history``: :func:`step_history`'s features)."""
         objects = obs.objects
         if self.config.object_ego_speed:
             k = self.config.speed_input_scale
@@ -265,11 +231,6 @@ class DrivingPolicy(nn.Module):
             parts.append(history)
         return self.trunk(jnp.concatenate(parts, axis=-1))
 
-    def core(self, carry, x, reset):
-        """The recurrent part: ``(carry, encoded x, reset) -> (carry, GRU output)``."""
-        carry = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(carry), carry)
-        return self.gru(carry, x)
-
     def _logits(self, mlp, out, y, sdc_speed):
         logits = dense_2d(out, mlp(y))
         logits = logits.reshape(*logits.shape[:-1], NUM_ACTION_DIMS, self.config.num_bins)
@@ -279,10 +240,8 @@ class DrivingPolicy(nn.Module):
         return logits
 
     def heads(self, y, sdc_speed=None):
-        """Actor logits ``[..., 3, bins]``, value ``[...]`` (zeros without ``value_head``) and
-        the auxiliary head's logits (``None`` without ``aux_head``) from the heads' inputs
-        (:meth:`head_inputs`; ``sdc_speed [..., 1]``, the observed feature, is needed when
-        ``relative_dx``)."""
+        """Actor logits ``[..., 3, bins]``, value ``[...]`` and the auxiliary logits (or ``None``)
+        from :func:`head_inputs` (``sdc_speed``: needed when ``relative_dx``)."""
         logits = self._logits(self.actor_mlp, self.actor_out, y, sdc_speed)
         aux = (self._logits(self.aux_mlp, self.aux_out, y, sdc_speed)
                if self.config.aux_head else None)
@@ -294,14 +253,14 @@ class DrivingPolicy(nn.Module):
         h, past = split_carry(self.config, carry)
         history, past = step_history(self.config, obs.sdc_speed, obs.sdc_yaw_rate, past, reset)
         x = self.encode(obs, history)
-        h, y = self.core(h, x, reset)
+        h = jnp.where(jnp.expand_dims(reset, -1), jnp.zeros_like(h), h)
+        h, y = self.gru(h, x)
         logits, value, _ = self.heads(head_inputs(self.config, y, x), obs.sdc_speed)
         return jnp.concatenate([h, past], -1), logits, value
 
 
 def head_inputs(config: PolicyConfig, y: jax.Array, x: jax.Array) -> jax.Array:
-    """What the heads read: the GRU output ``y``, with the step's encoded features ``x`` beside
-    it when ``heads_see_features``."""
+    """What the heads read: the GRU output, with the encoded step beside it if configured."""
     return jnp.concatenate([y, x], -1) if config.heads_see_features else y
 
 
@@ -312,19 +271,15 @@ def history_width(config: PolicyConfig) -> int:
 
 
 def split_carry(config: PolicyConfig, carry: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The GRU state ``[..., gru_hidden]`` and the ego-motion history ``[..., W]`` of a carry
-    (:func:`history_width`; the observation's last speeds, then its last yaw rates, most recent
-    first)."""
+    """The GRU state and the ego-motion history (last speeds, then yaw rates) of a carry."""
     return carry[..., :config.gru_hidden], carry[..., config.gru_hidden:]
 
 
 def step_history(config: PolicyConfig, sdc_speed: jax.Array, sdc_yaw_rate: jax.Array,
                  past: jax.Array, reset: jax.Array) -> tuple[jax.Array | None, jax.Array]:
-    """One step of the ego-motion history: the features the network sees (the last
-    ``speed_history`` speed changes in dx levels, then the last ``yaw_history`` yaw rates in
-    dyaw levels; ``None`` with neither) and the updated history ``past [..., W]``. At an
-    episode start (``reset [...]``) the past is taken to equal the present: no change, a steady
-    turn."""
+    """One step of the ego-motion history: the features the network sees (speed changes, then
+    yaw rates, in levels; ``None`` with neither) and the updated ``past``; at an episode start
+    the past equals the present."""
     hs = config.speed_history
     start = jnp.expand_dims(reset, -1)
     speeds = jnp.where(start, sdc_speed, past[..., :hs])
@@ -341,34 +296,28 @@ def step_history(config: PolicyConfig, sdc_speed: jax.Array, sdc_yaw_rate: jax.A
 
 
 def speed_changes(sdc_speed: jax.Array, past: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The last ``H`` speed changes in dx levels, ``[now - previous, previous - the one
-    before, ...]``, from the observed ``sdc_speed [..., 1]`` and the ``H`` previous ones
-    ``past [..., H]`` (most recent first), and the updated ``past``."""
+    """The last ``H`` speed changes in dx levels (most recent first) from ``sdc_speed [..., 1]``
+    and the ``H`` previous speeds ``past``, and the updated ``past``."""
     level = DX_LEVEL / DT / SPEED_SCALE  # one dx level in the feature's units
     seq = jnp.concatenate([sdc_speed, past], -1)
     return (seq[..., :-1] - seq[..., 1:]) / level, seq[..., :-1]
 
 
 def yaw_rate_levels(sdc_yaw_rate: jax.Array, past: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The last ``H`` observed yaw rates in dyaw levels per step, ``[now, previous, ...]``,
-    from ``sdc_yaw_rate [..., 1]`` (rad/s) and the ``H - 1`` previous ones ``past [..., H-1]``
-    (most recent first), and the updated ``past``."""
+    """The last ``H`` yaw rates in dyaw levels per step (most recent first) from
+    ``sdc_yaw_rate [..., 1]`` (rad/s) and the ``H - 1`` previous ones, and the updated ``past``."""
     seq = jnp.concatenate([sdc_yaw_rate, past], -1)
     return seq * (DT / DYAW_LEVEL), seq[..., :-1]
 
 
 def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array) -> jax.Array:
-    """Absolute dx-level logits from logits over offsets: level ``b`` gets the score of offset
-    index ``b - shift``, where ``shift`` is the constant-velocity displacement (``speed x
-    0.1 s``, ``sdc_speed`` being the observation's ``speed / 50``) in levels; so the middle
-    index scores the constant-velocity level. Levels with no offset index get -1e9."""
+    """Absolute dx-level logits from logits over offsets from the constant-velocity level (the
+    middle index scores it); levels with no offset index get -1e9."""
     bins = offset_logits.shape[-1]
     lead = offset_logits.shape[:-1]
     shift = jnp.broadcast_to(constant_speed_offset(sdc_speed * SPEED_SCALE), lead).reshape(-1)
-    # offset index o scores level o + shift: o = middle (zero offset) is the constant-velocity
-    # level middle + shift, since level ``middle`` is a zero displacement. Each row is a window
-    # of the row padded with -1e9 (a sliced gather; an elementwise take_along_axis built index
-    # arrays that cost a tenth of a BC-RL update on XLA:CPU).
+    # each row is a window of the row padded with -1e9 (a sliced gather: take_along_axis cost a
+    # tenth of a BC-RL update on XLA:CPU)
     padded = jnp.pad(offset_logits.reshape(-1, bins), ((0, 0), (bins, bins)),
                      constant_values=-1e9)
     start = jnp.clip(bins - shift, 0, 2 * bins)
@@ -377,8 +326,7 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
-    """The zero carry, ``[*batch_shape, gru_hidden + history_width]``: the GRU state, then
-    the ego-motion history (:func:`split_carry`)."""
+    """The zero carry ``[*batch_shape, gru_hidden + history_width]``."""
     return jnp.zeros((*batch_shape, config.gru_hidden + history_width(config)), jnp.float32)
 
 
@@ -392,11 +340,8 @@ _jit_init = jax.jit(init_params, static_argnums=0)
 
 
 def init_params_per_seed(config: PolicyConfig, keys: jax.Array, example_obs) -> dict:
-    """Parameters for each key, stacked on a leading seed axis.
-
-    Seeds are initialised one by one and stacked (vmapping the orthogonal initialiser of the
-    GRU was seen to hang).
-    """
+    """Parameters for each key, stacked on a leading seed axis (one by one: vmapping the GRU's
+    orthogonal initialiser was seen to hang)."""
     per_seed = [_jit_init(config, k, example_obs) for k in keys]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *per_seed)
 
@@ -406,36 +351,16 @@ def apply_step(config: PolicyConfig, params, carry, obs, reset):
     return DrivingPolicy(config).apply(params, carry, obs, reset)
 
 
-def unroll(config: PolicyConfig, params, carry, obs_seq, reset_seq):
-    """Scan the policy over time; inputs ``[B, T, ...]`` -> ``(carry, logits [B,T,3,bins],
-    values [B,T])``. ``reset_seq [B, T]`` zeroes the state before the flagged steps."""
-    model = DrivingPolicy(config)
-
-    def body(c, xs):
-        obs, reset = xs
-        c, logits, value = model.apply(params, c, obs, reset)
-        return c, (logits, value)
-
-    if config.remat:
-        body = jax.checkpoint(body)
-    time_major = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), (obs_seq, reset_seq))
-    carry, (logits, values) = jax.lax.scan(body, carry, time_major)
-    return carry, jnp.swapaxes(logits, 0, 1), jnp.swapaxes(values, 0, 1)
-
-
 def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: bool = True,
                     with_aux: bool = False):
     """Run the network over time-major observations ``[T, B, ...]``: ``(carry, logits
-    [T, B, 3, bins], values [T, B])``, plus the auxiliary head's logits when ``with_aux``; the
-    GRU state is zeroed before step 0 if ``reset_first``.
+    [T, B, 3, bins], values [T, B])`` (and the auxiliary logits when ``with_aux``), the GRU
+    state zeroed before step 0 if ``reset_first``.
 
-    The per-step encoders and the GRU's input projection do not depend on the recurrence, so
-    they run once over all ``T x B`` observations (large matrix products) and only the
-    recurrence is scanned (:func:`igdrivsim.core.nn.gru_scan`, the cell's equations with a
-    hand-written gradient); the same values as stepping :func:`apply_step`, several times
-    faster on CPU. With ``config.remat`` the encoders run one step at a time and are
-    recomputed in the backward pass: their activation memory is one step's (the per-point
-    features of 1,500 road points over 90 steps would not fit at the paper's batch).
+    The encoders and the GRU's input projection run once over all ``T x B`` observations and
+    only the recurrence is scanned (:func:`igdrivsim.core.nn.gru_scan`): the values of stepping
+    :func:`apply_step`, several times faster on CPU. ``config.remat`` encodes one step at a
+    time, recomputed in the backward pass (one step's activation memory).
     """
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]

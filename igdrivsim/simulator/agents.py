@@ -1,36 +1,10 @@
 """Sim agents: who moves the objects other than the SDC (``SimParams.agents``).
 
-* ``"log"`` (the default and the paper's setting): every other object replays its log.
-* ``"idm"``: reactive traffic after Waymax's ``IDMRoutePolicy``. Each moving *vehicle* other
-  than the SDC, valid at the current step (10), follows its own logged path (the
-  ``max_agents`` nearest the SDC at step 10; any others replay their log): its position is a
-  point of the logged polyline at arc length ``s`` and its heading the logged heading there
-  (interpolated between waypoints), so it never leaves the path sideways; only its speed is
-  controlled, by the Intelligent Driver Model::
-
-      a = a_max [1 - (v / v0)^delta - (s* / gap)^2]
-      s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))
-
-  with ``dv = v - v_lead``. The leader is the nearest object (the SDC included, at its simulated
-  pose) whose box comes within half the agent's width of the path ahead (the agent's box swept
-  along its path), over a lookahead of ``lookahead + s0 + v T`` metres (always longer than the
-  desired gap; Waymax's 10 m missed stopped cars, its issue #52); the path ahead is sampled at
-  ``path_samples`` chords. The leader's speed is its velocity projected on the agent's heading
-  (at least 0). The stop point of a traffic light that is red now (WOMD states 1, 4, 7: arrow
-  stop, stop, flashing stop) on the path ahead is a stopped leader of zero length, so agents stop
-  before the line. Past the end of its log an agent keeps its last heading and brakes at
-  ``comfort_decel`` (it stays valid and does not vanish).
-
-Left on log replay: pedestrians, cyclists and other non-vehicles (Waymax's issue #71), objects
-not valid at step 10, and vehicles whose box overlaps another object's at step 10 (articulated
-vehicles, nuPlan #421). Parked vehicles (every valid logged position from step 10 on within
-``parked_distance`` of the one at step 10) stay where they are, valid, at zero speed (a comment
-in Waymax's code notes its parked cars drive off).
-
-The agents see the present only (positions, speeds, lights now); the logged future gives only
-each agent's own path, as in Waymax. Everything is pure JAX, vectorised over agents (pairwise
-agent x object x chord arrays, no Python loop over objects), for ONE scenario; the simulator
-``vmap``-s it over batch dimensions.
+``"log"`` (the paper's): every other object replays its log. ``"idm"``: reactive vehicles after
+Waymax's ``IDMRoutePolicy``, each on its own logged path with its speed from the Intelligent
+Driver Model, seeing the present only (docs/reactive.md describes the leader, lights, parked
+and replayed objects). Pure JAX for ONE scenario, vectorised over agents x objects; the
+simulator ``vmap``-s it over batch dimensions.
 """
 
 from __future__ import annotations
@@ -50,11 +24,7 @@ RED_LIGHT_STATES = (1, 4, 7)  # WOMD LANE_STATE_ARROW_STOP, LANE_STATE_STOP, FLA
 
 @dataclass(frozen=True)
 class IdmParams:
-    """The IDM agents' parameters (Waymax ``IDMRoutePolicy`` defaults for the first six).
-
-    ``desired_speed`` is Waymax's 30 m/s whatever the log's speed: a free agent accelerates
-    towards it along its path (and so may run ahead of its log); lower it for urban traffic.
-    """
+    """The IDM agents' parameters (Waymax ``IDMRoutePolicy`` defaults for the first six)."""
 
     desired_speed: float = 30.0  # m/s (v0)
     min_gap: float = 2.0  # m (s0)
@@ -65,9 +35,7 @@ class IdmParams:
     lookahead: float = 20.0  # m beyond the desired gap s0 + v T at the agent's speed
     path_samples: int = 4  # chords of the path ahead the leader is searched along
     parked_distance: float = 1.0  # m: a vehicle whose log stays this close is parked
-    # the IDM drives the moving vehicles nearest to the SDC at step 10, at most this many (the
-    # others replay their log): the leader search costs agents x objects per step
-    max_agents: int = 32
+    max_agents: int = 32  # the moving vehicles nearest the SDC the IDM drives (others replay)
 
     def __post_init__(self):
         for name in ("desired_speed", "max_accel", "comfort_decel", "exponent", "lookahead"):
@@ -89,17 +57,10 @@ def check_agents(name: str) -> None:
 
 @struct.dataclass
 class AgentState:
-    """Every object's simulated trajectory and the IDM agents' own state (one scenario).
-
-    ``x, y, yaw, vel_x, vel_y, valid`` ``[O, T]``: the log up to the current step and for the
-    objects left on replay; the agents' simulated states after step 10. ``idm`` / ``parked``
-    ``[O]``: which objects the IDM drives / holds still. The IDM agents' own state is per agent
-    slot ``[N]`` (``N = min(max_agents, O)``): ``slot`` the object index, ``slot_ok`` whether
-    the slot holds an agent, ``path_*`` ``[N, T]`` each agent's logged path (invalid steps
-    filled with the last valid pose) and its arc length from step 10, ``path_end`` /
-    ``end_pose`` ``[N]`` / ``[N, 3]`` its length and last valid
-    pose (constant); ``arc``, ``speed`` ``[N]``: where each agent is on its path and its speed.
-    """
+    """Every object's simulated trajectory ``[O, T]`` (``x`` .. ``valid``), which objects the
+    IDM drives / holds still (``idm`` / ``parked`` ``[O]``), and per agent slot ``[N]``: its
+    object ``slot`` (``slot_ok``: holds an agent), its logged path ``path_*`` ``[N, T]`` with
+    arc length from step 10, the path's length and last pose, and ``arc`` / ``speed`` now."""
 
     x: jax.Array
     y: jax.Array
@@ -130,8 +91,8 @@ def _fill_forward(a, valid):
     return jnp.take_along_axis(a, idx, axis=-1)
 
 
-def _box_overlap(ax, ay, al, aw, ayaw, bx, by, bl, bw, byaw):
-    """Separating-axis overlap of oriented boxes (broadcasting), positive area only."""
+def boxes_overlap(ax, ay, al, aw, ayaw, bx, by, bl, bw, byaw):
+    """Whether oriented boxes intersect with positive area (separating axes; broadcasting)."""
     dx, dy = bx - ax, by - ay
     ca, sa, cb, sb = jnp.cos(ayaw), jnp.sin(ayaw), jnp.cos(byaw), jnp.sin(byaw)
     c, s = jnp.abs(ca * cb + sa * sb), jnp.abs(ca * sb - sa * cb)
@@ -143,8 +104,7 @@ def _box_overlap(ax, ay, al, aw, ayaw, bx, by, bl, bw, byaw):
 
 
 def init_agents(log, metadata, sdc_index, params: IdmParams) -> AgentState:
-    """The agents at the current step (10) of ONE scenario: ``log`` a ``Trajectory [O, T]``,
-    ``metadata`` ``[O]``, ``sdc_index`` a scalar."""
+    """The agents at the current step (10) of ONE scenario (``log`` ``[O, T]``)."""
     o, t = log.x.shape
     c = CURRENT_INDEX
     valid = jnp.asarray(log.valid, bool)
@@ -160,7 +120,7 @@ def init_agents(log, metadata, sdc_index, params: IdmParams) -> AgentState:
     others = jnp.arange(o) != sdc_index
     xs, ys, yaws = log.x[:, c], log.y[:, c], log.yaw[:, c]
     ls, ws = log.length[:, c], log.width[:, c]
-    hit = _box_overlap(xs[:, None], ys[:, None], ls[:, None], ws[:, None], yaws[:, None],
+    hit = boxes_overlap(xs[:, None], ys[:, None], ls[:, None], ws[:, None], yaws[:, None],
                        xs[None], ys[None], ls[None], ws[None], yaws[None])
     hit = hit & now[:, None] & now[None] & ~jnp.eye(o, dtype=bool)
     vehicle = (jnp.asarray(metadata.object_type) == TYPE_VEHICLE) & jnp.asarray(metadata.valid)
@@ -185,9 +145,8 @@ def init_agents(log, metadata, sdc_index, params: IdmParams) -> AgentState:
 
 
 def _on_path(a: AgentState, s):
-    """Poses at arc lengths ``s [N, K]`` along each agent's path: ``(x, y, yaw)`` ``[N, K]``;
-    past the path's end, straight on along its last heading. One gather per waypoint end of
-    the packed ``[O, T, 4]`` path (gathers are dear under ``vmap`` on XLA:CPU)."""
+    """Poses ``(x, y, yaw)`` at arc lengths ``s [N, K]`` along each agent's path (past its end,
+    straight on); one gather per waypoint end (gathers are dear under ``vmap`` on XLA:CPU)."""
     arc = a.path_arc  # [O, T]
     t = arc.shape[-1]
     k = jnp.clip(jnp.sum(arc[:, None, 1:] <= s[..., None], axis=-1), 0, t - 2)  # [O, K]
@@ -217,13 +176,10 @@ def _at(a, t):
 
 def leader_gaps(a: AgentState, objects, lights, t, params: IdmParams):
     """``(gap [N], lead_speed [N])``: bumper-to-bumper distance along its path from each agent
-    to its leader (``inf`` when none within the lookahead) and the leader's speed along the
-    agent's heading. ``objects``: every object now (an ``ObjectState``-like ``[O]``, the SDC at
-    its simulated pose); ``lights``: ``TrafficLights [L, T]``; ``t`` the current step.
-
-    The path ahead is ``path_samples`` chords; each chord is one elementwise pass over the
-    agents x objects array (no small reductions, which are slow under ``vmap`` on XLA:CPU).
-    """
+    to its leader or red light (``inf``: none within the lookahead) and the leader's speed along
+    the agent's heading, from ``objects`` now ``[O]`` and ``lights`` ``[L, T]`` at step ``t``.
+    One elementwise pass per chord of the path ahead (small reductions are slow under ``vmap``
+    on XLA:CPU)."""
     p = params
     o = objects.x.shape[0]
     reach = p.lookahead + p.min_gap + a.speed * p.time_headway  # [N]
@@ -289,8 +245,7 @@ def idm_accel(v, gap, lead_v, params: IdmParams):
 
 
 def step_agents(a: AgentState, objects, lights, t, params: IdmParams) -> AgentState:
-    """Advance the agents of ONE scenario from step ``t`` to ``t + 1`` (all at once, from the
-    objects now, ``objects`` with the SDC at its simulated pose)."""
+    """Advance the agents of ONE scenario from step ``t`` to ``t + 1``, from the objects now."""
     gap, lead_v = leader_gaps(a, objects, lights, t, params)
     acc = idm_accel(a.speed, gap, lead_v, params)
     acc = jnp.where(a.arc >= a.path_end, jnp.minimum(acc, -params.comfort_decel), acc)

@@ -1,14 +1,9 @@
 """SDC dynamics: delta-local / delta-global actions, their inverses, and the action discretiser.
 
-An action is ``float[..., 3] = (dx, dy, dyaw)``: a displacement over one step (0.1 s) and a yaw
-change. *Delta-local* expresses ``(dx, dy)`` in the SDC frame (x forward, y left); *delta-global*
-in the world frame. Bounds are ``+-6 m, +-6 m, +-pi`` (the paper's). Actions outside the bounds
-are **clipped** to them, and non-finite actions are replaced by the zero action (stay in place),
-so a traced step never produces NaN poses; host code should call
-:func:`validate_actions` to reject them loudly instead.
-
-The discretiser maps each dimension onto 257 evenly spaced levels from min to max inclusive
-(256 bins: 12/256 m and 2 pi/256 rad); level 128 is exactly zero.
+An action is ``float[..., 3] = (dx, dy, dyaw)`` over one step (0.1 s), ``(dx, dy)`` in the SDC
+frame (delta-local) or the world's (delta-global), clipped to ``+-6 m, +-6 m, +-pi``; a
+non-finite action becomes the zero action (host code rejects it with :func:`validate_actions`).
+Each dimension has 257 levels from min to max (level 128 is zero).
 """
 
 from __future__ import annotations
@@ -28,18 +23,15 @@ DYAW_LEVEL = (ACTION_HIGH[2] - ACTION_LOW[2]) / NUM_BINS  # radians between two 
 
 
 def constant_speed_offset(speed):
-    """Levels above the zero-displacement level (``NUM_BINS // 2``) of the dx that keeps
-    ``speed`` (m/s) over one step: ``round(speed * DT / DX_LEVEL)``, ``int32[...]``."""
+    """Levels above the zero level of the dx that keeps ``speed`` (m/s) over one step."""
     return jnp.round(jnp.asarray(speed) * DT / DX_LEVEL).astype(jnp.int32)
 
 
 def wrap_angle(a):
-    """Wrap an angle (radians) to ``[-pi, pi)``."""
     return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
 
 
 def clip_action(action):
-    """Clip to the bounds; replace non-finite actions by zero (see module docstring)."""
     action = jnp.asarray(action)
     low = jnp.asarray(ACTION_LOW, action.dtype)
     high = jnp.asarray(ACTION_HIGH, action.dtype)
@@ -48,7 +40,7 @@ def clip_action(action):
 
 
 def validate_actions(action) -> None:
-    """Host-side check: raise :class:`DataError` if any action is NaN or infinite."""
+    """Host-side check: a :class:`DataError` for a non-finite action."""
     a = np.asarray(action)
     if a.shape[-1:] != (3,):
         raise DataError("actions must have a trailing dimension of 3 (dx, dy, dyaw), "

@@ -1,16 +1,8 @@
 """Trajectory-level metrics of one episode, from its final state (definitions: docs/metrics.md).
 
-Each function takes the :class:`~igdrivsim.simulator.state.SimState` *after* the episode (one
-scenario, no batch dimension: the rollout ``vmap``-s them) and returns a ``f32[]`` scalar. The
-simulated SDC trajectory ``state.sdc`` (the log up to step 10, the policy's poses after) is
-compared with the logged SDC and with the logged other objects.
-
-Derivatives (speed, accelerations, jerk, yaw rate and acceleration) are local cubic
-least-squares (Savitzky-Golay) fits over ``SMOOTH_WINDOW`` steps of the positions and the
-unwrapped yaw: the 257-level action grid quantises a step's displacement to 4.7 cm, so raw
-finite differences carry +-5 m/s^2 of quantisation noise that no driver feels, and WOMD's
-logged positions alone give jerks above nuPlan's bounds over shorter windows. A window
-centred at step ``t`` is used when all its steps are valid and ``t`` is a controlled step.
+Each function takes the ``SimState`` *after* the episode (one scenario; the rollout ``vmap``-s
+them) and returns a ``f32[]`` scalar. Derivatives are Savitzky-Golay fits over
+``SMOOTH_WINDOW`` steps (the action grid's 4.7 cm quantisation makes raw differences noisy).
 """
 
 from __future__ import annotations
@@ -21,8 +13,8 @@ import numpy as np
 
 from igdrivsim.data.scenario import CURRENT_INDEX, DT
 from igdrivsim.simulator import metrics as step_rules
+from igdrivsim.simulator.agents import boxes_overlap
 from igdrivsim.simulator.dynamics import wrap_angle
-from igdrivsim.simulator.metrics import boxes_overlap
 from igdrivsim.simulator.state import (
     ObjectState,
     SimParams,
@@ -132,12 +124,8 @@ def kinematic_infeasible(state: SimState, params: SimParams | None = None):
 
 
 def progress(state: SimState, params: SimParams | None = None):
-    """Progress along the logged SDC path relative to the log's, in ``[0, 1]``.
-
-    The path is the logged SDC polyline from step 10 to 90 (valid points). The simulated SDC's
-    last valid position is projected on it (nearest segment); its arc length there over the
-    path's length, clipped to ``[0, 1]``. A log moving less than ``MIN_LOG_PROGRESS`` gives 1.
-    """
+    """Progress of the last simulated position along the logged SDC path (steps 10..90) over
+    the path's length, in ``[0, 1]`` (1 when the log moves less than ``MIN_LOG_PROGRESS``)."""
     log = log_sdc_row(state)
     px, py, pv = (a[CURRENT_INDEX:] for a in (log.x, log.y, log.valid))
     seg_ok = pv[:-1] & pv[1:]
@@ -159,14 +147,9 @@ def progress(state: SimState, params: SimParams | None = None):
 
 
 def min_time_to_collision(state: SimState, params: SimParams | None = None):
-    """Smallest time to collision (s) over the controlled steps, capped at ``TTC_HORIZON``.
-
-    At each step after an action, the simulated SDC and every other valid object (at its logged
-    state, or its simulated one under IDM sim agents) are extrapolated at constant velocity and
-    heading for ``TTC_HORIZON`` s in ``TTC_STEP`` s steps; the TTC is the first extrapolated
-    time their boxes overlap. Steps where the SDC is invalid, stopped (speed < ``STOPPED_SPEED``)
-    or already overlapping (scored by ``overlap``) are skipped.
-    """
+    """Smallest time to collision (s) over the controlled steps, capped at ``TTC_HORIZON``:
+    constant-velocity extrapolation of the SDC and the other objects, skipping steps where the
+    SDC is invalid, stopped or already overlapping."""
     sdc, log, i = state.sdc, object_trajectory(state), state.sdc_index
     times = jnp.arange(1, int(round(TTC_HORIZON / TTC_STEP)) + 1) * TTC_STEP  # [K]
     length = jnp.take(log.length, i, axis=0)
@@ -198,9 +181,8 @@ def ttc_compliant(state: SimState, params: SimParams | None = None):
 
 
 def at_fault_overlap(state: SimState, params: SimParams | None = None):
-    """1.0 when the SDC is at fault for an overlap at some controlled step (nuPlan's rule:
-    :func:`igdrivsim.simulator.metrics.at_fault_overlap`), with every object where the sim
-    agents put it."""
+    """1.0 when the SDC is at fault for an overlap at some controlled step
+    (:func:`igdrivsim.simulator.metrics.at_fault_overlap`)."""
     traj, sdc, i = object_trajectory(state), state.sdc, state.sdc_index
     is_sdc = jnp.arange(traj.x.shape[0]) == i
 

@@ -1,29 +1,22 @@
 """Per-step metrics (overlap, offroad, log divergence), the reward, and per-scenario aggregation.
 
-Waymax conventions, evaluated on the state *after* a step (the SDC at its simulated pose at the
-current timestep, every other object at its logged state):
+Waymax conventions, on the state *after* a step (the SDC at its simulated pose, the other
+objects where the sim agents put them):
 
-- **overlap**: the SDC's 2-D oriented box (x, y, length, width, yaw) intersects the box of any
-  other object valid at this step (separating-axis test). Boxes that only touch (zero-area
-  intersection) do not overlap.
-- **offroad**: some corner of the SDC box lies outside the road: its signed distance to the road
-  edges (types 15, 16) is positive. The default ``"point"`` rule (Waymax's) takes the nearest
-  road-edge *point* and the sign of ``cross(corner - point, point.dir)``: the road interior is
-  on the left of ``dir``, so a corner on the left gets a negative distance. The ``"segment"``
-  rule measures the distance to the nearest edge *segment* and, when the nearest point of that
-  segment is a vertex, takes the sign from the bisector of the two segment directions there;
-  it avoids the point rule's false offroad next to convex corners of closed edge loops. Both
-  read every road edge of the map (``state.road_edges``), never a selection along the logged
-  path, so the verdict (and the reward) is exact at any drift and blind to the logged future.
+- **overlap**: the SDC's oriented box intersects, with positive area, the box of another object
+  valid at this step (separating-axis test).
+- **offroad**: a corner of the SDC box has a positive signed distance to the road edges (types
+  15, 16) of the whole map (``state.road_edges``: exact at any drift, blind to the logged
+  future). ``"point"`` (Waymax's): nearest road-edge point, sign of
+  ``cross(corner - point, point.dir)`` (the road on the left of ``dir``); ``"segment"``: nearest
+  edge segment, the sign from the vertex bisector at a vertex (no false offroad at convex
+  corners of closed edge loops).
 - **log divergence**: L2 distance (m) between the simulated and the logged SDC position.
 
-All functions take a :class:`~igdrivsim.simulator.state.SimState` with any leading batch
-dimensions ``...`` and return ``[...]``. Invalid steps (SDC invalid in the log or simulation)
-report no overlap, no offroad and zero divergence, and ``StepMetrics.valid`` is False.
-The geometry is written as explicit multiply-adds over small fixed axes (4 corners, 4 axes):
-tiny ``jnp.sum``/``jnp.max`` reductions over axes of size 2-4 are 10-40x slower under ``vmap``
-at batch >= 32 on XLA:CPU; likewise the nearest road-edge point and its sign come from one
-``min`` over packed int32 keys instead of ``argmin`` plus gathers (20-40x faster at batch 256).
+Functions take a ``SimState`` with leading batch dims ``...`` and return ``[...]``; invalid
+steps report no overlap, no offroad and zero divergence. The geometry is explicit
+multiply-adds over the 4 corners / axes and one ``min`` over packed int32 keys: small
+reductions and ``argmin`` plus gathers are 10-40x slower under ``vmap`` on XLA:CPU.
 """
 
 from __future__ import annotations
@@ -34,10 +27,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from igdrivsim.simulator.agents import boxes_overlap
 from igdrivsim.simulator.roadgraph import RoadEdges
 from igdrivsim.simulator.state import (
     SimParams,
     SimState,
+    _row,
     current_objects,
     log_sdc_at,
     sdc_pose,
@@ -47,28 +42,8 @@ DEFAULT_PARAMS = SimParams()
 
 
 def _take(a, i):
-    """``a[..., i]`` for a per-batch index ``i [...]`` (a: ``[..., N]``)."""
+    """``a[..., i]`` for a per-batch index ``i [...]``."""
     return jnp.take_along_axis(a, jnp.asarray(i)[..., None], axis=-1)[..., 0]
-
-
-def boxes_overlap(ax, ay, alen, awid, ayaw, bx, by, blen, bwid, byaw):
-    """Whether oriented boxes A and B intersect with positive area (broadcasting arrays).
-
-    Separating-axis test on the four box axes. With ``c, s`` the cosine and sine of the relative
-    yaw, the projection of B's half extents on A's axes is ``hl_b |c| + hw_b |s|`` and
-    ``hl_b |s| + hw_b |c|`` (and symmetrically), so each axis costs a few multiply-adds.
-    """
-    dx, dy = bx - ax, by - ay
-    ca, sa = jnp.cos(ayaw), jnp.sin(ayaw)
-    cb, sb = jnp.cos(byaw), jnp.sin(byaw)
-    c = jnp.abs(ca * cb + sa * sb)  # |cos(byaw - ayaw)|
-    s = jnp.abs(ca * sb - sa * cb)  # |sin(byaw - ayaw)|
-    hla, hwa, hlb, hwb = 0.5 * alen, 0.5 * awid, 0.5 * blen, 0.5 * bwid
-    sep_a1 = jnp.abs(dx * ca + dy * sa) >= hla + hlb * c + hwb * s
-    sep_a2 = jnp.abs(-dx * sa + dy * ca) >= hwa + hlb * s + hwb * c
-    sep_b1 = jnp.abs(dx * cb + dy * sb) >= hlb + hla * c + hwa * s
-    sep_b2 = jnp.abs(-dx * sb + dy * cb) >= hwb + hla * s + hwa * c
-    return ~(sep_a1 | sep_a2 | sep_b1 | sep_b2)
 
 
 def overlap(state: SimState):
@@ -107,21 +82,12 @@ def _segment_hits_box(ax, ay, bx, by, cx, cy, length, width, yaw):
 
 
 def at_fault_overlap(state: SimState):
-    """``bool[...]``: an overlap the SDC is at fault for (nuPlan's rule, as V-Max's).
-
-    For each object the SDC overlaps, in nuPlan's order: the SDC stopped (speed < 0.05 m/s):
-    not at fault; the object stopped: at fault; the object's centre behind the SDC (more than
-    150 degrees from its heading, a rear hit): not at fault; the SDC's front bumper (the segment
-    between its front corners) meets the object's box: at fault; otherwise a side hit: not at
-    fault (nuPlan counts side hits only when the ego spans several lanes, which needs a lane
-    map; this package does not count them).
-    """
+    """``bool[...]``: an overlap the SDC is at fault for (nuPlan's rule, docs/metrics.md)."""
     return at_fault_objects(current_objects(state), state.sdc_index)
 
 
 def at_fault_objects(obj, i):
-    """:func:`at_fault_overlap` of objects ``obj`` (an ``ObjectState`` ``[..., O]``, the SDC
-    in slot ``i [...]``)."""
+    """:func:`at_fault_overlap` of objects ``obj`` ``[..., O]`` (the SDC in slot ``i``)."""
     ex, ey, eyaw = (_take(a, i)[..., None] for a in (obj.x, obj.y, obj.yaw))
     el, ew = _take(obj.length, i)[..., None], _take(obj.width, i)[..., None]
     hit = boxes_overlap(ex, ey, el, ew, eyaw, obj.x, obj.y, obj.length, obj.width, obj.yaw)
@@ -151,14 +117,9 @@ def box_corners(x, y, length, width, yaw):
 
 
 def _signed_at_nearest(d2, cross):
-    """Signed distance ``[..., K]`` from squared distances and crosses ``[..., K, E]``: the
-    distance to the nearest candidate, positive when the cross product there is positive.
-
-    One fused ``min`` over int32 keys: the bits of ``d2`` (>= 0, so ordered as integers) with
-    the last one replaced by "inside", so the nearest wins and, on a tie (to float32's last
-    bit), outside wins. On XLA:CPU this is 1.8x faster than a ``min`` then a masked ``max``
-    over every road edge of a map, and 20-40x faster than ``argmin`` plus gathers.
-    """
+    """Signed distance ``[..., K]`` to the nearest of ``[..., K, E]`` candidates, positive where
+    the cross product there is: one ``min`` over the bits of ``d2`` (ordered as int32) with the
+    last bit "inside", so on a tie outside wins."""
     key = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
     k = jnp.min((key & ~1) | (cross <= 0).astype(jnp.int32), axis=-1)
     d = jnp.sqrt(jax.lax.bitcast_convert_type(k & ~1, jnp.float32))
@@ -166,12 +127,8 @@ def _signed_at_nearest(d2, cross):
 
 
 def signed_distance_point(px, py, edges: RoadEdges):
-    """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point.
-
-    ``edges`` fields ``[..., E]``. Positive means outside the road (on the right of ``dir``).
-    Returns ``f32[..., K]`` (``+-inf`` if there is no valid edge point: :func:`offroad` treats
-    it as on the road).
-    """
+    """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point
+    (positive: outside; ``+-inf`` without any edge point, which :func:`offroad` counts on road)."""
     rx = px[..., :, None] - edges.xy[..., None, :, 0]  # [..., K, E]
     ry = py[..., :, None] - edges.xy[..., None, :, 1]
     d2 = jnp.where(edges.valid[..., None, :], rx * rx + ry * ry, jnp.inf)
@@ -180,12 +137,8 @@ def signed_distance_point(px, py, edges: RoadEdges):
 
 
 def signed_distance_segment(px, py, edges: RoadEdges):
-    """Signed distance of points ``[..., K]`` to the nearest road-edge segment (``f32[..., K]``).
-
-    Each edge slot is the segment ``xy -> next_xy`` (a single point at a polyline's end). Inside
-    a segment the sign comes from the segment direction; at a vertex from the bisector stored
-    in ``bis_start``/``bis_end``.
-    """
+    """Signed distance of points ``[..., K]`` to the nearest road-edge segment ``xy -> next_xy``
+    (the sign from the segment's direction, or at a vertex its bisector)."""
     ax, ay = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
     sx = edges.next_xy[..., None, :, 0] - ax
     sy = edges.next_xy[..., None, :, 1] - ay
@@ -209,24 +162,13 @@ def sdc_corners(state: SimState):
     """Corners of the simulated SDC box at the current step: ``(cx, cy)``, each ``[..., 4]``."""
     x, y, yaw, _ = sdc_pose(state)
     i, t = state.sdc_index, state.timestep
-    length = _sdc_log_attr(state.log.length, i, t)
-    width = _sdc_log_attr(state.log.width, i, t)
+    length = _take(_row(state.log.length, i), t)
+    width = _take(_row(state.log.width, i), t)
     return box_corners(x, y, length, width, yaw)
 
 
-def _sdc_log_attr(a, i, t):
-    """``a[..., i, t]`` for per-batch object index ``i`` and timestep ``t``."""
-    row = jnp.take_along_axis(a, jnp.asarray(i)[..., None, None], axis=-2)[..., 0, :]
-    return _take(row, t)
-
-
 def offroad(state: SimState, method: str = "point"):
-    """``bool[...]``: some SDC box corner is outside the road (see the module docstring).
-
-    Measured against ``state.road_edges``, every road edge of the map (exact nearest at any
-    pose, nothing from the logged future). A scenario without any valid road-edge point is
-    never offroad.
-    """
+    """``bool[...]``: some SDC box corner is outside the road (see the module docstring)."""
     cx, cy = sdc_corners(state)
     sd = SIGNED_DISTANCE[method](cx, cy, state.road_edges)
     _, _, _, valid = sdc_pose(state)
@@ -245,11 +187,8 @@ def log_divergence(state: SimState):
 
 @struct.dataclass
 class StepMetrics:
-    """Metrics of one step, ``[...]`` each (stacked over time by the rollout: ``[..., T]``).
-
-    ``valid``: the SDC is valid at this step in both the simulation and the log; the other
-    fields are False / 0 where it is not.
-    """
+    """Metrics of one step, ``[...]`` each (``[..., T]`` stacked by the rollout); ``valid``: the
+    SDC is valid in both the simulation and the log."""
 
     overlap: jax.Array
     offroad: jax.Array

@@ -1,11 +1,5 @@
-"""The road-edge array of the offroad metric: every road edge of the map, compacted at reset.
-
-Why an array of its own: the offroad metric tests the SDC's corners against road edges (types
-15, 16) at every step, and a WOMD map's 20,000 points hold only 3,900-6,800 of them on the real
-samples. :func:`select_road_edges` keeps them all (the ``edge_capacity`` nearest to the SDC's
-*current* position at reset when there are more), with what the segment-based offroad distance
-needs precomputed, so every step measures against the whole map (exact nearest, whatever the
-drift) and nothing depends on the logged future.
+"""The offroad metric's road-edge array: every road edge of the map, compacted at reset, with
+what the segment rule needs precomputed, so every step measures against the whole map.
 """
 
 from __future__ import annotations
@@ -21,14 +15,9 @@ _BISECTION_STEPS = 24
 
 @struct.dataclass
 class RoadEdges:
-    """Road-edge points (types 15, 16), ``[..., E]`` (``[..., E, 2]`` for 2-D vectors).
-
-    ``xy``/``dir``: the point and its stored unit direction (road interior on the left; used by
-    the point rule). ``next_xy``: the next point of the same polyline (``xy`` itself at a
-    polyline end), so ``xy -> next_xy`` is a segment. ``bis_start``/``bis_end``: unit
-    directions at the segment's two vertices, the bisector of the incoming and outgoing
-    segment directions (used for the sign when the nearest point of a segment is a vertex).
-    """
+    """Road-edge points (types 15, 16), ``[..., E]``: ``xy``/``dir`` (road on the left),
+    ``next_xy`` (the polyline's next point, ``xy`` at its end) and the unit vertex bisectors
+    ``bis_start``/``bis_end`` of the segment ``xy -> next_xy``."""
 
     xy: jax.Array
     dir: jax.Array
@@ -44,12 +33,8 @@ def _normalize(v, fallback):
 
 
 def select_nearest(d2, eligible, radius: float, capacity: int, steps: int = _BISECTION_STEPS):
-    """Indices ``int32[capacity]`` of eligible points with ``d2 <= radius**2``, nearest first kept.
-
-    Returns ``(indices, valid)``; indices are in increasing (original) order, padding invalid.
-    The threshold is bisected (``steps`` halvings of ``[0, radius**2]``) so that at most
-    ``capacity`` points pass it.
-    """
+    """``(indices int32[capacity], valid)`` in original order of the eligible points with
+    ``d2 <= radius**2``, the nearest kept: the threshold is bisected to fit ``capacity``."""
     d2 = jnp.where(eligible, d2, jnp.inf)
     r2 = jnp.asarray(radius * radius, d2.dtype)
     fits = jnp.sum(d2 <= r2) <= capacity
@@ -82,11 +67,8 @@ def _segment_at(rg: Roadgraph, j):
 
 
 def _segment_geometry(rg: Roadgraph, idx):
-    """Next polyline point and vertex bisectors of the points ``idx`` (unbatched ``[R]``).
-
-    Only the neighbours ``idx - 1 .. idx + 2`` are read, so selected road edges cost
-    ``O(len(idx))``, not ``O(R)``.
-    """
+    """Next polyline point and vertex bisectors of the points ``idx`` (reads only their
+    neighbours ``idx - 1 .. idx + 2``)."""
     same_prev, _, prev_dir = _segment_at(rg, idx - 1)
     same_next, next_xy, seg_dir = _segment_at(rg, idx)
     same_next2, _, next_dir = _segment_at(rg, idx + 1)
@@ -99,12 +81,8 @@ def _segment_geometry(rg: Roadgraph, idx):
 
 
 def select_road_edges(rg: Roadgraph, ref_xy, *, edge_capacity: int) -> RoadEdges:
-    """Every road-edge point (types 15, 16) of one (unbatched) roadgraph, compacted into
-    ``min(R, edge_capacity)`` slots in map order for the offroad metric.
-
-    When the map has more road-edge points than slots, the nearest to ``ref_xy`` (the SDC at the
-    current step, 10) are kept: present-only, like the load-time capacities.
-    """
+    """Every road-edge point of one roadgraph in ``min(R, edge_capacity)`` slots, map order (a
+    larger map keeps the nearest to ``ref_xy``, the SDC at step 10)."""
     rg = jax.tree.map(jnp.asarray, rg)
     xy = rg.xyz[:, :2]
     is_edge = rg.valid & jnp.isin(rg.type, jnp.asarray(RG_ROAD_EDGE_TYPES))

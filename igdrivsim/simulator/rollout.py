@@ -1,37 +1,16 @@
 """The simulator's episode runner (``run_episode``) and the reference actors.
 
 The expert (:func:`expert_action`) is inverse dynamics from the *simulated* SDC pose to its next
-logged pose: starting from the simulated pose at ``t`` (not the logged one) corrects the
-quantisation error of earlier discretised actions at every step, so replaying the discretised
-expert stays within a few centimetres of the log. The action is clipped to the bounds; when the
-logged pose at ``t + 1`` is invalid it is the zero action (the SDC waits; during a gap in the
-log it keeps its last pose and rejoins the log at the first valid step, within the bounds).
+logged pose, so the discretised expert corrects its quantisation error at every step and stays
+within centimetres of the log; where the next logged pose is invalid it waits (zero action).
 
-Every closed-loop episode in the package (evaluation, BC-RL's rollout, replay) is
-:func:`run_episode`: the shared runner of :mod:`igdrivsim.core.episode` (the maze's too) with
-the simulator's step, driving the SDC for ``params.num_controlled_steps`` steps from a state at
-reset; each step leaves one :class:`Transition` (as PureJaxRL's transition tuple is the only
-interface between rollout and loss). An :class:`~igdrivsim.core.episode.Actor` is two pure
-functions:
-
-* ``init(state, key) -> carry``: the recurrent state before the first controlled step (the
-  learned policy: its GRU warmed on the logged observations of steps 0..9; ``None`` for
-  actors without memory);
-* ``step(state, carry, key) -> (action, carry, extras)``: ``action`` is the continuous
-  delta-local ``f32[..., 3]`` applied by :func:`~igdrivsim.simulator.step`; ``extras`` any
-  pytree recorded per step, or a :class:`~igdrivsim.core.episode.StepInfo` when the actor
-  also observes (observation, value, log-probability).
-
-An :class:`Actor` is callable as its ``step``, and a bare ``step`` function (the older
-*policy function*) is accepted wherever an actor is. The runner works on a single state or on
-a batched one (leading dims ``...``; the actor then acts on the whole batch) and is
-``jit``-/``vmap``-able. What costs is computed only when asked for: observations, values and
-log-probabilities are recorded on request, the expert labels, the reward and the metrics by
-flag or ``metrics_fn``.
-
-:func:`rollout` is the runner's older face: time on the axis right after the batch dims,
-``(final, StepMetrics [..., 80], extras [..., 80, ...])``. The metrics of step ``k`` are those of
-the state *after* the ``k``-th action (timesteps 11..90), as in Waymax.
+Every closed-loop episode (evaluation, BC-RL's rollout, replay) is :func:`run_episode`: the
+shared runner of :mod:`igdrivsim.core.episode` with the simulator's step, one
+:class:`Transition` per step. An :class:`~igdrivsim.core.episode.Actor` is ``init(state, key)
+-> carry`` and ``step(state, carry, key) -> (action, carry, extras)`` (``extras`` a
+:class:`~igdrivsim.core.episode.StepInfo` when it also observes); a bare ``step`` function is
+accepted wherever an actor is. :func:`rollout` puts time after the batch dims; the metrics of
+step ``k`` are those of the state after the ``k``-th action (timesteps 11..90), as in Waymax.
 """
 
 from __future__ import annotations
@@ -79,10 +58,7 @@ def expert_discrete_action(state: SimState, params: SimParams = DEFAULT_PARAMS):
 
 
 class Transition(NamedTuple):
-    """One step of an episode; stacked by :func:`run_episode` on a leading time axis ``[T]``.
-
-    Fields not requested (or that the actor does not produce) are ``None``.
-    """
+    """One step of an episode, stacked on a leading time axis ``[T]`` (``None``: not asked)."""
 
     observation: Any  # Observation [T, ..., ...] (observing actors, when requested)
     action: jax.Array  # f32[T, ..., 3], the continuous delta-local action applied
@@ -112,15 +88,12 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
                 value: bool = False, log_prob: bool = False, expert: bool = False,
                 with_reward: bool = False, num_steps: int | None = None
                 ) -> tuple[SimState, Transition]:
-    """Drive ``num_steps`` (default ``params.num_controlled_steps``) steps from ``state``.
-
-    ``carry``: the actor's initial carry; ``None`` calls ``actor.init(state, key)`` (for a
-    batched state, call ``init`` yourself with the keys it expects). The step keys are
-    ``split(key, num_steps)`` (a batched state gets one key per step for the whole batch).
-    ``metrics_fn(state, params)`` (``None``: no metrics) is applied to the state reached;
-    the flags ask for the recorded observation, value and log-probability (from a
-    :class:`StepInfo`), the discretised expert levels and the reward. Returns
+    """Drive ``num_steps`` (default ``params.num_controlled_steps``) steps from ``state``:
     ``(final_state, Transition)``, time-major.
+
+    ``carry`` ``None`` calls ``actor.init(state, key)``; the step keys are
+    ``split(key, num_steps)``; ``metrics_fn(state, params)`` is applied to the state reached;
+    the flags ask for the observation, value, log-probability, expert levels and reward.
     """
     actor = as_actor(actor)
     num_steps = params.num_controlled_steps if num_steps is None else num_steps
@@ -156,12 +129,8 @@ def _time_last(tree, batch_ndim: int):
 def rollout(state: SimState, policy_fn: Actor | PolicyFn, key: jax.Array,
             params: SimParams = DEFAULT_PARAMS, carry: Any = None
             ) -> tuple[SimState, StepMetrics, Any]:
-    """:func:`run_episode` with the simulator's metrics, time after the batch dims.
-
-    ``key`` is split into one key per step, passed to the actor (for a batched state without
-    ``vmap``, the policy itself must split it per scenario if it needs independent draws).
-    Returns ``(final_state, per_step_metrics [..., T], extras [..., T, ...])``.
-    """
+    """:func:`run_episode` with the simulator's metrics, time after the batch dims:
+    ``(final_state, per_step_metrics [..., T], extras [..., T, ...])``."""
     final, tr = run_episode(state, policy_fn, key, params, carry=carry)
     batch_ndim = jnp.ndim(state.timestep)
     return final, _time_last(tr.metrics, batch_ndim), _time_last(tr.extras, batch_ndim)
@@ -175,10 +144,7 @@ def with_logged_sdc(state: SimState) -> SimState:
 
 
 def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetrics:
-    """Per-step metrics ``[..., 80]`` of the *logged* SDC over the controlled steps 11..90.
-
-    The reference for a replay: a clean log has no overlap and no offroad.
-    """
+    """Per-step metrics ``[..., 80]`` of the *logged* SDC over the controlled steps 11..90."""
     logged = with_logged_sdc(state)
     start = jnp.asarray(state.timestep)
     steps = jnp.arange(1, params.num_controlled_steps + 1, dtype=jnp.int32)
@@ -201,12 +167,8 @@ def _jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams):
 
 
 def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> Actor:
-    """The expert as an actor: the discretised expert (default) or the continuous one.
-
-    Extras: the discrete action ``int32[..., 3]`` (or the continuous ``f32[..., 3]``). The same
-    ``(params, discrete)`` always gives the same object, so jitted callers that take it as a
-    static argument compile once.
-    """
+    """The discretised (default) or continuous expert as an actor (extras: its action); one
+    object per ``(params, discrete)``, so jitted callers compile once."""
     return _expert_actor(params, discrete)
 
 

@@ -1,29 +1,9 @@
 """Simulator state and the pure ``reset`` / ``step`` transitions (Waymax conventions).
 
-Only the SDC is controlled; every other object replays its log, and its validity follows the
-log. ``reset`` returns the state at timestep 10 (steps 0..10 replayed from the log) and compacts
-the map's road edges for the offroad metric once (see :mod:`igdrivsim.simulator.roadgraph`).
-``step`` advances the SDC by one action. All functions broadcast over leading batch dimensions
-``...`` and also ``jit``/``vmap``; pass :class:`SimParams` as a static argument.
-
-SimState fields (all JAX arrays, leading batch dims ``...``):
-
-- ``log``: :class:`~igdrivsim.data.scenario.Trajectory` ``[..., O, T]``, the logged states
-  (T = 91). Other objects at step ``t`` are ``log.*[..., :, t]``.
-- ``metadata``: :class:`~igdrivsim.data.scenario.ObjectMetadata` ``[..., O]``.
-- ``roadgraph``: :class:`~igdrivsim.data.scenario.Roadgraph` ``[..., R]``, the scenario's whole
-  roadgraph (the observation selects its nearest points at every step).
-- ``road_edges``: :class:`~igdrivsim.simulator.roadgraph.RoadEdges` ``[..., E]``: every road-edge
-  point (types 15, 16) of the map at full resolution, for the offroad metric only.
-- ``traffic_lights``: :class:`~igdrivsim.data.scenario.TrafficLights` ``[..., L, T]``.
-- ``scenario_id``: ``uint8[..., 32]``.
-- ``sdc``: :class:`SdcTrajectory` ``[..., T]``, the *simulated* SDC (equal to the log for
-  t <= 10; entries after ``timestep`` have ``valid = False``).
-- ``sdc_index``: ``int32[...]``, the SDC's object slot.
-- ``timestep``: ``int32[...]``, the current step (10 after reset, 90 after 80 steps).
-
-Use :func:`current_objects` for every object's state at the current step with the SDC at its
-simulated pose.
+Only the SDC is controlled; the other objects replay their log (or move as IDM agents).
+``reset`` returns the state at timestep 10 (steps 0..10 replayed from the log); ``step``
+advances the SDC by one action. Functions broadcast over leading batch dimensions ``...`` and
+``jit``/``vmap``; pass :class:`SimParams` as a static argument.
 """
 
 from __future__ import annotations
@@ -54,22 +34,14 @@ from igdrivsim.simulator.roadgraph import RoadEdges, select_road_edges
 
 @dataclass(frozen=True)
 class SimParams:
-    """Simulator settings (hashable: pass as a static ``jit`` argument).
+    """Simulator settings (hashable: a static ``jit`` argument).
 
-    ``edge_capacity``: slots for the offroad metric's road-edge points, all of the map's (at
-    most ``min(R, edge_capacity)``; the real samples have 3,900-6,800 of 20,000 points), so the
-    verdict is the whole map's at any pose; a map with more keeps the nearest to the SDC at
-    step 10 (never the logged future).
-    ``offroad_method``: ``"point"`` (Waymax's nearest-point rule, the default for comparability)
-    or ``"segment"`` (distance to edge segments, vertex bisectors for the sign; no false offroad
-    at convex corners of closed edge loops).
-    ``roadgraph_stride``: the observable map keeps every k-th point of each polyline (and its
-    last), so a fixed number of nearest points reaches k times farther (WOMD samples its
-    polylines every 0.5 m; 1: the map as stored, Waymax's); see :func:`thin_roadgraph`. The
-    offroad metric's road edges are selected before the thinning and keep full resolution.
-    ``agents``: who moves the other objects, ``"log"`` (replay, the paper's) or ``"idm"``
-    (reactive IDM vehicles on their logged paths, :mod:`igdrivsim.simulator.agents`), with
-    ``idm`` their parameters (Waymax's defaults).
+    ``edge_capacity``: slots for the offroad metric's road-edge points (a larger map keeps the
+    nearest to the SDC at step 10). ``offroad_method``: ``"point"`` (Waymax's nearest-point
+    rule) or ``"segment"`` (distance to edge segments; no false offroad at convex corners).
+    ``roadgraph_stride``: the observable map keeps every k-th point of each polyline
+    (:func:`thin_roadgraph`). ``agents``: ``"log"`` (replay, the paper's) or ``"idm"`` (reactive
+    IDM vehicles on their logged paths) with ``idm`` their parameters.
     """
 
     dynamics: str = "delta_local"
@@ -124,7 +96,11 @@ class ObjectState:
 
 @struct.dataclass
 class SimState:
-    """See the module docstring ("SimState fields")."""
+    """``log`` ``[..., O, T]`` (T = 91), ``metadata`` ``[..., O]``, ``roadgraph`` (the observable
+    map, thinned by ``roadgraph_stride``), ``road_edges`` (the offroad metric's road-edge points
+    at full resolution), ``traffic_lights`` ``[..., L, T]``, ``scenario_id`` ``uint8[..., 32]``,
+    ``sdc`` (the *simulated* SDC ``[..., T]``, the log for t <= 10, invalid after ``timestep``),
+    ``sdc_index`` and ``timestep`` ``int32[...]`` (10 after reset)."""
 
     log: Trajectory
     metadata: ObjectMetadata
@@ -136,15 +112,6 @@ class SimState:
     sdc_index: jax.Array
     timestep: jax.Array
     agents: sim_agents.AgentState | None = None  # every object simulated, under "idm" agents
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        return tuple(self.timestep.shape)
-
-    @property
-    def is_done(self):
-        """True once the last logged step (90) is reached."""
-        return self.timestep >= NUM_STEPS - 1
 
 
 def _at_time(a, t):
@@ -168,9 +135,8 @@ def vmap_batch(fn, n: int):
 
 
 def check_scenario(scenario: Scenario) -> None:
-    """Host-side check (NumPy inputs) that each scenario of a batch can be simulated: exactly one
-    SDC, valid at the current step (10), and 91 steps. Raises :class:`DataError` naming the
-    scenario (batch index and id)."""
+    """Host-side check that each scenario of a batch has 91 steps and exactly one SDC, valid at
+    step 10 (a :class:`DataError` naming the scenario)."""
     is_sdc = np.asarray(scenario.metadata.is_sdc)
     steps = np.shape(scenario.trajectory.x)[-1]
     if steps != NUM_STEPS:
@@ -188,11 +154,8 @@ def check_scenario(scenario: Scenario) -> None:
 
 
 def thin_roadgraph(rg: Roadgraph, stride: int, ref_xy: jax.Array) -> Roadgraph:
-    """The observable map of ONE scenario: every ``stride``-th point of each run of equal
-    polyline ``id`` and the run's last point, compacted to the ``ceil(R / stride)`` of them
-    nearest to ``ref_xy`` (the SDC at the current step: the same present-only rule as the
-    load-time capacities), so observing it costs ``stride`` times less. Points are stored in
-    polyline order, so which points are kept depends on the map alone."""
+    """The observable map of ONE scenario: every ``stride``-th point of each polyline and its
+    last, compacted to the ``ceil(R / stride)`` nearest to ``ref_xy`` (the SDC at step 10)."""
     if stride == 1:
         return rg
     ids = jnp.asarray(rg.id)
@@ -210,11 +173,8 @@ def thin_roadgraph(rg: Roadgraph, stride: int, ref_xy: jax.Array) -> Roadgraph:
 
 
 def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
-    """The state at timestep 10 (warm-up replayed from the log) and the map's road edges.
-
-    Concrete (host) inputs are checked with :func:`check_scenario` first; under ``jit`` a
-    scenario without an SDC uses slot 0 and an invalid SDC yields invalid metrics.
-    """
+    """The state at timestep 10 (warm-up replayed from the log); concrete inputs are checked
+    with :func:`check_scenario` first."""
     if not any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(scenario)):
         check_scenario(scenario)
     sc = jax.tree.map(jnp.asarray, scenario)
@@ -255,9 +215,7 @@ def sdc_pose(state: SimState):
 
 
 def sdc_yaw_rate(state: SimState):
-    """The SDC's heading change over the last step, in rad/s, ``[...]``: what the ego knows of
-    its own turning (odometry), from the current and the previous simulated pose. 0 at the
-    first step or when either pose is invalid."""
+    """The SDC's heading change over the last step in rad/s (its odometry; 0 if unknown)."""
     t = state.timestep
     s = state.sdc
     prev = jnp.maximum(t - 1, 0)
@@ -278,20 +236,12 @@ def log_sdc_row(state: SimState) -> Trajectory:
     return jax.tree.map(lambda a: _row(a, state.sdc_index), state.log)
 
 
-def _check_concrete_action(action) -> None:
+def step(state: SimState, action, params: SimParams = SimParams()) -> SimState:
+    """Advance one step: the SDC applies ``action`` ``[..., 3]`` (a concrete non-finite one is
+    a :class:`DataError`), the other objects replay their log or move as IDM agents; the SDC's
+    validity at ``t + 1`` is its logged one; timestep 90 stays 90."""
     if not isinstance(action, jax.core.Tracer):
         dynamics.validate_actions(action)
-
-
-def step(state: SimState, action, params: SimParams = SimParams()) -> SimState:
-    """Advance one step: the SDC applies ``action`` (float ``[..., 3]``), the other objects
-    replay the log (``params.agents == "log"``) or move as IDM agents from the objects now.
-
-    Actions are clipped to the bounds; a concrete (host) non-finite action raises
-    :class:`~igdrivsim.errors.DataError`, a traced one is replaced by the zero action. The SDC's
-    validity at ``t + 1`` is its logged validity. Stepping at timestep 90 keeps timestep 90.
-    """
-    _check_concrete_action(action)
     if (state.agents is None) != (params.agents == "log"):
         raise ConfigError(f"the state was reset for other sim agents than {params.agents!r}: "
                           "reset and step with the same SimParams")
@@ -356,6 +306,3 @@ def object_trajectory(state: SimState) -> Trajectory:
     return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y,
                              valid=a.valid)
 
-
-def num_objects(state: SimState) -> int:
-    return int(np.shape(state.log.x)[-2])
