@@ -5,12 +5,12 @@ the first bytes), ``decode(path, start, stop)`` (the scenarios ``start <= i < st
 at native sizes, as ``(index, format name, scenario, source)``; ``source`` says where a window of
 a longer log starts, else None; a bad record comes as a :class:`DataError` in place of the
 scenario, so that the rest of the file can still be read; a file that cannot be read at all
-raises it) and ``count(path)`` (how many scenarios the file holds; ``cheap_count`` False when
-that takes a full decode). A file belongs to the first format, in registry order, that
-detects it, else to :data:`FALLBACK` (TFRecord); a folder reads the files of the first format
-that has any, TFRecords first, then the others in registry order.
-Adding a format is one module plus one entry here; every reader
-(:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
+raises it) and ``count(path)`` (how many scenarios the file holds). A file belongs to the first
+format, in registry order, that detects it, else to :data:`FALLBACK` (TFRecord); a folder is a
+format's dataset folder (``folder``), else it reads the files of the first format that lists
+any, TFRecords first, then the others in registry order.
+Adding a format is one module plus one entry here (tests/test_data_formats.py adds one); every
+reader (:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ class Format:
     detect: Callable[[str], bool]
     decode: Callable[[str, int, int | None], Iterator[Decoded]]
     count: Callable[[str], int]
-    cheap_count: bool  # False: counting decodes the whole file
-    lists: Callable[[str], bool]  # whether a folder listing takes this (detected) file
+    cheap_count: bool = True  # False: counting decodes the whole file
+    lists: Callable[[str], bool] = lambda path: True  # whether a folder listing takes the file
+    folder: Callable[[str], list[str] | None] = lambda folder: None  # a dataset folder's files
 
 
 def decode_record(data: bytes) -> tuple[str, Scenario]:
@@ -94,16 +95,17 @@ def _decode_gpudrive(path: str, start: int, stop: int | None) -> Iterator[Decode
 
 
 FORMATS: dict[str, Format] = {
-    "scenarionet": Format("scenarionet", scenarionet.is_scenarionet_file, _decode_scenarionet,
-                          lambda path: len(scenarionet.read_file(path)), False,
-                          lambda path: True),
-    "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive,
-                       lambda path: 1, True, lambda path: True),
+    # the dataset's index pickles are detected (and decode to a one-line error), never listed
+    "scenarionet": Format("scenarionet", lambda path: path.endswith(scenarionet.PICKLE_SUFFIXES),
+                          _decode_scenarionet, lambda path: len(scenarionet.read_file(path)),
+                          cheap_count=False, lists=scenarionet.is_scenarionet_file,
+                          folder=scenarionet.dataset_files),
+    "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive, lambda path: 1),
     # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
     # every file no other format detects is tried as one; a folder listing takes names
     # containing "tfrecord"
     "tfrecord": Format("tfrecord", lambda path: True, _decode_tfrecord, tfrecord.count_records,
-                       True, lambda path: "tfrecord" in os.path.basename(path)),
+                       lists=lambda path: "tfrecord" in os.path.basename(path)),
 }
 FALLBACK = "tfrecord"
 
@@ -114,18 +116,22 @@ def format_of(path: str) -> Format:
                 FORMATS[FALLBACK])
 
 
-def folder_files(files: list[str]) -> list[str]:
-    """The files of a folder to read: those of the first format that lists any (TFRecords
-    first, then registry order), else all of them."""
+def folder_files(folder: str) -> list[str]:
+    """The files a folder reads: a format's dataset folder's, else those of the first format
+    that lists any (TFRecords first, then registry order), else every file no other format
+    detects."""
+    for fmt in FORMATS.values():
+        listed = fmt.folder(folder)
+        if listed is not None:
+            return listed
     by_format: dict[str, list[str]] = {}
-    for path in files:
-        fmt = format_of(path)
-        if fmt.lists(path):
-            by_format.setdefault(fmt.name, []).append(path)
-    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK)]
-    return next((by_format[n] for n in order if n in by_format), files)
-
-
-def count_records(path: str) -> int:
-    """Number of scenarios of one file (TFRecord frames, ScenarioNet windows, ...)."""
-    return format_of(path).count(path)
+    for name in sorted(os.listdir(folder)):
+        path = os.path.join(folder, name)
+        if not name.startswith(".") and os.path.isfile(path):
+            fmt = format_of(path)
+            if fmt.lists(path):
+                by_format.setdefault(fmt.name, []).append(path)
+            elif fmt.name == FALLBACK:
+                by_format.setdefault("", []).append(path)
+    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK), ""]
+    return next((by_format[n] for n in order if n in by_format), [])

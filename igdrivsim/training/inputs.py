@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import place
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
-from igdrivsim.data.source import count_scenarios, data_identity, open_scenarios
+from igdrivsim.data.source import check_data, count_scenarios, data_identity, open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
@@ -125,8 +125,7 @@ class Dataset:
 
         def chunks():
             if isinstance(data, (str, os.PathLike)):
-                if not os.path.exists(data):
-                    raise DataError("training data not found", file=os.fspath(data))
+                check_data(data, "training")
                 return iter_scenarios(data, config.capacities, limit, chunk, d.egos)
             scenarios = list(data)[: limit or None]
             return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
