@@ -111,10 +111,8 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
     for file, by_record in groups.items():
         records = sorted(by_record)
         tasks += [(file, records[i:i + chunk], caps) for i in range(0, len(records), chunk)]
-    bar = None
-    if progress:
-        bar = tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn")
-    try:
+    with tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn",
+              disable=not progress) as bar:
         for file, loaded in pool_map(_load_records, tasks, workers):
             for record, scenario in loaded:
                 entry = groups[file][record]
@@ -123,22 +121,5 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
                     if sid != entry["scenario_id"]:
                         raise DataError(f"scenario id is {sid!r}, the manifest says "
                                         f"{entry['scenario_id']!r}", file=file, record=record)
-                if bar is not None:
-                    bar.update()
+                bar.update()
                 yield entry, scenario
-    finally:
-        if bar is not None:
-            bar.close()
-
-
-def load_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
-                            check_ids: bool = True, workers: int = 0,
-                            progress: bool = False) -> list[Scenario]:
-    """The scenarios of manifest ``entries`` in the given order, fitted to ``caps``; each file
-    is read once, in record order (see :func:`iter_manifest_scenarios`). Holds them all in
-    memory (about 1 MB each at WOMD capacities): stream with the iterator for big sets."""
-    entries = list(entries)
-    found = {(os.fspath(e["file"]), int(e["record"])): s
-             for e, s in iter_manifest_scenarios(entries, caps, workers, check_ids=check_ids,
-                                                 progress=progress)}
-    return [found[(os.fspath(e["file"]), int(e["record"]))] for e in entries]

@@ -151,21 +151,14 @@ def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
     """
     files = expand_paths(paths)
     stats = stats if stats is not None else ReadStats()
-    bar = None
-    if progress:
-        bar = tqdm(desc="reading", unit="scn")
-    try:
-        if workers <= 1:
-            for path in files:
-                for rec in iter_file(path, caps, skip_bad, stats):
-                    if bar is not None:
-                        bar.update()
-                    yield rec
-            return
-        yield from _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar)
-    finally:
-        if bar is not None:
-            bar.close()
+    if workers <= 1:
+        records = (rec for path in files for rec in iter_file(path, caps, skip_bad, stats))
+    else:
+        records = _iter_parallel(files, caps, skip_bad, stats, workers, chunk)
+    with tqdm(desc="reading", unit="scn", disable=not progress) as bar:
+        for rec in records:
+            bar.update()
+            yield rec
 
 
 def _decode_chunk(path: str, caps, skip_bad: bool, start: int, stop: int):
@@ -197,7 +190,7 @@ def pool_map(fn, tasks, workers: int) -> Iterator:
                 fut.cancel()
 
 
-def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
+def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
     tasks = []
     for path in files:
         try:
@@ -214,8 +207,6 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
             warnings.warn(f"skipping bad record: {msg}", stacklevel=2)
         for rec in recs:
             stats.read += 1
-            if bar is not None:
-                bar.update()
             yield rec
 
 

@@ -24,6 +24,7 @@ import os
 import queue
 import threading
 from collections.abc import Iterator, Sequence
+from itertools import islice
 
 import jax
 import numpy as np
@@ -47,14 +48,8 @@ from igdrivsim.training.records import (
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
                    chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
     """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
-    part: list[Scenario] = []
-    for rec in open_scenarios(data, caps, egos=egos, limit=max_scenarios):
-        part.append(rec.scenario)
-        if len(part) == chunk:
-            yield part
-            part = []
-    if part:
-        yield part
+    records = open_scenarios(data, caps, egos=egos, limit=max_scenarios)
+    return iter(lambda: [rec.scenario for rec in islice(records, chunk)], [])
 
 
 @functools.lru_cache(maxsize=8)
@@ -74,16 +69,12 @@ def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False
               total: int | None = None) -> SimState:
     """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
     ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
-    bar = None
-    if progress:
-        bar = tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True)
     parts = []
-    for scenarios in chunks:
-        parts.append(reset_chunk(scenarios, params, chunk))
-        if bar is not None:
+    with tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True,
+              disable=not progress) as bar:
+        for scenarios in chunks:
+            parts.append(reset_chunk(scenarios, params, chunk))
             bar.update(len(scenarios))
-    if bar is not None:
-        bar.close()
     if not parts:
         raise DataError("no training scenarios found")
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
