@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
-from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -629,10 +628,3 @@ def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING
     except DataError as err:
         raise DataError(err.problem, file=path, key=err.key) from None
 
-
-def iter_windows(path: str, start: int = 0, stop: int | None = None) -> Iterator[
-        tuple[int, Window]]:
-    """``(record index, window)`` for windows ``start <= i < stop`` of one file."""
-    for i, w in enumerate(read_file(path)):
-        if i >= start and (stop is None or i < stop):
-            yield i, w

@@ -18,7 +18,7 @@ from itertools import chain, islice
 
 import numpy as np
 
-from igdrivsim.data.egos import PAPER_FILTER, as_ego, check_egos, ego_slot, expand_egos
+from igdrivsim.data.egos import PAPER_FILTER, check_egos, ego_of, ego_slot, expand_egos
 from igdrivsim.data.filter import FilterConfig
 from igdrivsim.data.formats import format_of
 from igdrivsim.data.manifest import COUNTS, MANIFEST, iter_manifest_scenarios, read_manifest
@@ -34,7 +34,6 @@ from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
     Scenario,
-    decode_scenario_id,
     fit_to_capacities,
 )
 from igdrivsim.errors import DataError
@@ -111,14 +110,8 @@ def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, e
 def _egos_of(rec: ScenarioRecord, caps, config: FilterConfig, only: int | None = None
              ) -> Iterator[ScenarioRecord]:
     """The record once per eligible ego (``only``: that slot, taken as it is)."""
-    if only is not None:
-        ego = as_ego(rec.scenario, only)
-        info = {"id": decode_scenario_id(ego.scenario_id),
-                "object_id": int(np.asarray(rec.scenario.metadata.id)[only]),
-                "logged_sdc": bool(np.asarray(rec.scenario.metadata.is_sdc)[only])}
-        yield _fit(rec._replace(scenario=ego, ego=info), caps)
-        return
-    for scenario, info in expand_egos(rec.scenario, config):
+    egos = [ego_of(rec.scenario, only)] if only is not None else expand_egos(rec.scenario, config)
+    for scenario, info in egos:
         yield _fit(rec._replace(scenario=scenario, ego=info), caps)
 
 

@@ -49,13 +49,7 @@ class ScenarioIndex:
     def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0,
                   egos: str = "sdc") -> ScenarioIndex:
         """The scenarios :func:`~igdrivsim.data.source.open_scenarios` reads from ``data``."""
-        try:
-            files, refs = scenario_refs(data, limit, egos)
-        except DataError as err:
-            if err.problem != "no scenarios found":
-                raise
-            raise DataError("no training scenarios found", file=err.file) from None
-        return cls(files, refs, caps)
+        return cls(*scenario_refs(data, limit, egos), caps)
 
     def __len__(self) -> int:
         return len(self.refs)
