@@ -45,7 +45,7 @@ from igdrivsim.data.scenario import (
     Trajectory,
     encode_scenario_id,
 )
-from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, densify_polylines, polyline_directions
+from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, roadgraph_from_polylines
 from igdrivsim.errors import DataError
 
 FORMAT_SCENARIONET = "scenarionet"
@@ -400,24 +400,18 @@ def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
         xyz.append(pts)
         types.append(rg_type)
         pids.append(ids[k])
-    has_edges = any(t in RG_ROAD_EDGE_TYPES for t in types)
-    xyz_all = (np.concatenate(xyz) if xyz else np.zeros((0, 3)))
-    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(xyz_all, poly, max_spacing)
-    rg_xyz, rg_dir = points, polyline_directions(points, poly)
-    rg_type = np.asarray(types, np.int32)[poly]
-    rg_id = np.asarray(pids, np.int64)[poly]
-    if not has_edges and lane_polygons:
+    rg = roadgraph_from_polylines(xyz, types, pids, max_spacing)
+    if not any(t in RG_ROAD_EDGE_TYPES for t in types) and lane_polygons:
         bxy, bdir, bpoly = union_boundary(lane_polygons, max_spacing)
         base = int(max(ids.values(), default=-1)) + 1
-        rg_xyz = np.concatenate([rg_xyz, np.c_[bxy, np.zeros(len(bxy))]])
-        rg_dir = np.concatenate([rg_dir, np.c_[bdir, np.zeros(len(bdir))]])
-        rg_type = np.concatenate([rg_type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY, np.int32)])
-        rg_id = np.concatenate([rg_id, base + bpoly])
-    roadgraph = Roadgraph(xyz=rg_xyz.astype(np.float32), dir=rg_dir.astype(np.float32),
-                          type=rg_type.astype(np.int32), id=rg_id.astype(np.int32),
-                          valid=np.ones(len(rg_xyz), bool))
-    return roadgraph, ids
+        flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+        rg = Roadgraph(xyz=np.concatenate([rg.xyz, flat(bxy)]),
+                       dir=np.concatenate([rg.dir, flat(bdir)]),
+                       type=np.concatenate([rg.type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY,
+                                                             np.int32)]),
+                       id=np.concatenate([rg.id, (base + bpoly).astype(np.int32)]),
+                       valid=np.ones(len(rg.valid) + len(bxy), bool))
+    return rg, ids
 
 
 def _decode_lights(desc: dict, map_ids: dict, length: int) -> dict[str, np.ndarray]:
