@@ -24,6 +24,10 @@ SCENARIO_ID_BYTES = 32  # scenario ids are stored as NUL-padded ASCII bytes
 
 # Object types (WOMD).
 TYPE_UNSET, TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST, TYPE_OTHER = 0, 1, 2, 3, 4
+TYPE_NAMES = ("UNSET", "VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER")  # index: the TYPE_* code
+# WOMD TrafficSignalLaneState, index: the code
+LIGHT_STATE_NAMES = ("UNKNOWN", "ARROW_STOP", "ARROW_CAUTION", "ARROW_GO", "STOP", "CAUTION",
+                     "GO", "FLASHING_STOP", "FLASHING_CAUTION")
 
 # Roadgraph point types (WOMD tf.Example convention).
 RG_LANE_FREEWAY, RG_LANE_SURFACE_STREET, RG_LANE_BIKE = 1, 2, 3

@@ -26,6 +26,7 @@ import numpy as np
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     DT,
+    LIGHT_STATE_NAMES,
     NUM_STEPS,
     RG_CROSSWALK,
     RG_ROAD_EDGE_BOUNDARY,
@@ -35,6 +36,7 @@ from igdrivsim.data.scenario import (
     RG_STOP_SIGN,
     SCENARIO_ID_BYTES,
     TYPE_CYCLIST,
+    TYPE_NAMES,
     TYPE_OTHER,
     TYPE_PEDESTRIAN,
     TYPE_VEHICLE,
@@ -77,9 +79,7 @@ ROAD_EDGE_TYPES = {"ROAD_EDGE_BOUNDARY": RG_ROAD_EDGE_BOUNDARY,
 POLYGON_TYPES = {"CROSSWALK": RG_CROSSWALK, "SPEED_BUMP": RG_SPEED_BUMP}
 # WOMD TrafficSignalLaneState codes; MetaDrive's TRAFFIC_LIGHT_* names are used for nuPlan.
 LIGHT_STATES = {
-    **{f"LANE_STATE_{n}": i for i, n in enumerate((
-        "UNKNOWN", "ARROW_STOP", "ARROW_CAUTION", "ARROW_GO", "STOP", "CAUTION", "GO",
-        "FLASHING_STOP", "FLASHING_CAUTION"))},
+    **{f"LANE_STATE_{n}": i for i, n in enumerate(LIGHT_STATE_NAMES)},
     "TRAFFIC_LIGHT_UNKNOWN": 0, "TRAFFIC_LIGHT_RED": 4, "TRAFFIC_LIGHT_YELLOW": 5,
     "TRAFFIC_LIGHT_GREEN": 6,
 }
@@ -91,7 +91,7 @@ LIGHT_STATES = {
 LEGACY_MODULES = ("__main__", "metadrive.utils.waymo_utils.waymo_utils",
                   "metadrive.utils.waymo_utils.waymo_type")
 LEGACY_TAGS: dict[str, tuple[str, ...]] = {
-    "AgentType": ("UNSET", "VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER"),
+    "AgentType": TYPE_NAMES,
     "RoadLineType": tuple(ROAD_LINE_TYPES),
     "RoadEdgeType": ("ROAD_EDGE_UNKNOWN", "ROAD_EDGE_BOUNDARY", "ROAD_EDGE_MEDIAN"),
     "LaneType": ("LANE_UNKNOWN", "LANE_FREEWAY", "LANE_SURFACE_STREET", "LANE_BIKE_LANE"),
