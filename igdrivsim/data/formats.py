@@ -48,24 +48,21 @@ class Format:
 def decode_record(data: bytes) -> tuple[str, Scenario]:
     """Detect the format of one TFRecord record and decode it at native sizes:
     ``(format, scenario)`` (a WOMD tf.Example or a WOMD Scenario protobuf)."""
-    order = ("example", "scenario") if data[:1] == b"\x0a" else ("scenario", "example")
-    for kind in order:
+    kinds = (FORMAT_TFEXAMPLE, FORMAT_SCENARIO)
+    for kind in kinds if data[:1] == b"\x0a" else kinds[::-1]:
         try:
-            if kind == "example":
-                message = example_class().FromString(data)
-                if is_tfexample(message):
-                    return FORMAT_TFEXAMPLE, decode_tfexample(data)
-            else:
-                message = parse_scenario_proto(data)
-                if is_scenario_proto(message):
-                    return FORMAT_SCENARIO, decode_scenario_proto(message)
+            if kind == FORMAT_TFEXAMPLE:
+                if is_tfexample(example_class().FromString(data)):
+                    return kind, decode_tfexample(data)
+            elif is_scenario_proto(message := parse_scenario_proto(data)):
+                return kind, decode_scenario_proto(message)
         except DecodeError:
             continue
     raise DataError("unknown record format: neither a WOMD tf.Example nor a Scenario protobuf")
 
 
 def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
-    """Records of a TFRecord file; a bad record comes as a :class:`DataError` naming its index."""
+    """Records of a TFRecord file; a bad record comes as its :class:`DataError`."""
     for index, data, error in tfrecord.iter_frames(path, start=start):
         if stop is not None and index >= stop:
             return
@@ -74,10 +71,7 @@ def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decode
                 raise error
             fmt, scenario = decode_record(data)
         except DataError as err:
-            yield index, None, DataError(err.problem, file=path,
-                                         record=index if err.record is None else err.record,
-                                         key=err.key), None
-            continue
+            fmt, scenario = None, err
         yield index, fmt, scenario, None
 
 
