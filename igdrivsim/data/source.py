@@ -187,24 +187,18 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
         return None
 
 
-def data_files(data) -> list[str]:
-    """The files a data path reads: those a filter manifest points at (its folder), else the
-    files it names."""
-    manifest = manifest_of(data)
-    if manifest is not None:
-        return sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
-    return expand_paths(data)
-
-
 def data_identity(data) -> str:
     """A string that changes when the data changes: the manifest's bytes and the files' names,
     sizes and modification times."""
     h = hashlib.sha256()
     manifest = manifest_of(data)
-    if manifest is not None:
+    if manifest is None:
+        files = expand_paths(data)
+    else:  # the manifest's bytes and the files it points at (kept or not)
         with open(manifest, "rb") as f:
             h.update(f.read())
-    for name in data_files(data):
+        files = sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
+    for name in files:
         if not os.path.isfile(name):
             raise DataError("the filter manifest points at a missing file", file=name)
         st = os.stat(name)
