@@ -21,7 +21,7 @@ from igdrivsim.data.filter import (
     sdc_mean_speed,
     segments_intersect,
 )
-from igdrivsim.data.manifest import load_manifest_scenarios, read_manifest
+from igdrivsim.data.manifest import iter_manifest_scenarios, read_manifest
 from igdrivsim.data.scenario import NUM_STEPS, empty_scenario, encode_scenario_id
 from igdrivsim.data.tfrecord import write_records
 from igdrivsim.errors import ConfigError, DataError
@@ -173,7 +173,7 @@ def test_run_filter_manifest_counts_resume_parts(tmp_path, monkeypatch):
     assert json.loads((out / "counts.json").read_text()) == counts
     assert json.loads((out / "filter_config.json").read_text())["criterion"] == "paper"
     kept = read_manifest(out / "manifest.jsonl")
-    scenarios = load_manifest_scenarios(kept, Capacities(4, 8, 2))
+    scenarios = [s for _, s in iter_manifest_scenarios(kept, Capacities(4, 8, 2))]
     assert [decode_scenario_id(s.scenario_id) for s in scenarios] == ["a0", "b1"]
     assert scenarios[0].num_objects == 4
 
@@ -212,11 +212,11 @@ def test_manifest_errors(tmp_path):
     run_filter(files[:1], str(out), progress=False)
     rows = read_manifest(out, kept_only=False)
     with pytest.raises(DataError, match="record 7: manifest points at a record"):
-        load_manifest_scenarios([{**rows[0], "record": 7}])
+        list(iter_manifest_scenarios([{**rows[0], "record": 7}]))
     with pytest.raises(DataError, match="missing file"):
-        load_manifest_scenarios([{**rows[0], "file": str(tmp_path / "gone.tfrecord")}])
+        list(iter_manifest_scenarios([{**rows[0], "file": str(tmp_path / "gone.tfrecord")}]))
     with pytest.raises(DataError, match="scenario id is 'a0', the manifest says 'zz'"):
-        load_manifest_scenarios([{**rows[0], "scenario_id": "zz"}])
+        list(iter_manifest_scenarios([{**rows[0], "scenario_id": "zz"}]))
     (out / "manifest.jsonl").write_text('{"file": "x"}\n')
     with pytest.raises(DataError, match="line 1: missing field"):
         read_manifest(out)
@@ -265,8 +265,6 @@ def test_bench_data_small(tmp_path, capsys):
 
 
 def test_iter_manifest_scenarios_groups_by_file(tmp_path):
-    from igdrivsim.data.manifest import iter_manifest_scenarios
-
     files = _shards(tmp_path)
     run_filter(files, str(tmp_path / "o"), skip_bad=True, progress=False)
     rows = read_manifest(tmp_path / "o", kept_only=False)
@@ -274,5 +272,3 @@ def test_iter_manifest_scenarios_groups_by_file(tmp_path):
     got = [(e["scenario_id"], decode_scenario_id(s.scenario_id))
            for e, s in iter_manifest_scenarios(shuffled, None, chunk=1)]
     assert got == [("b0", "b0"), ("b1", "b1"), ("a0", "a0"), ("a1", "a1")]
-    loaded = load_manifest_scenarios(shuffled, None)
-    assert [decode_scenario_id(s.scenario_id) for s in loaded] == ["b1", "a0", "b0", "a1"]

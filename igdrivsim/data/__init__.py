@@ -1,22 +1,14 @@
 """Scenario data: the Scenario pytree, the registry of formats (WOMD tf.Example and Scenario
-protobuf, ScenarioNet, GPUDrive JSON), the tf.Example writer, sharded sources and the paper's
-scenario filter."""
+protobuf, ScenarioNet, GPUDrive JSON), readers, the tf.Example writer and the paper's scenario
+filter. Reading any data path goes through :func:`igdrivsim.data.source.open_scenarios`."""
 
-from igdrivsim.data.filter import FilterConfig, keep, merge, run_filter, scenario_stats
-from igdrivsim.data.formats import FORMAT_SCENARIO, FORMAT_TFEXAMPLE, FORMATS, decode_record
-from igdrivsim.data.manifest import (
-    iter_manifest_scenarios,
-    load_manifest_scenarios,
-    read_manifest,
-)
+from igdrivsim.data.formats import FORMAT_SCENARIO, FORMAT_TFEXAMPLE, FORMATS
 from igdrivsim.data.reader import (
     ReadStats,
-    ScenarioRecord,
     expand_paths,
     iter_file,
     iter_scenarios,
     load_scenario,
-    process_pool,
     read_scenarios,
     write_tfexample,
 )
@@ -24,18 +16,12 @@ from igdrivsim.data.scenario import (
     Capacities,
     Scenario,
     decode_scenario_id,
-    empty_scenario,
     fit_to_capacities,
-    sdc_index,
     stack_scenarios,
 )
 
 __all__ = [
-    "FORMAT_SCENARIO", "FORMAT_TFEXAMPLE", "FORMATS", "Capacities", "FilterConfig", "ReadStats",
-    "Scenario",
-    "ScenarioRecord", "decode_record", "decode_scenario_id", "empty_scenario", "expand_paths",
-    "fit_to_capacities", "iter_file", "iter_scenarios", "load_scenario",
-    "read_scenarios", "sdc_index", "stack_scenarios", "write_tfexample",
-    "iter_manifest_scenarios", "keep", "load_manifest_scenarios", "merge", "process_pool",
-    "read_manifest", "run_filter", "scenario_stats",
+    "FORMAT_SCENARIO", "FORMAT_TFEXAMPLE", "FORMATS", "Capacities", "ReadStats", "Scenario",
+    "decode_scenario_id", "expand_paths", "fit_to_capacities", "iter_file", "iter_scenarios",
+    "load_scenario", "read_scenarios", "stack_scenarios", "write_tfexample",
 ]

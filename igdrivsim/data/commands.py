@@ -18,6 +18,7 @@ from igdrivsim.data.filter import (
     run_filter,
     sdc_mean_speed,
 )
+from igdrivsim.data.manifest import COUNTS, MANIFEST
 from igdrivsim.data.reader import ReadStats, available_cpus
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
@@ -96,8 +97,8 @@ def filter_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scenario files of any format read (WOMD shards, ScenarioNet, "
                              "GPUDrive JSON: files, folders, globs, name@N); with --merge: the "
                              "output folders of earlier (--part) runs")
-    parser.add_argument("--out", required=True, help="output folder (manifest.jsonl, "
-                                                     "counts.json, shards/)")
+    parser.add_argument("--out", required=True, help=f"output folder ({MANIFEST}, "
+                                                     f"{COUNTS}, shards/)")
     parser.add_argument("--criterion", choices=("paper", "objects_of_interest"), default=None,
                         help="interactive = SDC path crosses another object's path (paper, "
                              "default) or WOMD's objects_of_interest flag")

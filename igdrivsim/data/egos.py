@@ -16,8 +16,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from igdrivsim.data.filter import FilterConfig, keep, scenario_stats
-from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
+from igdrivsim.data.filter import FilterConfig, ego_candidates, keep, scenario_stats
+from igdrivsim.data.scenario import Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError
 
 EGO_MODES = ("sdc", "all")  # the logged SDC only (the paper's protocol), every eligible vehicle
@@ -41,12 +41,10 @@ def add_egos_argument(parser) -> None:
 
 def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> list[int]:
     """Slots of the vehicles valid over the whole window that pass the filter as the ego."""
-    tr, md = scenario.trajectory, scenario.metadata
-    valid = np.asarray(tr.valid, bool).all(axis=-1) & np.asarray(md.valid, bool)
-    vehicle = np.asarray(md.object_type) == TYPE_VEHICLE
+    tr = scenario.trajectory
     speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
     out = []
-    for slot in np.flatnonzero(valid & vehicle):
+    for slot in ego_candidates(scenario):
         if speed[slot].mean() < config.min_speed:  # cheap first: the filter's speed bound
             continue
         if keep(scenario_stats(as_ego(scenario, int(slot))), config):
@@ -59,12 +57,16 @@ def expand_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER
     """``(scenario as seen from the ego, {"id", "object_id", "logged_sdc"})`` per eligible
     vehicle of one unbatched scenario (native sizes: fit to capacities afterwards, so that the
     objects kept are those nearest to the ego)."""
-    logged = int(np.argmax(np.asarray(scenario.metadata.is_sdc)))
     for slot in eligible_egos(scenario, config):
-        ego = as_ego(scenario, slot)
-        yield ego, {"id": decode_scenario_id(ego.scenario_id),
-                    "object_id": int(np.asarray(scenario.metadata.id)[slot]),
-                    "logged_sdc": slot == logged}
+        yield ego_of(scenario, slot)
+
+
+def ego_of(scenario: Scenario, slot: int) -> tuple[Scenario, dict]:
+    """``(scenario as seen from slot ``slot``, {"id", "object_id", "logged_sdc"})``."""
+    ego = as_ego(scenario, slot)
+    return ego, {"id": decode_scenario_id(ego.scenario_id),
+                 "object_id": int(np.asarray(scenario.metadata.id)[slot]),
+                 "logged_sdc": bool(np.asarray(scenario.metadata.is_sdc)[slot])}
 
 
 def ego_slot(scenario: Scenario, object_id: int) -> int | None:

@@ -200,15 +200,20 @@ def shard_result_path(out: str, file: str) -> str:
     return os.path.join(out, SHARDS_DIR, f"{os.path.basename(file)}.{digest}.json")
 
 
+def ego_candidates(scenario: Scenario) -> np.ndarray:
+    """Slots of the vehicles valid over the whole window: who may be the ego
+    (:mod:`igdrivsim.data.egos`)."""
+    md = scenario.metadata
+    valid = np.asarray(scenario.trajectory.valid, bool).all(axis=-1) & np.asarray(md.valid, bool)
+    return np.flatnonzero(valid & (np.asarray(md.object_type) == TYPE_VEHICLE))
+
+
 def ego_entries(scenario: Scenario) -> list[dict]:
-    """:func:`scenario_stats` with each vehicle valid over the whole window as the ego (the
-    candidates of :mod:`igdrivsim.data.egos`), with ``ego`` (its object id) and
-    ``logged_sdc``; ``scenario_id`` stays the source scenario's."""
-    md, valid = scenario.metadata, np.asarray(scenario.trajectory.valid, bool).all(axis=-1)
-    sid = decode_scenario_id(scenario.scenario_id)
+    """:func:`scenario_stats` with each :func:`ego_candidates` vehicle as the ego, with ``ego``
+    (its object id) and ``logged_sdc``; ``scenario_id`` stays the source scenario's."""
+    md, sid = scenario.metadata, decode_scenario_id(scenario.scenario_id)
     out = []
-    for slot in np.flatnonzero(valid & np.asarray(md.valid, bool)
-                               & (np.asarray(md.object_type) == TYPE_VEHICLE)):
+    for slot in ego_candidates(scenario):
         row = scenario_stats(as_ego(scenario, int(slot)))
         out.append({**row, "scenario_id": sid, "ego": int(np.asarray(md.id)[slot]),
                     "logged_sdc": bool(np.asarray(md.is_sdc)[slot])})

@@ -5,12 +5,12 @@ the first bytes), ``decode(path, start, stop)`` (the scenarios ``start <= i < st
 at native sizes, as ``(index, format name, scenario, source)``; ``source`` says where a window of
 a longer log starts, else None; a bad record comes as a :class:`DataError` in place of the
 scenario, so that the rest of the file can still be read; a file that cannot be read at all
-raises it) and ``count(path)`` (how many scenarios the file holds; ``cheap_count`` False when
-that takes a full decode). A file belongs to the first format, in registry order, that
-detects it, else to :data:`FALLBACK` (TFRecord); a folder reads the files of the first format
-that has any, TFRecords first, then the others in registry order.
-Adding a format is one module plus one entry here; every reader
-(:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
+raises it) and ``count(path)`` (how many scenarios the file holds). A file belongs to the first
+format, in registry order, that detects it, else to :data:`FALLBACK` (TFRecord); a folder is a
+format's dataset folder (``folder``), else it reads the files of the first format that lists
+any, TFRecords first, then the others in registry order.
+Adding a format is one module plus one entry here (tests/test_data_formats.py adds one); every
+reader (:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
 """
 
 from __future__ import annotations
@@ -40,31 +40,29 @@ class Format:
     detect: Callable[[str], bool]
     decode: Callable[[str, int, int | None], Iterator[Decoded]]
     count: Callable[[str], int]
-    cheap_count: bool  # False: counting decodes the whole file
-    lists: Callable[[str], bool]  # whether a folder listing takes this (detected) file
+    cheap_count: bool = True  # False: counting decodes the whole file
+    lists: Callable[[str], bool] = lambda path: True  # whether a folder listing takes the file
+    folder: Callable[[str], list[str] | None] = lambda folder: None  # a dataset folder's files
 
 
 def decode_record(data: bytes) -> tuple[str, Scenario]:
     """Detect the format of one TFRecord record and decode it at native sizes:
     ``(format, scenario)`` (a WOMD tf.Example or a WOMD Scenario protobuf)."""
-    order = ("example", "scenario") if data[:1] == b"\x0a" else ("scenario", "example")
-    for kind in order:
+    kinds = (FORMAT_TFEXAMPLE, FORMAT_SCENARIO)
+    for kind in kinds if data[:1] == b"\x0a" else kinds[::-1]:
         try:
-            if kind == "example":
-                message = example_class().FromString(data)
-                if is_tfexample(message):
-                    return FORMAT_TFEXAMPLE, decode_tfexample(data)
-            else:
-                message = parse_scenario_proto(data)
-                if is_scenario_proto(message):
-                    return FORMAT_SCENARIO, decode_scenario_proto(message)
+            if kind == FORMAT_TFEXAMPLE:
+                if is_tfexample(example_class().FromString(data)):
+                    return kind, decode_tfexample(data)
+            elif is_scenario_proto(message := parse_scenario_proto(data)):
+                return kind, decode_scenario_proto(message)
         except DecodeError:
             continue
     raise DataError("unknown record format: neither a WOMD tf.Example nor a Scenario protobuf")
 
 
 def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
-    """Records of a TFRecord file; a bad record comes as a :class:`DataError` naming its index."""
+    """Records of a TFRecord file; a bad record comes as its :class:`DataError`."""
     for index, data, error in tfrecord.iter_frames(path, start=start):
         if stop is not None and index >= stop:
             return
@@ -73,18 +71,16 @@ def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decode
                 raise error
             fmt, scenario = decode_record(data)
         except DataError as err:
-            yield index, None, DataError(err.problem, file=path,
-                                         record=index if err.record is None else err.record,
-                                         key=err.key), None
-            continue
+            fmt, scenario = None, err
         yield index, fmt, scenario, None
 
 
 def _decode_scenarionet(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
     """The 91-step windows of a ScenarioNet log (a bad file is one bad record)."""
-    for index, w in list(scenarionet.iter_windows(path, start, stop)):
-        yield index, scenarionet.FORMAT_SCENARIONET, w.scenario, {
-            "source_id": w.source_id, "first_step": w.first_step}
+    for index, w in enumerate(scenarionet.read_file(path)):
+        if index >= start and (stop is None or index < stop):
+            yield index, scenarionet.FORMAT_SCENARIONET, w.scenario, {
+                "source_id": w.source_id, "first_step": w.first_step}
 
 
 def _decode_gpudrive(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
@@ -94,16 +90,17 @@ def _decode_gpudrive(path: str, start: int, stop: int | None) -> Iterator[Decode
 
 
 FORMATS: dict[str, Format] = {
-    "scenarionet": Format("scenarionet", scenarionet.is_scenarionet_file, _decode_scenarionet,
-                          lambda path: len(scenarionet.read_file(path)), False,
-                          lambda path: True),
-    "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive,
-                       lambda path: 1, True, lambda path: True),
+    # the dataset's index pickles are detected (and decode to a one-line error), never listed
+    "scenarionet": Format("scenarionet", lambda path: path.endswith(scenarionet.PICKLE_SUFFIXES),
+                          _decode_scenarionet, lambda path: len(scenarionet.read_file(path)),
+                          cheap_count=False, lists=scenarionet.is_scenarionet_file,
+                          folder=scenarionet.dataset_files),
+    "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive, lambda path: 1),
     # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
     # every file no other format detects is tried as one; a folder listing takes names
     # containing "tfrecord"
     "tfrecord": Format("tfrecord", lambda path: True, _decode_tfrecord, tfrecord.count_records,
-                       True, lambda path: "tfrecord" in os.path.basename(path)),
+                       lists=lambda path: "tfrecord" in os.path.basename(path)),
 }
 FALLBACK = "tfrecord"
 
@@ -114,18 +111,22 @@ def format_of(path: str) -> Format:
                 FORMATS[FALLBACK])
 
 
-def folder_files(files: list[str]) -> list[str]:
-    """The files of a folder to read: those of the first format that lists any (TFRecords
-    first, then registry order), else all of them."""
+def folder_files(folder: str) -> list[str]:
+    """The files a folder reads: a format's dataset folder's, else those of the first format
+    that lists any (TFRecords first, then registry order), else every file no other format
+    detects."""
+    for fmt in FORMATS.values():
+        listed = fmt.folder(folder)
+        if listed is not None:
+            return listed
     by_format: dict[str, list[str]] = {}
-    for path in files:
-        fmt = format_of(path)
-        if fmt.lists(path):
-            by_format.setdefault(fmt.name, []).append(path)
-    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK)]
-    return next((by_format[n] for n in order if n in by_format), files)
-
-
-def count_records(path: str) -> int:
-    """Number of scenarios of one file (TFRecord frames, ScenarioNet windows, ...)."""
-    return format_of(path).count(path)
+    for name in sorted(os.listdir(folder)):
+        path = os.path.join(folder, name)
+        if not name.startswith(".") and os.path.isfile(path):
+            fmt = format_of(path)
+            if fmt.lists(path):
+                by_format.setdefault(fmt.name, []).append(path)
+            elif fmt.name == FALLBACK:
+                by_format.setdefault("", []).append(path)
+    order = [FALLBACK, *(n for n in FORMATS if n != FALLBACK), ""]
+    return next((by_format[n] for n in order if n in by_format), [])

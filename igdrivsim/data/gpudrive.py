@@ -29,12 +29,14 @@ import os
 import numpy as np
 
 from igdrivsim.data.scenario import (
+    LIGHT_STATE_NAMES,
     NUM_STEPS,
     RG_CROSSWALK,
     RG_LANE_SURFACE_STREET,
     RG_ROAD_EDGE_BOUNDARY,
     RG_SPEED_BUMP,
     RG_STOP_SIGN,
+    TYPE_NAMES,
     ObjectMetadata,
     Roadgraph,
     Scenario,
@@ -50,14 +52,13 @@ from igdrivsim.errors import DataError
 
 FORMAT_GPUDRIVE = "gpudrive_json"
 INVALID = -10000.0  # what the converter writes in every field of an invalid step
-OBJECT_TYPES = {"unset": 0, "vehicle": 1, "pedestrian": 2, "cyclist": 3, "other": 4}
+OBJECT_TYPES = {name.lower(): code for code, name in enumerate(TYPE_NAMES)}
 # coarse road ``type`` -> tf.Example code, when a road has no ``map_element_id``
 COARSE_TYPES = {"lane": RG_LANE_SURFACE_STREET, "road_line": 5, "road_edge": RG_ROAD_EDGE_BOUNDARY,
                 "stop_sign": RG_STOP_SIGN, "crosswalk": RG_CROSSWALK,
                 "speed_bump": RG_SPEED_BUMP}
 POLYGONS = (RG_CROSSWALK, RG_SPEED_BUMP)
-LIGHT_STATES = {"unknown": 0, "arrow_stop": 1, "arrow_caution": 2, "arrow_go": 3, "stop": 4,
-                "caution": 5, "go": 6, "flashing_stop": 7, "flashing_caution": 8}
+LIGHT_STATES = {name.lower(): code for code, name in enumerate(LIGHT_STATE_NAMES)}
 
 
 def is_gpudrive_file(path: str) -> bool:

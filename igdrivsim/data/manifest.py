@@ -17,7 +17,7 @@ from collections.abc import Iterable, Iterator
 
 from tqdm.auto import tqdm
 
-from igdrivsim.data.reader import iter_file, process_pool
+from igdrivsim.data.reader import iter_file, pool_map
 from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
 from igdrivsim.errors import DataError
 from igdrivsim.io import atomic_path, atomic_write_json
@@ -77,8 +77,9 @@ def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]
 
 
 def _load_records(file: str, records: list[int], caps: Capacities | None
-                  ) -> list[tuple[int, Scenario]]:
-    """Records ``records`` (sorted) of one file, read in one forward pass."""
+                  ) -> tuple[str, list[tuple[int, Scenario]]]:
+    """``(file, [(record, scenario)])`` for ``records`` (sorted) of one file, read in one
+    forward pass."""
     if not os.path.isfile(file):
         raise DataError("manifest points at a missing file", file=file)
     wanted = set(records)
@@ -89,7 +90,7 @@ def _load_records(file: str, records: list[int], caps: Capacities | None
     if absent:
         raise DataError("manifest points at a record the file does not have", file=file,
                         record=absent[0])
-    return [(r, found[r]) for r in records]
+    return file, [(r, found[r]) for r in records]
 
 
 def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
@@ -109,12 +110,10 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
     tasks = []
     for file, by_record in groups.items():
         records = sorted(by_record)
-        tasks += [(file, records[i:i + chunk]) for i in range(0, len(records), chunk)]
-    bar = None
-    if progress:
-        bar = tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn")
-    try:
-        for file, loaded in _run_tasks(tasks, caps, workers):
+        tasks += [(file, records[i:i + chunk], caps) for i in range(0, len(records), chunk)]
+    with tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn",
+              disable=not progress) as bar:
+        for file, loaded in pool_map(_load_records, tasks, workers):
             for record, scenario in loaded:
                 entry = groups[file][record]
                 if check_ids and "scenario_id" in entry:
@@ -122,46 +121,5 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
                     if sid != entry["scenario_id"]:
                         raise DataError(f"scenario id is {sid!r}, the manifest says "
                                         f"{entry['scenario_id']!r}", file=file, record=record)
-                if bar is not None:
-                    bar.update()
+                bar.update()
                 yield entry, scenario
-    finally:
-        if bar is not None:
-            bar.close()
-
-
-def _run_tasks(tasks, caps, workers: int):
-    if workers <= 1:
-        for file, records in tasks:
-            yield file, _load_records(file, records, caps)
-        return
-    with process_pool(workers) as pool:
-        pending = []
-        todo = iter(tasks)
-        for file, records in todo:
-            pending.append((file, pool.submit(_load_records, file, records, caps)))
-            if len(pending) >= 2 * workers:
-                break
-        try:
-            while pending:
-                file, fut = pending.pop(0)
-                nxt = next(todo, None)
-                if nxt is not None:
-                    pending.append((nxt[0], pool.submit(_load_records, nxt[0], nxt[1], caps)))
-                yield file, fut.result()
-        finally:
-            for _, fut in pending:
-                fut.cancel()
-
-
-def load_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
-                            check_ids: bool = True, workers: int = 0,
-                            progress: bool = False) -> list[Scenario]:
-    """The scenarios of manifest ``entries`` in the given order, fitted to ``caps``; each file
-    is read once, in record order (see :func:`iter_manifest_scenarios`). Holds them all in
-    memory (about 1 MB each at WOMD capacities): stream with the iterator for big sets."""
-    entries = list(entries)
-    found = {(os.fspath(e["file"]), int(e["record"])): s
-             for e, s in iter_manifest_scenarios(entries, caps, workers, check_ids=check_ids,
-                                                 progress=progress)}
-    return [found[(os.fspath(e["file"]), int(e["record"]))] for e in entries]

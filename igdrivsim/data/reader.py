@@ -10,6 +10,7 @@ a warning and counted in a :class:`ReadStats`, and the rest of the file is still
 from __future__ import annotations
 
 import glob
+import itertools
 import multiprocessing
 import os
 import re
@@ -21,8 +22,8 @@ from typing import NamedTuple
 
 from tqdm.auto import tqdm
 
-from igdrivsim.data import samples, scenarionet, tfrecord
-from igdrivsim.data.formats import count_records, folder_files, format_of
+from igdrivsim.data import samples, tfrecord
+from igdrivsim.data.formats import folder_files, format_of
 from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
@@ -88,13 +89,7 @@ def expand_paths(spec: PathSpec) -> list[str]:
     if os.path.isdir(spec):
         if os.path.isfile(os.path.join(spec, samples.RECORD)):  # igdrivsim samples' folder
             return expand_paths(samples.scenario_dir(spec))
-        listed = scenarionet.dataset_files(spec)  # a ScenarioNet dataset folder
-        if listed is not None:
-            return listed
-        files = sorted(os.path.join(spec, n) for n in os.listdir(spec)
-                       if not n.startswith(".") and os.path.isfile(os.path.join(spec, n))
-                       and n not in (scenarionet.SUMMARY_FILE, scenarionet.MAPPING_FILE))
-        files = folder_files(files)
+        files = folder_files(spec)
     elif os.path.isfile(spec):
         return [spec]
     elif (m := _SHARDED.match(spec)) is not None:
@@ -156,21 +151,14 @@ def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
     """
     files = expand_paths(paths)
     stats = stats if stats is not None else ReadStats()
-    bar = None
-    if progress:
-        bar = tqdm(desc="reading", unit="scn")
-    try:
-        if workers <= 1:
-            for path in files:
-                for rec in iter_file(path, caps, skip_bad, stats):
-                    if bar is not None:
-                        bar.update()
-                    yield rec
-            return
-        yield from _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar)
-    finally:
-        if bar is not None:
-            bar.close()
+    if workers <= 1:
+        records = (rec for path in files for rec in iter_file(path, caps, skip_bad, stats))
+    else:
+        records = _iter_parallel(files, caps, skip_bad, stats, workers, chunk)
+    with tqdm(desc="reading", unit="scn", disable=not progress) as bar:
+        for rec in records:
+            bar.update()
+            yield rec
 
 
 def _decode_chunk(path: str, caps, skip_bad: bool, start: int, stop: int):
@@ -181,37 +169,45 @@ def _decode_chunk(path: str, caps, skip_bad: bool, start: int, stop: int):
     return recs, stats.skipped
 
 
-def _iter_parallel(files, caps, skip_bad, stats, workers, chunk, bar):
+def pool_map(fn, tasks, workers: int) -> Iterator:
+    """``fn(*task)`` for each task, in order: in this process (``workers <= 1``) or in
+    ``workers`` spawned processes, at most ``2 * workers`` tasks in flight."""
+    if workers <= 1:
+        yield from (fn(*task) for task in tasks)
+        return
+    with process_pool(workers) as pool:
+        todo = iter(tasks)
+        pending = [pool.submit(fn, *task) for task in itertools.islice(todo, 2 * workers)]
+        try:
+            while pending:
+                fut = pending.pop(0)
+                task = next(todo, None)
+                if task is not None:
+                    pending.append(pool.submit(fn, *task))
+                yield fut.result()
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
     tasks = []
     for path in files:
         try:
-            n = count_records(path)
+            n = format_of(path).count(path)
         except DataError as err:
             if not skip_bad:
                 raise
             n = err.record or 0  # read what precedes the broken framing; report the break
             stats.skip(err)
-        tasks += [(path, s, min(s + chunk, n)) for s in range(0, n, chunk)]
-    with process_pool(workers) as pool:
-        pending = []
-        it = iter(tasks)
-        for task in it:
-            pending.append(pool.submit(_decode_chunk, task[0], caps, skip_bad, *task[1:]))
-            if len(pending) >= 2 * workers:
-                break
-        while pending:
-            recs, skipped = pending.pop(0).result()
-            task = next(it, None)
-            if task is not None:
-                pending.append(pool.submit(_decode_chunk, task[0], caps, skip_bad, *task[1:]))
-            for f, r, msg in skipped:
-                stats.skipped.append((f, r, msg))
-                warnings.warn(f"skipping bad record: {msg}", stacklevel=2)
-            for rec in recs:
-                stats.read += 1
-                if bar is not None:
-                    bar.update()
-                yield rec
+        tasks += [(path, caps, skip_bad, s, min(s + chunk, n)) for s in range(0, n, chunk)]
+    for recs, skipped in pool_map(_decode_chunk, tasks, workers):
+        for f, r, msg in skipped:
+            stats.skipped.append((f, r, msg))
+            warnings.warn(f"skipping bad record: {msg}", stacklevel=2)
+        for rec in recs:
+            stats.read += 1
+            yield rec
 
 
 def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,

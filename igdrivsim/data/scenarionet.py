@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
-from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -27,6 +26,7 @@ import numpy as np
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     DT,
+    LIGHT_STATE_NAMES,
     NUM_STEPS,
     RG_CROSSWALK,
     RG_ROAD_EDGE_BOUNDARY,
@@ -36,6 +36,7 @@ from igdrivsim.data.scenario import (
     RG_STOP_SIGN,
     SCENARIO_ID_BYTES,
     TYPE_CYCLIST,
+    TYPE_NAMES,
     TYPE_OTHER,
     TYPE_PEDESTRIAN,
     TYPE_VEHICLE,
@@ -46,7 +47,7 @@ from igdrivsim.data.scenario import (
     Trajectory,
     encode_scenario_id,
 )
-from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, densify_polylines, polyline_directions
+from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, roadgraph_from_polylines
 from igdrivsim.errors import DataError
 
 FORMAT_SCENARIONET = "scenarionet"
@@ -78,9 +79,7 @@ ROAD_EDGE_TYPES = {"ROAD_EDGE_BOUNDARY": RG_ROAD_EDGE_BOUNDARY,
 POLYGON_TYPES = {"CROSSWALK": RG_CROSSWALK, "SPEED_BUMP": RG_SPEED_BUMP}
 # WOMD TrafficSignalLaneState codes; MetaDrive's TRAFFIC_LIGHT_* names are used for nuPlan.
 LIGHT_STATES = {
-    **{f"LANE_STATE_{n}": i for i, n in enumerate((
-        "UNKNOWN", "ARROW_STOP", "ARROW_CAUTION", "ARROW_GO", "STOP", "CAUTION", "GO",
-        "FLASHING_STOP", "FLASHING_CAUTION"))},
+    **{f"LANE_STATE_{n}": i for i, n in enumerate(LIGHT_STATE_NAMES)},
     "TRAFFIC_LIGHT_UNKNOWN": 0, "TRAFFIC_LIGHT_RED": 4, "TRAFFIC_LIGHT_YELLOW": 5,
     "TRAFFIC_LIGHT_GREEN": 6,
 }
@@ -92,7 +91,7 @@ LIGHT_STATES = {
 LEGACY_MODULES = ("__main__", "metadrive.utils.waymo_utils.waymo_utils",
                   "metadrive.utils.waymo_utils.waymo_type")
 LEGACY_TAGS: dict[str, tuple[str, ...]] = {
-    "AgentType": ("UNSET", "VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER"),
+    "AgentType": TYPE_NAMES,
     "RoadLineType": tuple(ROAD_LINE_TYPES),
     "RoadEdgeType": ("ROAD_EDGE_UNKNOWN", "ROAD_EDGE_BOUNDARY", "ROAD_EDGE_MEDIAN"),
     "LaneType": ("LANE_UNKNOWN", "LANE_FREEWAY", "LANE_SURFACE_STREET", "LANE_BIKE_LANE"),
@@ -401,24 +400,18 @@ def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
         xyz.append(pts)
         types.append(rg_type)
         pids.append(ids[k])
-    has_edges = any(t in RG_ROAD_EDGE_TYPES for t in types)
-    xyz_all = (np.concatenate(xyz) if xyz else np.zeros((0, 3)))
-    poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(xyz_all, poly, max_spacing)
-    rg_xyz, rg_dir = points, polyline_directions(points, poly)
-    rg_type = np.asarray(types, np.int32)[poly]
-    rg_id = np.asarray(pids, np.int64)[poly]
-    if not has_edges and lane_polygons:
+    rg = roadgraph_from_polylines(xyz, types, pids, max_spacing)
+    if not any(t in RG_ROAD_EDGE_TYPES for t in types) and lane_polygons:
         bxy, bdir, bpoly = union_boundary(lane_polygons, max_spacing)
         base = int(max(ids.values(), default=-1)) + 1
-        rg_xyz = np.concatenate([rg_xyz, np.c_[bxy, np.zeros(len(bxy))]])
-        rg_dir = np.concatenate([rg_dir, np.c_[bdir, np.zeros(len(bdir))]])
-        rg_type = np.concatenate([rg_type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY, np.int32)])
-        rg_id = np.concatenate([rg_id, base + bpoly])
-    roadgraph = Roadgraph(xyz=rg_xyz.astype(np.float32), dir=rg_dir.astype(np.float32),
-                          type=rg_type.astype(np.int32), id=rg_id.astype(np.int32),
-                          valid=np.ones(len(rg_xyz), bool))
-    return roadgraph, ids
+        flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+        rg = Roadgraph(xyz=np.concatenate([rg.xyz, flat(bxy)]),
+                       dir=np.concatenate([rg.dir, flat(bdir)]),
+                       type=np.concatenate([rg.type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY,
+                                                             np.int32)]),
+                       id=np.concatenate([rg.id, (base + bpoly).astype(np.int32)]),
+                       valid=np.ones(len(rg.valid) + len(bxy), bool))
+    return rg, ids
 
 
 def _decode_lights(desc: dict, map_ids: dict, length: int) -> dict[str, np.ndarray]:
@@ -629,10 +622,3 @@ def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING
     except DataError as err:
         raise DataError(err.problem, file=path, key=err.key) from None
 
-
-def iter_windows(path: str, start: int = 0, stop: int | None = None) -> Iterator[
-        tuple[int, Window]]:
-    """``(record index, window)`` for windows ``start <= i < stop`` of one file."""
-    for i, w in enumerate(read_file(path)):
-        if i >= start and (stop is None or i < stop):
-            yield i, w

@@ -14,12 +14,13 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Iterator
+from itertools import chain, islice
 
 import numpy as np
 
-from igdrivsim.data.egos import PAPER_FILTER, as_ego, check_egos, ego_slot, expand_egos
+from igdrivsim.data.egos import PAPER_FILTER, check_egos, ego_of, ego_slot, expand_egos
 from igdrivsim.data.filter import FilterConfig
-from igdrivsim.data.formats import count_records, format_of
+from igdrivsim.data.formats import format_of
 from igdrivsim.data.manifest import COUNTS, MANIFEST, iter_manifest_scenarios, read_manifest
 from igdrivsim.data.reader import (
     PathSpec,
@@ -33,10 +34,17 @@ from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
     Scenario,
-    decode_scenario_id,
     fit_to_capacities,
 )
 from igdrivsim.errors import DataError
+
+
+def check_data(data, what: str) -> None:
+    """One-line :class:`DataError` "``what`` data not found" when a location of ``data`` (a
+    path or a list of them) names nothing; globs and ``name@N`` are left to the reader."""
+    for where in [data] if isinstance(data, str | os.PathLike) else data:
+        if not os.path.exists(where) and not any(ch in str(where) for ch in "*?@"):
+            raise DataError(f"{what} data not found", file=os.fspath(where))
 
 
 def manifest_of(path) -> str | None:
@@ -102,14 +110,8 @@ def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, e
 def _egos_of(rec: ScenarioRecord, caps, config: FilterConfig, only: int | None = None
              ) -> Iterator[ScenarioRecord]:
     """The record once per eligible ego (``only``: that slot, taken as it is)."""
-    if only is not None:
-        ego = as_ego(rec.scenario, only)
-        info = {"id": decode_scenario_id(ego.scenario_id),
-                "object_id": int(np.asarray(rec.scenario.metadata.id)[only]),
-                "logged_sdc": bool(np.asarray(rec.scenario.metadata.is_sdc)[only])}
-        yield _fit(rec._replace(scenario=ego, ego=info), caps)
-        return
-    for scenario, info in expand_egos(rec.scenario, config):
+    egos = [ego_of(rec.scenario, only)] if only is not None else expand_egos(rec.scenario, config)
+    for scenario, info in egos:
         yield _fit(rec._replace(scenario=scenario, ego=info), caps)
 
 
@@ -130,19 +132,11 @@ def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
     """
     check_egos(egos)
     if not isinstance(path, str | os.PathLike):
-        count = 0
-        for item in path:
-            for rec in open_scenarios(item, caps, egos=egos, filter_config=filter_config,
-                                      limit=limit - count if limit else 0, skip_bad=skip_bad,
-                                      stats=stats, workers=workers, check_ids=check_ids,
-                                      progress=progress):
-                yield rec
-                count += 1
-            if limit and count >= limit:
-                return
-        return
-    manifest = manifest_of(path)
-    if manifest is not None:
+        records = chain.from_iterable(
+            open_scenarios(item, caps, egos=egos, filter_config=filter_config, limit=limit,
+                           skip_bad=skip_bad, stats=stats, workers=workers, check_ids=check_ids,
+                           progress=progress) for item in path)
+    elif (manifest := manifest_of(path)) is not None:
         records = _from_manifest(manifest, caps, egos, filter_config, limit, workers, check_ids,
                                  progress)
     else:
@@ -150,10 +144,7 @@ def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
         records = iter_scenarios(path, decode_caps, skip_bad, stats, workers, progress=progress)
         if egos == "all":
             records = (e for rec in records for e in _egos_of(rec, caps, filter_config))
-    for count, rec in enumerate(records, 1):
-        yield rec
-        if limit and count >= limit:
-            return
+    yield from islice(records, limit or None)
 
 
 def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | None:
@@ -163,38 +154,37 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
     where that is not cheap or not known: every vehicle as the ego (eligibility takes a decode),
     formats whose count decodes the file (ScenarioNet), paths that do not read (the read itself
     reports them)."""
-    def cap(n: int) -> int:
-        return min(n, max_scenarios) if max_scenarios else n
-
+    if not isinstance(data, str | os.PathLike):  # a list: each item as open_scenarios reads it
+        total = 0
+        for item in data:
+            n = count_scenarios(item, max_scenarios - total if max_scenarios else 0, egos)
+            if n is None:
+                return None
+            total += n
+            if max_scenarios and total >= max_scenarios:
+                break
+        return total
     try:
-        manifest = manifest_of(data) if isinstance(data, str | os.PathLike) else None
+        manifest = manifest_of(data)
         if manifest is not None:
             entries = read_manifest(manifest)
             if egos == "all" and not any("ego" in e for e in entries):
                 return None
-            return cap(len(entries))
-        if egos == "all":
+            total = len(entries)
+        elif egos == "all":
             return None
-        total = 0
-        for path in expand_paths(data):
-            if max_scenarios and total >= max_scenarios:
-                break
-            fmt = format_of(path)
-            if not fmt.cheap_count:
-                return None
-            total += fmt.count(path)
-        return cap(total)
+        else:
+            total = 0
+            for path in expand_paths(data):
+                if max_scenarios and total >= max_scenarios:
+                    break
+                fmt = format_of(path)
+                if not fmt.cheap_count:
+                    return None
+                total += fmt.count(path)
+        return min(total, max_scenarios) if max_scenarios else total
     except (DataError, OSError):
         return None
-
-
-def data_files(data) -> list[str]:
-    """The files a data path reads: those a filter manifest points at (its folder), else the
-    files it names."""
-    manifest = manifest_of(data)
-    if manifest is not None:
-        return sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
-    return expand_paths(data)
 
 
 def data_identity(data) -> str:
@@ -202,10 +192,13 @@ def data_identity(data) -> str:
     sizes and modification times."""
     h = hashlib.sha256()
     manifest = manifest_of(data)
-    if manifest is not None:
+    if manifest is None:
+        files = expand_paths(data)
+    else:  # the manifest's bytes and the files it points at (kept or not)
         with open(manifest, "rb") as f:
             h.update(f.read())
-    for name in data_files(data):
+        files = sorted({e["file"] for e in read_manifest(manifest, kept_only=False)})
+    for name in files:
         if not os.path.isfile(name):
             raise DataError("the filter manifest points at a missing file", file=name)
         st = os.stat(name)
@@ -219,29 +212,31 @@ def scenario_refs(data, limit: int = 0, egos: str = "sdc",
     ``(file id, record, ego object id or -1 for the logged SDC)``; read one with
     :func:`load_ref`. Only ``egos="all"`` decodes (eligibility needs the trajectories)."""
     files: dict[str, int] = {}
-    refs: list[tuple[int, int, int]] = []
+    refs = [(files.setdefault(file, len(files)), record, ego)
+            for file, record, ego in islice(_refs(data, limit, egos, filter_config),
+                                            limit or None)]
+    if not refs:
+        raise DataError("no scenarios found", file=str(data))
+    return list(files), np.asarray(refs, np.int64).reshape(-1, 3)
+
+
+def _refs(data, limit: int, egos: str, filter_config: FilterConfig
+          ) -> Iterator[tuple[str, int, int]]:
+    if not isinstance(data, str | os.PathLike):
+        for item in data:
+            yield from _refs(item, limit, egos, filter_config)
+        return
     manifest = manifest_of(data)
     if egos == "all" or (manifest is not None and any(
             "ego" in e for e in read_manifest(manifest))):
         for rec in open_scenarios(data, None, egos=egos, filter_config=filter_config,
                                   limit=limit):
-            ego = -1 if rec.ego is None else rec.ego["object_id"]
-            refs.append((files.setdefault(rec.file, len(files)), rec.record, ego))
+            yield rec.file, rec.record, -1 if rec.ego is None else rec.ego["object_id"]
     elif manifest is not None:
-        for e in read_manifest(manifest)[: limit or None]:
-            refs.append((files.setdefault(e["file"], len(files)), e["record"], -1))
+        yield from ((e["file"], e["record"], -1) for e in read_manifest(manifest))
     else:
-        for name in expand_paths(data):
-            fid = files.setdefault(name, len(files))
-            for r in range(count_records(name)):
-                refs.append((fid, r, -1))
-                if limit and len(refs) >= limit:
-                    break
-            if limit and len(refs) >= limit:
-                break
-    if not refs:
-        raise DataError("no scenarios found", file=os.fspath(data))
-    return list(files), np.asarray(refs, np.int64).reshape(-1, 3)
+        yield from ((name, r, -1) for name in expand_paths(data)
+                    for r in range(format_of(name).count(name)))
 
 
 def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scenario:

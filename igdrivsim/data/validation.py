@@ -3,14 +3,13 @@ format): what the training curves and the evaluation are judged on."""
 
 from __future__ import annotations
 
-import os
 import sys
 
 from tqdm import tqdm
 
 from igdrivsim.data.reader import ScenarioRecord
 from igdrivsim.data.scenario import decode_scenario_id, split_ego_id, stack_scenarios
-from igdrivsim.data.source import count_scenarios, open_scenarios
+from igdrivsim.data.source import check_data, count_scenarios, open_scenarios
 from igdrivsim.errors import DataError
 
 
@@ -33,9 +32,7 @@ def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
     """``(stacked scenarios [N], origins)`` of ``data``, one :func:`origin_of` dict per
     scenario; ``data``: a location or a list of them (read in turn); see
     :func:`load_validation`."""
-    for where in [data] if isinstance(data, str | os.PathLike) else list(data):
-        if not os.path.exists(where) and not any(ch in str(where) for ch in "*?@"):
-            raise DataError("validation data not found", file=str(where))
+    check_data(data, "validation")
     total = count_scenarios(data, max_scenarios, egos) if progress else None
     scenarios, origins = [], []
     with tqdm(total=total, desc="loading", unit="scn", file=sys.stderr,

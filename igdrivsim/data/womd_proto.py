@@ -132,11 +132,6 @@ def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
     return points[source] + frac * seg[source], poly[source]
 
 
-def densify(points: np.ndarray, max_spacing: float) -> np.ndarray:
-    """:func:`densify_polylines` for one polyline ``[N, 3]``."""
-    return densify_polylines(points, np.zeros(len(points), np.int64), max_spacing)[0]
-
-
 def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """Unit vector from each point to the next point of its polyline (zero at a polyline end)."""
     d = np.zeros_like(points)

@@ -16,6 +16,7 @@ from pathlib import Path
 from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.core.devices import maybe_init_distributed
 from igdrivsim.data.egos import add_egos_argument
+from igdrivsim.data.manifest import MANIFEST
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.evaluate import evaluate_references, evaluate_run
 from igdrivsim.io import require_folder
@@ -29,7 +30,7 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training run folder(s) (config.json + checkpoints); one output "
                              "sub-folder per run when several are given")
     parser.add_argument("--data", required=True, nargs="+", metavar="DATA",
-                        help="validation data: a filter output folder (manifest.jsonl) or "
+                        help=f"validation data: a filter output folder ({MANIFEST}) or "
                              "files of any format read (WOMD TFRecords, ScenarioNet .pkl, "
                              "GPUDrive .json; file, folder, glob, name@N); several locations "
                              "are read in turn, as one set")

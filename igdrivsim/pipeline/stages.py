@@ -27,6 +27,7 @@ from pathlib import Path
 
 from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
+from igdrivsim.data.manifest import MANIFEST
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import BC, METHODS, PER_SCENARIO_FILE
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
@@ -119,7 +120,7 @@ class Pipeline(Publisher, StageRunner):
             workers = ["--workers", 1] if self.in_process else []
             self.stage(f"filter_{split}", [["igdrivsim", "filter", src, "--out", out,
                                             *workers]],
-                       depends=["data"], outputs=[out / "manifest.jsonl"])
+                       depends=["data"], outputs=[out / MANIFEST])
             outs.append(out)
         return outs[0], outs[1]
 

@@ -16,8 +16,9 @@ import sys
 
 from igdrivsim.core.devices import maybe_init_distributed
 from igdrivsim.data.egos import EGO_MODES
-from igdrivsim.data.source import manifest_of
-from igdrivsim.errors import ConfigError, DataError, check_min
+from igdrivsim.data.manifest import MANIFEST
+from igdrivsim.data.source import check_data
+from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import require_folder
 from igdrivsim.observation import PRESETS, get_setting
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
@@ -38,7 +39,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=None,
                         help="number of seeds, vmapped (default: the profile's, 3 for laptop)")
     parser.add_argument("--data", required=True,
-                        help="training data: a folder (with a filter manifest.jsonl, or "
+                        help=f"training data: a folder (with a filter {MANIFEST}, or "
                              "files of any format read: TFRecords, ScenarioNet .pkl, GPUDrive "
                              ".json); a folder holding training/ and validation/ (as written by"
                              " `igdrivsim generate`) means its training/")
@@ -101,11 +102,9 @@ def resolve_config(args: argparse.Namespace):
 
 def resolve_data(data: str) -> str:
     """``DATA/training`` when DATA is a generated folder (``training/`` and ``validation/``)."""
-    if not os.path.exists(data) and not any(ch in data for ch in "*?@"):  # globs, name@N
-        raise DataError("training data not found", file=data)
+    check_data(data, "training")
     split = os.path.join(data, "training")
-    if (os.path.isdir(split) and os.path.isdir(os.path.join(data, "validation"))
-            and manifest_of(data) is None):
+    if os.path.isdir(split) and os.path.isdir(os.path.join(data, "validation")):
         print(f"igdrivsim train: using the training split {split} (validation/ is for "
               f"--val-data and evaluate)", file=sys.stderr)
         return split

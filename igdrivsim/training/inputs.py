@@ -24,6 +24,7 @@ import os
 import queue
 import threading
 from collections.abc import Iterator, Sequence
+from itertools import islice
 
 import jax
 import numpy as np
@@ -32,7 +33,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import place
 from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
-from igdrivsim.data.source import count_scenarios, data_identity, open_scenarios
+from igdrivsim.data.source import check_data, count_scenarios, data_identity, open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
@@ -47,14 +48,8 @@ from igdrivsim.training.records import (
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
                    chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
     """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
-    part: list[Scenario] = []
-    for rec in open_scenarios(data, caps, egos=egos, limit=max_scenarios):
-        part.append(rec.scenario)
-        if len(part) == chunk:
-            yield part
-            part = []
-    if part:
-        yield part
+    records = open_scenarios(data, caps, egos=egos, limit=max_scenarios)
+    return iter(lambda: [rec.scenario for rec in islice(records, chunk)], [])
 
 
 @functools.lru_cache(maxsize=8)
@@ -74,16 +69,12 @@ def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False
               total: int | None = None) -> SimState:
     """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
     ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
-    bar = None
-    if progress:
-        bar = tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True)
     parts = []
-    for scenarios in chunks:
-        parts.append(reset_chunk(scenarios, params, chunk))
-        if bar is not None:
+    with tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True,
+              disable=not progress) as bar:
+        for scenarios in chunks:
+            parts.append(reset_chunk(scenarios, params, chunk))
             bar.update(len(scenarios))
-    if bar is not None:
-        bar.close()
     if not parts:
         raise DataError("no training scenarios found")
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
@@ -125,8 +116,7 @@ class Dataset:
 
         def chunks():
             if isinstance(data, (str, os.PathLike)):
-                if not os.path.exists(data):
-                    raise DataError("training data not found", file=os.fspath(data))
+                check_data(data, "training")
                 return iter_scenarios(data, config.capacities, limit, chunk, d.egos)
             scenarios = list(data)[: limit or None]
             return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))

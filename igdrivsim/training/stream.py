@@ -25,7 +25,7 @@ import numpy as np
 from jax.sharding import NamedSharding
 
 from igdrivsim.data.scenario import Capacities, Scenario
-from igdrivsim.data.source import load_ref, scenario_refs
+from igdrivsim.data.source import check_data, load_ref, scenario_refs
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, read_json
 from igdrivsim.simulator import SimParams, SimState
@@ -49,13 +49,7 @@ class ScenarioIndex:
     def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0,
                   egos: str = "sdc") -> ScenarioIndex:
         """The scenarios :func:`~igdrivsim.data.source.open_scenarios` reads from ``data``."""
-        try:
-            files, refs = scenario_refs(data, limit, egos)
-        except DataError as err:
-            if err.problem != "no scenarios found":
-                raise
-            raise DataError("no training scenarios found", file=err.file) from None
-        return cls(files, refs, caps)
+        return cls(*scenario_refs(data, limit, egos), caps)
 
     def __len__(self) -> int:
         return len(self.refs)
@@ -116,8 +110,7 @@ class StreamDataset:
     def from_config(cls, config: RunConfig, data, params: SimParams) -> StreamDataset:
         d = config.data
         if isinstance(data, (str, os.PathLike)):
-            if not os.path.exists(data):
-                raise DataError("training data not found", file=os.fspath(data))
+            check_data(data, "training")
             source = ScenarioIndex.from_path(data, config.capacities, d.max_scenarios, d.egos)
         else:
             source = list(data)[: d.max_scenarios or None]

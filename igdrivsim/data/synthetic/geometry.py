@@ -71,27 +71,6 @@ def bezier_cubic(p0, t0, p1, t1, n: int) -> np.ndarray:
     return (1 - u) ** 3 * p0 + 3 * (1 - u) ** 2 * u * c0 + 3 * (1 - u) * u**2 * c1 + u**3 * p1
 
 
-def bezier_quad(p0, c, p1, n: int) -> np.ndarray:
-    p0, c, p1 = (np.asarray(v, float) for v in (p0, c, p1))
-    u = np.linspace(0.0, 1.0, n)[:, None]
-    return (1 - u) ** 2 * p0 + 2 * (1 - u) * u * c + u**2 * p1
-
-
-def line_intersection(p, u, q, v):
-    """Parameters ``(a, b)`` with ``p + a u = q + b v``, or ``None`` for (near-)parallel lines."""
-    m = np.array([[u[0], -v[0]], [u[1], -v[1]]], float)
-    if abs(np.linalg.det(m)) < 1e-6:
-        return None
-    a, b = np.linalg.solve(m, np.asarray(q, float) - np.asarray(p, float))
-    return float(a), float(b)
-
-
-def signed_area(poly: np.ndarray) -> float:
-    """Shoelace area; positive for counter-clockwise polygons."""
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-
-
 def concat(*pieces: np.ndarray) -> np.ndarray:
     """Join polylines, dropping a piece's first point when it repeats the previous end."""
     out = [pieces[0]]
