@@ -26,6 +26,14 @@ from maze.ppo import make_ppo
 from maze.rollout import evaluate
 
 
+def use_compile_cache(folder) -> None:
+    """Keep every compiled program in JAX's persistent compilation cache under ``folder`` (a
+    later run with the same programs loads them instead of compiling); set once per process,
+    before the first compilation."""
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
 def _key(cfg, *path: int) -> jax.Array:
     """The PRNG key of ``path`` under the study's base seed ``cfg.seed``."""
     return extended.stage_key(cfg.seed, *path)

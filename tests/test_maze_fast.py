@@ -79,7 +79,7 @@ class _CountingStudy:
         return np.zeros(n), np.zeros(n)
 
 
-@pytest.mark.parametrize("updates", [10, 40, 50, 80, 160])
+@pytest.mark.parametrize("updates", [10, 40, 50, 80, 160, 480, 490])
 def test_plateau_compares_points_evaluated_alike(updates):
     """The point the plateau test compares the final one with is evaluated with the final
     point's rounds (and no other point is)."""
@@ -89,11 +89,15 @@ def test_plateau_compares_points_evaluated_alike(updates):
         rows = pd.DataFrame(S.run_rl(fake, "rl_partial", True, bar)["records"])
     chunks = updates // cfg.chunk_updates
     compared = extended.plateau_point(chunks)
-    assert len(fake.rounds) == chunks + 1
-    assert [i for i, r in enumerate(fake.rounds) if r > 1] == sorted({compared, chunks})
+    every = max(1, chunks // cfg.rl_curve_points)
+    evaluated = sorted({c for c in range(0, chunks + 1, every)} | {compared, chunks})
+    assert len(fake.rounds) == len(evaluated)
+    assert [evaluated[i] for i, r in enumerate(fake.rounds) if r > 1] == sorted(
+        {compared, chunks})
     assert set(fake.rounds) <= {1, cfg.final_eval_rounds}
+    # the points' progress is their chunk's fraction of the run
+    assert sorted(rows.progress.unique()) == pytest.approx([c / chunks for c in evaluated])
     # plateau() compares the final point with exactly that point
-    progress = sorted(rows.progress.unique())
     rise = rows.assign(**{"return": rows.progress.map(
-        lambda p: 1.0 if p == progress[-1] else (0.5 if p == progress[compared] else 0.0))})
+        lambda p: 1.0 if p == 1 else (0.5 if p == pytest.approx(compared / chunks) else 0.0))})
     assert extended.plateau(rise, "rl_partial", 0.1)["rise_last_quarter"] == pytest.approx(0.5)
