@@ -7,6 +7,7 @@ one compilation; :meth:`Study.warm` compiles them all first, on the lanes.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Sequence
@@ -28,9 +29,11 @@ from maze.rollout import evaluate
 
 def use_compile_cache(folder) -> None:
     """Keep every compiled program in JAX's persistent compilation cache under ``folder`` (a
-    later run with the same programs loads them instead of compiling); set once per process,
-    before the first compilation."""
-    jax.config.update("jax_compilation_cache_dir", str(folder))
+    later run with the same programs loads them instead of compiling; a cache named by
+    ``JAX_COMPILATION_CACHE_DIR``, the pipeline's, is kept); set once per process, before the
+    first compilation. The entries' keys include the folder's path."""
+    if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 

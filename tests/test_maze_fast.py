@@ -1,10 +1,14 @@
 """The maze evaluation's early stop changes no number: it stops once every episode has ended,
 with the returns and lengths of stepping ``max_steps`` times (small shapes: 7x7 maze, GRU-8).
-The plateau test compares two points evaluated alike."""
+The plateau test compares two points evaluated alike. A second process loads the programs the
+first compiled from the persistent compilation cache."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 import types
 
 import jax
@@ -101,3 +105,22 @@ def test_plateau_compares_points_evaluated_alike(updates):
     rise = rows.assign(**{"return": rows.progress.map(
         lambda p: 1.0 if p == 1 else (0.5 if p == pytest.approx(compared / chunks) else 0.0))})
     assert extended.plateau(rise, "rl_partial", 0.1)["rise_last_quarter"] == pytest.approx(0.5)
+
+
+COMPILE_ONE = """
+import sys, jax.numpy as jnp
+from maze.compiled import Program, use_compile_cache
+use_compile_cache(sys.argv[1])
+Program(lambda x: jnp.cumsum(x * 2.0) + 1.0).executable(jnp.ones(7))
+"""
+
+
+def test_a_second_run_loads_the_compiled_programs(tmp_path):
+    """Every program compiled by one process is found in the cache by the next (no new entry)."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    cache = tmp_path / "xla-cache"
+    counts = []
+    for _ in range(2):
+        subprocess.run([sys.executable, "-c", COMPILE_ONE, str(cache)], check=True, env=env)
+        counts.append(sorted(p.name for p in cache.iterdir()))
+    assert counts[0] and counts[1] == counts[0]
