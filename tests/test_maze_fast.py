@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import subprocess
 import sys
 import types
@@ -116,11 +117,12 @@ Program(lambda x: jnp.cumsum(x * 2.0) + 1.0).executable(jnp.ones(7))
 
 
 def test_a_second_run_loads_the_compiled_programs(tmp_path):
-    """Every program compiled by one process is found in the cache by the next (no new entry)."""
+    """Every program compiled by one process is found by the next in a copy of the cache (no
+    new entry)."""
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    cache = tmp_path / "xla-cache"
-    counts = []
-    for _ in range(2):
-        subprocess.run([sys.executable, "-c", COMPILE_ONE, str(cache)], check=True, env=env)
-        counts.append(sorted(p.name for p in cache.iterdir()))
-    assert counts[0] and counts[1] == counts[0]
+    first, second = tmp_path / "xla-cache", tmp_path / "moved" / "xla-cache"
+    subprocess.run([sys.executable, "-c", COMPILE_ONE, str(first)], check=True, env=env)
+    shutil.copytree(first, second)
+    subprocess.run([sys.executable, "-c", COMPILE_ONE, str(second)], check=True, env=env)
+    names = sorted(p.name for p in first.iterdir())
+    assert names and sorted(p.name for p in second.iterdir()) == names
