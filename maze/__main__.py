@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
         args.profile = "smoke"
 
     def body() -> None:
+        if args.compile_cache:
+            study.use_compile_cache(args.work / "xla-cache")
         summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
                                   progress=not args.no_progress,
                                   command=study.command_text("python -m maze", argv))

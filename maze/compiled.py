@@ -7,6 +7,7 @@ one compilation; :meth:`Study.warm` compiles them all first, on the lanes.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Sequence
@@ -24,6 +25,19 @@ from maze.mixed import make_mixed
 from maze.network import init_stacked, make_policy, without_aux
 from maze.ppo import make_ppo
 from maze.rollout import evaluate
+
+
+def use_compile_cache(folder) -> None:
+    """Keep every compiled program in JAX's persistent compilation cache under ``folder`` (a
+    later run with the same programs loads them instead of compiling; a cache named by
+    ``JAX_COMPILATION_CACHE_DIR``, the pipeline's, is kept); set once per process, before the
+    first compilation. On a CPU the cache holds no GPU autotuning folder, whose path would enter
+    every entry's key: a copied or moved cache is found as well."""
+    if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    if jax.default_backend() == "cpu":
+        jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
 
 
 def _key(cfg, *path: int) -> jax.Array:

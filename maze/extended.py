@@ -35,15 +35,15 @@ def stage_key(seed: int, *path: int) -> jax.Array:
 
 def records(curve: str, unit: str, points: list, seeds: int | Sequence[int]) -> list[dict]:
     """Tidy rows ``(curve, seed, progress, step, unit, return, length, final)``; ``seeds``: the
-    seeds of the points' rows (a count: ``range(seeds)``)."""
+    seeds of the points' rows (a count: ``range(seeds)``); ``progress``: step / the last step."""
     seeds = range(seeds) if isinstance(seeds, int) else seeds
     rows = []
     last = len(points) - 1
     for i, (step, ret, length) in enumerate(points):
         for r, s in enumerate(seeds):
-            rows.append({"curve": curve, "seed": int(s), "progress": i / last, "step": step,
-                         "unit": unit, "return": float(ret[r]), "length": float(length[r]),
-                         "final": i == last})
+            rows.append({"curve": curve, "seed": int(s), "progress": step / points[-1][0],
+                         "step": step, "unit": unit, "return": float(ret[r]),
+                         "length": float(length[r]), "final": i == last})
     return rows
 
 

@@ -49,7 +49,7 @@ from igdrivsim.lanes import Job, run_jobs
 from igdrivsim.machine import code_state, machine_record
 from maze import extended, report
 from maze.bc import BCConfig
-from maze.compiled import Program, Study, _key  # noqa: F401 (Program: re-exported)
+from maze.compiled import Program, Study, _key, use_compile_cache  # noqa: F401 (Program: re-exported)
 from maze.dagger import DAggerConfig
 from maze.env import make_params
 from maze.extended import records as _records
@@ -91,6 +91,7 @@ class StudyConfig:
     bc_chunk_epochs: int = 1  # epochs between evaluations of the BC curves
     eval_episodes: int = 128
     final_eval_rounds: int = 8  # the final point (and the plateau test's): 1,024 episodes
+    rl_curve_points: int = 12  # an RL curve is evaluated every max(1, chunks // this) chunks
     baselines: bool = True  # Fig. 2b: DAgger, BC+PPO, ADVISOR (full expert -> partial student)
     dagger: DAggerConfig = DAggerConfig()
     mixed: MixedConfig = MixedConfig(alpha=MAZE_ADVISOR_ALPHA)
@@ -105,6 +106,8 @@ class StudyConfig:
             raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
         if self.seed_parts < 1:
             raise ConfigError(f"seed_parts must be >= 1, got {self.seed_parts}")
+        if self.rl_curve_points < 1:
+            raise ConfigError(f"rl_curve_points must be >= 1, got {self.rl_curve_points}")
         if self.hidden < 1:
             raise ConfigError(f"--hidden must be >= 1, got {self.hidden}")
         for name in ("rl_full_updates", "rl_partial_updates") + (
@@ -159,14 +162,17 @@ def run_rl(study: Study, name: str, partial: bool, bar: tqdm, updates: int | Non
     # the final point and the one the plateau test compares it with: final_eval_rounds rounds
     rounds = {n_chunks: cfg.final_eval_rounds, extended.plateau_point(n_chunks):
               cfg.final_eval_rounds}
+    every = max(1, n_chunks // cfg.rl_curve_points)
     points = [(0, *study.eval_rows(state.params, partial, eval_key, rounds.get(0, 1), seeds))]
     t0 = time.perf_counter()
-    for c in range(n_chunks):
+    for c in range(1, n_chunks + 1):
         state, _ = study.ppo_chunk(state)
-        ret, length = study.eval_rows(state.params, partial, jax.random.fold_in(eval_key, c + 1),
-                                      rounds.get(c + 1, 1), seeds)
-        points.append(((c + 1) * cfg.chunk_updates * cfg.ppo.steps_per_update, ret, length))
         bar.update(1)
+        if c % every and c not in rounds:
+            continue
+        ret, length = study.eval_rows(state.params, partial, jax.random.fold_in(eval_key, c),
+                                      rounds.get(c, 1), seeds)
+        points.append((c * cfg.chunk_updates * cfg.ppo.steps_per_update, ret, length))
         bar.set_postfix_str(f"{name} return {ret.mean():.2f}")
     seconds = time.perf_counter() - t0
     return {"records": _records(name, "env_steps_per_seed", points, seeds),
@@ -457,6 +463,9 @@ def study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-baselines", dest="baselines", action="store_false", default=None,
                         help="only the paper's five curves (skip DAgger, BC+PPO, ADVISOR)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-compile-cache", dest="compile_cache", action="store_false",
+                        help="compile every program (default: reuse those in WORK/xla-cache, "
+                             "JAX's persistent compilation cache)")
 
 
 def resolve(args: argparse.Namespace) -> StudyConfig:
@@ -471,6 +480,8 @@ def study_command(args: argparse.Namespace) -> int:
         for path in replot(args.out):
             print(f"wrote {path}")
         return 0
+    if args.compile_cache:
+        use_compile_cache(args.work / "xla-cache")
     run_study(resolve(args), args.out, args.work, args.force, progress=not args.no_progress,
               command=command_text("python -m maze.study", args.argv))
     return 0

@@ -1,10 +1,15 @@
 """The maze evaluation's early stop changes no number: it stops once every episode has ended,
 with the returns and lengths of stepping ``max_steps`` times (small shapes: 7x7 maze, GRU-8).
-The plateau test compares two points evaluated alike."""
+The plateau test compares two points evaluated alike. A second process loads the programs the
+first compiled from the persistent compilation cache."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
+import subprocess
+import sys
 import types
 
 import jax
@@ -79,7 +84,7 @@ class _CountingStudy:
         return np.zeros(n), np.zeros(n)
 
 
-@pytest.mark.parametrize("updates", [10, 40, 50, 80, 160])
+@pytest.mark.parametrize("updates", [10, 40, 50, 80, 160, 480, 490])
 def test_plateau_compares_points_evaluated_alike(updates):
     """The point the plateau test compares the final one with is evaluated with the final
     point's rounds (and no other point is)."""
@@ -89,11 +94,35 @@ def test_plateau_compares_points_evaluated_alike(updates):
         rows = pd.DataFrame(S.run_rl(fake, "rl_partial", True, bar)["records"])
     chunks = updates // cfg.chunk_updates
     compared = extended.plateau_point(chunks)
-    assert len(fake.rounds) == chunks + 1
-    assert [i for i, r in enumerate(fake.rounds) if r > 1] == sorted({compared, chunks})
+    every = max(1, chunks // cfg.rl_curve_points)
+    evaluated = sorted({c for c in range(0, chunks + 1, every)} | {compared, chunks})
+    assert len(fake.rounds) == len(evaluated)
+    assert [evaluated[i] for i, r in enumerate(fake.rounds) if r > 1] == sorted(
+        {compared, chunks})
     assert set(fake.rounds) <= {1, cfg.final_eval_rounds}
+    # the points' progress is their chunk's fraction of the run
+    assert sorted(rows.progress.unique()) == pytest.approx([c / chunks for c in evaluated])
     # plateau() compares the final point with exactly that point
-    progress = sorted(rows.progress.unique())
     rise = rows.assign(**{"return": rows.progress.map(
-        lambda p: 1.0 if p == progress[-1] else (0.5 if p == progress[compared] else 0.0))})
+        lambda p: 1.0 if p == 1 else (0.5 if p == pytest.approx(compared / chunks) else 0.0))})
     assert extended.plateau(rise, "rl_partial", 0.1)["rise_last_quarter"] == pytest.approx(0.5)
+
+
+COMPILE_ONE = """
+import sys, jax.numpy as jnp
+from maze.compiled import Program, use_compile_cache
+use_compile_cache(sys.argv[1])
+Program(lambda x: jnp.cumsum(x * 2.0) + 1.0).executable(jnp.ones(7))
+"""
+
+
+def test_a_second_run_loads_the_compiled_programs(tmp_path):
+    """Every program compiled by one process is found by the next in a copy of the cache (no
+    new entry)."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    first, second = tmp_path / "xla-cache", tmp_path / "moved" / "xla-cache"
+    subprocess.run([sys.executable, "-c", COMPILE_ONE, str(first)], check=True, env=env)
+    shutil.copytree(first, second)
+    subprocess.run([sys.executable, "-c", COMPILE_ONE, str(second)], check=True, env=env)
+    names = sorted(p.name for p in first.iterdir())
+    assert names and sorted(p.name for p in second.iterdir()) == names
