@@ -246,7 +246,7 @@ def test_readme_output_layout_is_what_the_pipeline_writes():
 
 
 def test_readme_names_runs_as_the_pipeline_splits_them():
-    from igdrivsim.evaluation.schema import SETTINGS
+    from igdrivsim.names import SETTINGS
     from igdrivsim.pipeline import planning
 
     parts = planning.split_grid(["bc", "bc_rl"], SETTINGS, 4,

@@ -48,8 +48,9 @@ from pathlib import Path
 from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.schema import BC, METHODS, PER_SCENARIO_FILE
+from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
+from igdrivsim.names import BC, METHODS
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
 from igdrivsim.pipeline import planning

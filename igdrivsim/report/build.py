@@ -33,8 +33,8 @@ from pathlib import Path
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
-from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
+from igdrivsim.names import BC_RL, REFERENCES, setting_labels
 from igdrivsim.report import methods_table
 from igdrivsim.report.figures import (
     fig3_metrics,

@@ -20,15 +20,9 @@ import pandas as pd
 
 from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import (
-    BC_RL,
-    CONSTANT_VELOCITY,
-    METRIC_BY_KEY,
-    STEP_METRICS,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, STEP_METRICS, table_settings
 from igdrivsim.io import atomic_write_text
+from igdrivsim.names import BC_RL, CONSTANT_VELOCITY, setting_short
 from igdrivsim.report.results_tex import bc_means, read_table
 
 FULL = "full"

@@ -36,17 +36,16 @@ import seaborn as sns  # noqa: E402
 from matplotlib.container import BarContainer  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import (  # noqa: E402
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, table_settings  # noqa: E402
+from igdrivsim.io import atomic_savefig  # noqa: E402
+from igdrivsim.names import (  # noqa: E402
     BC,
     BC_RL,
     CONSTANT_VELOCITY,
     EXPERT,
     METHOD_LABELS,
-    METRIC_BY_KEY,
     setting_short,
-    table_settings,
 )
-from igdrivsim.io import atomic_savefig  # noqa: E402
 from igdrivsim.report import plots  # noqa: E402
 from igdrivsim.report.methods_table import (  # noqa: E402
     extended_methods,

@@ -19,17 +19,15 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_methods
-from igdrivsim.evaluation.schema import (
+from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING, table_settings
+from igdrivsim.names import (
     BC,
     BC_RL,
     LEARNED,
     METHOD_COLOURS,
     METHOD_LABELS,
-    METRICS,
-    REFERENCE_SETTING,
     REFERENCES,
     setting_short,
-    table_settings,
 )
 from igdrivsim.report.tables import (
     MISSING,

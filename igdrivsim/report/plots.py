@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, CONFIDENCE, t_interval
-from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS
+from igdrivsim.names import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS
 
 Cell = tuple[str, str]  # (setting, method)
 

@@ -39,17 +39,9 @@ from igdrivsim.evaluation.aggregate import (
     paired_difference,
     summarize,
 )
-from igdrivsim.evaluation.schema import (
-    BC,
-    BC_RL,
-    METHOD_LABELS,
-    METRIC_BY_KEY,
-    REFERENCE_SETTING,
-    REFERENCES,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)

@@ -34,20 +34,22 @@ from igdrivsim.errors import ConfigError, DataError, run_command
 from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
 from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
-    BC,
-    CONSTANT_VELOCITY,
     EVAL_CONFIG,
-    EXPERT,
-    METHOD_LABELS,
     METRIC_BY_KEY,
     PER_SCENARIO_FILE,
-    REFERENCES,
-    SETTINGS,
     STEP_METRICS,
-    setting_short,
     table_settings,
 )
 from igdrivsim.io import atomic_write_text, read_json
+from igdrivsim.names import (
+    BC,
+    CONSTANT_VELOCITY,
+    EXPERT,
+    METHOD_LABELS,
+    REFERENCES,
+    SETTINGS,
+    setting_short,
+)
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric

@@ -11,14 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.evaluation.schema import (
-    BC,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    REFERENCE_SETTING,
-    setting_short,
-)
+from igdrivsim.evaluation.schema import REFERENCE_SETTING
+from igdrivsim.names import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report.real_logs import real_logs_summary
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.text import wrap

@@ -18,19 +18,9 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.schema import (
-    BC,
-    BC_RL,
-    COMPETENCE,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    PAPER_TABLE1,
-    REFERENCE_SETTING,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import COMPETENCE, PAPER_TABLE1, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
+from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report import methods_table
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text

@@ -22,8 +22,9 @@ import pandas as pd
 
 from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import CONSTANT_VELOCITY, PER_SCENARIO_FILE
+from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
 from igdrivsim.io import atomic_write_text
+from igdrivsim.names import CONSTANT_VELOCITY
 
 # the fields a variant's compute per update scales with (and the updates it trained)
 _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))

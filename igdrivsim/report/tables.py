@@ -15,19 +15,16 @@ import math
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME
-from igdrivsim.evaluation.schema import (
+from igdrivsim.evaluation.schema import METRICS, PAPER_TABLE1, REFERENCE_SETTING, table_settings
+from igdrivsim.names import (
     BC,
     BC_RL,
     METHOD_LABELS,
-    METRICS,
-    PAPER_TABLE1,
-    REFERENCE_SETTING,
     REFERENCES,
     SETTING_SHORT,
     SETTINGS,
     setting_labels,
     setting_short,
-    table_settings,
 )
 
 MISSING = "--"

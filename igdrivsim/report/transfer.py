@@ -37,18 +37,10 @@ from igdrivsim.evaluation.aggregate import (
     scenario_cube,
 )
 from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
-from igdrivsim.evaluation.schema import (
-    BC,
-    CONSTANT_VELOCITY,
-    EVAL_CONFIG,
-    METHOD_LABELS,
-    PER_SCENARIO_FILE,
-    REFERENCES,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, table_settings
 from igdrivsim.io import atomic_write_text, read_json
 from igdrivsim.machine import code_label, code_state
+from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
 
 METRICS = ("log_divergence", "offroad", "overlap")
