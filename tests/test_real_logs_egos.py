@@ -10,14 +10,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from igdrivsim import cli
 from igdrivsim.report.real_logs import (
-    main,
     paired_cells,
     real_log_table,
     real_logs_markdown,
     real_logs_summary,
     table_from_markdown,
 )
+
+
+def main(argv):
+    return cli.main(["report", "real-logs", *argv])
+
 
 COLUMNS = dict(overlap_steps=0.0, offroad_steps=0.0, max_log_divergence=9.0, overlap=0,
                offroad=0)

@@ -242,12 +242,15 @@ def test_real_log_table_measures_each_driver_against_constant_velocity():
 def test_real_log_summary_says_who_drifts_farther_than_constant_velocity(tmp_path):
     """The abstract's sentence is computed from the table, and a written real_logs.md gives
     back the table's numbers (``--from-markdown``)."""
+    from igdrivsim.cli import main as cli_main
     from igdrivsim.report.real_logs import (
-        main,
         real_logs_markdown,
         real_logs_summary,
         table_from_markdown,
     )
+
+    def main(argv):
+        return cli_main(["report", "real-logs", *argv])
 
     table = pd.DataFrame([
         dict(setting="full", method="bc", real_log_divergence=6.5, real_n=6,

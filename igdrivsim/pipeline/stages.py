@@ -209,7 +209,7 @@ class Pipeline(Publisher, StageRunner):
         """Table I's companion: every driver under log-replay and IDM sim agents
         (:mod:`igdrivsim.report.reactive`, tables/reactive.md and Fig. 7)."""
         self.stage("reactive", [[
-            "python", "-m", "igdrivsim.report.reactive", "--log", self.work / "evals",
+            "igdrivsim", "report", "reactive", "--log", self.work / "evals",
             "--idm", self.work / "evals_idm", "--out", self.staged]],
             depends=["evaluate_references", "evaluate_references_idm",
                      *[f"evaluate_{p}{s}" for p in parts for s in ("", "_idm")]],
@@ -298,7 +298,7 @@ class Pipeline(Publisher, StageRunner):
         if full_bc is not None:
             commands += [["igdrivsim", "evaluate", self.work / "runs" / full_bc, "--out",
                           readouts / mode, "--actions", mode, *common] for mode in READOUTS]
-        commands += [["python", "-m", "igdrivsim.report.real_logs", "--real", out,
+        commands += [["igdrivsim", "report", "real-logs", "--real", out,
                       "--synthetic", self.work / "evals", "--out", self.staged / "tables",
                       "--real-label", self.samples_label, "--synthetic-label", self.data_label,
                       *(["--readouts", readouts] if full_bc is not None else [])]]

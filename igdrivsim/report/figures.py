@@ -14,13 +14,12 @@ loss, closed-loop validation metrics every K updates) against the update, one co
 setting, so a reader sees whether training converged; constant velocity and the expert replay
 are drawn as horizontal references when their evaluation is available.
 
-``python -m igdrivsim.report.figures [PAPER]`` redraws Fig. 3, 5 (and 6 when its methods'
+``igdrivsim report figures [PAPER]`` redraws Fig. 3, 5 (and 6 when its methods'
 numbers are there) from the report's tables (``PAPER/tables/*.csv``), without the evaluations.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from collections.abc import Iterable, Sequence
@@ -413,17 +412,3 @@ def redraw_from_tables(paper: str | Path) -> list[Path]:
     if tests_all is not None and extended_methods(main):
         written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
     return written
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.figures",
-                                     description="redraw Fig. 3, 5 and 6 from the report's "
-                                                 "tables (PAPER/tables/*.csv)")
-    parser.add_argument("paper", nargs="?", default="paper", help="the report folder")
-    for path in redraw_from_tables(parser.parse_args(argv).paper):
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -16,7 +16,7 @@ PDF (``generated/run.tex``) carry the same in one line.
 Schema 1 entries (no ``stages``: published before per-stage provenance) stay readable; their
 ``commit`` is the commit at publishing.
 
-``python -m igdrivsim.report.provenance backfill [--paper DIR]`` derives the entries of
+``igdrivsim report provenance backfill [--paper DIR]`` derives the entries of
 committed files that have none from recorded metadata only: the commit that last wrote each
 file (``git log``), the report's ``generated/provenance.tex`` and the training profile as of
 that commit, the maze study's ``maze_config.json``.
@@ -24,19 +24,17 @@ that commit, the maze study's ``maze_config.json``.
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 import fnmatch
 import json
 import re
 import shlex
 import subprocess
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import (  # noqa: F401 (re-exported: the stamps' code)
     CODE_KEYS,
@@ -400,43 +398,15 @@ def today() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
-def main(argv: Iterable[str] | None = None) -> int:
-    """``backfill``: derive the missing entries from recorded metadata; ``check``: list the
-    outputs without an entry and the entries without their stage commits (exit 1 when there is
-    one; entries published before per-stage provenance are counted, not failed); ``derived
-    FILE... --from SOURCE --command CMD``: record files that CMD wrote from SOURCE's numbers
-    outside the pipeline; ``maze``: record the outputs of ``python -m maze --out PAPER`` run
-    alone (:func:`record_maze`)."""
-    repo = Path(__file__).resolve().parents[2]
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.provenance",
-                                     description=main.__doc__, formatter_class=FORMATTER)
-    parser.add_argument("action", choices=("backfill", "check", "derived", "maze"),
-                        help="backfill the missing entries, check them, record derived "
-                             "files, or record a maze study run alone")
-    parser.add_argument("files", nargs="*", metavar="FILE",
-                        help="derived: the files written (relative to --paper)")
-    parser.add_argument("--from", dest="source", default=None, metavar="SOURCE",
-                        help="derived: the file (relative to --paper) whose numbers they hold")
-    parser.add_argument("--command", default=None, help="derived: the command that wrote them")
-    parser.add_argument("--paper", default=str(repo / "paper"), help="the report folder")
-    args = parser.parse_args(list(argv) if argv is not None else None)
-
-    def body() -> int:
-        paper = Path(args.paper).resolve()
-        if args.action == "derived":
-            if not (args.files and args.source and args.command):
-                raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
-            for rel in derived(paper, args.files, args.source, args.command, repo):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
-        if args.action == "maze":
-            for rel in record_maze(paper):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
-        if args.action == "backfill":
-            for rel in backfill(paper, repo):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
+def provenance_command(args, repo: Path) -> int:
+    """``igdrivsim report provenance``: ``backfill`` derives the missing entries from recorded
+    metadata; ``check`` lists the outputs without an entry and the entries without their stage
+    commits (exit 1 when there is one; entries published before per-stage provenance are
+    counted, not failed); ``derived FILE... --from SOURCE --command CMD`` records files that CMD
+    wrote from SOURCE's numbers outside the pipeline; ``maze`` records the outputs of
+    ``python -m maze --out PAPER`` run alone (:func:`record_maze`)."""
+    paper = Path(args.paper).resolve()
+    if args.task == "check":
         lacking = missing(paper)
         problems, legacy = stage_check(load(paper))
         for line in [f"{rel}: no provenance entry" for rel in lacking] + problems:
@@ -444,9 +414,12 @@ def main(argv: Iterable[str] | None = None) -> int:
         if legacy:
             print(f"{len(legacy)} file(s): {LEGACY}")
         return 1 if lacking or problems else 0
-
-    return run_command("provenance", body)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    if args.task == "derived":
+        if not (args.files and args.source and args.command):
+            raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
+        written = derived(paper, args.files, args.source, args.command, repo)
+    else:
+        written = record_maze(paper) if args.task == "maze" else backfill(paper, repo)
+    for rel in written:
+        print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
+    return 0

@@ -13,22 +13,20 @@ over every cell of the table; bold where significant.
 Metrics: Table I's per-scenario ones (overlap rate, offroad rate, max log divergence) and the
 registry's at-fault overlap (nuPlan's rule: no rear or side hits; docs/metrics.md).
 
-``python -m igdrivsim.report.reactive --log DIR --idm DIR --out PAPER`` writes
+``igdrivsim report reactive --log DIR --idm DIR --out PAPER`` writes
 ``tables/reactive.md``, ``tables/reactive.csv`` and ``figures/fig7_reactive.{pdf,png}`` (the
 pipeline's ``reactive`` stage).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from igdrivsim.errors import DataError, run_command
+from igdrivsim.errors import DataError
 from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.aggregate import (
     ALPHA,
@@ -208,21 +206,3 @@ def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path, header: str
                atomic_write_text(out / "tables" / "reactive.md",
                                  reactive_markdown(table, header))]
     return written + reactive_figure(table, out / "figures")
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.reactive",
-                                     description=__doc__.split("\n\n")[0])
-    parser.add_argument("--log", nargs="+", required=True, metavar="DIR",
-                        help="evaluations with log-replay agents (Table I's)")
-    parser.add_argument("--idm", nargs="+", required=True, metavar="DIR",
-                        help="the same drivers evaluated with --agents idm")
-    parser.add_argument("--out", required=True, help="report folder (tables/, figures/)")
-    args = parser.parse_args(argv)
-    for path in build(args.log, args.idm, args.out):
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(run_command("python -m igdrivsim.report.reactive", main))

@@ -15,7 +15,7 @@ minimum detectable effect, with 95% intervals from a bootstrap over source scena
 seeds, and the numbers of egos and of source scenarios. A third table gives Full BC under
 Table I's sampled actions beside its greedy and mean read-outs (``--readouts``).
 
-``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
+``igdrivsim report real-logs --real DIR --synthetic DIR --out TABLES`` writes
 ``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` (and the read-outs'
 ``real_logs_readouts.csv``) and a one-sentence
 summary for the report's abstract, ``real_logs_summary.tex`` (the pipeline's ``real_logs``
@@ -24,13 +24,11 @@ stage); ``--from-markdown real_logs.md`` rebuilds the last two from a written ta
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import ConfigError, DataError, run_command
+from igdrivsim.errors import DataError
 from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
 from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
@@ -400,40 +398,3 @@ def table_from_markdown(text: str) -> pd.DataFrame:
     if not rows:
         raise DataError("real_logs.md: no table rows found")
     return pd.DataFrame(rows)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.real_logs",
-                                     description=__doc__.splitlines()[0])
-    parser.add_argument("--real", default=None, help="evaluations on real logs (folder)")
-    parser.add_argument("--from-markdown", default=None, metavar="FILE",
-                        help="instead of evaluations: rebuild real_logs.csv and "
-                             "real_logs_summary.tex from a written real_logs.md")
-    parser.add_argument("--synthetic", dest="validation", default=None,
-                        help="evaluations on the (synthetic) validation set (folder)")
-    parser.add_argument("--readouts", default=None, metavar="DIR",
-                        help="Full BC evaluated on the real logs under other action read-outs "
-                             "(one folder each: igdrivsim evaluate --actions greedy|mean)")
-    parser.add_argument("--out", required=True, help="tables folder")
-    parser.add_argument("--real-label", default="real scenarios", help="what the real data are")
-    parser.add_argument("--synthetic-label", dest="validation_label",
-                        default="synthetic validation scenarios",
-                        help="what the validation data are")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        if args.from_markdown:
-            text = Path(args.from_markdown).read_text(encoding="utf-8")
-            paths = write_numbers(table_from_markdown(text), Path(args.out))
-        elif args.real:
-            paths = write_tables(args.real, args.validation, args.out, args.real_label,
-                                 args.validation_label, args.readouts)
-        else:
-            raise ConfigError("give --real DIR (evaluations) or --from-markdown FILE")
-        print("wrote " + ", ".join(map(str, paths)))
-
-    return run_command("real_logs", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,21 +9,17 @@ updates x batch x passes), and the closed-loop metrics: log divergence as the me
 with the range of the seed means, and its ratio to constant velocity's on the same scenarios
 when ``--references`` gives that actor's evaluation.
 
-``python -m igdrivsim.report.sweep SWEEP [--references EVAL_DIR] [--out FILE]``
+``igdrivsim report sweep SWEEP [--references EVAL_DIR] [--out FILE]``
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
-from igdrivsim.io import atomic_write_text
 from igdrivsim.names import CONSTANT_VELOCITY
 
 # the fields a variant's compute per update scales with (and the updates it trained)
@@ -101,27 +97,3 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
     lines += ["| " + " | ".join(str(v) for v in row) + " |"
               for row in table.itertuples(index=False)]
     return head + "\n".join(lines) + "\n"
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.sweep",
-                                     description=" ".join(__doc__.split("\n\n")[0].split()),
-                                     formatter_class=FORMATTER)
-    parser.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
-    parser.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
-                        help="`igdrivsim evaluate --references` output on the same data "
-                             "(default: none, no ratio to constant velocity)")
-    parser.add_argument("--out", type=Path, help="also write the markdown here")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        text = sweep_markdown(args.sweep, args.references)
-        if args.out:
-            atomic_write_text(args.out, text)
-        print(text)
-
-    return run_command("sweep", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

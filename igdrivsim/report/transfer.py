@@ -18,18 +18,16 @@ constant velocity and with the expert ego by ego, the statistics that survive he
 median paired difference and the mean ratio with its minimum detectable effect, with 95%
 intervals from a bootstrap over source scenarios, then seeds, and N egos and source scenarios.
 
-``python -m igdrivsim.report.transfer WORK --out WORK/transfer.md``
+``igdrivsim report transfer WORK --out WORK/transfer.md``
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.aggregate import (
     complete_scenarios,
     load_evaluations,
@@ -38,7 +36,7 @@ from igdrivsim.evaluation.aggregate import (
 )
 from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
 from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, table_settings
-from igdrivsim.io import atomic_write_text, read_json
+from igdrivsim.io import read_json
 from igdrivsim.machine import code_label, code_state
 from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
@@ -180,7 +178,7 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         "# Full BC trained on each synthetic motion model, against constant velocity",
         "",
         "Written by `bash scripts/transfer_check.sh WORK MOTION` "
-        "(`python -m igdrivsim.report.transfer`). Laptop profile, 3 seeds, 1,000 updates. "
+        "(`igdrivsim report transfer`). Laptop profile, 3 seeds, 1,000 updates. "
         "Means are over seeds of each seed's mean over the N scenarios; differences with a "
         "95% hierarchical-bootstrap interval (seeds, then paired scenarios; egos of one source "
         "scenario together), its p-value and "
@@ -223,30 +221,3 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
                   "", *code,
                   f"- this table: written at {code_label(code_state())}"]
     return "\n".join(lines) + "\n"
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m igdrivsim.report.transfer",
-        description="Full BC of each synthetic motion model against constant velocity, on "
-                    "synthetic validation and real logs (scripts/transfer_check.sh's table).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("work", type=Path, help="the folder holding one sub-folder per motion")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="the markdown file (default: print only)")
-    args = parser.parse_args(argv)
-
-    def body() -> int:
-        found = evaluations(args.work)
-        text = markdown(against_constant_velocity(found), between_motions(found),
-                        code_lines(args.work), ego_by_ego(found))
-        if args.out is not None:
-            atomic_write_text(args.out, text)
-        print(text, end="")
-        return 0
-
-    return run_command("python -m igdrivsim.report.transfer", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
