@@ -1,13 +1,8 @@
 """Two runs' Table I beside each other: what changed in the benchmark's conclusions.
 
-Reads two report folders (``summary.csv`` and ``tests.csv`` of ``igdrivsim report``; a committed
-``paper/tables`` of any commit, e.g. extracted with ``git show REV:paper/tables/summary.csv``)
-and prints, per Table I metric, the reference constant-velocity level, BC's setting order, the
-observation gap (each partial setting's BC mean minus Full's) and BC-RL - BC with its minimum
-detectable effect (``*``: significant after Holm). It says how a change of data, profile or code
-moved the conclusions a reader takes from Table I, not only its cells.
-
-``igdrivsim report compare OLD_TABLES NEW_TABLES [--labels OLD NEW] [--out FILE]``
+Per Table I metric, from two report tables folders (``summary.csv``, ``tests.csv``): constant
+velocity's level, BC's setting order, the observation gap to Full and BC-RL - BC with its
+minimum detectable effect (``igdrivsim report compare OLD NEW``).
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """Fig. 3 (per-step metrics of BC versus BC-RL), Fig. 4 (learning curves), Fig. 5
 (supplementary metrics) and Fig. 6 (every learned method).
 
-Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`): settings on the x axis, a bar
-per method (BC blue, BC-RL orange as in the paper, other methods in their registry colour),
-mean over seeds with the 95% t-interval over seed means clipped to the metric's range (the
-numbers of the tables), an asterisk where a method differs from BC after the Holm correction
-(``tests``: the report's ``tests.csv`` / ``tests_all.csv``), constant velocity and the expert
-as labelled horizontal lines. The figure's ``marked`` attribute maps each panel's metric to its
-asterisked ``(setting, method)`` cells.
-
-Fig. 4: what each training run logged in its ``curves.jsonl`` (teacher-forced validation BC
-loss, closed-loop validation metrics every K updates) against the update, one column per
-setting, so a reader sees whether training converged; constant velocity and the expert replay
-are drawn as horizontal references when their evaluation is available.
-
-``igdrivsim report figures [PAPER]`` redraws Fig. 3, 5 (and 6 when its methods'
-numbers are there) from the report's tables (``PAPER/tables/*.csv``), without the evaluations.
+Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`); the figure's ``marked``
+attribute maps each panel's metric to its asterisked ``(setting, method)`` cells. Fig. 4 draws
+each run's ``curves.jsonl`` against the update, one column per setting, with the references as
+lines. ``igdrivsim report figures PAPER`` redraws Fig. 3, 5 and 6 from ``PAPER/tables``.
 """
 
 from __future__ import annotations

@@ -1,25 +1,11 @@
 """Which command wrote each report file: ``paper/provenance.json`` and one line in each table.
 
-Every file under ``paper/`` that a run writes (tables, figures, generated LaTeX, the maze's
-config) has an entry: the command, the kind of run that owns it (``default``: the default
-run of ``scripts/reproduce.sh``; ``methods``: its ``--methods`` run with taught methods, which
-owns Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device, the
-run's wall time and date, and the code behind its numbers: ``stages``, each pipeline stage
-the file's numbers came from (:func:`stages_behind`) -> the code that stage ran, as its stamp
-recorded it when it ran (:func:`code_state`: commit, dirty flag, hash of the diff), so a
-republish from cached stages keeps their commits; ``commit`` names them (``mixed_commits``:
-the stages ran at different commits). A run *publishes* the files its kind owns from its work
-folder into ``paper/``, and another kind's files only where they are missing (a fresh
-``--out``): no run deletes or overwrites what another run wrote. Each markdown table and the
-PDF (``generated/run.tex``) carry the same in one line.
-
-Schema 1 entries (no ``stages``: published before per-stage provenance) stay readable; their
-``commit`` is the commit at publishing.
-
-``igdrivsim report provenance backfill [--paper DIR]`` derives the entries of
-committed files that have none from recorded metadata only: the commit that last wrote each
-file (``git log``), the report's ``generated/provenance.tex`` and the training profile as of
-that commit, the maze study's ``maze_config.json``.
+An entry (:class:`Entry`) holds the command, the kind of run that owns the file (``default``, or
+``methods``: Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device,
+wall time, date, and the code of each pipeline stage its numbers came from (``stages``:
+:func:`stages_behind` -> :func:`code_state` as stamped when the stage ran). A run publishes the
+files its kind owns, and another kind's only where missing. Schema 1 entries (no ``stages``)
+stay readable. ``igdrivsim report provenance backfill|check|derived|maze``.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """Table I's companion under reactive traffic: every driver judged with log-replay and IDM agents.
 
-Beyond the paper. Inputs are two evaluation folders of tidy CSVs (``igdrivsim evaluate``) of the
-same drivers on the same validation scenarios: one with the other objects replaying their log
-(``--log``, Table I's evaluations) and one with them driven by IDM sim agents (``--idm``,
-``igdrivsim evaluate --agents idm``; :mod:`igdrivsim.simulator.agents`). For every setting's
-BC and BC-RL and for the reference actors (constant velocity, the discretised expert replaying
-its log), each metric's mean over seeds of the seed means with its 95% t-interval over seeds
-under each, and the difference log minus idm with Table I's test: a two-level bootstrap over
-seeds, then paired scenarios (:func:`igdrivsim.evaluation.aggregate.paired_difference`), Holm
-over every cell of the table; bold where significant.
-
-Metrics: Table I's per-scenario ones (overlap rate, offroad rate, max log divergence) and the
-registry's at-fault overlap (nuPlan's rule: no rear or side hits; docs/metrics.md).
-
-``igdrivsim report reactive --log DIR --idm DIR --out PAPER`` writes
-``tables/reactive.md``, ``tables/reactive.csv`` and ``figures/fig7_reactive.{pdf,png}`` (the
-pipeline's ``reactive`` stage).
+Two evaluations of the same drivers on the same scenarios (``--log``: Table I's; ``--idm``:
+``igdrivsim evaluate --agents idm``): per driver (each setting's BC and BC-RL, the references)
+and metric (Table I's per-scenario rates, the registry's at-fault overlap), the mean over seeds
+with its 95% t-interval under each, and log - idm with Table I's two-level bootstrap, Holm over
+the table. ``igdrivsim report reactive`` writes ``tables/reactive.{md,csv}`` and Fig. 7.
 """
 
 from __future__ import annotations

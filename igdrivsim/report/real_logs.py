@@ -1,25 +1,10 @@
-"""Synthetic-trained drivers on real logs: a small table beside the synthetic validation numbers.
+"""Synthetic-trained drivers on real logs (the pipeline's ``real_logs`` stage).
 
-Beyond the paper. Inputs are two evaluation folders of tidy CSVs (``igdrivsim evaluate``): the
-policies and reference actors on real scenarios (the public WOMD samples of ``igdrivsim
-samples``, or the user's WOMD / ScenarioNet data) and the same on the synthetic validation set.
-Each cell is the mean over seeds of each seed's mean over scenarios (Table I's per-step metrics:
-log divergence, offroad and overlap as percent of steps), with the number of scenarios beside
-it, and each learned driver's real log divergence minus constant velocity's with its 95%
-interval and the smallest difference the real scenarios detect (80% power): on a handful of
-real scenarios, the check's power is part of its result. Heavy tails (a few egos diverging by
-15 m or more) leave a mean weak, so a second table compares every learned driver with constant
-velocity and with the expert ego by ego (:mod:`igdrivsim.evaluation.paired`): the share of
-egos where it stays closer to the log, the median paired difference and the mean ratio with its
-minimum detectable effect, with 95% intervals from a bootstrap over source scenarios, then
-seeds, and the numbers of egos and of source scenarios. A third table gives Full BC under
-Table I's sampled actions beside its greedy and mean read-outs (``--readouts``).
-
-``igdrivsim report real-logs --real DIR --synthetic DIR --out TABLES`` writes
-``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` (and the read-outs'
-``real_logs_readouts.csv``) and a one-sentence
-summary for the report's abstract, ``real_logs_summary.tex`` (the pipeline's ``real_logs``
-stage); ``--from-markdown real_logs.md`` rebuilds the last two from a written table.
+Per ``(setting, method)``: each metric's mean over seeds on real logs and on validation, and
+against constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`);
+Full BC under each action read-out. ``igdrivsim report real-logs --real DIR --synthetic DIR
+--out TABLES`` writes ``real_logs.{md,tex,csv}``, ``real_logs_readouts.csv`` and the abstract's
+sentence ``real_logs_summary.tex``; ``--from-markdown real_logs.md`` rebuilds the last two.
 """
 
 from __future__ import annotations

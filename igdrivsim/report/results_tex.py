@@ -1,22 +1,13 @@
-"""The report's result macros: ``generated/results.tex`` and ``generated/maze.tex``.
+"""The report's result macros, ``generated/results.tex`` and ``generated/maze.tex``, read from
+the report's own tables (so ``igdrivsim report --from-tables`` rewrites them): the prose of
+``paper/main.tex`` quotes the committed run only through them.
 
-The prose of ``paper/main.tex`` quotes numbers of the committed run only through these macros,
-so no result in it is typed by hand. Both files are read from the report's own files
-(``PAPER/tables/*.csv``, ``PAPER/maze_config.json``), like ``results.md``, so ``igdrivsim report
---from-tables`` rewrites them without the evaluations (:func:`write_macros`).
-
-``results.tex`` (from ``summary.csv``, ``tests.csv``, ``tests_all.csv``,
-``supplementary_summary.csv``): ``\\Res<Method><Setting><Metric>``, the mean over seeds of every
-Table I cell (methods ``BC``, ``BCRL``, ``DAgger``, ``ADVISOR``; references ``\\ResCV<Metric>``
-and ``\\ResExpert<Metric>``; Table II's taught methods and its BC,
-``\\ResMethodsBC<Setting><Metric>``, from ``tests_all.csv``, its own run; settings ``Full``,
-``Gauss``, ``CircFour``, ``CircSix``, ``Conic``,
-``Mask``; metrics ``LogDiv``, ``MaxLogDiv``, ``Overlap``, ``OverlapRate``, ``Offroad``,
-``OffroadRate``), the same for the supplementary metrics under Full and for the references
-(``\\ResBCFullMaxAbsLonJerk``), and counts over Table I (``\\ResCells``, ``\\ResSigHolm``, ...;
-see :func:`results_tex`). ``maze.tex`` (from ``maze_summary.csv`` and ``maze_config.json``):
-``\\Maze<Curve>`` and ``\\Maze<Curve>CI`` per curve, the reference policies and the plateau test.
-When ``PAPER/provenance.json`` exists, each file gets the entry of the table it is read from.
+``results.tex``: ``\\Res<Method><Setting><Metric>`` per Table I cell (codes: :data:`METHOD_CODES`,
+:data:`SETTING_CODES`, :data:`METRIC_CODES`), the references (``\\ResCV<Metric>``), Table II's
+own-run means (``\\ResMethodsBC...``), the supplementary metrics under Full and counts over
+Table I (:func:`results_tex`). ``maze.tex``: ``\\Maze<Curve>`` and ``CI`` per curve, the
+reference policies and the plateau test. With a ``provenance.json``, each file gets the entry
+of the table it is read from.
 """
 
 from __future__ import annotations

@@ -1,15 +1,7 @@
-"""A sweep of one setting's training variants in one table: what each override bought, at what
-compute.
-
-Reads a sweep folder as ``scripts/competence_sweep.sh`` writes it (``runs/NAME`` trained by
-``igdrivsim train``, ``evals/NAME`` by ``igdrivsim evaluate``) and prints, per variant, its
-overrides of the profile, the updates evaluated (the last checkpoint of a run stopped early),
-its compute relative to the profile's budget (scenario-episodes trained forward and backward:
-updates x batch x passes), and the closed-loop metrics: log divergence as the mean over seeds
-with the range of the seed means, and its ratio to constant velocity's on the same scenarios
-when ``--references`` gives that actor's evaluation.
-
-``igdrivsim report sweep SWEEP [--references EVAL_DIR] [--out FILE]``
+"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``:
+``runs/NAME``, ``evals/NAME``): per variant its overrides of the profile, the updates evaluated,
+its compute relative to the profile's budget (updates x batch x passes) and the closed-loop
+metrics, with the ratio to constant velocity's (``--references``).
 """
 
 from __future__ import annotations

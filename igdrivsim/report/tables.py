@@ -1,11 +1,6 @@
-"""Table I (LaTeX and Markdown) and the side-by-side comparison with the paper's numbers.
-
-Inputs are the frames of :mod:`igdrivsim.evaluation.aggregate`: ``summary`` (mean and CI per
-metric, setting, method) and ``tests`` (BC-RL vs BC per metric and setting). Layout follows the
-paper's Table I: metrics are row groups holding a BC-RL row and a BC row, the six observation
-settings are columns, and the better value of a significantly different pair is in bold. Two
-reference rows (discretised expert replay, constant velocity) follow when they were evaluated;
-they do not depend on the observation, so they span the six columns.
+"""Table I (LaTeX and Markdown), its effects, power and safety verdicts, the comparison with
+the paper's numbers and the supplementary metrics' table, from the ``summary`` and ``tests``
+frames of :mod:`igdrivsim.evaluation.aggregate`, laid out as the paper's Table I.
 """
 
 from __future__ import annotations
@@ -72,26 +67,26 @@ def setting_header(cols: list[str], lead: str) -> list[str]:
                                        if setting_labels(s)[1] else "" for s in cols) + r" \\"]
 
 
+def latex_float(caption: str, label: str, spec: str, rows: list[str]) -> str:
+    """A ``table*`` float scaled to the text width: booktabs rules around ``rows``."""
+    return "\n".join([r"\begin{table*}[t]", r"\centering", caption, rf"\label{{{label}}}",
+                      r"\resizebox{\textwidth}{!}{%", rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
+                      *rows, r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""])
+
+
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """The ``table*`` float for the report (needs booktabs, colortbl and the colours
     ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
     cols = table_settings(summary, tests)
     colours = {BC_RL: "bcrlcolor", BC: "bccolor"}
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         r"\caption{\textbf{BC-RL versus BC under six observation models.} Mean over seeds of "
         r"per-step (log divergence, overlap, offroad) and per-scenario (max log divergence, "
         r"overlap rate, offroad rate) metrics on the validation scenarios; lower is better. "
         r"Orange rows: BC-RL ($w_{BC}=1$, $w_{RL}=0.05$); blue rows: BC. Bold marks the "
         rf"better method where the difference is significant ({TEST_NAME}, "
-        rf"$\alpha={ALPHA}$). {caption_extra}}}",
-        r"\label{tab:results}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{l" + "c" * len(cols) + "}",
-        r"\toprule",
-        *setting_header(cols, r"\textbf{Metric}"),
-    ]
+        rf"$\alpha={ALPHA}$). {caption_extra}}}")
+    lines = setting_header(cols, r"\textbf{Metric}")
     references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
@@ -109,8 +104,7 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
             value = _fmt(None if row is None else float(row["mean"]))
             lines.append(rf"\quad\textit{{{METHOD_LABELS[method].lower()}}} & "
                          rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:results", "l" + "c" * len(cols), lines)
 
 
 def _ci_text(row: pd.Series | None) -> str:
@@ -332,25 +326,14 @@ def power_latex(tests: pd.DataFrame) -> str:
     cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         rf"\caption{{\textbf{{Minimum detectable effect of BC-RL versus BC}} (80\% power, "
         rf"two-sided, normal approximation with the two-level bootstrap standard error at "
         rf"this run's seeds and scenarios), uncorrected ($\alpha={ALPHA}$) and at the strictest "
         rf"Holm level ($\alpha={ALPHA}/{n_cells}$), next to the paper's BC-RL $-$ BC from its "
         rf"Table~I (bold: at least the uncorrected MDE). The paper's effect reaches the MDE in "
-        rf"{k} of {n} cells ({kh} with Holm).}}",
-        r"\label{tab:power}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
-        r"\toprule",
-        r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
-    ]
+        rf"{k} of {n} cells ({kh} with Holm).}}")
+    lines = setting_header(cols, r"\textbf{Metric} &")
     labels = ("paper effect", "MDE", "MDE (Holm)")
     for name, unit, groups in _power_rows(tests):
         lines.append(r"\midrule")
@@ -359,8 +342,7 @@ def power_latex(tests: pd.DataFrame) -> str:
                 "-", "$-$") if t != MISSING else t for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
             lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
 
 
 # ------------------------------------------------------------------ supplementary metrics
@@ -428,22 +410,11 @@ def _tex(text: str) -> str:
 def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "") -> str:
     """The supplementary table as a ``table*`` float (label ``tab:supplementary``)."""
     cols = table_settings(summary)
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         r"\caption{\textbf{Supplementary closed-loop metrics} (nuPlan-, NAVSIM- and "
         r"Waymax-style, definitions in docs/metrics.md): mean over seeds on the validation "
-        rf"scenarios; rates in \%. {caption_extra}}}",
-        r"\label{tab:supplementary}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
-        r"\toprule",
-        r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
-    ]
+        rf"scenarios; rates in \%. {caption_extra}}}")
+    lines = setting_header(cols, r"\textbf{Metric} &")
     for metric, groups in _supplementary_rows(summary, metrics):
         lines.append(r"\midrule")
         arrow = r"$\uparrow$" if metric.higher_is_better else r"$\downarrow$"
@@ -456,5 +427,4 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
                              rf"{{{len(cols)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
             else:
                 lines.append(f"{first} & {name} & " + " & ".join(texts) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:supplementary", "ll" + "c" * len(cols), lines)

@@ -1,24 +1,11 @@
 """Do drivers trained on a synthetic motion model hold up on real logs? The table of
-``scripts/transfer_check.sh``.
+``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``).
 
-Input: a folder ``WORK`` with one sub-folder per motion model (``WORK/<motion>/``), each holding
-``evals_<data set>/bc`` and ``evals_<data set>/references`` (``igdrivsim evaluate`` on the
-synthetic validation set and on real sets). For every (data set, motion) the table gives Full
-BC's and constant velocity's per-step metrics (mean over seeds of each seed's mean over
-scenarios) and BC - constant velocity with its 95% interval and the smallest difference the
-comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
-scenarios, the egos of one source scenario together
-(:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
-which every motion model is evaluated on, a second table compares the motion models' BC
-directly (paired scenarios). Where there are several real sets, they are also pooled (``real,
-pooled``): the comparison with the most power. A last table compares every learned driver
-evaluated (each setting, BC and any other method folder beside it, e.g. ``bc_rl``) with
-constant velocity and with the expert ego by ego, the statistics that survive heavy tails
-(:mod:`igdrivsim.evaluation.paired`): the share of egos where it stays closer to the log, the
-median paired difference and the mean ratio with its minimum detectable effect, with 95%
-intervals from a bootstrap over source scenarios, then seeds, and N egos and source scenarios.
-
-``igdrivsim report transfer WORK --out WORK/transfer.md``
+``WORK/<motion>/evals_<data set>/{bc,references,...}``: per (data set, motion) Full BC against
+constant velocity (hierarchical bootstrap over seeds, then paired scenarios:
+:func:`igdrivsim.evaluation.aggregate.paired_difference`), the motion models' BC against each
+other on the real sets (also pooled: ``real, pooled``), and every learned driver against
+constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`).
 """
 
 from __future__ import annotations
