@@ -29,6 +29,7 @@ from igdrivsim.report.figures import (
     save_figure,
     supplementary_figure,
 )
+from igdrivsim.report.provenance import METHODS_FILES
 from igdrivsim.report.results_doc import write_curves_summary
 from igdrivsim.report.tables import (
     power_latex,
@@ -117,10 +118,9 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     return found
 
 
-# Table II's files, relative to ``out``: removed by a report without extended methods, so a
-# folder never shows a Table II from an earlier run next to this run's Table I.
-METHODS_OUTPUTS = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex",
-                   "figures/fig6_methods.pdf", "figures/fig6_methods.png")
+# Table II's files (relative to ``out``, owned by the methods run): removed by a report without
+# extended methods, so a folder never shows a Table II from an earlier run beside this Table I.
+METHODS_OUTPUTS = METHODS_FILES
 
 
 def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, header: str,

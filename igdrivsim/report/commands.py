@@ -126,9 +126,9 @@ def _figures_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _provenance_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("task", choices=("backfill", "check", "derived", "maze"),
-                   help="backfill the missing entries, check them, record derived files, or "
-                        "record a maze study run alone")
+    p.add_argument("task", choices=("check", "derived", "maze"),
+                   help="check the entries, record derived files, or record a maze study run "
+                        "alone")
     p.add_argument("files", nargs="*", metavar="FILE",
                    help="derived: the files written (relative to --paper)")
     p.add_argument("--from", dest="source", default=None, metavar="SOURCE",
@@ -146,10 +146,7 @@ def _reactive_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _real_logs_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--real", default=None, help="evaluations on real logs (folder)")
-    p.add_argument("--from-markdown", default=None, metavar="FILE",
-                   help="instead of evaluations: rebuild real_logs.csv and "
-                        "real_logs_summary.tex from a written real_logs.md")
+    p.add_argument("--real", required=True, help="evaluations on real logs (folder)")
     p.add_argument("--synthetic", dest="validation", default=None,
                    help="evaluations on the (synthetic) validation set (folder)")
     p.add_argument("--readouts", default=None, metavar="DIR",
@@ -164,15 +161,9 @@ def _real_logs_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _real_logs(args) -> None:
-    real_logs = _module("real_logs")
-    if args.from_markdown:
-        text = Path(args.from_markdown).read_text(encoding="utf-8")
-        paths = real_logs.write_numbers(real_logs.table_from_markdown(text), Path(args.out))
-    elif args.real:
-        paths = real_logs.write_tables(args.real, args.validation, args.out, args.real_label,
-                                       args.validation_label, args.readouts)
-    else:
-        raise ConfigError("give --real DIR (evaluations) or --from-markdown FILE")
+    paths = _module("real_logs").write_tables(args.real, args.validation, args.out,
+                                              args.real_label, args.validation_label,
+                                              args.readouts)
     print("wrote " + ", ".join(map(str, paths)))
 
 
@@ -206,7 +197,7 @@ ACTIONS = {
     "figures": ("redraw Fig. 3, 5 and 6 from the report's tables (PAPER/tables/*.csv)",
                 _figures_arguments,
                 lambda args: _wrote(_module("figures").redraw_from_tables(args.paper))),
-    "provenance": ("backfill, check or record the entries of PAPER/provenance.json (which "
+    "provenance": ("check or record the entries of PAPER/provenance.json (which "
                    "command wrote each report file)", _provenance_arguments,
                    lambda args: _module("provenance").provenance_command(args, REPO)),
     "reactive": ("Table I's companion under IDM sim agents: tables/reactive.{md,csv}, Fig. 7",

@@ -44,7 +44,6 @@ from igdrivsim.report.methods_table import (  # noqa: E402
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
 
-PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange
 PANELS = ("log_divergence", "overlap", "offroad")
 CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
 
@@ -283,10 +282,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                         transform=ax.transAxes, color="0.5")
             if col == 0:
                 ax.set_ylabel(label)
-    handles: dict[str, object] = {}
-    for ax in axes.ravel():
-        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(name, handle)
+    handles = plots.figure_handles(fig)
     fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))

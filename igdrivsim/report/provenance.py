@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import fnmatch
-import json
 import re
 import shlex
-import subprocess
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -38,7 +36,7 @@ ABOUT = ("the command that wrote each file under this folder and the code (commi
 LEGACY = "stage commits unknown (published before per-stage provenance)"
 LINE_PREFIX = "Provenance: "
 # what a run of each kind owns (relative to the paper folder): the methods run Table II's files
-# (igdrivsim.report.build.METHODS_OUTPUTS); everything else the default run
+# (the report writes them only with methods beyond BC and BC-RL); everything else the default run
 METHODS_FILES = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex",
                  "figures/fig6_methods.pdf", "figures/fig6_methods.png")
 OUTPUT_FOLDERS = ("tables", "figures", "generated")
@@ -206,92 +204,6 @@ def publish(staged: Path, paper: Path, entry: Entry,
     return published
 
 
-# ------------------------------------------------------------------------------ the backfill
-def _git(*args: str, cwd: Path) -> str:
-    try:
-        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError) as err:
-        raise ConfigError(f"git {' '.join(args)} failed in {cwd}: {err}") from err
-
-
-def _show(commit: str, path: Path, repo: Path) -> str:
-    """``path`` as committed in ``commit``."""
-    return _git("show", f"{commit}:{path.relative_to(repo)}", cwd=repo)
-
-
-def _tex_macros(text: str) -> dict[str, str]:
-    return dict(re.findall(r"\\newcommand\{\\(\w+)\}\{([^}]*)\}", text))
-
-
-def _updates_at(commit: str, profile: str, repo: Path) -> int | None:
-    """``num_updates`` of ``profile`` in ``igdrivsim/training/config.py`` as of ``commit``."""
-    try:
-        source = _git("show", f"{commit}:igdrivsim/training/config.py", cwd=repo)
-    except ConfigError:
-        return None
-    body = re.search(rf"def {profile}\(\)[\s\S]*?(?=\ndef |\Z)", source)
-    found = re.search(r"num_updates=(\d[\d_]*)", body.group(0)) if body else None
-    return int(found.group(1).replace("_", "")) if found else None
-
-
-def derive(rel: str, paper: Path, repo: Path) -> Entry:
-    """The entry of committed file ``rel`` from what was recorded when it was written."""
-    commit, date, subject = _git("log", "-1", "--format=%h%x00%ad%x00%s", "--date=short",
-                                 "--", str((paper / rel).relative_to(repo)),
-                                 cwd=repo).split("\x00")
-    wall = re.search(r"\((\d+) min (\d+) s\)", subject)
-    wall_s = int(wall.group(1)) * 60 + int(wall.group(2)) if wall else None
-    run = owner(rel)
-    command = "bash scripts/reproduce.sh" + (
-        " --methods bc,bc_rl,dagger,advisor" if run == "methods" else "")
-    if rel.startswith(("figures/fig2", "figures/maze", "tables/maze")) or rel in OUTPUT_FILES:
-        meta = json.loads(_show(commit, paper / "maze_config.json", repo))
-        return Entry(command=f"python -m maze --profile {meta['config']['profile']}",
-                     run=run, profile=f"maze {meta['config']['profile']}", updates=None,
-                     commit=commit, device=f"JAX device {meta.get('device', 'unknown')}",
-                     wall_s=meta.get("timings_s", {}).get("this_invocation_wall_s"), date=date,
-                     note="the maze study (the default run's maze stage copies it since)")
-    prov = _tex_macros(_show(commit, paper / "generated" / "provenance.tex", repo))
-    profile, code = prov.get("ProvProfile", "unknown"), prov.get("ProvCommit", commit)
-    updates = _updates_at(code, profile, repo) if profile != "unknown" else None
-    note = competence_note("quick" if updates and updates < 1000 else profile, updates)
-    if profile == "laptop" and updates is not None and updates < 1000:
-        note = (f"the laptop profile as of {code} trained {updates} updates, today's quick "
-                f"profile; {note}")
-    if rel.startswith(("figures/fig1", "tables/speed_walk", "generated/speed_walk")):
-        return Entry(command=command, run=run, profile=profile, updates=None, commit=commit,
-                     device="device not recorded", wall_s=wall_s, date=date,
-                     note="no trained policy in it")
-    return Entry(command=command, run=run, profile=profile, updates=updates, commit=code,
-                 device="device not recorded", wall_s=wall_s, date=prov.get("ProvDate", date),
-                 note=note)
-
-
-def backfill(paper: Path, repo: Path, stamp: bool = True) -> list[str]:
-    """Entries for the committed outputs under ``paper`` that have none; with ``stamp`` their
-    markdown tables get the provenance line. Returns the files given an entry."""
-    files, added = load(paper), []
-    tracked = set(_git("ls-files", str(paper.relative_to(repo)), cwd=repo).splitlines())
-    for rel in outputs(paper):
-        if rel in files or str((paper / rel).relative_to(repo)) not in tracked:
-            continue
-        entry = derive(rel, paper, repo)
-        files[rel] = entry.record()
-        if stamp and rel.endswith(".md"):
-            path = paper / rel
-            atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
-                                                   entry.line()))
-        added.append(rel)
-    run = paper / "generated" / "run.tex"
-    if not run.exists() and "tables/table1.tex" in files:  # the PDF's line: Table I's run
-        atomic_write_text(run, run_tex(Entry.from_record(files["tables/table1.tex"])))
-        files["generated/run.tex"] = files["tables/table1.tex"]
-        added.append("generated/run.tex")
-    save(paper, files)
-    return added
-
-
 def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
             repo: Path) -> list[str]:
     """Entries for ``files_rel`` written by ``command`` from the numbers of ``source`` (a file
@@ -385,12 +297,10 @@ def today() -> str:
 
 
 def provenance_command(args, repo: Path) -> int:
-    """``igdrivsim report provenance``: ``backfill`` derives the missing entries from recorded
-    metadata; ``check`` lists the outputs without an entry and the entries without their stage
-    commits (exit 1 when there is one; entries published before per-stage provenance are
-    counted, not failed); ``derived FILE... --from SOURCE --command CMD`` records files that CMD
-    wrote from SOURCE's numbers outside the pipeline; ``maze`` records the outputs of
-    ``python -m maze --out PAPER`` run alone (:func:`record_maze`)."""
+    """``igdrivsim report provenance``: ``check`` lists the outputs without an entry and the
+    entries without their stage commits (exit 1 when there is one; schema 1 entries are
+    counted, not failed); ``derived FILE... --from SOURCE --command CMD`` records files CMD
+    wrote from SOURCE's numbers outside the pipeline; ``maze``: :func:`record_maze`."""
     paper = Path(args.paper).resolve()
     if args.task == "check":
         lacking = missing(paper)
@@ -405,7 +315,7 @@ def provenance_command(args, repo: Path) -> int:
             raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
         written = derived(paper, args.files, args.source, args.command, repo)
     else:
-        written = record_maze(paper) if args.task == "maze" else backfill(paper, repo)
+        written = record_maze(paper)
     for rel in written:
         print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
     return 0

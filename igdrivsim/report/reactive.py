@@ -36,7 +36,6 @@ METRICS = (METRIC_BY_KEY["overlap_rate"], AT_FAULT, METRIC_BY_KEY["offroad_rate"
            METRIC_BY_KEY["max_log_divergence"])
 HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} rate (%)",
            "offroad_rate": "offroad rate (%)", "max_log_divergence": "max log divergence (m)"}
-CONDITIONS = ("log", "idm")
 FIGURE = "fig7_reactive"
 
 

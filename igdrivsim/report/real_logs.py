@@ -4,7 +4,7 @@ Per ``(setting, method)``: each metric's mean over seeds on real logs and on val
 against constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`);
 Full BC under each action read-out. ``igdrivsim report real-logs --real DIR --synthetic DIR
 --out TABLES`` writes ``real_logs.{md,tex,csv}``, ``real_logs_readouts.csv`` and the abstract's
-sentence ``real_logs_summary.tex``; ``--from-markdown real_logs.md`` rebuilds the last two.
+sentence ``real_logs_summary.tex``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import DataError
 from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
 from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
@@ -30,7 +29,6 @@ from igdrivsim.names import (
     EXPERT,
     METHOD_LABELS,
     REFERENCES,
-    SETTINGS,
     setting_short,
 )
 
@@ -354,32 +352,3 @@ def write_numbers(table: pd.DataFrame, out: Path) -> list[Path]:
     """``out/real_logs.csv`` (the table's numbers) and ``out/real_logs_summary.tex``."""
     return [atomic_write_text(out / "real_logs.csv", table.to_csv(index=False)),
             atomic_write_text(out / "real_logs_summary.tex", _summary_tex(table))]
-
-
-def table_from_markdown(text: str) -> pd.DataFrame:
-    """The numbers of a written ``real_logs.md`` back as :func:`real_log_table`'s frame (the
-    seeds columns unknown), for tables written before the CSV was."""
-    settings = {setting_short(s): s for s in SETTINGS}
-    methods = {label: name for name, label in METHOD_LABELS.items()}
-    rows = []
-    for line in text.splitlines():
-        if line.startswith("## "):
-            break  # the ego-by-ego table follows the main one
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) not in (2 + 2 * len(METRIC_KEYS), 3 + 2 * len(METRIC_KEYS)) \
-                or cells[0] in ("setting", "---"):
-            continue
-        method = methods.get(cells[1], cells[1])
-        row = {"setting": "none" if method in REFERENCES else settings.get(cells[0], cells[0]),
-               "method": method}
-        values = iter(cells[2:])
-        for key in METRIC_KEYS:
-            for source in SOURCES:
-                cell = next(values)
-                value, _, n = cell.partition(" (N=")
-                row[f"{source}_{key}"] = float("nan") if cell == "--" else float(value)
-                row[f"{source}_n"] = row.get(f"{source}_n") if cell == "--" else int(n[:-1])
-        rows.append(row)
-    if not rows:
-        raise DataError("real_logs.md: no table rows found")
-    return pd.DataFrame(rows)

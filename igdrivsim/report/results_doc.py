@@ -21,7 +21,7 @@ from igdrivsim.report import methods_table
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_summary
-from igdrivsim.report.results_tex import read_table, write_macros
+from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
 from igdrivsim.report.tables import table1_markdown
 
 # the width of the prose lines the report writes into the README
@@ -89,12 +89,6 @@ def run_line(paper: Path, commit: bool = True) -> str:
     return "Run: " + ", ".join(parts) + note + "."
 
 
-def _mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
-    row = summary[(summary.metric == metric) & (summary.setting == setting)
-                  & (summary.method == method)]
-    return float(row["mean"].iloc[0]) if len(row) else math.nan
-
-
 def _f(value: float) -> str:
     return f"{value:.2f}" if math.isfinite(value) else "--"
 
@@ -141,7 +135,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
-    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
+    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
@@ -150,7 +144,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
            + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
            "|---|" + "---|" * (len(_HEADLINE) + 2)]
     for setting in settings:
-        cells = [_f(_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        cells = [_f(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
         out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
@@ -174,7 +168,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 def _competence(summary: pd.DataFrame) -> list[str]:
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
-    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
         return ["No constant-velocity reference in this run.", ""]
     bars = ", ".join(f"{label} at most {ratio:g}x constant velocity's"
@@ -190,14 +184,14 @@ def _competence(summary: pd.DataFrame) -> list[str]:
         for method in methods:
             cells, met = [], 0
             for metric, (ratio, _, _) in COMPETENCE.items():
-                value = _mean(summary, metric, setting, method)
+                value = cell_mean(summary, metric, setting, method)
                 ok = math.isfinite(value) and value <= ratio * cv[metric]
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
                 cells.append(f"{_f(value)}{ratio_text}{' ✓' if ok else ''}")
             out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
                        + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
-    expert = [f"{label} {_f(_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+    expert = [f"{label} {_f(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
                   + ", ".join(expert) + ".", ""]

@@ -143,14 +143,17 @@ def _counts(summary: pd.DataFrame, tests: pd.DataFrame) -> list[str]:
     return lines
 
 
+def cell_mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
+    """A ``summary.csv`` cell's mean (NaN when absent)."""
+    row = summary[(summary.metric == metric) & (summary.setting == setting)
+                  & (summary.method == method)]
+    return float(row["mean"].iloc[0]) if len(row) else math.nan
+
+
 def _competence(summary: pd.DataFrame) -> list[str]:
     """``\\ResFullBCTargetsMet``: how many of the competence targets Full BC meets."""
-    def mean(metric: str, setting: str, method: str) -> float:
-        row = summary[(summary.metric == metric) & (summary.setting == setting)
-                      & (summary.method == method)]
-        return float(row["mean"].iloc[0]) if len(row) else math.nan
-
-    met = sum(mean(m, "full", BC) <= ratio * mean(m, REFERENCE_SETTING, CONSTANT_VELOCITY)
+    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    met = sum(cell_mean(summary, m, "full", BC) <= ratio * cv[m]
               for m, (ratio, _, _) in COMPETENCE.items())
     return [_macro("ResFullBCTargetsMet", str(met)),
             _macro("ResTargets", str(len(COMPETENCE)))]

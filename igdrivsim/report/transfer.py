@@ -72,21 +72,27 @@ def _in_order(found: dict) -> list:
     return sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1), kv[0]))
 
 
+def _paired(a: pd.DataFrame, method_a: str, b: pd.DataFrame, method_b: str, scen,
+            **row) -> dict:
+    """``row`` with each metric's paired difference of ``method_a`` in ``a`` minus
+    ``method_b`` in ``b`` on the scenarios ``scen`` (clustered by ``a``'s source scenarios)."""
+    source = source_map(a)
+    c = paired_difference(scenario_cube(a, method_a, scen, METRICS),
+                          scenario_cube(b, method_b, scen, METRICS),
+                          clusters=[source[str(s)] for s in scen])
+    for i, key in enumerate(METRICS):
+        row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
+    return row
+
+
 def against_constant_velocity(found: dict) -> pd.DataFrame:
     """One row per (data set, motion): BC against constant velocity."""
     rows = []
     for (data, motion), frame in _in_order(found):
         frame = frame[(frame.method != BC) | (frame.setting == FULL)]  # Full BC
         scen = complete_scenarios(frame, (BC, CONSTANT_VELOCITY))
-        source = source_map(frame)
-        c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
-                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS),
-                              clusters=[source[str(s)] for s in scen])
-        row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
-                   .nunique())
-        for i, key in enumerate(METRICS):
-            row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
-        rows.append(row)
+        rows.append(_paired(frame, BC, frame, CONSTANT_VELOCITY, scen, data=data, motion=motion,
+                            n=len(scen), seeds=frame[frame.method == BC].seed.nunique()))
     return pd.DataFrame(rows)
 
 
@@ -122,14 +128,8 @@ def between_motions(found: dict) -> pd.DataFrame:
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
             scen = complete_scenarios(a, (BC,)).intersection(complete_scenarios(b, (BC,)))
-            source = source_map(a)
-            c = paired_difference(scenario_cube(a, BC, scen, METRICS),
-                                  scenario_cube(b, BC, scen, METRICS),
-                                  clusters=[source[str(s)] for s in scen])
-            row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
-            for i, key in enumerate(METRICS):
-                row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
-            rows.append(row)
+            rows.append(_paired(a, BC, b, BC, scen, data=data, motion=motion,
+                                baseline=motions[0], n=len(scen)))
     return pd.DataFrame(rows)
 
 
