@@ -117,7 +117,7 @@ def test_results_page_and_readme_read_the_real_log_comparison(tmp_path):
     """docs/results.md's real-log section and the README's sentence come from real_logs.csv
     and real_logs_readouts.csv: every setting's drivers against CV with N, Full BC's line."""
     from igdrivsim.report.real_logs import readout_table
-    from igdrivsim.report.results_doc import real_logs_section as _real_logs
+    from igdrivsim.report.real_logs import real_logs_section as _real_logs
 
     tables = tmp_path / "tables"
     tables.mkdir()
