@@ -140,11 +140,9 @@ def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, he
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
-    """Aggregate every evaluation under ``eval_dirs`` and write the report files under ``out``.
-
-    ``run_dirs``: where to look for the runs' ``curves.jsonl`` (Fig. 4); by default the
-    ``runs/`` sibling of each evaluation folder. Returns the written paths.
-    """
+    """Aggregate every evaluation under ``eval_dirs``, write the report under ``out`` and return
+    the paths; ``run_dirs``: where the runs' ``curves.jsonl`` are (default: ``runs/`` beside
+    each evaluation folder)."""
     out = Path(out)
     for run in run_dirs or []:  # given explicitly: each must be there (checked before any work)
         if not Path(run).is_dir():

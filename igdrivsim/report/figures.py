@@ -147,11 +147,8 @@ def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:
 
 
 def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
-    """All ``curves.jsonl`` records as one frame (one row per logged line; missing keys NaN).
-
-    A repeated ``(setting, method, seed, update)`` (a resumed run) keeps its last record; a
-    malformed line raises :class:`DataError` naming the file.
-    """
+    """All ``curves.jsonl`` records as one frame, one row per (setting, method, seed, update):
+    a resumed run keeps its last record; a malformed line raises :class:`DataError`."""
     records = []
     for path in find_curves(run_dirs):
         for number, line in enumerate(path.read_text().splitlines(), 1):
@@ -221,13 +218,9 @@ def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
 def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                            references_csv: str | Path | pd.DataFrame | None = None,
                            stem: str = "fig4_learning_curves") -> list[Path]:
-    """Write ``stem.{pdf,png}`` under ``out_dir`` from the runs' ``curves.jsonl``.
-
-    Rows: validation BC loss (training BC loss dashed), log divergence, offroad % and overlap %;
-    columns: settings; one line per method, the mean over seeds with the min-max band shaded;
-    constant velocity and the expert as horizontal lines when ``references_csv`` (a
-    per_scenario.csv path or frame) has them. Returns the written paths ([] without curves).
-    """
+    """Fig. 4 (``stem.{pdf,png}``) from the runs' ``curves.jsonl``: rows of metrics, columns of
+    settings, per method the mean over seeds with the min-max band, the references as lines
+    (``references_csv``). Returns the written paths ([] without curves)."""
     curves = load_curves(run_dirs)
     if curves.empty:
         return []
@@ -291,11 +284,8 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
 
 def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
                          tests: pd.DataFrame | None = None):
-    """Fig. 5: one panel per registry metric with ``figure=True`` (``metrics``), bars per
-    setting for every learned method present, the expert and constant velocity as lines.
-    ``seed_level``: :func:`seed_means` over the registry's metrics, or their summary
-    (``tables/supplementary_summary.csv``); ``tests``: significance of these metrics, if any
-    (without, the figure says they are descriptive)."""
+    """Fig. 5: a panel per registry metric with ``figure=True`` from :func:`seed_means` over
+    them (or their summary); ``tests``: their significance, if any (else: descriptive)."""
     panels = [m for m in metrics if m.figure]
     order = _present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]

@@ -45,10 +45,8 @@ def clip_interval(low: float, high: float, unit: str) -> tuple[float, float]:
 
 
 def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
-    """``setting, method, mean, low, high`` of ``metric`` per setting and method, the interval
-    clipped to the unit's range. ``frame``: seed level (``setting, method, seed, metric,
-    value``: the 95% t-interval over seeds) or a summary (``metric, setting, method, mean,
-    ci_low, ci_high``, as ``tables/summary.csv``)."""
+    """``setting, method, mean, low, high`` of ``metric``, the interval clipped to the unit's
+    range, from seed-level rows (the t-interval over seeds) or a summary's."""
     part = frame[frame.metric == metric]
     rows = []
     if "value" in part.columns:

@@ -179,11 +179,9 @@ def run_tex(entry: Entry) -> str:
 
 def publish(staged: Path, paper: Path, entry: Entry,
             stages_of: Callable[[str], Mapping[str, Mapping]]) -> list[str]:
-    """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (and the
-    others only where ``paper`` lacks them), stamp the markdown tables, write
-    ``generated/run.tex`` for the PDF, and record an entry per published file in
-    ``paper/provenance.json``, with ``stages_of(rel)``: the stages behind file ``rel`` and the
-    code each ran (from their stamps). Returns the published paths (relative)."""
+    """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (the others
+    only where missing), stamp the markdown tables, write ``generated/run.tex`` and record each
+    file's entry with ``stages_of(rel)`` (its stages and their code). Returns the paths."""
     staged, paper = Path(staged), Path(paper)
     atomic_write_text(staged / "generated" / "run.tex",
                       run_tex(entry.with_stages(stages_of("generated/run.tex"))))
@@ -206,11 +204,9 @@ def publish(staged: Path, paper: Path, entry: Entry,
 
 def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
             repo: Path) -> list[str]:
-    """Entries for ``files_rel`` written by ``command`` from the numbers of ``source`` (a file
-    of ``paper`` with an entry), outside the pipeline (a figure redrawn from its tables, a
-    table's numbers re-read): ``source``'s entry with the command, and its stages plus a
-    ``derive`` stage at this checkout's code (a schema 1 source's stages are its recorded
-    commit, as ``run``). Returns the files given an entry."""
+    """Entries for ``files_rel`` that ``command`` wrote from ``source``'s numbers outside the
+    pipeline: ``source``'s entry with the command, its stages plus a ``derive`` stage at this
+    checkout's code. Returns the files given an entry."""
     files = load(paper)
     if source not in files:
         raise ConfigError(f"{FILE}: no entry for the source {source!r}")
@@ -230,10 +226,8 @@ MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, 
 
 
 def record_maze(paper: Path) -> list[str]:
-    """Entries for the maze study's outputs under ``paper`` written by ``python -m maze --out
-    PAPER`` run alone (outside the pipeline): its command, device, wall time, date and code
-    as its ``maze_config.json`` recorded them (stage ``maze``); the markdown tables get the
-    line. Returns the files given an entry."""
+    """Entries for the maze study's outputs of ``python -m maze --out PAPER`` run alone, as its
+    ``maze_config.json`` recorded them (stage ``maze``). Returns the files given an entry."""
     paper = Path(paper)
     meta = read_json(paper / "maze_config.json")
     machine, code = meta.get("machine"), meta.get("code")

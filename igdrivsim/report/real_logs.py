@@ -92,10 +92,9 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
 
 
 def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
-    """A learned driver against each of :data:`PAIRED_REFERENCES` ego by ego on the real logs'
-    log divergence (:func:`igdrivsim.evaluation.paired.compare_on_egos`: bootstrap over
-    source scenarios, then seeds), and against constant velocity the mean difference, its
-    interval and minimum detectable effect (:data:`VS_CV`); NaN for the references."""
+    """A learned driver against :data:`PAIRED_REFERENCES` ego by ego on the real logs
+    (:func:`~igdrivsim.evaluation.paired.compare_on_egos`) and :data:`VS_CV`; NaN for a
+    reference."""
     out = dict.fromkeys(PAIRED + VS_CV, float("nan"))
     if method in REFERENCES:
         return out
@@ -160,10 +159,8 @@ READOUT_COLUMNS = ["actions", *[f"real_vs_cv_{k}" for k in PAIRED_STATS]]
 
 
 def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFrame:
-    """Full BC against constant velocity, ego by ego on the real logs, under each action
-    read-out: Table I's sampled actions (``real``'s rows), then each evaluation folder under
-    ``readouts`` (its ``eval_config.json`` names the read-out) against ``real``'s constant
-    velocity; one row per read-out with :data:`PAIRED_STATS` (``real_vs_cv_`` prefixed)."""
+    """Full BC against constant velocity ego by ego under each action read-out: ``real``'s
+    sampled actions, then each evaluation under ``readouts`` (one row each)."""
     frames = {"sample": real}
     cv = real[real.method == CONSTANT_VELOCITY]
     for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
@@ -285,10 +282,8 @@ def _span(values: pd.Series, digits: int) -> str:
 
 
 def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
-    """One sentence for the report's summary: the real logs' log divergence of the learned
-    drivers (range per method) against constant velocity's, with N, how many drive farther
-    than it and, when measured, the differences the scenarios can detect (``metre``: how a
-    value and its unit are joined); ``None`` without a constant-velocity row."""
+    """The abstract's sentence: the learned drivers' real log divergence against constant
+    velocity's, with N and the detectable differences; None without constant velocity."""
     cv = table[table.method == CONSTANT_VELOCITY]
     learned = table[~table.method.isin(REFERENCES)].dropna(subset=["real_log_divergence"])
     if cv.empty or learned.empty or pd.isna(cv.real_log_divergence.iloc[0]):
@@ -404,12 +399,9 @@ def _readouts(tables: Path) -> list[str]:
 
 
 def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
-    """The drivers on real logs (``tables/real_logs.csv``, the ``real_logs`` stage): every
-    setting's BC and BC-RL against constant velocity ego by ego (share of egos closer to the
-    log, mean ratio, with 95% intervals and N), Full BC's action read-outs, the summary
-    sentence, and each learned method's log divergence per setting on the real scenarios and on
-    validation; nothing without real logs. ``headline``: the link to the full results (the
-    README's block: one sentence, Full BC's)."""
+    """The section of ``results.md`` on real logs (nothing without ``tables/real_logs.csv``):
+    ego-by-ego comparisons, read-outs, the summary sentence and the log divergence per setting;
+    with ``headline`` (the link to the full results), the README's one sentence."""
     table = read_table(tables / "real_logs.csv")
     if table is None or table.empty:
         return []

@@ -256,10 +256,8 @@ def _demote(markdown: str) -> list[str]:
 
 
 def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
-    """Table II of the run that owns it (``tables/table2.md``, written with ``tests_all.csv``
-    from that run's own summary), else rebuilt from ``tests_all.csv``: each learned method the
-    comparisons name gets its rows, from ``summary`` where it has them, else from the
-    comparisons' means (no interval); nothing without ``tests_all.csv``."""
+    """Table II of the run that owns it (``tables/table2.md``), else rebuilt from
+    ``tests_all.csv`` (means from ``summary`` where it has them); nothing without it."""
     tests_all = read_table(tables / "tests_all.csv")
     if tests_all is None:
         return []
@@ -321,10 +319,8 @@ COMPETENCE_ANCHOR = "#competence-against-the-reference-actors"
 
 
 def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
-    """Short lines: each published run's measured wall time and machine (from
-    ``paper/provenance.json``), then what each profile is for (from the training profiles);
-    ``results_link``: ``results.md`` relative to the README (where the competence targets are
-    defined)."""
+    """Each published run's measured wall time and machine (``paper/provenance.json``), then
+    what each profile is for; ``results_link``: ``results.md`` relative to the README."""
     # lazy: the training profiles pull in JAX; the rest of this module does not need it
     from igdrivsim.training.config import get_profile
 
