@@ -98,20 +98,27 @@ def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
     return math.ceil(len(handles) / ncols)
 
 
+def _metric_column(fig, axes, frame: pd.DataFrame, keys: Sequence[str], settings: Sequence[str],
+                   methods: Sequence[str], tests: pd.DataFrame | None, ncols: int) -> int:
+    """Table I's metrics ``keys``, one panel each down ``axes``; sets ``fig.marked`` and the
+    legend, returns its number of rows."""
+    marked = {}
+    for ax, key in zip(axes, keys, strict=True):
+        unit = METRIC_BY_KEY[key].unit
+        marked[key] = _bar_panel(ax, frame, key, unit, settings, methods, tests)
+        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
+    _rotate_settings(axes[-1])
+    fig.marked = marked
+    return _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+
+
 def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     """Fig. 3 from the seed-level frame (:func:`igdrivsim.evaluation.aggregate.seed_means`) or
     the summary (``tables/summary.csv``); ``tests``: BC-RL vs BC (``tables/tests.csv``)."""
     settings = _present_settings(seed_level)
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
-    marked = {}
-    for ax, key in zip(axes, PANELS, strict=True):
-        unit = METRIC_BY_KEY[key].unit
-        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, (BC, BC_RL), tests)
-        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
-    _rotate_settings(axes[-1])
-    fig.marked = marked
-    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=2)
+    rows = _metric_column(fig, axes, seed_level, PANELS, settings, (BC, BC_RL), tests, 2)
     fig.text(0.01, 0.005, CLIPPED, fontsize=6, color="0.35")
     fig.tight_layout(rect=(0, 0.015, 1, 1 - 0.027 * rows))
     return fig
@@ -346,15 +353,8 @@ def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
     fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),
                              sharex=True, squeeze=False)
-    marked = {}
-    for ax, key in zip(axes[:, 0], panels, strict=True):
-        unit = METRIC_BY_KEY[key].unit
-        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, methods, tests)
-        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
-    _rotate_settings(axes[-1, 0])
-    ncols = 4 if width >= 6.5 else 2
-    fig.marked = marked
-    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+    rows = _metric_column(fig, axes[:, 0], seed_level, panels, settings, methods, tests,
+                          4 if width >= 6.5 else 2)
     note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
     fig.text(0.01, 0.005, note, fontsize=7, color="0.35")
     fig.tight_layout(rect=(0, 0.02, 1, 1 - 0.035 * rows))

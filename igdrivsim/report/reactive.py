@@ -29,6 +29,7 @@ from igdrivsim.evaluation.aggregate import (
 from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
+from igdrivsim.report.results_tex import _num
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -100,10 +101,6 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
     out["p_holm"] = holm_adjust(out.p_value.to_numpy())
     out["significant"] = out.p_holm < ALPHA
     return out
-
-
-def _num(value: float, digits: int) -> str:
-    return "--" if not np.isfinite(value) else f"{value:.{digits}f}"
 
 
 def _cell(row: pd.Series, cond: str, digits: int) -> str:

@@ -22,7 +22,7 @@ from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
 from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
-from igdrivsim.report.tables import table1_markdown, wrap
+from igdrivsim.report.tables import _fmt, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 # the README's block near the top: measured run times and the choice of profile (optional)
@@ -65,10 +65,6 @@ def run_line(paper: Path, commit: bool = True) -> str:
     if not commit:  # no commit hash at all (the README)
         note = re.sub(r"\s*(?:as of |at |commit )?\b[0-9a-f]{7,40}\b", "", note)
     return "Run: " + ", ".join(parts) + note + "."
-
-
-def _f(value: float) -> str:
-    return f"{value:.2f}" if math.isfinite(value) else "--"
 
 
 def _signed(value: float) -> str:
@@ -122,12 +118,12 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
            + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
            "|---|" + "---|" * (len(_HEADLINE) + 2)]
     for setting in settings:
-        cells = [_f(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
         out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
                    + f" | {_interval(_test(tests, 'offroad', setting))} | {paper_text} |")
-    out.append("| constant velocity | " + " | ".join(_f(cv[m]) for m, _ in _HEADLINE)
+    out.append("| constant velocity | " + " | ".join(_fmt(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
     k, n = _significant(tests)
     closing = f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."
@@ -156,7 +152,7 @@ def _competence(summary: pd.DataFrame) -> list[str]:
            "| setting | method | " + " | ".join(f"{label} ({unit})" for _, label, unit in
                                                COMPETENCE.values()) + " | targets met |",
            "|---|---|" + "---|" * (len(COMPETENCE) + 1),
-           "| target | | " + " | ".join(f"<= {_f(ratio * cv[m])}" for m, (ratio, _, _) in
+           "| target | | " + " | ".join(f"<= {_fmt(ratio * cv[m])}" for m, (ratio, _, _) in
                                        COMPETENCE.items()) + " | |"]
     for setting in settings:
         for method in methods:
@@ -166,10 +162,10 @@ def _competence(summary: pd.DataFrame) -> list[str]:
                 ok = math.isfinite(value) and value <= ratio * cv[metric]
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
-                cells.append(f"{_f(value)}{ratio_text}{' ✓' if ok else ''}")
+                cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
             out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
                        + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
-    expert = [f"{label} {_f(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+    expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
                   + ", ".join(expert) + ".", ""]
