@@ -31,6 +31,7 @@ from igdrivsim.report.tables import (
     _metric_name,
     _signed,
     _tex,
+    heading,
     latex_float,
     setting_header,
 )
@@ -125,9 +126,7 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     (:func:`compare_all`)."""
     methods = learned_methods(summary)
     cols = _columns(summary, methods)
-    out = ["# Table II: learned methods vs BC", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Table II: learned methods vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "

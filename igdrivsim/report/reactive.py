@@ -30,6 +30,7 @@ from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.results_tex import _num
+from igdrivsim.report.tables import heading
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -128,9 +129,7 @@ def driver_label(setting: str, method: str) -> tuple[str, str]:
 
 def reactive_markdown(table: pd.DataFrame, header: str = "") -> str:
     """``tables/reactive.md``: per driver and metric, log, idm and log - idm."""
-    lines = ["# Every driver under log-replay and IDM sim agents (beyond the paper)", ""]
-    if header:
-        lines += [header, ""]
+    lines = heading("# Every driver under log-replay and IDM sim agents (beyond the paper)", header)
     n = int(table.n_pairs.max()) if len(table) else 0
     lines += [
         "Each cell: the mean over seeds of each seed's mean over the validation scenarios, with "

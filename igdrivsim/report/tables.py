@@ -44,6 +44,11 @@ def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
     return lines + [line] if line else lines
 
 
+def heading(title: str, header: str = "") -> list[str]:
+    """A markdown page's first lines: its title, then ``header`` (the run's scope) if any."""
+    return [title, "", *([header, ""] if header else [])]
+
+
 def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd.Series | None:
     rows = summary[(summary.metric == metric) & (summary.setting == setting)
                    & (summary.method == method)]
@@ -167,9 +172,7 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
     bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
     cols = table_settings(summary, tests)
-    out = ["# Table I: BC-RL vs BC", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Table I: BC-RL vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
@@ -203,9 +206,7 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
 
     ``same direction`` says whether the sign of BC-RL minus BC agrees with the paper's.
     """
-    out = ["# Our Table I next to the paper's", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Our Table I next to the paper's", header)
     out += ["Paper: Grislain et al., Table I (WOMD validation, mean of 3 seeds). Absolute values "
             "are comparable only when both were computed on WOMD; on synthetic data compare the "
             "direction of the BC-RL minus BC difference.", ""]
@@ -320,9 +321,7 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
-    out = ["## Could the paper's effects be detected here?", ""]
-    if header:
-        out += [header, ""]
+    out = heading("## Could the paper's effects be detected here?", header)
     out += [f"Minimum detectable effect (MDE): the smallest true BC-RL − BC difference a "
             f"two-sided test detects with {POWER:.0%} power, (z(1−α/2) + z({POWER})) × SE, SE "
             f"the bootstrap standard error of the difference at this run's seeds and scenarios; "
@@ -399,9 +398,7 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
     """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
     half-width, with each metric's unit, direction and source (no significance tests)."""
     cols = table_settings(summary)
-    out = ["# Supplementary metrics (beyond Table I)", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Supplementary metrics (beyond Table I)", header)
     out += ["Per-scenario metrics of closed-loop driving benchmarks (definitions and sources: "
             "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
             "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
