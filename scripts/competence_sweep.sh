@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Full BC of a profile under training variants, on a reproduce.sh run's data: each variant
 # trained (3 seeds, closed-loop validation on every validation scenario at each checkpoint) and
-# evaluated as the pipeline does, then one table (python -m igdrivsim.report.sweep) in
+# evaluated as the pipeline does, then one table (igdrivsim report sweep) in
 # WORK/sweep.md. Variants run side by side (JOBS at a time); on a GPU all of them at once.
 #
 #   bash scripts/competence_sweep.sh WORK NAME[=SECTION.FIELD=VALUE,...] ...
@@ -18,7 +18,7 @@ usage: bash scripts/competence_sweep.sh WORK NAME[=SECTION.FIELD=VALUE,...] ...
 
 Full BC under training variants on a reproduce.sh run's data: each variant trained (3 seeds,
 closed-loop validation at every checkpoint) and evaluated as the pipeline does, then one table
-(python -m igdrivsim.report.sweep) in WORK/sweep.md. For example:
+(igdrivsim report sweep) in WORK/sweep.md. For example:
   bash scripts/competence_sweep.sh /tmp/sweep base b32=data.batch_size=32 lr6e-3=training.lr=6e-3
 
   WORK     the sweep's folder: runs/NAME, evals/NAME, logs/, sweep.md (required)
@@ -69,5 +69,5 @@ for v in "$@"; do
     variant "$v" &
 done
 wait
-"$PYTHON" -m igdrivsim.report.sweep "$WORK" --references "$RUN/evals/references" \
+"${I[@]}" report sweep "$WORK" --references "$RUN/evals/references" \
     --out "$WORK/sweep.md"

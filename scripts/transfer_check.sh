@@ -4,7 +4,7 @@
 # filters it, trains Full BC (laptop profile, 3 seeds, 1,000 updates) and evaluates it and the
 # reference actors on the synthetic validation set and on each real set (every vehicle that
 # passes the scenario filter as the ego in turn); then
-# python -m igdrivsim.report.transfer compares every WORK/MOTION folder in WORK/transfer.md.
+# igdrivsim report transfer compares every WORK/MOTION folder in WORK/transfer.md.
 #
 #   bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]
 #   e.g. bash scripts/transfer_check.sh /tmp/transfer calibrated
@@ -16,7 +16,7 @@ usage: bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]
 
 Full BC (laptop profile, 3 seeds) trained on synthetic data generated with MOTION, evaluated
 with the reference actors on its synthetic validation set and on real logs; then one table
-comparing every motion run so far under WORK (WORK/transfer.md, igdrivsim.report.transfer).
+comparing every motion run so far under WORK (WORK/transfer.md, igdrivsim report transfer).
 Resumable: rerun the same command after an interruption.
 
   WORK           the check's folder: WORK/MOTION/{data,filtered,cache,runs,evals_*} (required)
@@ -72,4 +72,4 @@ for set in "validation=filtered/validation" "${REAL[@]}"; do
     done
 done
 echo "$MOTION: evaluated on validation and ${#REAL[@]} real set(s)"
-"$PYTHON" -m igdrivsim.report.transfer "$WORK" --out "$WORK/transfer.md"
+"${I[@]}" report transfer "$WORK" --out "$WORK/transfer.md"

@@ -8,12 +8,8 @@ import pytest
 
 from igdrivsim.errors import DataError
 from igdrivsim.evaluation import aggregate
-from igdrivsim.evaluation.schema import (
-    PER_SCENARIO_COLUMNS,
-    PER_STEP_COLUMNS,
-    REFERENCE_SETTING,
-    SETTINGS,
-)
+from igdrivsim.evaluation.schema import PER_SCENARIO_COLUMNS, PER_STEP_COLUMNS, REFERENCE_SETTING
+from igdrivsim.names import SETTINGS
 from igdrivsim.report import tables
 from igdrivsim.report.build import Provenance, build_report
 

@@ -17,7 +17,8 @@ import pytest
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from igdrivsim.evaluation.schema import REFERENCE_SETTING, SETTINGS  # noqa: E402
+from igdrivsim.evaluation.schema import REFERENCE_SETTING  # noqa: E402
+from igdrivsim.names import SETTINGS  # noqa: E402
 from igdrivsim.report import figures, plots  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

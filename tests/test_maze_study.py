@@ -46,7 +46,7 @@ def test_each_program_compiles_once(run):
 
 
 def test_provenance_records_the_run_alone(run):
-    """``python -m igdrivsim.report.provenance maze`` records the run's own command, machine,
+    """``igdrivsim report provenance maze`` records the run's own command, machine,
     wall time and code for each of its outputs, and stamps its markdown table."""
     from igdrivsim.report import provenance
 

@@ -1,32 +1,36 @@
-"""The report learns every name without JAX: evaluation/schema.py's copy of the registries'
-setting and method names, short names, labels and colours equals the registries, and the
-report's table modules import without loading JAX."""
+"""One source of names: igdrivsim/names.py defines the settings' and methods' labels, colours
+and short names; the registries read them, and the names and the report's table modules import
+without loading JAX."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 
-from igdrivsim.evaluation import schema
+from igdrivsim import names
 
-LIGHT_MODULES = ("igdrivsim.evaluation.schema", "igdrivsim.report.tables",
+LIGHT_MODULES = ("igdrivsim.names", "igdrivsim.evaluation.schema", "igdrivsim.report.tables",
                  "igdrivsim.report.results_doc", "igdrivsim.report.compare",
                  "igdrivsim.report.sweep", "igdrivsim.report.transfer")
 
 
-def test_the_light_names_equal_the_registries():
+def test_the_registries_read_the_names():
     from igdrivsim.observation import models  # the package registers occlusion
+    from igdrivsim.pipeline.profiles import PROFILES
+    from igdrivsim.training.config import get_profile
     from igdrivsim.training.methods import METHODS
 
-    assert schema.SETTINGS == models.PAPER_SETTINGS
-    assert schema.SETTING_SHORT == models.PRESET_SHORT
-    assert schema.LEARNED == {m.name: (m.label, m.colour) for m in METHODS.values()}
-    assert list(schema.LEARNED) == list(METHODS)  # the tables' order is the registry's
-    assert set(schema.METHODS) <= set(METHODS)
-    assert not set(schema.REFERENCES) & set(METHODS)
+    assert names.SETTINGS == models.PAPER_SETTINGS
+    assert models.PRESET_SHORT == {s: names.SETTING_SHORT[s] for s in models.PRESETS}
+    assert models.PRESET_TITLES["occlusion"] == names.SETTING_TITLES["occlusion"]
+    assert names.LEARNED == {m.name: (m.label, m.colour) for m in METHODS.values()}
+    assert list(names.LEARNED) == list(METHODS)  # the tables' order is the registry's
+    assert set(names.METHODS) <= set(METHODS)
+    assert not set(names.REFERENCES) & set(METHODS)
+    assert PROFILES["gpu"].seeds == get_profile("gpu").training.seeds == names.GPU_SEEDS
 
 
-def test_the_report_tables_import_without_jax():
+def test_the_names_and_report_tables_import_without_jax():
     code = (f"import {', '.join(LIGHT_MODULES)}; import sys; "
             "loaded = sorted(m for m in ('jax', 'flax', 'optax', 'orbax') if m in sys.modules); "
             "assert not loaded, loaded")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from igdrivsim.evaluation.schema import SETTINGS
+from igdrivsim.names import SETTINGS
 from igdrivsim.pipeline import planning, runner
 from igdrivsim.pipeline.cli import build_parser, pipeline_from_args
 from igdrivsim.pipeline.profiles import PROFILES
@@ -143,7 +143,7 @@ def test_gpu_profile_trains_the_laptop_updates_with_more_seeds():
 
 def test_grid_split_keeps_every_worker_busy_and_the_plan_comes_first(tmp_path, monkeypatch,
                                                                       capsys):
-    from igdrivsim.evaluation.schema import METHODS
+    from igdrivsim.names import METHODS
 
     seconds = planning.part_seconds("laptop", 3, 1000, False)
     for workers in (1, 2, 4, 8):
@@ -269,7 +269,7 @@ def test_the_paper_plan_prices_table_one_at_paper_scale(tmp_path, monkeypatch):
     """The paper profile has no per-update price for the pipeline, but its plan states what
     Table I at paper scale costs at the measured rates; on a GPU machine the gpu profile's
     maze is priced at that machine's time."""
-    from igdrivsim.evaluation.schema import SETTINGS
+    from igdrivsim.names import SETTINGS
     from igdrivsim.training import cost
 
     pipe = Pipeline(PROFILES["paper"], tmp_path / "work", tmp_path / "paper", workers=1)

@@ -11,8 +11,13 @@ from pathlib import Path
 
 import pytest
 
+from igdrivsim import cli
 from igdrivsim.pipeline.runner import REPO_ROOT
 from igdrivsim.report import provenance
+
+
+def report_provenance(argv):
+    return cli.main(["report", "provenance", *argv])
 
 FIELDS = set(provenance.Entry.__dataclass_fields__)
 
@@ -145,7 +150,7 @@ def test_check_fails_when_a_published_file_lacks_its_stage_commits(tmp_path, cap
     staged = _staged(tmp_path / "d", ["tables/table1.md"], "default run")
     provenance.publish(staged, paper, _entry("default"), _at("abc1234"))
     check = ["check", "--paper", str(paper)]
-    assert provenance.main(check) == 0
+    assert report_provenance(check) == 0
     good = provenance.load(paper)
     assert good["tables/table1.md"]["stages"] == {"report": _code("abc1234")}
     for broken, message in (({"report": {"dirty": False, "diff_hash": None}},
@@ -154,11 +159,11 @@ def test_check_fails_when_a_published_file_lacks_its_stage_commits(tmp_path, cap
         provenance.save(paper, {**good, "tables/table1.md": {
             **good["tables/table1.md"], "stages": broken}})
         capsys.readouterr()
-        assert provenance.main(check) == 1, broken
+        assert report_provenance(check) == 1, broken
         assert f"tables/table1.md: {message}" in capsys.readouterr().out
     # a publish whose stages are unknown to it records that, and the check fails
     provenance.publish(staged, paper, _entry("default"), lambda rel: {})
-    assert provenance.main(check) == 1
+    assert report_provenance(check) == 1
 
 
 def test_entries_published_before_per_stage_provenance_stay_readable(tmp_path, capsys):
@@ -171,7 +176,7 @@ def test_entries_published_before_per_stage_provenance_stay_readable(tmp_path, c
         "schema": 1, "about": "old", "files": {"tables/table2.md": old}}))
     assert provenance.Entry.from_record(old).line() == _entry("methods").line()
     assert provenance.stage_check(provenance.load(paper)) == ([], ["tables/table2.md"])
-    assert provenance.main(["check", "--paper", str(paper)]) == 0  # reported, not failed
+    assert report_provenance(["check", "--paper", str(paper)]) == 0  # reported, not failed
     assert provenance.LEGACY in capsys.readouterr().out
     provenance.publish(_staged(tmp_path / "d", ["tables/table1.md"], "default run"), paper,
                        _entry("default"), _at("abc1234"))
@@ -192,7 +197,7 @@ def test_the_about_text_names_modules_that_exist_and_help_shows_defaults(tmp_pat
     for module in named:
         importlib.import_module(module)
     with pytest.raises(SystemExit) as exit_:
-        provenance.main(["--help"])
+        report_provenance(["--help"])
     assert exit_.value.code == 0
     assert f"(default: {REPO_ROOT / 'paper'})" in " ".join(capsys.readouterr().out.split())
 
@@ -262,7 +267,7 @@ def test_derived_files_name_their_command_and_the_code_of_both_steps(tmp_path, c
     (paper / "tables" / "summary.md").write_text("# Summary\n\nrows\n")
     (paper / provenance.FILE).write_text(json.dumps({
         "schema": 1, "about": "old", "files": {"tables/seed_means.csv": old}}))
-    assert provenance.main(["derived", "figures/fig3.png", "tables/summary.md", "--from",
+    assert report_provenance(["derived", "figures/fig3.png", "tables/summary.md", "--from",
                             "tables/seed_means.csv", "--command", "python -m redraw",
                             "--paper", str(paper)]) == 0
     files = provenance.load(paper)
@@ -274,5 +279,5 @@ def test_derived_files_name_their_command_and_the_code_of_both_steps(tmp_path, c
     assert provenance.stage_check(files)[0] == []
     assert (paper / "tables" / "summary.md").read_text().splitlines()[2] == fig.line()
     assert files["tables/seed_means.csv"] == old  # the source's entry untouched
-    assert provenance.main(["derived", "figures/fig3.png", "--paper", str(paper)]) == 2
+    assert report_provenance(["derived", "figures/fig3.png", "--paper", str(paper)]) == 2
     assert "derived needs FILE" in capsys.readouterr().err

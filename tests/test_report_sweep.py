@@ -1,4 +1,4 @@
-"""`python -m igdrivsim.report.sweep`: each variant's overrides, the updates its evaluation saw,
+"""`igdrivsim report sweep`: each variant's overrides, the updates its evaluation saw,
 its compute relative to the profile's budget, and its log divergence against constant
 velocity's on the same scenarios."""
 
@@ -9,7 +9,8 @@ import json
 
 import pandas as pd
 
-from igdrivsim.report.sweep import main, sweep_table
+from igdrivsim import cli
+from igdrivsim.report.sweep import sweep_table
 from igdrivsim.training.config import get_profile, to_dict
 
 COLUMNS = ["setting", "method", "seed", "scenario_id", "log_divergence", "offroad_steps",
@@ -53,21 +54,21 @@ def test_sweep_table_prices_and_scores_each_variant(tmp_path, capsys):
     assert table.loc["long", "updates"] == "500 of 2000"
     assert table.loc["long", "compute"] == 1.0
     assert "training.num_updates=2000" in table.loc["long", "overrides"]
-    assert main([str(tmp_path), "--references", str(refs), "--out",
+    assert cli.main(["report", "sweep", str(tmp_path), "--references", str(refs), "--out",
                  str(tmp_path / "sweep.md")]) == 0
     assert "| long |" in (tmp_path / "sweep.md").read_text()
 
 
 def test_sweep_without_runs_is_a_one_line_error(tmp_path, capsys):
-    assert main([str(tmp_path)]) == 2
+    assert cli.main(["report", "sweep", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("sweep: error:") and "runs" in err and "\n" not in err
+    assert err.startswith("igdrivsim report: error:") and "runs" in err and "\n" not in err
 
 
 def test_sweep_with_a_broken_config_names_the_file(tmp_path, capsys):
     run = tmp_path / "runs" / "bad"
     run.mkdir(parents=True)
     (run / "config.json").write_text("{}")
-    assert main([str(tmp_path)]) == 2
+    assert cli.main(["report", "sweep", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "runs/bad/config.json" in err and "\n" not in err

@@ -1,4 +1,4 @@
-"""`python -m igdrivsim.report.transfer`: Full BC against constant velocity per (data set,
+"""`igdrivsim report transfer`: Full BC against constant velocity per (data set,
 motion model), and the motion models' BC against each other on the shared real scenarios, with
 bootstrap intervals that contain the true difference."""
 
@@ -9,14 +9,19 @@ import json
 import pandas as pd
 import pytest
 
+from igdrivsim import cli
 from igdrivsim.errors import ConfigError
 from igdrivsim.report.transfer import (
     against_constant_velocity,
     between_motions,
     ego_by_ego,
     evaluations,
-    main,
 )
+
+
+def main(argv):
+    return cli.main(["report", "transfer", *argv])
+
 
 COLUMNS = ["setting", "method", "seed", "scenario_id", "log_divergence", "offroad_steps",
            "overlap_steps", "max_log_divergence", "overlap", "offroad"]

@@ -51,8 +51,7 @@ def test_registry_order_and_what_each_method_collects():
 
 def test_the_registry_is_the_only_place_a_method_is_named():
     """No module outside igdrivsim/training/methods/ spells a method's name as a string,
-    except evaluation/schema.py, whose copy of the names, labels and colours (without JAX) is
-    checked against the registry by tests/test_names.py."""
+    except igdrivsim/names.py, where the names, labels and colours are defined once."""
     root = Path(methods.__file__).resolve().parents[3]  # the repository
     assert (root / "igdrivsim" / "training" / "methods").is_dir()
     pattern = re.compile(r"""["'](bc|bc_rl|dagger|advisor)["']""")
@@ -62,7 +61,7 @@ def test_the_registry_is_the_only_place_a_method_is_named():
         if rel.startswith("igdrivsim/training/methods/"):
             continue
         for name in pattern.findall(path.read_text(encoding="utf-8")):
-            if rel != "igdrivsim/evaluation/schema.py":
+            if rel != "igdrivsim/names.py":
                 offenders.append(f"{rel}: {name}")
     assert offenders == []
 

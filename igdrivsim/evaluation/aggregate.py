@@ -31,15 +31,14 @@ from scipy import stats
 
 from igdrivsim.errors import DataError
 from igdrivsim.evaluation.schema import (
-    BC,
     METRIC_BY_KEY,
     METRICS,
     PER_SCENARIO_COLUMNS,
     PER_SCENARIO_FILE,
     PER_STEP_COLUMNS,
     PER_STEP_FILE,
-    REFERENCES,
 )
+from igdrivsim.names import BC, REFERENCES
 
 ALPHA = 0.05
 CONFIDENCE = 0.95

@@ -4,35 +4,14 @@ The tidy CSVs written by :mod:`igdrivsim.evaluation.rollout` and read by
 :mod:`igdrivsim.evaluation.aggregate` use exactly these names, so a table or a figure never
 has to guess what a column means.
 
-This module imports no JAX (nor anything of igdrivsim), so the report's tables, the results
-page and the comparisons learn every name without loading JAX. The setting and method names,
-short names, labels and colours below are those of the registries'
-(:data:`igdrivsim.observation.models.PRESETS` and ``PRESET_SHORT``,
-:data:`igdrivsim.training.methods.METHODS`) shipped entries, repeated here;
-``tests/test_names.py`` checks that they agree, so a shipped setting or method is added in both
-places. One registered at run time only, in one process, is labelled by its name here.
+This module imports no JAX; the settings' and methods' names are :mod:`igdrivsim.names`'.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-# The six observation settings of the paper, in Table I column order (observation PRESETS names).
-SETTINGS: tuple[str, ...] = ("full", "gaussian_noise", "circular_r4", "circular_r6", "conic_r4",
-                             "random_masking")
-SETTING_LABELS: dict[str, tuple[str, str]] = {  # two header lines, as in the paper's Table I
-    "full": ("Full obs", ""),
-    "gaussian_noise": ("Gaussian", r"noise ($\sigma$=3)"),
-    "circular_r4": ("Circular", "FoV (r=4)"),
-    "circular_r6": ("Circular", "FoV (r=6)"),
-    "conic_r4": ("Conic FoV", r"(r=4, $\alpha=\frac{2}{3}\pi$)"),
-    "random_masking": ("Random", "masking (p=0.7)"),
-}
-SETTING_SHORT: dict[str, str] = {  # the observation registry's short names (PRESET_SHORT)
-    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
-    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
-    "occlusion": "Occlusion",
-}
+from igdrivsim.names import SETTINGS
 
 # Competence targets of a learned driver against constant velocity on the same scenarios
 # (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
@@ -41,7 +20,6 @@ COMPETENCE: dict[str, tuple[float, str, str]] = {
     "offroad": (0.25, "offroad", "% steps"),
     "overlap": (1.0, "overlap", "% steps"),
 }
-
 
 
 def table_settings(*frames) -> tuple[str, ...]:
@@ -55,31 +33,6 @@ def table_settings(*frames) -> tuple[str, ...]:
     return SETTINGS + tuple(extra)
 
 
-def setting_short(name: str) -> str:
-    """A setting's short column name (the observation registry's; else the name)."""
-    return SETTING_SHORT.get(name, name)
-
-
-def setting_labels(name: str) -> tuple[str, str]:
-    """A setting's two header lines for the LaTeX tables."""
-    return SETTING_LABELS.get(name) or (setting_short(name), "")
-
-
-# Learned methods compared in Table I, and reference rows that need no training.
-BC, BC_RL = "bc", "bc_rl"
-EXPERT, CONSTANT_VELOCITY = "expert", "constant_velocity"
-METHODS: tuple[str, ...] = (BC_RL, BC)
-REFERENCES: tuple[str, ...] = (EXPERT, CONSTANT_VELOCITY)
-# Every shipped learning method, in the method registry's order, with its label and colour
-LEARNED: dict[str, tuple[str, str]] = {
-    BC: ("BC", "#4C9BE8"), BC_RL: ("BC-RL", "#F28E2B"), "dagger": ("DAgger", "#59A14F"),
-    "advisor": ("ADVISOR", "#B07AA1"),
-}
-METHOD_COLOURS: dict[str, str] = {name: colour for name, (_, colour) in LEARNED.items()}
-METHOD_LABELS: dict[str, str] = {  # the learned methods' labels, then the references'
-    **{name: label for name, (label, _) in LEARNED.items()},
-    EXPERT: "Expert (discretised replay)", CONSTANT_VELOCITY: "Constant velocity",
-}
 # Reference rows do not depend on the observation: their CSV `setting` is this value.
 REFERENCE_SETTING = "none"
 

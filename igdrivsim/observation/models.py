@@ -24,6 +24,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from igdrivsim.errors import ConfigError
+from igdrivsim.names import SETTING_SHORT, SETTING_TITLES
 from igdrivsim.observation.features import (
     Observation,
     hide_objects,
@@ -283,32 +284,22 @@ PRESETS: dict[str, ObservationSetting] = {
 # The paper's six, in Table I column order (the registry may hold more: register_setting).
 PAPER_SETTINGS: tuple[str, ...] = tuple(PRESETS)
 
-# Panel titles as in the paper's Table I.
-PRESET_TITLES: dict[str, str] = {
-    "full": "Full obs",
-    "gaussian_noise": "Gaussian noise (σ=3 m)",
-    "circular_r4": "Circular FoV (r=4 m)",
-    "circular_r6": "Circular FoV (r=6 m)",
-    "conic_r4": "Conic FoV (r=4 m, α=2π/3)",
-    "random_masking": "Random masking (p=0.7)",
-}
-
-
-PRESET_SHORT: dict[str, str] = {
-    "full": "Full", "gaussian_noise": "Gauss σ=3", "circular_r4": "Circ r=4",
-    "circular_r6": "Circ r=6", "conic_r4": "Conic r=4", "random_masking": "Mask p=.7",
-}
+# Panel titles and short names (igdrivsim.names; register_setting adds those of a new setting).
+PRESET_TITLES: dict[str, str] = {name: SETTING_TITLES[name] for name in PRESETS}
+PRESET_SHORT: dict[str, str] = {name: SETTING_SHORT[name] for name in PRESETS}
 
 
 def register_setting(setting: ObservationSetting, title: str | None = None,
                      short: str | None = None) -> ObservationSetting:
-    """Add ``setting`` to the registry (``--obs NAME`` everywhere; ``title`` and ``short`` label
-    the tables' and figures' columns, default: the name)."""
+    """Add ``setting`` to the registry under its name: ``--obs NAME`` in every command, the
+    pipeline's ``--obs`` and the tables' and figures' columns (``title`` and ``short`` label
+    them; default: :mod:`igdrivsim.names`', else the name). Returns the setting."""
     if setting.name in PRESETS and PRESETS[setting.name] != setting:
         raise ConfigError(f"observation setting {setting.name!r} is already registered")
     PRESETS[setting.name] = setting
+    title = title or SETTING_TITLES.get(setting.name)
     PRESET_TITLES[setting.name] = title or setting.name
-    PRESET_SHORT[setting.name] = short or title or setting.name
+    PRESET_SHORT[setting.name] = short or SETTING_SHORT.get(setting.name) or title or setting.name
     return setting
 
 

@@ -53,5 +53,5 @@ class LineOfSightOcclusion(ObservationModel):
         return self.replace(length=0.0, width=0.0)
 
 
-register_setting(ObservationSetting("occlusion", (LineOfSightOcclusion(),)),
-                 title="Line-of-sight occlusion", short="Occlusion")
+# its title and short name: igdrivsim.names
+register_setting(ObservationSetting("occlusion", (LineOfSightOcclusion(),)))

@@ -13,8 +13,8 @@ from pathlib import Path
 from igdrivsim.cli_args import DefaultsFormatter, deprecated_alias
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import METHODS
 from igdrivsim.io import require_folder
+from igdrivsim.names import METHODS
 from igdrivsim.pipeline.profiles import PROFILES
 from igdrivsim.pipeline.runner import REPO_ROOT
 from igdrivsim.pipeline.stages import Pipeline

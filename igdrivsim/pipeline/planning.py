@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from igdrivsim.cli_args import FORMATTER
-from igdrivsim.evaluation.schema import METHODS, SETTINGS
+from igdrivsim.names import METHODS, SETTINGS
 from igdrivsim.training import cost
 from igdrivsim.training.config import get_profile
 from igdrivsim.training.methods import get_method

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from igdrivsim.evaluation.schema import SETTINGS
+from igdrivsim.names import GPU_SEEDS, SETTINGS
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ PROFILES: dict[str, PipelineProfile] = {
     # the laptop's sizes; the training profile of the same name trains 300 updates
     "quick": replace(_LAPTOP, name="quick"),
     # the laptop's training data and updates; 4x the seeds and validation scenarios, for power
-    "gpu": replace(_LAPTOP, name="gpu", val_scenarios=2048, seeds=12, eval_batch=128),
+    "gpu": replace(_LAPTOP, name="gpu", val_scenarios=2048, seeds=GPU_SEEDS, eval_batch=128),
     "paper": PipelineProfile("paper", train_scenarios=20_000, val_scenarios=2_000, seeds=3,
                              eval_max_scenarios=0, maze_profile="default"),
 }

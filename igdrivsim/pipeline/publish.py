@@ -17,8 +17,8 @@ import threading
 import time
 from pathlib import Path
 
-from igdrivsim.evaluation.schema import METHODS
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
+from igdrivsim.names import METHODS
 from igdrivsim.pipeline.runner import REPO_ROOT, StageError
 from igdrivsim.report import provenance
 from igdrivsim.training.methods import get_method

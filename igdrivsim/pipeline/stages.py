@@ -29,8 +29,9 @@ from igdrivsim import lanes
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.data.manifest import MANIFEST
 from igdrivsim.errors import ConfigError
-from igdrivsim.evaluation.schema import BC, METHODS, PER_SCENARIO_FILE
+from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
 from igdrivsim.io import atomic_copy, atomic_write_json, read_json
+from igdrivsim.names import BC, METHODS
 from igdrivsim.observation import stack_settings
 from igdrivsim.observation.commands import DEFAULT_DATA
 from igdrivsim.pipeline import planning
@@ -188,7 +189,7 @@ class Pipeline(Publisher, StageRunner):
         """Table I's companion: every driver under log-replay and IDM sim agents
         (:mod:`igdrivsim.report.reactive`, tables/reactive.md and Fig. 7)."""
         self.stage("reactive", [[
-            "python", "-m", "igdrivsim.report.reactive", "--log", self.work / "evals",
+            "igdrivsim", "report", "reactive", "--log", self.work / "evals",
             "--idm", self.work / "evals_idm", "--out", self.staged]],
             depends=["evaluate_references", "evaluate_references_idm",
                      *[f"evaluate_{p}{s}" for p in parts for s in ("", "_idm")]],
@@ -274,7 +275,7 @@ class Pipeline(Publisher, StageRunner):
         if full_bc is not None:
             commands += [["igdrivsim", "evaluate", self.work / "runs" / full_bc, "--out",
                           readouts / mode, "--actions", mode, *common] for mode in READOUTS]
-        commands += [["python", "-m", "igdrivsim.report.real_logs", "--real", out,
+        commands += [["igdrivsim", "report", "real-logs", "--real", out,
                       "--synthetic", self.work / "evals", "--out", self.staged / "tables",
                       "--real-label", self.samples_label, "--synthetic-label", self.data_label,
                       *(["--readouts", readouts] if full_bc is not None else [])]]

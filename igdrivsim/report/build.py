@@ -1,26 +1,11 @@
-"""Turn evaluation CSVs into the report's generated files (tables, Fig. 3, provenance).
+"""Every table and figure of one report from evaluation CSVs (``igdrivsim report --evals``).
 
-Outputs under ``OUT`` (the ``paper/`` folder by default):
-``tables/table1.tex``, ``tables/table1.md`` (with the BC-RL - BC intervals and the minimum
-detectable effects), ``tables/power.{md,tex}`` (minimum detectable effect next to the paper's
-effects), ``tables/vs_paper.md``, ``tables/summary.csv`` (mean, CI, counts), ``tables/tests.csv``
-(each method vs BC: bootstrap interval, p, Holm p, MDE), ``tables/seed_means.csv``,
-``figures/fig3_metrics.{pdf,png}``, ``figures/fig4_learning_curves.{pdf,png}`` (when runs with
-``curves.jsonl`` are found), the metric registry's supplementary table and figure
-(``tables/supplementary_metrics.{md,tex}``, ``tables/supplementary_summary.csv``,
-``figures/fig5_supplementary.{pdf,png}``; see :mod:`igdrivsim.evaluation.registry`),
-``tables/curves_summary.csv`` (the learning curves' last validation updates),
-``generated/provenance.tex`` (profile, data, seeds, date, commit: macros the report uses)
-and ``generated/verdicts.tex`` (is BC-RL safer, per setting). Table I, the power tables, the
-verdicts and ``tests.csv`` compare BC-RL with BC only (Holm over Table I's cells). When the
-evaluations hold learned methods beyond BC and BC-RL, also Table II (every learned method vs
-BC, Holm over its own cells; :mod:`igdrivsim.report.methods_table`):
-``tables/table2.{md,tex}``, ``tables/tests_all.csv`` and ``figures/fig6_methods.{pdf,png}``
-(without them, those files of an earlier report in ``OUT`` are removed). Every file but the
-provenance (which records the date) is a pure function of the inputs, so reruns give
-identical tables. The prose's result macros (``generated/results.tex``, ``generated/maze.tex``)
-are read from these tables by :mod:`igdrivsim.report.results_tex` when the markdown is
-written (``igdrivsim report``, also with ``--from-tables``).
+Under ``OUT``: Table I (``tables/table1.{tex,md}``), the power and paper comparisons
+(``power.{md,tex}``, ``vs_paper.md``), the numbers (``summary.csv``, ``tests.csv``: BC-RL vs BC,
+Holm over Table I's cells; ``seed_means.csv``), the registry's supplementary metrics, Fig. 3, 4
+and 5, ``generated/{provenance,verdicts}.tex``; with learned methods beyond BC and BC-RL, Table
+II (``table2.{md,tex}``, ``tests_all.csv``, Fig. 6; without, an earlier report's are removed).
+Every file but the provenance (which records the date) is a pure function of the inputs.
 """
 
 from __future__ import annotations
@@ -33,8 +18,8 @@ from pathlib import Path
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
-from igdrivsim.evaluation.schema import BC_RL, REFERENCES, setting_labels
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
+from igdrivsim.names import BC_RL, REFERENCES, setting_labels
 from igdrivsim.report import methods_table
 from igdrivsim.report.figures import (
     fig3_metrics,
@@ -44,6 +29,7 @@ from igdrivsim.report.figures import (
     save_figure,
     supplementary_figure,
 )
+from igdrivsim.report.provenance import METHODS_FILES
 from igdrivsim.report.results_doc import write_curves_summary
 from igdrivsim.report.tables import (
     power_latex,
@@ -132,10 +118,9 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     return found
 
 
-# Table II's files, relative to ``out``: removed by a report without extended methods, so a
-# folder never shows a Table II from an earlier run next to this run's Table I.
-METHODS_OUTPUTS = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex",
-                   "figures/fig6_methods.pdf", "figures/fig6_methods.png")
+# Table II's files (relative to ``out``, owned by the methods run): removed by a report without
+# extended methods, so a folder never shows a Table II from an earlier run beside this Table I.
+METHODS_OUTPUTS = METHODS_FILES
 
 
 def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, header: str,
@@ -155,11 +140,9 @@ def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, he
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
-    """Aggregate every evaluation under ``eval_dirs`` and write the report files under ``out``.
-
-    ``run_dirs``: where to look for the runs' ``curves.jsonl`` (Fig. 4); by default the
-    ``runs/`` sibling of each evaluation folder. Returns the written paths.
-    """
+    """Aggregate every evaluation under ``eval_dirs``, write the report under ``out`` and return
+    the paths; ``run_dirs``: where the runs' ``curves.jsonl`` are (default: ``runs/`` beside
+    each evaluation folder)."""
     out = Path(out)
     for run in run_dirs or []:  # given explicitly: each must be there (checked before any work)
         if not Path(run).is_dir():

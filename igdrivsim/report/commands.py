@@ -3,17 +3,22 @@
 run's results page (``--results``, default ``OUT/results.md``) and, with ``--readme FILE``, fills
 that file's results block, and the PDF's result macros (``OUT/generated/results.tex``,
 ``OUT/generated/maze.tex``); ``--from-tables`` rewrites only those from ``OUT``'s tables.
+
+``igdrivsim report ACTION ...`` runs one of the report's side tools (:data:`ACTIONS`): each
+module is imported only when its action runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 from pathlib import Path
 
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation.schema import EVAL_CONFIG
-from igdrivsim.io import read_json, require_folder
+from igdrivsim.io import atomic_write_text, read_json, require_folder
 from igdrivsim.report.results_doc import write_markdown, write_run_times
 
 
@@ -44,6 +49,10 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training runs (or folders of runs) whose curves.jsonl make the "
                              "learning-curve figure (default: the runs/ folder next to each "
                              "--evals folder)")
+    actions = parser.add_subparsers(dest="action", metavar="ACTION")
+    for name, (help_, arguments, _) in ACTIONS.items():
+        arguments(actions.add_parser(name, help=help_, description=help_,
+                                     formatter_class=FORMATTER))
 
 
 def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
@@ -62,6 +71,8 @@ def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
 
 
 def report_command(args: argparse.Namespace) -> int:
+    if args.action:
+        return ACTIONS[args.action][2](args) or 0
     require_folder(args.out)
     written = []
     if not args.from_tables:
@@ -80,3 +91,123 @@ def report_command(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def _module(name: str):
+    return importlib.import_module(f"igdrivsim.report.{name}")
+
+
+def _print_or_write(text: str, out: Path | None, end: str = "\n") -> None:
+    if out:
+        atomic_write_text(out, text)
+    print(text, end=end)
+
+
+def _wrote(paths) -> None:
+    for path in paths:
+        print(f"wrote {path}")
+
+
+def _compare_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("old", type=Path, help="report tables folder (summary.csv, tests.csv)")
+    p.add_argument("new", type=Path, help="the same for the run compared with it")
+    p.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
+                   help="the two runs' names in the table")
+    p.add_argument("--out", type=Path, help="also write the markdown here")
+
+
+def _compare(args) -> None:
+    _print_or_write(_module("compare").compare_markdown(args.old, args.new, tuple(args.labels)),
+                    args.out)
+
+
+def _figures_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paper", nargs="?", default="paper", help="the report folder")
+
+
+def _provenance_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("task", choices=("check", "derived", "maze"),
+                   help="check the entries, record derived files, or record a maze study run "
+                        "alone")
+    p.add_argument("files", nargs="*", metavar="FILE",
+                   help="derived: the files written (relative to --paper)")
+    p.add_argument("--from", dest="source", default=None, metavar="SOURCE",
+                   help="derived: the file (relative to --paper) whose numbers they hold")
+    p.add_argument("--command", default=None, help="derived: the command that wrote them")
+    p.add_argument("--paper", default=str(REPO / "paper"), help="the report folder")
+
+
+def _reactive_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--log", nargs="+", required=True, metavar="DIR",
+                   help="evaluations with log-replay agents (Table I's)")
+    p.add_argument("--idm", nargs="+", required=True, metavar="DIR",
+                   help="the same drivers evaluated with --agents idm")
+    p.add_argument("--out", required=True, help="report folder (tables/, figures/)")
+
+
+def _real_logs_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--real", required=True, help="evaluations on real logs (folder)")
+    p.add_argument("--synthetic", dest="validation", default=None,
+                   help="evaluations on the (synthetic) validation set (folder)")
+    p.add_argument("--readouts", default=None, metavar="DIR",
+                   help="Full BC evaluated on the real logs under other action read-outs "
+                        "(one folder each: igdrivsim evaluate --actions greedy|mean)")
+    p.add_argument("--out", required=True, help="tables folder")
+    p.add_argument("--real-label", default="real scenarios",
+                   help="what the real data are")
+    p.add_argument("--synthetic-label", dest="validation_label",
+                   default="synthetic validation scenarios",
+                   help="what the validation data are")
+
+
+def _real_logs(args) -> None:
+    paths = _module("real_logs").write_tables(args.real, args.validation, args.out,
+                                              args.real_label, args.validation_label,
+                                              args.readouts)
+    print("wrote " + ", ".join(map(str, paths)))
+
+
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
+    p.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
+                   help="`igdrivsim evaluate --references` output on the same data "
+                        "(none: no ratio to constant velocity)")
+    p.add_argument("--out", type=Path, help="also write the markdown here")
+
+
+def _transfer_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("work", type=Path, help="the folder holding one sub-folder per motion")
+    p.add_argument("--out", type=Path, default=None,
+                   help="the markdown file (none: print only)")
+
+
+def _transfer(args) -> None:
+    transfer = _module("transfer")
+    found = transfer.evaluations(args.work)
+    _print_or_write(transfer.markdown(
+        transfer.against_constant_velocity(found), transfer.between_motions(found),
+        transfer.code_lines(args.work), transfer.ego_by_ego(found)), args.out, end="")
+
+
+REPO = Path(__file__).resolve().parents[2]
+# igdrivsim report ACTION: (help, arguments, command)
+ACTIONS = {
+    "compare": ("two runs' Table I conclusions side by side (OLD_TABLES NEW_TABLES)",
+                _compare_arguments, _compare),
+    "figures": ("redraw Fig. 3, 5 and 6 from the report's tables (PAPER/tables/*.csv)",
+                _figures_arguments,
+                lambda args: _wrote(_module("figures").redraw_from_tables(args.paper))),
+    "provenance": ("check or record the entries of PAPER/provenance.json (which "
+                   "command wrote each report file)", _provenance_arguments,
+                   lambda args: _module("provenance").provenance_command(args, REPO)),
+    "reactive": ("Table I's companion under IDM sim agents: tables/reactive.{md,csv}, Fig. 7",
+                 _reactive_arguments,
+                 lambda args: _wrote(_module("reactive").build(args.log, args.idm, args.out))),
+    "real-logs": ("synthetic-trained drivers on real logs: real_logs.{md,tex,csv}",
+                  _real_logs_arguments, _real_logs),
+    "sweep": ("a sweep of training variants in one table (compute and metrics)",
+              _sweep_arguments, lambda args: _print_or_write(
+                  _module("sweep").sweep_markdown(args.sweep, args.references), args.out)),
+    "transfer": ("Full BC of each synthetic motion model against constant velocity, on "
+                 "synthetic validation and real logs", _transfer_arguments, _transfer),
+}

@@ -1,34 +1,19 @@
 """Two runs' Table I beside each other: what changed in the benchmark's conclusions.
 
-Reads two report folders (``summary.csv`` and ``tests.csv`` of ``igdrivsim report``; a committed
-``paper/tables`` of any commit, e.g. extracted with ``git show REV:paper/tables/summary.csv``)
-and prints, per Table I metric, the reference constant-velocity level, BC's setting order, the
-observation gap (each partial setting's BC mean minus Full's) and BC-RL - BC with its minimum
-detectable effect (``*``: significant after Holm). It says how a change of data, profile or code
-moved the conclusions a reader takes from Table I, not only its cells.
-
-``python -m igdrivsim.report.compare OLD_TABLES NEW_TABLES [--labels OLD NEW] [--out FILE]``
+Per Table I metric, from two report tables folders (``summary.csv``, ``tests.csv``): constant
+velocity's level, BC's setting order, the observation gap to Full and BC-RL - BC with its
+minimum detectable effect (``igdrivsim report compare OLD NEW``).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import (
-    BC_RL,
-    CONSTANT_VELOCITY,
-    METRIC_BY_KEY,
-    STEP_METRICS,
-    setting_short,
-    table_settings,
-)
-from igdrivsim.io import atomic_write_text
+from igdrivsim.errors import ConfigError
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, STEP_METRICS, table_settings
+from igdrivsim.names import BC_RL, CONSTANT_VELOCITY, setting_short
 from igdrivsim.report.results_tex import bc_means, read_table
 
 FULL = "full"
@@ -65,7 +50,7 @@ def compare_markdown(old: Path, new: Path, labels: tuple[str, str] = ("old", "ne
     runs = [(label, *_tables(Path(folder))) for label, folder in zip(labels, (old, new),
                                                                        strict=True)]
     lines = [f"# Table I: {labels[0]} vs {labels[1]}", "",
-             "Written by `python -m igdrivsim.report.compare`. `*`: significant after Holm; "
+             "Written by `igdrivsim report compare`. `*`: significant after Holm; "
              "in brackets the minimum detectable effect (80% power).", ""]
     for metric in STEP_METRICS:
         name = " ".join(p for p in METRIC_BY_KEY[metric].label if not p.startswith("("))
@@ -75,27 +60,3 @@ def compare_markdown(old: Path, new: Path, labels: tuple[str, str] = ("old", "ne
         lines += [f"| {row} | " + " | ".join(c[row] for c in cells) + " |" for row in cells[0]]
         lines.append("")
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.compare",
-                                     description=__doc__.splitlines()[0],
-                                     formatter_class=FORMATTER)
-    parser.add_argument("old", type=Path, help="report tables folder (summary.csv, tests.csv)")
-    parser.add_argument("new", type=Path, help="the same for the run compared with it")
-    parser.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
-                        help="the two runs' names in the table (default: old new)")
-    parser.add_argument("--out", type=Path, help="also write the markdown here")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        text = compare_markdown(args.old, args.new, tuple(args.labels))
-        if args.out:
-            atomic_write_text(args.out, text)
-        print(text)
-
-    return run_command("compare", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

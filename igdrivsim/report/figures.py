@@ -1,26 +1,14 @@
 """Fig. 3 (per-step metrics of BC versus BC-RL), Fig. 4 (learning curves), Fig. 5
 (supplementary metrics) and Fig. 6 (every learned method).
 
-Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`): settings on the x axis, a bar
-per method (BC blue, BC-RL orange as in the paper, other methods in their registry colour),
-mean over seeds with the 95% t-interval over seed means clipped to the metric's range (the
-numbers of the tables), an asterisk where a method differs from BC after the Holm correction
-(``tests``: the report's ``tests.csv`` / ``tests_all.csv``), constant velocity and the expert
-as labelled horizontal lines. The figure's ``marked`` attribute maps each panel's metric to its
-asterisked ``(setting, method)`` cells.
-
-Fig. 4: what each training run logged in its ``curves.jsonl`` (teacher-forced validation BC
-loss, closed-loop validation metrics every K updates) against the update, one column per
-setting, so a reader sees whether training converged; constant velocity and the expert replay
-are drawn as horizontal references when their evaluation is available.
-
-``python -m igdrivsim.report.figures [PAPER]`` redraws Fig. 3, 5 (and 6 when its methods'
-numbers are there) from the report's tables (``PAPER/tables/*.csv``), without the evaluations.
+Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`); the figure's ``marked``
+attribute maps each panel's metric to its asterisked ``(setting, method)`` cells. Fig. 4 draws
+each run's ``curves.jsonl`` against the update, one column per setting, with the references as
+lines. ``igdrivsim report figures PAPER`` redraws Fig. 3, 5 and 6 from ``PAPER/tables``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from collections.abc import Iterable, Sequence
@@ -36,17 +24,16 @@ import seaborn as sns  # noqa: E402
 from matplotlib.container import BarContainer  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import (  # noqa: E402
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, table_settings  # noqa: E402
+from igdrivsim.io import atomic_savefig  # noqa: E402
+from igdrivsim.names import (  # noqa: E402
     BC,
     BC_RL,
     CONSTANT_VELOCITY,
     EXPERT,
     METHOD_LABELS,
-    METRIC_BY_KEY,
     setting_short,
-    table_settings,
 )
-from igdrivsim.io import atomic_savefig  # noqa: E402
 from igdrivsim.report import plots  # noqa: E402
 from igdrivsim.report.methods_table import (  # noqa: E402
     extended_methods,
@@ -57,7 +44,6 @@ from igdrivsim.report.methods_table import (  # noqa: E402
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
 
-PALETTE = {m.label: m.colour for m in METHOD_REGISTRY.values()}  # BC blue, BC-RL orange
 PANELS = ("log_divergence", "overlap", "offroad")
 CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
 
@@ -112,20 +98,27 @@ def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
     return math.ceil(len(handles) / ncols)
 
 
+def _metric_column(fig, axes, frame: pd.DataFrame, keys: Sequence[str], settings: Sequence[str],
+                   methods: Sequence[str], tests: pd.DataFrame | None, ncols: int) -> int:
+    """Table I's metrics ``keys``, one panel each down ``axes``; sets ``fig.marked`` and the
+    legend, returns its number of rows."""
+    marked = {}
+    for ax, key in zip(axes, keys, strict=True):
+        unit = METRIC_BY_KEY[key].unit
+        marked[key] = _bar_panel(ax, frame, key, unit, settings, methods, tests)
+        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
+    _rotate_settings(axes[-1])
+    fig.marked = marked
+    return _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+
+
 def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     """Fig. 3 from the seed-level frame (:func:`igdrivsim.evaluation.aggregate.seed_means`) or
     the summary (``tables/summary.csv``); ``tests``: BC-RL vs BC (``tables/tests.csv``)."""
     settings = _present_settings(seed_level)
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
-    marked = {}
-    for ax, key in zip(axes, PANELS, strict=True):
-        unit = METRIC_BY_KEY[key].unit
-        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, (BC, BC_RL), tests)
-        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
-    _rotate_settings(axes[-1])
-    fig.marked = marked
-    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=2)
+    rows = _metric_column(fig, axes, seed_level, PANELS, settings, (BC, BC_RL), tests, 2)
     fig.text(0.01, 0.005, CLIPPED, fontsize=6, color="0.35")
     fig.tight_layout(rect=(0, 0.015, 1, 1 - 0.027 * rows))
     return fig
@@ -161,11 +154,8 @@ def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:
 
 
 def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
-    """All ``curves.jsonl`` records as one frame (one row per logged line; missing keys NaN).
-
-    A repeated ``(setting, method, seed, update)`` (a resumed run) keeps its last record; a
-    malformed line raises :class:`DataError` naming the file.
-    """
+    """All ``curves.jsonl`` records as one frame, one row per (setting, method, seed, update):
+    a resumed run keeps its last record; a malformed line raises :class:`DataError`."""
     records = []
     for path in find_curves(run_dirs):
         for number, line in enumerate(path.read_text().splitlines(), 1):
@@ -235,13 +225,9 @@ def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
 def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                            references_csv: str | Path | pd.DataFrame | None = None,
                            stem: str = "fig4_learning_curves") -> list[Path]:
-    """Write ``stem.{pdf,png}`` under ``out_dir`` from the runs' ``curves.jsonl``.
-
-    Rows: validation BC loss (training BC loss dashed), log divergence, offroad % and overlap %;
-    columns: settings; one line per method, the mean over seeds with the min-max band shaded;
-    constant velocity and the expert as horizontal lines when ``references_csv`` (a
-    per_scenario.csv path or frame) has them. Returns the written paths ([] without curves).
-    """
+    """Fig. 4 (``stem.{pdf,png}``) from the runs' ``curves.jsonl``: rows of metrics, columns of
+    settings, per method the mean over seeds with the min-max band, the references as lines
+    (``references_csv``). Returns the written paths ([] without curves)."""
     curves = load_curves(run_dirs)
     if curves.empty:
         return []
@@ -296,10 +282,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                         transform=ax.transAxes, color="0.5")
             if col == 0:
                 ax.set_ylabel(label)
-    handles: dict[str, object] = {}
-    for ax in axes.ravel():
-        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(name, handle)
+    handles = plots.figure_handles(fig)
     fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
@@ -308,11 +291,8 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
 
 def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
                          tests: pd.DataFrame | None = None):
-    """Fig. 5: one panel per registry metric with ``figure=True`` (``metrics``), bars per
-    setting for every learned method present, the expert and constant velocity as lines.
-    ``seed_level``: :func:`seed_means` over the registry's metrics, or their summary
-    (``tables/supplementary_summary.csv``); ``tests``: significance of these metrics, if any
-    (without, the figure says they are descriptive)."""
+    """Fig. 5: a panel per registry metric with ``figure=True`` from :func:`seed_means` over
+    them (or their summary); ``tests``: their significance, if any (else: descriptive)."""
     panels = [m for m in metrics if m.figure]
     order = _present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
@@ -373,15 +353,8 @@ def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
     fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),
                              sharex=True, squeeze=False)
-    marked = {}
-    for ax, key in zip(axes[:, 0], panels, strict=True):
-        unit = METRIC_BY_KEY[key].unit
-        marked[key] = _bar_panel(ax, seed_level, key, unit, settings, methods, tests)
-        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
-    _rotate_settings(axes[-1, 0])
-    ncols = 4 if width >= 6.5 else 2
-    fig.marked = marked
-    rows = _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+    rows = _metric_column(fig, axes[:, 0], seed_level, panels, settings, methods, tests,
+                          4 if width >= 6.5 else 2)
     note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
     fig.text(0.01, 0.005, note, fontsize=7, color="0.35")
     fig.tight_layout(rect=(0, 0.02, 1, 1 - 0.035 * rows))
@@ -414,17 +387,3 @@ def redraw_from_tables(paper: str | Path) -> list[Path]:
     if tests_all is not None and extended_methods(main):
         written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
     return written
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.figures",
-                                     description="redraw Fig. 3, 5 and 6 from the report's "
-                                                 "tables (PAPER/tables/*.csv)")
-    parser.add_argument("paper", nargs="?", default="paper", help="the report folder")
-    for path in redraw_from_tables(parser.parse_args(argv).paper):
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,13 +1,6 @@
-"""Table II: every learned method against BC (Markdown for results.md, LaTeX for the report).
-
-Written by the report only when the evaluations hold learned methods beyond the paper's two
-(``bc``, ``bc_rl``), e.g. DAgger or ADVISOR runs. Rows: Table I's metrics, one row per learned
-method (BC, BC-RL, then the method registry's order, then unregistered names), the reference
-rows last; columns: the settings evaluated. A cell is the mean over seeds ± 95% CI half-width
-(as Table I's Markdown); a non-BC cell adds its difference from BC with the two-level bootstrap
-95% interval of :func:`igdrivsim.evaluation.aggregate.compare_methods`, run over all methods vs
-BC so that Holm counts every comparison cell of this table, and is bold where significant.
-A method not evaluated in a setting (an extended run may skip ``full``) shows ``--``.
+"""Table II: every learned method against BC (Markdown and LaTeX), written when the evaluations
+hold methods beyond BC and BC-RL. Rows in :func:`learned_methods` order, then the references;
+a non-BC cell adds its difference from BC (:func:`compare_all`, Holm over the table's cells).
 """
 
 from __future__ import annotations
@@ -19,17 +12,15 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_methods
-from igdrivsim.evaluation.schema import (
+from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING, table_settings
+from igdrivsim.names import (
     BC,
     BC_RL,
     LEARNED,
     METHOD_COLOURS,
     METHOD_LABELS,
-    METRICS,
-    REFERENCE_SETTING,
     REFERENCES,
     setting_short,
-    table_settings,
 )
 from igdrivsim.report.tables import (
     MISSING,
@@ -40,6 +31,8 @@ from igdrivsim.report.tables import (
     _metric_name,
     _signed,
     _tex,
+    heading,
+    latex_float,
     setting_header,
 )
 
@@ -133,9 +126,7 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     (:func:`compare_all`)."""
     methods = learned_methods(summary)
     cols = _columns(summary, methods)
-    out = ["# Table II: learned methods vs BC", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Table II: learned methods vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
@@ -182,21 +173,14 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
     methods = learned_methods(summary)
     cols = _columns(summary, methods)
     holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         r"\caption{\textbf{Learned methods versus BC.} Mean over seeds $\pm$ 95\% CI "
         r"half-width on the validation scenarios; lower is better. Under each method, "
         r"$\Delta$: its difference from BC with the 95\% interval of a "
         rf"{_tex(TEST_NAME)}; bold: significant ($\alpha={ALPHA}$). "
         rf"{holm} "
-        rf"{MISSING}: not evaluated. {caption_extra}}}",
-        r"\label{tab:methods}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
-        r"\toprule",
-        *setting_header(cols, r"\textbf{Metric} &"),
-    ]
+        rf"{MISSING}: not evaluated. {caption_extra}}}")
+    lines = setting_header(cols, r"\textbf{Metric} &")
     references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
@@ -222,5 +206,4 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
             lines.append(rf"{first} & \textit{{{_tex(method_label(method)).lower()}}} & "
                          rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
             first = ""
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:methods", "ll" + "c" * len(cols), lines)

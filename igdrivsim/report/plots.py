@@ -1,12 +1,9 @@
 """Bar panels shared by Fig. 3, 5 and 6: one group of bars per setting, one bar per method.
 
-A bar is the mean over seeds; its error bar the 95% t-interval over the seed means (the
-numbers of the tables) clipped to what the metric can take (:func:`feasible_range`: a rate
-lies in [0, 100] %, a distance or a magnitude is never negative). A group holds only the methods
-evaluated in its setting, centred, so a method without a run leaves no hole. A method that
-differs from the baseline after the Holm correction (the tables' ``tests.csv`` /
-``tests_all.csv``) gets an asterisk above its error bar. The reference actors (constant
-velocity, the discretised expert) are horizontal lines of distinct style, colour and label.
+A bar is the mean over seeds, its error bar the 95% t-interval over seed means clipped to what
+the metric can take (:func:`feasible_range`); a group holds only the methods evaluated in its
+setting; an asterisk marks a difference from the baseline after Holm; the reference actors are
+labelled horizontal lines.
 """
 
 from __future__ import annotations
@@ -18,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, CONFIDENCE, t_interval
-from igdrivsim.evaluation.schema import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS
+from igdrivsim.names import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS
 
 Cell = tuple[str, str]  # (setting, method)
 
@@ -48,10 +45,8 @@ def clip_interval(low: float, high: float, unit: str) -> tuple[float, float]:
 
 
 def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
-    """``setting, method, mean, low, high`` of ``metric`` per setting and method, the interval
-    clipped to the unit's range. ``frame``: seed level (``setting, method, seed, metric,
-    value``: the 95% t-interval over seeds) or a summary (``metric, setting, method, mean,
-    ci_low, ci_high``, as ``tables/summary.csv``)."""
+    """``setting, method, mean, low, high`` of ``metric``, the interval clipped to the unit's
+    range, from seed-level rows (the t-interval over seeds) or a summary's."""
     part = frame[frame.metric == metric]
     rows = []
     if "value" in part.columns:

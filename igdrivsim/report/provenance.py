@@ -1,42 +1,24 @@
 """Which command wrote each report file: ``paper/provenance.json`` and one line in each table.
 
-Every file under ``paper/`` that a run writes (tables, figures, generated LaTeX, the maze's
-config) has an entry: the command, the kind of run that owns it (``default``: the default
-run of ``scripts/reproduce.sh``; ``methods``: its ``--methods`` run with taught methods, which
-owns Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device, the
-run's wall time and date, and the code behind its numbers: ``stages``, each pipeline stage
-the file's numbers came from (:func:`stages_behind`) -> the code that stage ran, as its stamp
-recorded it when it ran (:func:`code_state`: commit, dirty flag, hash of the diff), so a
-republish from cached stages keeps their commits; ``commit`` names them (``mixed_commits``:
-the stages ran at different commits). A run *publishes* the files its kind owns from its work
-folder into ``paper/``, and another kind's files only where they are missing (a fresh
-``--out``): no run deletes or overwrites what another run wrote. Each markdown table and the
-PDF (``generated/run.tex``) carry the same in one line.
-
-Schema 1 entries (no ``stages``: published before per-stage provenance) stay readable; their
-``commit`` is the commit at publishing.
-
-``python -m igdrivsim.report.provenance backfill [--paper DIR]`` derives the entries of
-committed files that have none from recorded metadata only: the commit that last wrote each
-file (``git log``), the report's ``generated/provenance.tex`` and the training profile as of
-that commit, the maze study's ``maze_config.json``.
+An entry (:class:`Entry`) holds the command, the kind of run that owns the file (``default``, or
+``methods``: Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device,
+wall time, date, and the code of each pipeline stage its numbers came from (``stages``:
+:func:`stages_behind` -> :func:`code_state` as stamped when the stage ran). A run publishes the
+files its kind owns, and another kind's only where missing. Schema 1 entries (no ``stages``)
+stay readable. ``igdrivsim report provenance backfill|check|derived|maze``.
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 import fnmatch
-import json
 import re
 import shlex
-import subprocess
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import (  # noqa: F401 (re-exported: the stamps' code)
     CODE_KEYS,
@@ -54,7 +36,7 @@ ABOUT = ("the command that wrote each file under this folder and the code (commi
 LEGACY = "stage commits unknown (published before per-stage provenance)"
 LINE_PREFIX = "Provenance: "
 # what a run of each kind owns (relative to the paper folder): the methods run Table II's files
-# (igdrivsim.report.build.METHODS_OUTPUTS); everything else the default run
+# (the report writes them only with methods beyond BC and BC-RL); everything else the default run
 METHODS_FILES = ("tables/tests_all.csv", "tables/table2.md", "tables/table2.tex",
                  "figures/fig6_methods.pdf", "figures/fig6_methods.png")
 OUTPUT_FOLDERS = ("tables", "figures", "generated")
@@ -197,11 +179,9 @@ def run_tex(entry: Entry) -> str:
 
 def publish(staged: Path, paper: Path, entry: Entry,
             stages_of: Callable[[str], Mapping[str, Mapping]]) -> list[str]:
-    """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (and the
-    others only where ``paper`` lacks them), stamp the markdown tables, write
-    ``generated/run.tex`` for the PDF, and record an entry per published file in
-    ``paper/provenance.json``, with ``stages_of(rel)``: the stages behind file ``rel`` and the
-    code each ran (from their stamps). Returns the published paths (relative)."""
+    """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (the others
+    only where missing), stamp the markdown tables, write ``generated/run.tex`` and record each
+    file's entry with ``stages_of(rel)`` (its stages and their code). Returns the paths."""
     staged, paper = Path(staged), Path(paper)
     atomic_write_text(staged / "generated" / "run.tex",
                       run_tex(entry.with_stages(stages_of("generated/run.tex"))))
@@ -222,99 +202,11 @@ def publish(staged: Path, paper: Path, entry: Entry,
     return published
 
 
-# ------------------------------------------------------------------------------ the backfill
-def _git(*args: str, cwd: Path) -> str:
-    try:
-        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError) as err:
-        raise ConfigError(f"git {' '.join(args)} failed in {cwd}: {err}") from err
-
-
-def _show(commit: str, path: Path, repo: Path) -> str:
-    """``path`` as committed in ``commit``."""
-    return _git("show", f"{commit}:{path.relative_to(repo)}", cwd=repo)
-
-
-def _tex_macros(text: str) -> dict[str, str]:
-    return dict(re.findall(r"\\newcommand\{\\(\w+)\}\{([^}]*)\}", text))
-
-
-def _updates_at(commit: str, profile: str, repo: Path) -> int | None:
-    """``num_updates`` of ``profile`` in ``igdrivsim/training/config.py`` as of ``commit``."""
-    try:
-        source = _git("show", f"{commit}:igdrivsim/training/config.py", cwd=repo)
-    except ConfigError:
-        return None
-    body = re.search(rf"def {profile}\(\)[\s\S]*?(?=\ndef |\Z)", source)
-    found = re.search(r"num_updates=(\d[\d_]*)", body.group(0)) if body else None
-    return int(found.group(1).replace("_", "")) if found else None
-
-
-def derive(rel: str, paper: Path, repo: Path) -> Entry:
-    """The entry of committed file ``rel`` from what was recorded when it was written."""
-    commit, date, subject = _git("log", "-1", "--format=%h%x00%ad%x00%s", "--date=short",
-                                 "--", str((paper / rel).relative_to(repo)),
-                                 cwd=repo).split("\x00")
-    wall = re.search(r"\((\d+) min (\d+) s\)", subject)
-    wall_s = int(wall.group(1)) * 60 + int(wall.group(2)) if wall else None
-    run = owner(rel)
-    command = "bash scripts/reproduce.sh" + (
-        " --methods bc,bc_rl,dagger,advisor" if run == "methods" else "")
-    if rel.startswith(("figures/fig2", "figures/maze", "tables/maze")) or rel in OUTPUT_FILES:
-        meta = json.loads(_show(commit, paper / "maze_config.json", repo))
-        return Entry(command=f"python -m maze --profile {meta['config']['profile']}",
-                     run=run, profile=f"maze {meta['config']['profile']}", updates=None,
-                     commit=commit, device=f"JAX device {meta.get('device', 'unknown')}",
-                     wall_s=meta.get("timings_s", {}).get("this_invocation_wall_s"), date=date,
-                     note="the maze study (the default run's maze stage copies it since)")
-    prov = _tex_macros(_show(commit, paper / "generated" / "provenance.tex", repo))
-    profile, code = prov.get("ProvProfile", "unknown"), prov.get("ProvCommit", commit)
-    updates = _updates_at(code, profile, repo) if profile != "unknown" else None
-    note = competence_note("quick" if updates and updates < 1000 else profile, updates)
-    if profile == "laptop" and updates is not None and updates < 1000:
-        note = (f"the laptop profile as of {code} trained {updates} updates, today's quick "
-                f"profile; {note}")
-    if rel.startswith(("figures/fig1", "tables/speed_walk", "generated/speed_walk")):
-        return Entry(command=command, run=run, profile=profile, updates=None, commit=commit,
-                     device="device not recorded", wall_s=wall_s, date=date,
-                     note="no trained policy in it")
-    return Entry(command=command, run=run, profile=profile, updates=updates, commit=code,
-                 device="device not recorded", wall_s=wall_s, date=prov.get("ProvDate", date),
-                 note=note)
-
-
-def backfill(paper: Path, repo: Path, stamp: bool = True) -> list[str]:
-    """Entries for the committed outputs under ``paper`` that have none; with ``stamp`` their
-    markdown tables get the provenance line. Returns the files given an entry."""
-    files, added = load(paper), []
-    tracked = set(_git("ls-files", str(paper.relative_to(repo)), cwd=repo).splitlines())
-    for rel in outputs(paper):
-        if rel in files or str((paper / rel).relative_to(repo)) not in tracked:
-            continue
-        entry = derive(rel, paper, repo)
-        files[rel] = entry.record()
-        if stamp and rel.endswith(".md"):
-            path = paper / rel
-            atomic_write_text(path, stamp_markdown(path.read_text(encoding="utf-8"),
-                                                   entry.line()))
-        added.append(rel)
-    run = paper / "generated" / "run.tex"
-    if not run.exists() and "tables/table1.tex" in files:  # the PDF's line: Table I's run
-        atomic_write_text(run, run_tex(Entry.from_record(files["tables/table1.tex"])))
-        files["generated/run.tex"] = files["tables/table1.tex"]
-        added.append("generated/run.tex")
-    save(paper, files)
-    return added
-
-
 def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
             repo: Path) -> list[str]:
-    """Entries for ``files_rel`` written by ``command`` from the numbers of ``source`` (a file
-    of ``paper`` with an entry), outside the pipeline (a figure redrawn from its tables, a
-    table's numbers re-read): ``source``'s entry with the command, and its stages plus a
-    ``derive`` stage at this checkout's code (a schema 1 source's stages are its recorded
-    commit, as ``run``). Returns the files given an entry."""
+    """Entries for ``files_rel`` that ``command`` wrote from ``source``'s numbers outside the
+    pipeline: ``source``'s entry with the command, its stages plus a ``derive`` stage at this
+    checkout's code. Returns the files given an entry."""
     files = load(paper)
     if source not in files:
         raise ConfigError(f"{FILE}: no entry for the source {source!r}")
@@ -334,10 +226,8 @@ MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, 
 
 
 def record_maze(paper: Path) -> list[str]:
-    """Entries for the maze study's outputs under ``paper`` written by ``python -m maze --out
-    PAPER`` run alone (outside the pipeline): its command, device, wall time, date and code
-    as its ``maze_config.json`` recorded them (stage ``maze``); the markdown tables get the
-    line. Returns the files given an entry."""
+    """Entries for the maze study's outputs of ``python -m maze --out PAPER`` run alone, as its
+    ``maze_config.json`` recorded them (stage ``maze``). Returns the files given an entry."""
     paper = Path(paper)
     meta = read_json(paper / "maze_config.json")
     machine, code = meta.get("machine"), meta.get("code")
@@ -400,43 +290,13 @@ def today() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
-def main(argv: Iterable[str] | None = None) -> int:
-    """``backfill``: derive the missing entries from recorded metadata; ``check``: list the
-    outputs without an entry and the entries without their stage commits (exit 1 when there is
-    one; entries published before per-stage provenance are counted, not failed); ``derived
-    FILE... --from SOURCE --command CMD``: record files that CMD wrote from SOURCE's numbers
-    outside the pipeline; ``maze``: record the outputs of ``python -m maze --out PAPER`` run
-    alone (:func:`record_maze`)."""
-    repo = Path(__file__).resolve().parents[2]
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.provenance",
-                                     description=main.__doc__, formatter_class=FORMATTER)
-    parser.add_argument("action", choices=("backfill", "check", "derived", "maze"),
-                        help="backfill the missing entries, check them, record derived "
-                             "files, or record a maze study run alone")
-    parser.add_argument("files", nargs="*", metavar="FILE",
-                        help="derived: the files written (relative to --paper)")
-    parser.add_argument("--from", dest="source", default=None, metavar="SOURCE",
-                        help="derived: the file (relative to --paper) whose numbers they hold")
-    parser.add_argument("--command", default=None, help="derived: the command that wrote them")
-    parser.add_argument("--paper", default=str(repo / "paper"), help="the report folder")
-    args = parser.parse_args(list(argv) if argv is not None else None)
-
-    def body() -> int:
-        paper = Path(args.paper).resolve()
-        if args.action == "derived":
-            if not (args.files and args.source and args.command):
-                raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
-            for rel in derived(paper, args.files, args.source, args.command, repo):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
-        if args.action == "maze":
-            for rel in record_maze(paper):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
-        if args.action == "backfill":
-            for rel in backfill(paper, repo):
-                print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
-            return 0
+def provenance_command(args, repo: Path) -> int:
+    """``igdrivsim report provenance``: ``check`` lists the outputs without an entry and the
+    entries without their stage commits (exit 1 when there is one; schema 1 entries are
+    counted, not failed); ``derived FILE... --from SOURCE --command CMD`` records files CMD
+    wrote from SOURCE's numbers outside the pipeline; ``maze``: :func:`record_maze`."""
+    paper = Path(args.paper).resolve()
+    if args.task == "check":
         lacking = missing(paper)
         problems, legacy = stage_check(load(paper))
         for line in [f"{rel}: no provenance entry" for rel in lacking] + problems:
@@ -444,9 +304,12 @@ def main(argv: Iterable[str] | None = None) -> int:
         if legacy:
             print(f"{len(legacy)} file(s): {LEGACY}")
         return 1 if lacking or problems else 0
-
-    return run_command("provenance", body)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    if args.task == "derived":
+        if not (args.files and args.source and args.command):
+            raise ConfigError("derived needs FILE..., --from SOURCE and --command CMD")
+        written = derived(paper, args.files, args.source, args.command, repo)
+    else:
+        written = record_maze(paper)
+    for rel in written:
+        print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
+    return 0

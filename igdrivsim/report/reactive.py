@@ -1,34 +1,21 @@
 """Table I's companion under reactive traffic: every driver judged with log-replay and IDM agents.
 
-Beyond the paper. Inputs are two evaluation folders of tidy CSVs (``igdrivsim evaluate``) of the
-same drivers on the same validation scenarios: one with the other objects replaying their log
-(``--log``, Table I's evaluations) and one with them driven by IDM sim agents (``--idm``,
-``igdrivsim evaluate --agents idm``; :mod:`igdrivsim.simulator.agents`). For every setting's
-BC and BC-RL and for the reference actors (constant velocity, the discretised expert replaying
-its log), each metric's mean over seeds of the seed means with its 95% t-interval over seeds
-under each, and the difference log minus idm with Table I's test: a two-level bootstrap over
-seeds, then paired scenarios (:func:`igdrivsim.evaluation.aggregate.paired_difference`), Holm
-over every cell of the table; bold where significant.
-
-Metrics: Table I's per-scenario ones (overlap rate, offroad rate, max log divergence) and the
-registry's at-fault overlap (nuPlan's rule: no rear or side hits; docs/metrics.md).
-
-``python -m igdrivsim.report.reactive --log DIR --idm DIR --out PAPER`` writes
-``tables/reactive.md``, ``tables/reactive.csv`` and ``figures/fig7_reactive.{pdf,png}`` (the
-pipeline's ``reactive`` stage).
+Two evaluations of the same drivers on the same scenarios (``--log``: Table I's; ``--idm``:
+``igdrivsim evaluate --agents idm``): per driver (each setting's BC and BC-RL, the references)
+and metric (Table I's per-scenario rates, the registry's at-fault overlap), the mean over seeds
+with its 95% t-interval under each, and log - idm with Table I's two-level bootstrap, Holm over
+the table. ``igdrivsim report reactive`` writes ``tables/reactive.{md,csv}`` and Fig. 7.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from igdrivsim.errors import DataError, run_command
+from igdrivsim.errors import DataError
 from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.aggregate import (
     ALPHA,
@@ -39,17 +26,11 @@ from igdrivsim.evaluation.aggregate import (
     paired_difference,
     summarize,
 )
-from igdrivsim.evaluation.schema import (
-    BC,
-    BC_RL,
-    METHOD_LABELS,
-    METRIC_BY_KEY,
-    REFERENCE_SETTING,
-    REFERENCES,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
+from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
+from igdrivsim.report.results_tex import _num
+from igdrivsim.report.tables import heading
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -57,7 +38,6 @@ METRICS = (METRIC_BY_KEY["overlap_rate"], AT_FAULT, METRIC_BY_KEY["offroad_rate"
            METRIC_BY_KEY["max_log_divergence"])
 HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} rate (%)",
            "offroad_rate": "offroad rate (%)", "max_log_divergence": "max log divergence (m)"}
-CONDITIONS = ("log", "idm")
 FIGURE = "fig7_reactive"
 
 
@@ -124,10 +104,6 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
     return out
 
 
-def _num(value: float, digits: int) -> str:
-    return "--" if not np.isfinite(value) else f"{value:.{digits}f}"
-
-
 def _cell(row: pd.Series, cond: str, digits: int) -> str:
     mean = _num(row[f"{cond}_mean"], digits)
     if not np.isfinite(row[f"{cond}_ci_low"]):
@@ -153,9 +129,7 @@ def driver_label(setting: str, method: str) -> tuple[str, str]:
 
 def reactive_markdown(table: pd.DataFrame, header: str = "") -> str:
     """``tables/reactive.md``: per driver and metric, log, idm and log - idm."""
-    lines = ["# Every driver under log-replay and IDM sim agents (beyond the paper)", ""]
-    if header:
-        lines += [header, ""]
+    lines = heading("# Every driver under log-replay and IDM sim agents (beyond the paper)", header)
     n = int(table.n_pairs.max()) if len(table) else 0
     lines += [
         "Each cell: the mean over seeds of each seed's mean over the validation scenarios, with "
@@ -216,21 +190,3 @@ def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path, header: str
                atomic_write_text(out / "tables" / "reactive.md",
                                  reactive_markdown(table, header))]
     return written + reactive_figure(table, out / "figures")
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.reactive",
-                                     description=__doc__.split("\n\n")[0])
-    parser.add_argument("--log", nargs="+", required=True, metavar="DIR",
-                        help="evaluations with log-replay agents (Table I's)")
-    parser.add_argument("--idm", nargs="+", required=True, metavar="DIR",
-                        help="the same drivers evaluated with --agents idm")
-    parser.add_argument("--out", required=True, help="report folder (tables/, figures/)")
-    args = parser.parse_args(argv)
-    for path in build(args.log, args.idm, args.out):
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(run_command("python -m igdrivsim.report.reactive", main))

@@ -1,53 +1,40 @@
-"""Synthetic-trained drivers on real logs: a small table beside the synthetic validation numbers.
+"""Synthetic-trained drivers on real logs (the pipeline's ``real_logs`` stage).
 
-Beyond the paper. Inputs are two evaluation folders of tidy CSVs (``igdrivsim evaluate``): the
-policies and reference actors on real scenarios (the public WOMD samples of ``igdrivsim
-samples``, or the user's WOMD / ScenarioNet data) and the same on the synthetic validation set.
-Each cell is the mean over seeds of each seed's mean over scenarios (Table I's per-step metrics:
-log divergence, offroad and overlap as percent of steps), with the number of scenarios beside
-it, and each learned driver's real log divergence minus constant velocity's with its 95%
-interval and the smallest difference the real scenarios detect (80% power): on a handful of
-real scenarios, the check's power is part of its result. Heavy tails (a few egos diverging by
-15 m or more) leave a mean weak, so a second table compares every learned driver with constant
-velocity and with the expert ego by ego (:mod:`igdrivsim.evaluation.paired`): the share of
-egos where it stays closer to the log, the median paired difference and the mean ratio with its
-minimum detectable effect, with 95% intervals from a bootstrap over source scenarios, then
-seeds, and the numbers of egos and of source scenarios. A third table gives Full BC under
-Table I's sampled actions beside its greedy and mean read-outs (``--readouts``).
-
-``python -m igdrivsim.report.real_logs --real DIR --synthetic DIR --out TABLES`` writes
-``real_logs.md``, ``real_logs.tex``, the table's numbers ``real_logs.csv`` (and the read-outs'
-``real_logs_readouts.csv``) and a one-sentence
-summary for the report's abstract, ``real_logs_summary.tex`` (the pipeline's ``real_logs``
-stage); ``--from-markdown real_logs.md`` rebuilds the last two from a written table.
+Per ``(setting, method)``: each metric's mean over seeds on real logs and on validation, and
+against constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`);
+Full BC under each action read-out. ``igdrivsim report real-logs --real DIR --synthetic DIR
+--out TABLES`` writes ``real_logs.{md,tex,csv}``, ``real_logs_readouts.csv`` and the abstract's
+sentence ``real_logs_summary.tex``; :func:`real_logs_section`, their section of ``results.md``
+and the README's sentence, from those tables.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import ConfigError, DataError, run_command
 from igdrivsim.evaluation.aggregate import load_evaluations, seed_means
 from igdrivsim.evaluation.paired import compare_on_egos, sources
 from igdrivsim.evaluation.schema import (
-    BC,
-    CONSTANT_VELOCITY,
     EVAL_CONFIG,
-    EXPERT,
-    METHOD_LABELS,
     METRIC_BY_KEY,
     PER_SCENARIO_FILE,
-    REFERENCES,
-    SETTINGS,
+    REFERENCE_SETTING,
     STEP_METRICS,
-    setting_short,
     table_settings,
 )
 from igdrivsim.io import atomic_write_text, read_json
+from igdrivsim.names import (
+    BC,
+    CONSTANT_VELOCITY,
+    EXPERT,
+    METHOD_LABELS,
+    REFERENCES,
+    setting_short,
+)
+from igdrivsim.report.results_tex import read_table
+from igdrivsim.report.tables import wrap
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -105,10 +92,9 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
 
 
 def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
-    """A learned driver against each of :data:`PAIRED_REFERENCES` ego by ego on the real logs'
-    log divergence (:func:`igdrivsim.evaluation.paired.compare_on_egos`: bootstrap over
-    source scenarios, then seeds), and against constant velocity the mean difference, its
-    interval and minimum detectable effect (:data:`VS_CV`); NaN for the references."""
+    """A learned driver against :data:`PAIRED_REFERENCES` ego by ego on the real logs
+    (:func:`~igdrivsim.evaluation.paired.compare_on_egos`) and :data:`VS_CV`; NaN for a
+    reference."""
     out = dict.fromkeys(PAIRED + VS_CV, float("nan"))
     if method in REFERENCES:
         return out
@@ -173,10 +159,8 @@ READOUT_COLUMNS = ["actions", *[f"real_vs_cv_{k}" for k in PAIRED_STATS]]
 
 
 def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFrame:
-    """Full BC against constant velocity, ego by ego on the real logs, under each action
-    read-out: Table I's sampled actions (``real``'s rows), then each evaluation folder under
-    ``readouts`` (its ``eval_config.json`` names the read-out) against ``real``'s constant
-    velocity; one row per read-out with :data:`PAIRED_STATS` (``real_vs_cv_`` prefixed)."""
+    """Full BC against constant velocity ego by ego under each action read-out: ``real``'s
+    sampled actions, then each evaluation under ``readouts`` (one row each)."""
     frames = {"sample": real}
     cv = real[real.method == CONSTANT_VELOCITY]
     for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
@@ -298,10 +282,8 @@ def _span(values: pd.Series, digits: int) -> str:
 
 
 def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
-    """One sentence for the report's summary: the real logs' log divergence of the learned
-    drivers (range per method) against constant velocity's, with N, how many drive farther
-    than it and, when measured, the differences the scenarios can detect (``metre``: how a
-    value and its unit are joined); ``None`` without a constant-velocity row."""
+    """The abstract's sentence: the learned drivers' real log divergence against constant
+    velocity's, with N and the detectable differences; None without constant velocity."""
     cv = table[table.method == CONSTANT_VELOCITY]
     learned = table[~table.method.isin(REFERENCES)].dropna(subset=["real_log_divergence"])
     if cv.empty or learned.empty or pd.isna(cv.real_log_divergence.iloc[0]):
@@ -371,67 +353,105 @@ def write_numbers(table: pd.DataFrame, out: Path) -> list[Path]:
             atomic_write_text(out / "real_logs_summary.tex", _summary_tex(table))]
 
 
-def table_from_markdown(text: str) -> pd.DataFrame:
-    """The numbers of a written ``real_logs.md`` back as :func:`real_log_table`'s frame (the
-    seeds columns unknown), for tables written before the CSV was."""
-    settings = {setting_short(s): s for s in SETTINGS}
-    methods = {label: name for name, label in METHOD_LABELS.items()}
-    rows = []
-    for line in text.splitlines():
-        if line.startswith("## "):
-            break  # the ego-by-ego table follows the main one
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) not in (2 + 2 * len(METRIC_KEYS), 3 + 2 * len(METRIC_KEYS)) \
-                or cells[0] in ("setting", "---"):
-            continue
-        method = methods.get(cells[1], cells[1])
-        row = {"setting": "none" if method in REFERENCES else settings.get(cells[0], cells[0]),
-               "method": method}
-        values = iter(cells[2:])
-        for key in METRIC_KEYS:
-            for source in SOURCES:
-                cell = next(values)
-                value, _, n = cell.partition(" (N=")
-                row[f"{source}_{key}"] = float("nan") if cell == "--" else float(value)
-                row[f"{source}_n"] = row.get(f"{source}_n") if cell == "--" else int(n[:-1])
-        rows.append(row)
-    if not rows:
-        raise DataError("real_logs.md: no table rows found")
-    return pd.DataFrame(rows)
+# ------------------------------------------------------------------ the results page
+READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, when not its own
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.real_logs",
-                                     description=__doc__.splitlines()[0])
-    parser.add_argument("--real", default=None, help="evaluations on real logs (folder)")
-    parser.add_argument("--from-markdown", default=None, metavar="FILE",
-                        help="instead of evaluations: rebuild real_logs.csv and "
-                             "real_logs_summary.tex from a written real_logs.md")
-    parser.add_argument("--synthetic", dest="validation", default=None,
-                        help="evaluations on the (synthetic) validation set (folder)")
-    parser.add_argument("--readouts", default=None, metavar="DIR",
-                        help="Full BC evaluated on the real logs under other action read-outs "
-                             "(one folder each: igdrivsim evaluate --actions greedy|mean)")
-    parser.add_argument("--out", required=True, help="tables folder")
-    parser.add_argument("--real-label", default="real scenarios", help="what the real data are")
-    parser.add_argument("--synthetic-label", dest="validation_label",
-                        default="synthetic validation scenarios",
-                        help="what the validation data are")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        if args.from_markdown:
-            text = Path(args.from_markdown).read_text(encoding="utf-8")
-            paths = write_numbers(table_from_markdown(text), Path(args.out))
-        elif args.real:
-            paths = write_tables(args.real, args.validation, args.out, args.real_label,
-                                 args.validation_label, args.readouts)
-        else:
-            raise ConfigError("give --real DIR (evaluations) or --from-markdown FILE")
-        print("wrote " + ", ".join(map(str, paths)))
-
-    return run_command("real_logs", body)
+def _vs_cv(row: pd.Series) -> str:
+    """``x% [lo, hi]; r.rrx [lo, hi]``: a driver's share of egos closer to the log than constant
+    velocity and its mean log divergence over constant velocity's (real_logs.csv's columns)."""
+    if pd.isna(row.get("real_vs_cv_win")):
+        return "-- | --"
+    return (f"{100 * row.real_vs_cv_win:.0f}% [{100 * row.real_vs_cv_win_lo:.0f}, "
+            f"{100 * row.real_vs_cv_win_hi:.0f}] | {row.real_vs_cv_ratio:.2f}x "
+            f"[{row.real_vs_cv_ratio_lo:.2f}, {row.real_vs_cv_ratio_hi:.2f}]")
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def _full_bc_line(table: pd.DataFrame) -> str | None:
+    """The headline sentence: Full BC against constant velocity ego by ego, with N egos and N
+    source scenarios; None without that comparison."""
+    full = table[(table.setting == "full") & (table.method == BC)]
+    if full.empty or "real_vs_cv_win" not in full or pd.isna(full.real_vs_cv_win.iloc[0]):
+        return None
+    r = full.iloc[0]
+    return (f"On real logs ({int(r.real_vs_cv_egos)} egos from {int(r.real_vs_cv_sources)} "
+            "source scenarios, every vehicle that passes the scenario filter as the ego), "
+            f"Full BC stays closer to the log than constant velocity on "
+            f"{100 * r.real_vs_cv_win:.0f}% of the egos (95% CI {100 * r.real_vs_cv_win_lo:.0f}-"
+            f"{100 * r.real_vs_cv_win_hi:.0f}%), with a mean log divergence "
+            f"{r.real_vs_cv_ratio:.2f}x constant velocity's (95% CI "
+            f"{r.real_vs_cv_ratio_lo:.2f}-{r.real_vs_cv_ratio_hi:.2f})")
+
+
+def _readouts(tables: Path) -> list[str]:
+    """Full BC's action read-outs against constant velocity (``real_logs_readouts.csv``)."""
+    modes = read_table(tables / "real_logs_readouts.csv")
+    if modes is None or len(modes) < 2:
+        return []
+    out = ["", "Full BC's action read-outs (Table I samples its actions):", "",
+           "| actions | N egos (sources) | closer than CV [95% CI] | mean / CV [95% CI] "
+           "| median - CV (m) |", "|---|---|---|---|---|"]
+    for _, r in modes.iterrows():
+        name = READOUTS.get(r.actions, r.actions)
+        out.append(f"| {name} | {int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
+                   f"{_vs_cv(r)} | {r.real_vs_cv_median:+.2f} |")
+    return out
+
+
+def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
+    """The section of ``results.md`` on real logs (nothing without ``tables/real_logs.csv``):
+    ego-by-ego comparisons, read-outs, the summary sentence and the log divergence per setting;
+    with ``headline`` (the link to the full results), the README's one sentence."""
+    table = read_table(tables / "real_logs.csv")
+    if table is None or table.empty:
+        return []
+    sentence = real_logs_summary(table)
+    if sentence is None:
+        return []
+    full = _full_bc_line(table)
+    if headline:
+        text = full or sentence.rstrip(".")
+        return wrap(text + f"; every setting: [{headline}]({headline}#on-real-logs).")
+    learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
+    settings = [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]
+    ego_table = []
+    if "real_vs_cv_win" in table and table.real_vs_cv_win.notna().any():
+        ego_table = [*wrap("Against constant velocity, ego by ego: the share of egos where the "
+                           "driver stays closer to the log (a tie counts half) and its mean log "
+                           "divergence over constant velocity's, with 95% intervals (bootstrap "
+                           "over source scenarios, then seeds); N egos (source scenarios). All "
+                           "statistics: [real_logs.md](PAPER/tables/real_logs.md)."), "",
+                     "| setting | method | N egos (sources) | closer than CV [95% CI] "
+                     "| mean / CV [95% CI] |", "|---|---|---|---|---|"]
+        for setting in settings:
+            for m in learned:
+                row = table[(table.setting == setting) & (table.method == m)]
+                if row.empty or pd.isna(row.real_vs_cv_egos.iloc[0]):
+                    continue
+                r = row.iloc[0]
+                ego_table.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(m, m)} | "
+                                 f"{int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
+                                 f"{_vs_cv(r)} |")
+        ego_table += [*_readouts(tables), ""]
+
+    def cell(row: pd.DataFrame, source: str) -> str:
+        if row.empty or pd.isna(row[f"{source}_log_divergence"].iloc[0]):
+            return "--"
+        value = row[f"{source}_log_divergence"].iloc[0]
+        return f"{value:.2f} (N={int(row[f'{source}_n'].iloc[0])})"
+
+    head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
+            for m in learned]
+    out = ["## On real logs", "", *(wrap(full + ".") + [""] if full else []), *ego_table,
+           *wrap(sentence), "",
+           "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
+           "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
+           "| setting | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+    for setting in settings:
+        rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
+        out.append(f"| {setting_short(setting)} | " + " | ".join(
+            cell(r, src) for src in ("real", "validation") for r in rows) + " |")
+    cv = table[table.method == CONSTANT_VELOCITY]
+    out.append("| constant velocity | " + " | ".join(
+        cell(cv, src) for src in ("real", "validation") for _ in learned) + " |")
+    return [*out, ""]

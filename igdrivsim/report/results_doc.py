@@ -1,11 +1,7 @@
-"""The report's markdown: ``results.md`` (the whole run) and the README's headline block.
-
-Both are read from the report's own files only (``PAPER/tables/*.csv``, Table II's
-``tables/table2.md``, ``PAPER/provenance.json`` and ``PAPER/generated/provenance.tex``), so
-``igdrivsim report --from-tables PAPER`` rewrites them without the evaluations, and no number
-in them is typed by hand. The README block lies between
-:data:`BEGIN` and :data:`END`, its run-time block (when the README has one) between
-:data:`RUNTIME_BEGIN` and :data:`RUNTIME_END`; :func:`fill_block` replaces only what is between.
+"""The report's markdown: ``results.md`` (the whole run) and the README's blocks, read from the
+report's own files only, so ``igdrivsim report --from-tables`` rewrites them without the
+evaluations. :func:`fill_block` replaces what lies between :data:`BEGIN` and :data:`END` (and
+:data:`RUNTIME_BEGIN` / :data:`RUNTIME_END`).
 """
 
 from __future__ import annotations
@@ -18,26 +14,15 @@ from pathlib import Path
 import pandas as pd
 
 from igdrivsim.errors import ConfigError, DataError
-from igdrivsim.evaluation.schema import (
-    BC,
-    BC_RL,
-    COMPETENCE,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    PAPER_TABLE1,
-    REFERENCE_SETTING,
-    setting_short,
-    table_settings,
-)
+from igdrivsim.evaluation.schema import COMPETENCE, PAPER_TABLE1, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
+from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report import methods_table
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
-from igdrivsim.report.real_logs_page import real_logs_section
-from igdrivsim.report.results_tex import read_table, write_macros
-from igdrivsim.report.tables import table1_markdown
-from igdrivsim.report.text import WIDTH, wrap  # noqa: F401 (WIDTH: the README's prose width)
+from igdrivsim.report.real_logs import real_logs_section
+from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
+from igdrivsim.report.tables import _fmt, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 # the README's block near the top: measured run times and the choice of profile (optional)
@@ -46,9 +31,10 @@ CURVES_SUMMARY = "curves_summary.csv"
 RUN_TIMES = "run_times.csv"
 _HEADLINE = (("log_divergence", "log div. (m)"), ("offroad", "offroad (%)"),
              ("overlap", "overlap (%)"))
+
+
 def _bullet(text: str) -> list[str]:
     return wrap("- " + text, indent="  ")
-
 
 
 def provenance(paper: Path) -> dict[str, str]:
@@ -63,10 +49,7 @@ def provenance(paper: Path) -> dict[str, str]:
 def run_line(paper: Path, commit: bool = True) -> str:
     """How the run behind Table I was made, from ``paper/provenance.json`` (the pipeline's
     record: command, profile, updates, device, wall time, date); empty without it."""
-    path = Path(paper) / "provenance.json"
-    if not path.is_file():
-        return ""
-    files = read_json(path).get("files", {})
+    files = load_provenance(Path(paper))
     entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
     if not isinstance(entry, dict):
         return ""
@@ -82,16 +65,6 @@ def run_line(paper: Path, commit: bool = True) -> str:
     if not commit:  # no commit hash at all (the README)
         note = re.sub(r"\s*(?:as of |at |commit )?\b[0-9a-f]{7,40}\b", "", note)
     return "Run: " + ", ".join(parts) + note + "."
-
-
-def _mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
-    row = summary[(summary.metric == metric) & (summary.setting == setting)
-                  & (summary.method == method)]
-    return float(row["mean"].iloc[0]) if len(row) else math.nan
-
-
-def _f(value: float) -> str:
-    return f"{value:.2f}" if math.isfinite(value) else "--"
 
 
 def _signed(value: float) -> str:
@@ -136,7 +109,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
-    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
+    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
@@ -145,12 +118,12 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
            + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
            "|---|" + "---|" * (len(_HEADLINE) + 2)]
     for setting in settings:
-        cells = [_f(_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
         out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
                    + f" | {_interval(_test(tests, 'offroad', setting))} | {paper_text} |")
-    out.append("| constant velocity | " + " | ".join(_f(cv[m]) for m, _ in _HEADLINE)
+    out.append("| constant velocity | " + " | ".join(_fmt(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
     k, n = _significant(tests)
     closing = f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."
@@ -169,7 +142,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 def _competence(summary: pd.DataFrame) -> list[str]:
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
-    cv = {m: _mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
         return ["No constant-velocity reference in this run.", ""]
     bars = ", ".join(f"{label} at most {ratio:g}x constant velocity's"
@@ -179,20 +152,20 @@ def _competence(summary: pd.DataFrame) -> list[str]:
            "| setting | method | " + " | ".join(f"{label} ({unit})" for _, label, unit in
                                                COMPETENCE.values()) + " | targets met |",
            "|---|---|" + "---|" * (len(COMPETENCE) + 1),
-           "| target | | " + " | ".join(f"<= {_f(ratio * cv[m])}" for m, (ratio, _, _) in
+           "| target | | " + " | ".join(f"<= {_fmt(ratio * cv[m])}" for m, (ratio, _, _) in
                                        COMPETENCE.items()) + " | |"]
     for setting in settings:
         for method in methods:
             cells, met = [], 0
             for metric, (ratio, _, _) in COMPETENCE.items():
-                value = _mean(summary, metric, setting, method)
+                value = cell_mean(summary, metric, setting, method)
                 ok = math.isfinite(value) and value <= ratio * cv[metric]
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
-                cells.append(f"{_f(value)}{ratio_text}{' ✓' if ok else ''}")
+                cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
             out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
                        + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
-    expert = [f"{label} {_f(_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+    expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
                   + ", ".join(expert) + ".", ""]
@@ -279,10 +252,8 @@ def _demote(markdown: str) -> list[str]:
 
 
 def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
-    """Table II of the run that owns it (``tables/table2.md``, written with ``tests_all.csv``
-    from that run's own summary), else rebuilt from ``tests_all.csv``: each learned method the
-    comparisons name gets its rows, from ``summary`` where it has them, else from the
-    comparisons' means (no interval); nothing without ``tests_all.csv``."""
+    """Table II of the run that owns it (``tables/table2.md``), else rebuilt from
+    ``tests_all.csv`` (means from ``summary`` where it has them); nothing without it."""
     tests_all = read_table(tables / "tests_all.csv")
     if tests_all is None:
         return []
@@ -344,10 +315,8 @@ COMPETENCE_ANCHOR = "#competence-against-the-reference-actors"
 
 
 def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
-    """Short lines: each published run's measured wall time and machine (from
-    ``paper/provenance.json``), then what each profile is for (from the training profiles);
-    ``results_link``: ``results.md`` relative to the README (where the competence targets are
-    defined)."""
+    """Each published run's measured wall time and machine (``paper/provenance.json``), then
+    what each profile is for; ``results_link``: ``results.md`` relative to the README."""
     # lazy: the training profiles pull in JAX; the rest of this module does not need it
     from igdrivsim.training.config import get_profile
 

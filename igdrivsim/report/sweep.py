@@ -1,29 +1,18 @@
-"""A sweep of one setting's training variants in one table: what each override bought, at what
-compute.
-
-Reads a sweep folder as ``scripts/competence_sweep.sh`` writes it (``runs/NAME`` trained by
-``igdrivsim train``, ``evals/NAME`` by ``igdrivsim evaluate``) and prints, per variant, its
-overrides of the profile, the updates evaluated (the last checkpoint of a run stopped early),
-its compute relative to the profile's budget (scenario-episodes trained forward and backward:
-updates x batch x passes), and the closed-loop metrics: log divergence as the mean over seeds
-with the range of the seed means, and its ratio to constant velocity's on the same scenarios
-when ``--references`` gives that actor's evaluation.
-
-``python -m igdrivsim.report.sweep SWEEP [--references EVAL_DIR] [--out FILE]``
+"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``:
+``runs/NAME``, ``evals/NAME``): per variant its overrides of the profile, the updates evaluated,
+its compute relative to the profile's budget (updates x batch x passes) and the closed-loop
+metrics, with the ratio to constant velocity's (``--references``).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.cli_args import FORMATTER
-from igdrivsim.errors import ConfigError, run_command
-from igdrivsim.evaluation.schema import CONSTANT_VELOCITY, PER_SCENARIO_FILE
-from igdrivsim.io import atomic_write_text
+from igdrivsim.errors import ConfigError
+from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
+from igdrivsim.names import CONSTANT_VELOCITY
 
 # the fields a variant's compute per update scales with (and the updates it trained)
 _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
@@ -100,27 +89,3 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
     lines += ["| " + " | ".join(str(v) for v in row) + " |"
               for row in table.itertuples(index=False)]
     return head + "\n".join(lines) + "\n"
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.report.sweep",
-                                     description=" ".join(__doc__.split("\n\n")[0].split()),
-                                     formatter_class=FORMATTER)
-    parser.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
-    parser.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
-                        help="`igdrivsim evaluate --references` output on the same data "
-                             "(default: none, no ratio to constant velocity)")
-    parser.add_argument("--out", type=Path, help="also write the markdown here")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        text = sweep_markdown(args.sweep, args.references)
-        if args.out:
-            atomic_write_text(args.out, text)
-        print(text)
-
-    return run_command("sweep", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

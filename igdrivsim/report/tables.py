@@ -1,36 +1,52 @@
-"""Table I (LaTeX and Markdown) and the side-by-side comparison with the paper's numbers.
-
-Inputs are the frames of :mod:`igdrivsim.evaluation.aggregate`: ``summary`` (mean and CI per
-metric, setting, method) and ``tests`` (BC-RL vs BC per metric and setting). Layout follows the
-paper's Table I: metrics are row groups holding a BC-RL row and a BC row, the six observation
-settings are columns, and the better value of a significantly different pair is in bold. Two
-reference rows (discretised expert replay, constant velocity) follow when they were evaluated;
-they do not depend on the observation, so they span the six columns.
+"""Table I (LaTeX and Markdown), its effects, power and safety verdicts, the comparison with
+the paper's numbers and the supplementary metrics' table, from the ``summary`` and ``tests``
+frames of :mod:`igdrivsim.evaluation.aggregate`, laid out as the paper's Table I.
 """
 
 from __future__ import annotations
 
 import math
+import re
 
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME
-from igdrivsim.evaluation.schema import (
+from igdrivsim.evaluation.schema import METRICS, PAPER_TABLE1, REFERENCE_SETTING, table_settings
+from igdrivsim.names import (
     BC,
     BC_RL,
     METHOD_LABELS,
-    METRICS,
-    PAPER_TABLE1,
-    REFERENCE_SETTING,
     REFERENCES,
     SETTING_SHORT,
     SETTINGS,
     setting_labels,
     setting_short,
-    table_settings,
 )
 
 MISSING = "--"
+# the width of the prose lines the report writes into the README
+WIDTH = 96
+# a word of markdown: code spans, links and durations whole (they hold spaces), else a run of
+# non-space
+_WORD = re.compile(r"(?:\d+ h \d+ min|`[^`\n]*`|\[[^\]\n]*\]\([^)\s]*\)|\S)+")
+
+
+def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
+    """``text`` as lines of at most ``width`` characters, continuation lines prefixed by
+    ``indent``; a code span or a link is never split (a longer one stands on its own line)."""
+    lines, line = [], ""
+    for word in _WORD.findall(text):
+        if line.strip() and len(line) + 1 + len(word) > width:
+            lines.append(line)
+            line = indent + word
+        else:
+            line = f"{line} {word}" if line.strip() else line + word
+    return lines + [line] if line else lines
+
+
+def heading(title: str, header: str = "") -> list[str]:
+    """A markdown page's first lines: its title, then ``header`` (the run's scope) if any."""
+    return [title, "", *([header, ""] if header else [])]
 
 
 def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd.Series | None:
@@ -75,26 +91,26 @@ def setting_header(cols: list[str], lead: str) -> list[str]:
                                        if setting_labels(s)[1] else "" for s in cols) + r" \\"]
 
 
+def latex_float(caption: str, label: str, spec: str, rows: list[str]) -> str:
+    """A ``table*`` float scaled to the text width: booktabs rules around ``rows``."""
+    return "\n".join([r"\begin{table*}[t]", r"\centering", caption, rf"\label{{{label}}}",
+                      r"\resizebox{\textwidth}{!}{%", rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
+                      *rows, r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""])
+
+
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """The ``table*`` float for the report (needs booktabs, colortbl and the colours
     ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
     cols = table_settings(summary, tests)
     colours = {BC_RL: "bcrlcolor", BC: "bccolor"}
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         r"\caption{\textbf{BC-RL versus BC under six observation models.} Mean over seeds of "
         r"per-step (log divergence, overlap, offroad) and per-scenario (max log divergence, "
         r"overlap rate, offroad rate) metrics on the validation scenarios; lower is better. "
         r"Orange rows: BC-RL ($w_{BC}=1$, $w_{RL}=0.05$); blue rows: BC. Bold marks the "
         rf"better method where the difference is significant ({TEST_NAME}, "
-        rf"$\alpha={ALPHA}$). {caption_extra}}}",
-        r"\label{tab:results}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{l" + "c" * len(cols) + "}",
-        r"\toprule",
-        *setting_header(cols, r"\textbf{Metric}"),
-    ]
+        rf"$\alpha={ALPHA}$). {caption_extra}}}")
+    lines = setting_header(cols, r"\textbf{Metric}")
     references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
@@ -112,8 +128,7 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
             value = _fmt(None if row is None else float(row["mean"]))
             lines.append(rf"\quad\textit{{{METHOD_LABELS[method].lower()}}} & "
                          rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:results", "l" + "c" * len(cols), lines)
 
 
 def _ci_text(row: pd.Series | None) -> str:
@@ -157,9 +172,7 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
     bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
     cols = table_settings(summary, tests)
-    out = ["# Table I: BC-RL vs BC", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Table I: BC-RL vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
@@ -193,9 +206,7 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
 
     ``same direction`` says whether the sign of BC-RL minus BC agrees with the paper's.
     """
-    out = ["# Our Table I next to the paper's", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Our Table I next to the paper's", header)
     out += ["Paper: Grislain et al., Table I (WOMD validation, mean of 3 seeds). Absolute values "
             "are comparable only when both were computed on WOMD; on synthetic data compare the "
             "direction of the BC-RL minus BC difference.", ""]
@@ -310,9 +321,7 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
-    out = ["## Could the paper's effects be detected here?", ""]
-    if header:
-        out += [header, ""]
+    out = heading("## Could the paper's effects be detected here?", header)
     out += [f"Minimum detectable effect (MDE): the smallest true BC-RL − BC difference a "
             f"two-sided test detects with {POWER:.0%} power, (z(1−α/2) + z({POWER})) × SE, SE "
             f"the bootstrap standard error of the difference at this run's seeds and scenarios; "
@@ -335,25 +344,14 @@ def power_latex(tests: pd.DataFrame) -> str:
     cols = table_settings(tests)
     k, kh, n = _power_counts(tests)
     n_cells = len(_cells(tests))
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         rf"\caption{{\textbf{{Minimum detectable effect of BC-RL versus BC}} (80\% power, "
         rf"two-sided, normal approximation with the two-level bootstrap standard error at "
         rf"this run's seeds and scenarios), uncorrected ($\alpha={ALPHA}$) and at the strictest "
         rf"Holm level ($\alpha={ALPHA}/{n_cells}$), next to the paper's BC-RL $-$ BC from its "
         rf"Table~I (bold: at least the uncorrected MDE). The paper's effect reaches the MDE in "
-        rf"{k} of {n} cells ({kh} with Holm).}}",
-        r"\label{tab:power}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
-        r"\toprule",
-        r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
-    ]
+        rf"{k} of {n} cells ({kh} with Holm).}}")
+    lines = setting_header(cols, r"\textbf{Metric} &")
     labels = ("paper effect", "MDE", "MDE (Holm)")
     for name, unit, groups in _power_rows(tests):
         lines.append(r"\midrule")
@@ -362,8 +360,7 @@ def power_latex(tests: pd.DataFrame) -> str:
                 "-", "$-$") if t != MISSING else t for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
             lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
 
 
 # ------------------------------------------------------------------ supplementary metrics
@@ -401,9 +398,7 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
     """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
     half-width, with each metric's unit, direction and source (no significance tests)."""
     cols = table_settings(summary)
-    out = ["# Supplementary metrics (beyond Table I)", ""]
-    if header:
-        out += [header, ""]
+    out = heading("# Supplementary metrics (beyond Table I)", header)
     out += ["Per-scenario metrics of closed-loop driving benchmarks (definitions and sources: "
             "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
             "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
@@ -431,22 +426,11 @@ def _tex(text: str) -> str:
 def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "") -> str:
     """The supplementary table as a ``table*`` float (label ``tab:supplementary``)."""
     cols = table_settings(summary)
-    lines = [
-        r"\begin{table*}[t]",
-        r"\centering",
+    caption = (
         r"\caption{\textbf{Supplementary closed-loop metrics} (nuPlan-, NAVSIM- and "
         r"Waymax-style, definitions in docs/metrics.md): mean over seeds on the validation "
-        rf"scenarios; rates in \%. {caption_extra}}}",
-        r"\label{tab:supplementary}",
-        r"\resizebox{\textwidth}{!}{%",
-        r"\begin{tabular}{ll" + "c" * len(cols) + "}",
-        r"\toprule",
-        r"\textbf{Metric} & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[0]}}}" for s in cols) + r" \\",
-        " & & " + " & ".join(
-            rf"\textbf{{{setting_labels(s)[1]}}}" if setting_labels(s)[1] else ""
-            for s in cols) + r" \\",
-    ]
+        rf"scenarios; rates in \%. {caption_extra}}}")
+    lines = setting_header(cols, r"\textbf{Metric} &")
     for metric, groups in _supplementary_rows(summary, metrics):
         lines.append(r"\midrule")
         arrow = r"$\uparrow$" if metric.higher_is_better else r"$\downarrow$"
@@ -459,5 +443,4 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
                              rf"{{{len(cols)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
             else:
                 lines.append(f"{first} & {name} & " + " & ".join(texts) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""]
-    return "\n".join(lines)
+    return latex_float(caption, "tab:supplementary", "ll" + "c" * len(cols), lines)

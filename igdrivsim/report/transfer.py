@@ -1,35 +1,20 @@
 """Do drivers trained on a synthetic motion model hold up on real logs? The table of
-``scripts/transfer_check.sh``.
+``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``).
 
-Input: a folder ``WORK`` with one sub-folder per motion model (``WORK/<motion>/``), each holding
-``evals_<data set>/bc`` and ``evals_<data set>/references`` (``igdrivsim evaluate`` on the
-synthetic validation set and on real sets). For every (data set, motion) the table gives Full
-BC's and constant velocity's per-step metrics (mean over seeds of each seed's mean over
-scenarios) and BC - constant velocity with its 95% interval and the smallest difference the
-comparison can detect (80% power, level 0.05): a hierarchical bootstrap over seeds, then paired
-scenarios, the egos of one source scenario together
-(:func:`igdrivsim.evaluation.aggregate.hierarchical_bootstrap`). On the real sets,
-which every motion model is evaluated on, a second table compares the motion models' BC
-directly (paired scenarios). Where there are several real sets, they are also pooled (``real,
-pooled``): the comparison with the most power. A last table compares every learned driver
-evaluated (each setting, BC and any other method folder beside it, e.g. ``bc_rl``) with
-constant velocity and with the expert ego by ego, the statistics that survive heavy tails
-(:mod:`igdrivsim.evaluation.paired`): the share of egos where it stays closer to the log, the
-median paired difference and the mean ratio with its minimum detectable effect, with 95%
-intervals from a bootstrap over source scenarios, then seeds, and N egos and source scenarios.
-
-``python -m igdrivsim.report.transfer WORK --out WORK/transfer.md``
+``WORK/<motion>/evals_<data set>/{bc,references,...}``: per (data set, motion) Full BC against
+constant velocity (hierarchical bootstrap over seeds, then paired scenarios:
+:func:`igdrivsim.evaluation.aggregate.paired_difference`), the motion models' BC against each
+other on the real sets (also pooled: ``real, pooled``), and every learned driver against
+constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.aggregate import (
     complete_scenarios,
     load_evaluations,
@@ -37,18 +22,10 @@ from igdrivsim.evaluation.aggregate import (
     scenario_cube,
 )
 from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
-from igdrivsim.evaluation.schema import (
-    BC,
-    CONSTANT_VELOCITY,
-    EVAL_CONFIG,
-    METHOD_LABELS,
-    PER_SCENARIO_FILE,
-    REFERENCES,
-    setting_short,
-    table_settings,
-)
-from igdrivsim.io import atomic_write_text, read_json
+from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, table_settings
+from igdrivsim.io import read_json
 from igdrivsim.machine import code_label, code_state
+from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
 
 METRICS = ("log_divergence", "offroad", "overlap")
@@ -95,21 +72,27 @@ def _in_order(found: dict) -> list:
     return sorted(found.items(), key=lambda kv: (order.get(kv[0][0], 1), kv[0]))
 
 
+def _paired(a: pd.DataFrame, method_a: str, b: pd.DataFrame, method_b: str, scen,
+            **row) -> dict:
+    """``row`` with each metric's paired difference of ``method_a`` in ``a`` minus
+    ``method_b`` in ``b`` on the scenarios ``scen`` (clustered by ``a``'s source scenarios)."""
+    source = source_map(a)
+    c = paired_difference(scenario_cube(a, method_a, scen, METRICS),
+                          scenario_cube(b, method_b, scen, METRICS),
+                          clusters=[source[str(s)] for s in scen])
+    for i, key in enumerate(METRICS):
+        row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
+    return row
+
+
 def against_constant_velocity(found: dict) -> pd.DataFrame:
     """One row per (data set, motion): BC against constant velocity."""
     rows = []
     for (data, motion), frame in _in_order(found):
         frame = frame[(frame.method != BC) | (frame.setting == FULL)]  # Full BC
         scen = complete_scenarios(frame, (BC, CONSTANT_VELOCITY))
-        source = source_map(frame)
-        c = paired_difference(scenario_cube(frame, BC, scen, METRICS),
-                              scenario_cube(frame, CONSTANT_VELOCITY, scen, METRICS),
-                              clusters=[source[str(s)] for s in scen])
-        row = dict(data=data, motion=motion, n=len(scen), seeds=frame[frame.method == BC].seed
-                   .nunique())
-        for i, key in enumerate(METRICS):
-            row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
-        rows.append(row)
+        rows.append(_paired(frame, BC, frame, CONSTANT_VELOCITY, scen, data=data, motion=motion,
+                            n=len(scen), seeds=frame[frame.method == BC].seed.nunique()))
     return pd.DataFrame(rows)
 
 
@@ -145,14 +128,8 @@ def between_motions(found: dict) -> pd.DataFrame:
         for motion in motions[1:]:
             a, b = frames[motion], frames[motions[0]]
             scen = complete_scenarios(a, (BC,)).intersection(complete_scenarios(b, (BC,)))
-            source = source_map(a)
-            c = paired_difference(scenario_cube(a, BC, scen, METRICS),
-                                  scenario_cube(b, BC, scen, METRICS),
-                                  clusters=[source[str(s)] for s in scen])
-            row = dict(data=data, motion=motion, baseline=motions[0], n=len(scen))
-            for i, key in enumerate(METRICS):
-                row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
-            rows.append(row)
+            rows.append(_paired(a, BC, b, BC, scen, data=data, motion=motion,
+                                baseline=motions[0], n=len(scen)))
     return pd.DataFrame(rows)
 
 
@@ -188,7 +165,7 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         "# Full BC trained on each synthetic motion model, against constant velocity",
         "",
         "Written by `bash scripts/transfer_check.sh WORK MOTION` "
-        "(`python -m igdrivsim.report.transfer`). Laptop profile, 3 seeds, 1,000 updates. "
+        "(`igdrivsim report transfer`). Laptop profile, 3 seeds, 1,000 updates. "
         "Means are over seeds of each seed's mean over the N scenarios; differences with a "
         "95% hierarchical-bootstrap interval (seeds, then paired scenarios; egos of one source "
         "scenario together), its p-value and "
@@ -231,30 +208,3 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
                   "", *code,
                   f"- this table: written at {code_label(code_state())}"]
     return "\n".join(lines) + "\n"
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m igdrivsim.report.transfer",
-        description="Full BC of each synthetic motion model against constant velocity, on "
-                    "synthetic validation and real logs (scripts/transfer_check.sh's table).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("work", type=Path, help="the folder holding one sub-folder per motion")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="the markdown file (default: print only)")
-    args = parser.parse_args(argv)
-
-    def body() -> int:
-        found = evaluations(args.work)
-        text = markdown(against_constant_velocity(found), between_motions(found),
-                        code_lines(args.work), ego_by_ego(found))
-        if args.out is not None:
-            atomic_write_text(args.out, text)
-        print(text, end="")
-        return 0
-
-    return run_command("python -m igdrivsim.report.transfer", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -23,6 +23,7 @@ from igdrivsim.core.params import MixWeights, PPOParams
 from igdrivsim.data.egos import EGO_MODES
 from igdrivsim.data.scenario import Capacities
 from igdrivsim.errors import ConfigError
+from igdrivsim.names import GPU_SEEDS
 from igdrivsim.observation import ObservationConfig, stack_settings, superset_config
 from igdrivsim.policy.network import NUM_BINS, POOLED_NETWORK, PolicyConfig
 from igdrivsim.simulator import SimParams
@@ -292,9 +293,6 @@ def smoke() -> RunConfig:
 # did better (docs/bench/competence_sweep_h200.md). 300 (the quick profile) misses more.
 COMPETENT_UPDATES = 1000
 QUICK_UPDATES = 300
-# Seeds of the gpu profile: 4x the laptop's, so each cell's minimum detectable effect is about
-# half the laptop's (it shrinks as 1/sqrt(seeds) where the seed level dominates).
-GPU_SEEDS = 12
 
 
 def laptop() -> RunConfig:

@@ -54,7 +54,7 @@ MAZE_CPU_S = 399.0
 # after a first update (compile) of 63 s. The same network at 3 seeds on one H200 took 0.0262 /
 # 0.0907 s (docs/bench/train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU is not
 # filled by 3 seeds, so the 12-seed rates are the ones to scale from.
-GPU_SEEDS = 12
+GPU_SEEDS = get_profile("gpu").training.seeds
 GPU_S_PER_SETTING_UPDATE = 0.067 / 6
 GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.236 / 6
 GPU_COMPILE_S = 63.0

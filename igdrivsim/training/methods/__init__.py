@@ -21,10 +21,9 @@ method.NAME=VALUE`` sets a field (parsed to the field's type), the loss reads
 ``spec.params.NAME``; the shared configuration does not change.
 
 ``igdrivsim train --method``, the configuration, the pipeline's ``--methods`` and the figures
-read this registry (name, label, colour, baseline); the tables read its copy in
-:mod:`igdrivsim.evaluation.schema` (``LEARNED``, without JAX; ``tests/test_names.py`` checks
-that they agree); a method is named nowhere else. Table I compares BC-RL with BC; Table II
-every method with its ``baseline``.
+read this registry (name, label, colour, baseline); a method's label and colour are
+:mod:`igdrivsim.names`' (``LEARNED``, which the tables read without JAX). Table I compares
+BC-RL with BC; Table II every method with its ``baseline``.
 """
 
 from __future__ import annotations

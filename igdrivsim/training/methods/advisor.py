@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from igdrivsim.core.learn import masked_mean, surrogate_terms, value_loss
 from igdrivsim.core.params import AdvisorParams
 from igdrivsim.errors import ConfigError
+from igdrivsim.names import LEARNED
 from igdrivsim.policy.act import action_log_prob, entropy, kl_divergence, soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 
@@ -57,5 +58,5 @@ def loss(spec, out, batch):
                    "policy_entropy": ent, "policy_loss": masked_mean(pg, mask)}
 
 
-register_method(Method("advisor", "ADVISOR", "#B07AA1", loss, episodes=("rollout",),
+register_method(Method("advisor", *LEARNED["advisor"], loss, episodes=("rollout",),
                        teacher=True, aux_head=True, params=Params()))

@@ -4,6 +4,7 @@ logged episodes (the paper's BC; ``w_BC BC + w_RL PPO`` with ``w_RL = 0``)."""
 from __future__ import annotations
 
 from igdrivsim.core.learn import masked_mean
+from igdrivsim.names import LEARNED
 from igdrivsim.policy.act import bc_loss, entropy
 from igdrivsim.training.methods import Method, register_method
 
@@ -20,4 +21,4 @@ def loss(spec, out, batch):
     return spec.loss.w_bc * bc, metrics
 
 
-register_method(Method("bc", "BC", "#4C9BE8", loss, episodes=("logged",), baseline=None))
+register_method(Method("bc", *LEARNED["bc"], loss, episodes=("logged",), baseline=None))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from igdrivsim.core.learn import masked_mean, value_loss
+from igdrivsim.names import LEARNED
 from igdrivsim.policy.act import action_log_prob, clipped_surrogate, entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
@@ -33,4 +34,4 @@ def loss(spec, out, batch):
     return spec.loss.w_bc * bc + spec.loss.w_rl * rl, metrics | rl_metrics | {"ppo_loss": rl}
 
 
-register_method(Method("bc_rl", "BC-RL", "#F28E2B", loss, episodes=("logged", "rollout")))
+register_method(Method("bc_rl", *LEARNED["bc_rl"], loss, episodes=("logged", "rollout")))

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from igdrivsim.core.learn import masked_mean
 from igdrivsim.errors import ConfigError
+from igdrivsim.names import LEARNED
 from igdrivsim.policy.act import soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
@@ -39,5 +40,5 @@ def loss(spec, out, batch):
     return spec.loss.w_bc * bc + imitation, metrics | {"teacher_ce": imitation}
 
 
-register_method(Method("dagger", "DAgger", "#59A14F", loss, episodes=("logged", "aggregate"),
+register_method(Method("dagger", *LEARNED["dagger"], loss, episodes=("logged", "aggregate"),
                        teacher=True, params=Params()))
