@@ -176,7 +176,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     from igdrivsim.observation import get_setting
     from igdrivsim.policy.act import WARMUP_STEPS, example_observation, policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
-    from igdrivsim.training.loop import load_teacher, teacher_policy_config
+    from igdrivsim.training.loop import load_teacher
     from igdrivsim.training.update import (
         collect,
         expert_sequences,
@@ -189,12 +189,13 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     config = with_overrides(SMOKE, [
         "training.method=dagger", "observation.setting=circular_r4",
         f"training.teacher={teacher_run}", "training.seeds=1"]).validate()
-    spec = update_spec(config, teacher_policy_config(config))
+    teacher_policy, teacher = load_teacher(str(teacher_run), config)
+    spec = update_spec(config, teacher_policy)
+    teacher = jax.tree.map(lambda x: x[0], teacher)
     dataset = inputs.Dataset.from_config(config, toy_data, spec.sim, need_states=True)
     rec, states = jax.tree.map(lambda x: jnp.asarray(x[0]), dataset.host_batch(0))
     params = jax.tree.map(lambda x: x[0], init_params_per_seed(
         config.policy, [jax.random.key(0)], example_observation(spec.obs)))
-    teacher = jax.tree.map(lambda x: x[0], load_teacher(str(teacher_run), config))
     buffer = jax.tree.map(lambda x: x[0, 0], init_buffer(config, spec))
     setting = jax.tree.map(lambda x: x[0], settings_as_data(config))
     key = jax.random.key(1)

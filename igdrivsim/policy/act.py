@@ -23,13 +23,10 @@ Every closed-loop episode of a learned policy goes through the simulator's runne
 :func:`warmup_carry` is the actor's GRU warm-up for one scenario; :func:`policy_step` is one
 step by hand from a given observation (tests, interactive use).
 
-**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: a batch of
-reset states driven by actions sampled from the policy, time-major (``[T, B, ...]``) with
-observations, log-probabilities, values and rewards. Steps 0..9 are the logged warm-up
-(observed only, to warm the GRU; the update does that from the teacher-forced observations),
-then 80 controlled steps 10..89. Each scenario has its own episode key (Gaussian noise offset,
-masking draws); the step key is ``fold_in(episode_key, t)``. The reward is the simulator's
-(``-1[overlap] - 1[offroad]``), zero where the logged SDC has no next pose.
+**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: the 80
+controlled steps of a batch of scenarios (the update warms the GRU on the logged steps), with
+observations, sampled levels, log-probabilities, values and the simulator's rewards
+(``-1[overlap] - 1[offroad]``, zero where the logged SDC has no next pose), time-major.
 """
 
 from __future__ import annotations

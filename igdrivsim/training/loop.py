@@ -84,25 +84,16 @@ class Validation:
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
 
-def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
-    """The privileged teacher's network config, read from its run (``None`` when the method
-    has no teacher)."""
-    if not get_method(config.training.method).teacher:
-        return None
-    return teacher_config(config.training.teacher, config).policy
-
-
-def load_teacher(run_dir: str, student: RunConfig):
-    """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
-    teacher_config(run_dir, student)
+def load_teacher(run_dir: str, student: RunConfig) -> tuple[PolicyConfig, object]:
+    """The privileged teacher's network config and its ``full``-setting parameters stacked
+    over the student's seeds ``[S]``."""
+    config = teacher_config(run_dir, student)
     teacher = Run.open(run_dir)
     if not teacher.complete:
         raise ConfigError(f"training.teacher: {run_dir} has not finished training")
-    config, params = teacher.config, teacher.params()
     g = config.settings.index(TEACHER_SETTING)
-    seeds = config.training.seeds
-    pick = np.arange(student.training.seeds) % seeds
-    return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
+    pick = np.arange(student.training.seeds) % config.training.seeds
+    return config.policy, jax.tree.map(lambda x: jnp.asarray(x[g])[pick], teacher.params())
 
 
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
@@ -119,7 +110,11 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     run = Run(out_dir, config, resume, log)
     if run.complete_already():
         return TrainResult(None, -1, -1, True, 0.0)
-    spec = update_spec(config, teacher_policy_config(config))
+    teacher_policy = teacher_params = None
+    if get_method(t.method).teacher:
+        teacher_policy, teacher_params = load_teacher(t.teacher, config)
+        log(f"privileged teacher: the full setting of {t.teacher}")
+    spec = update_spec(config, teacher_policy)
     mesh = make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
     if config.data.stream:  # paper scale: per-process shards decoded on demand
@@ -140,10 +135,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
 
     rep = replicated(mesh)
-    teacher_params = None
-    if spec.learner.teacher:
-        teacher_params = place(load_teacher(t.teacher, config), rep)
-        log(f"privileged teacher: the full setting of {t.teacher}")
+    teacher_params = place(teacher_params, rep)
     settings = settings_as_data(config)
     settings = None if settings is None else place(settings, rep)
     keys = place(seed_keys(config), rep)

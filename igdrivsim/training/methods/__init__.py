@@ -3,31 +3,20 @@
 A method is one module in this package ending with one :func:`register_method` call: its
 params, its loss, the episodes its loss reads, its own collection (with the buffer it keeps
 across updates, e.g. DAgger's aggregate) and the loss it reports. The update
-(:mod:`igdrivsim.training.update`) is generic: every update builds, per (setting, seed), the
-shared episodes the method asks for, lets the method's ``collect`` add its own, runs the network
-once over all of them and hands the method's ``loss`` the outputs. The shared episodes:
-
-- ``logged``: the logged (expert-driven) episodes of the batch under the setting's observation,
-  labelled with the discretised expert actions (teacher-forced; BC's data);
-- ``rollout``: the policy drives the same scenarios from the same warm-up (sampled actions),
-  with log-probabilities, values, rewards ``-1[overlap] - 1[offroad]``, GAE advantages and
-  returns; with ``teacher=True`` a privileged teacher (``training.teacher``, a Full-setting
-  run) labels each visited state with its action distribution (``teacher_logp``), seeing the
-  full observation.
-
-Any other kind ``K`` in ``episodes`` is the method's own: its ``collect`` hook puts the
-observations ``K_obs [b, 90, ...]`` (and any arrays its loss reads) into the update's data.
+(:mod:`igdrivsim.training.update`) builds, per (setting, seed), the shared episodes the method
+asks for: ``logged`` (the logged episodes under the setting's observation, labelled with the
+discretised expert actions) and ``rollout`` (the policy's own closed-loop episode from the
+same warm-up, with log-probabilities, values, rewards, GAE; with ``teacher=True`` a privileged
+teacher's action distribution at every visited state). Any other kind ``K`` is the method's
+own: its ``collect`` puts ``K_obs [b, 90, ...]`` and what its loss reads into the data. The
+update runs the network once over all of them and hands the outputs to the method's ``loss``.
 
 A method's own hyper-parameters are a frozen dataclass declared next to its loss (``params``,
-an instance holding the defaults; validate in its ``__post_init__``): ``--set
-method.NAME=VALUE`` sets a field (parsed to the field's type), the loss reads
-``spec.params.NAME``; the shared configuration does not change.
-
-``igdrivsim train --method``, the configuration, the pipeline's ``--methods`` and the figures
-read this registry (name, label, colour, baseline); the tables read its copy in
-:mod:`igdrivsim.evaluation.schema` (``LEARNED``, without JAX; ``tests/test_names.py`` checks
-that they agree); a method is named nowhere else. Table I compares BC-RL with BC; Table II
-every method with its ``baseline``.
+an instance holding the defaults; validate in its ``__post_init__``), set with ``--set
+method.NAME=VALUE`` and read in the loss as ``spec.params.NAME``. ``igdrivsim train
+--method``, the configuration, the pipeline and the figures read this registry; the tables read
+its copy in :mod:`igdrivsim.evaluation.schema` (``LEARNED``, without JAX; ``tests/test_names.py``
+checks that they agree). docs/ARCHITECTURE.md, "To add a method", has a worked example.
 """
 
 from __future__ import annotations
