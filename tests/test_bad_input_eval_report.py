@@ -37,8 +37,8 @@ def run_template(tmp_path_factory) -> Path:
     import numpy as np
 
     from igdrivsim.training.config import get_profile, to_dict
-    from igdrivsim.training.loop import init_buffer, init_state, update_spec
     from igdrivsim.training.run import CHECKPOINTS, Checkpoints
+    from igdrivsim.training.update import init_buffer, init_state, update_spec
 
     run = tmp_path_factory.mktemp("runs") / "run"
     run.mkdir()

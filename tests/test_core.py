@@ -80,18 +80,23 @@ def test_categorical_terms_by_hand():
 def test_maze_and_driving_share_the_runner_and_the_loss_terms():
     import importlib
 
-    from igdrivsim.policy import act as driving_losses
     from igdrivsim.training import update
+    from igdrivsim.training.methods import advisor, bc, bc_rl, dagger
+    from maze import dagger as maze_dagger
     from maze import mixed, ppo, rollout
 
     driving = importlib.import_module("igdrivsim.simulator.rollout")
     assert rollout.run_episode is driving.episode.run_episode is episode.run_episode
     assert rollout.Actor is driving.Actor is episode.Actor
-    for name in ("surrogate_terms", "masked_mean"):
-        assert getattr(driving_losses, name) is getattr(learn, name)
+    for name in ("log_prob", "entropy", "masked_mean"):
+        assert getattr(bc, name) is getattr(bc_rl, name) is getattr(learn, name)
+    assert bc_rl.surrogate_terms is advisor.surrogate_terms is ppo.surrogate_terms
+    assert ppo.surrogate_terms is learn.surrogate_terms and ppo.entropy is learn.entropy
+    assert dagger.soft_cross_entropy is maze_dagger.soft_cross_entropy is learn.soft_cross_entropy
+    assert advisor.soft_cross_entropy is mixed.soft_cross_entropy is learn.soft_cross_entropy
+    assert advisor.kl_divergence is mixed.kl_divergence is learn.kl_divergence
     assert update.gae is learn.gae and update.normalize is learn.normalize
     assert ppo.gae is mixed.gae is learn.gae
-    assert ppo.surrogate_terms is learn.surrogate_terms
 
 
 def test_sgd_epochs_is_a_loop_over_shuffled_minibatches():

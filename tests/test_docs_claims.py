@@ -32,6 +32,7 @@ SCRIPTS = sorted((ROOT / "scripts").glob("*.sh"))
 NOT_IN_REPOSITORY = {
     "paper/main.pdf": "built by `make -C paper`, not committed",
     "igdrivsim/training/methods/bc_rl_scaled.py": "the file the method recipe has you create",
+    "igdrivsim/training/methods/bc_entropy.py": "the file ARCHITECTURE's method example creates",
     "docs/metrics_description.md": "nuPlan's documentation, cited in docs/metrics.md",
 }
 

@@ -10,16 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from igdrivsim.core.learn import gae, normalize, value_loss
+from igdrivsim.core.learn import entropy, gae, normalize, surrogate_terms, value_loss
 from igdrivsim.observation import ObservationConfig
-from igdrivsim.policy.act import (
-    action_log_prob,
-    bc_loss,
-    clipped_surrogate,
-    entropy,
-    example_observation,
-    policy_step,
-)
+from igdrivsim.policy.act import action_log_prob, example_observation, policy_step
 from igdrivsim.policy.network import (
     POOLED_NETWORK,
     PolicyConfig,
@@ -27,6 +20,7 @@ from igdrivsim.policy.network import (
     init_params,
     init_params_per_seed,
 )
+from igdrivsim.training.methods.bc import bc_loss
 from igdrivsim.training.update import cosine_lr
 
 
@@ -47,7 +41,8 @@ def test_action_log_prob_sums_three_dimensions():
     logits = jnp.log(jnp.array([[0.5, 0.5, 0.0 + 1e-30], [0.25, 0.25, 0.5], [1.0, 1e-30, 1e-30]]))
     lp = action_log_prob(logits, jnp.array([0, 2, 0]))
     assert float(lp) == pytest.approx(math.log(0.5) + math.log(0.5) + 0.0, abs=1e-5)
-    assert float(entropy(jnp.zeros((3, 4)))) == pytest.approx(3 * math.log(4), rel=1e-6)
+    joint = entropy(jnp.zeros((3, 4))).sum(-1)  # the three dimensions' entropies summed
+    assert float(joint) == pytest.approx(3 * math.log(4), rel=1e-6)
 
 
 def test_gae_by_hand():
@@ -65,14 +60,15 @@ def test_gae_by_hand():
     np.testing.assert_allclose(ret, adv + values, rtol=1e-6)
 
 
-def test_clipped_surrogate_clips_and_value_loss_shapes():
+def test_surrogate_clips_and_value_loss_shapes():
     adv = jnp.array([1.0, -1.0])
     # Ratio 2 with positive advantage is clipped at 1.2; ratio 0.5 with negative at 0.8.
     logp_new = jnp.log(jnp.array([2.0, 0.5]))
-    loss = clipped_surrogate(logp_new, jnp.zeros(2), adv, 0.2)
+    loss = surrogate_terms(logp_new, jnp.zeros(2), adv, 0.2).mean()
     assert float(loss) == pytest.approx(-(1.2 * 1.0 + 0.8 * -1.0) / 2, rel=1e-6)
     # Equal log-probs: ratio 1, the loss is -mean(A).
-    assert float(clipped_surrogate(jnp.zeros(2), jnp.zeros(2), adv, 0.2)) == pytest.approx(0.0)
+    assert float(surrogate_terms(jnp.zeros(2), jnp.zeros(2), adv, 0.2).mean()) == pytest.approx(
+        0.0)
     assert float(value_loss(jnp.ones((4, 3)), jnp.zeros((4, 3)))) == pytest.approx(0.5)
     with pytest.raises(ValueError):
         value_loss(jnp.ones((4, 3)), jnp.zeros((4, 3, 1)))

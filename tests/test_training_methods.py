@@ -45,8 +45,9 @@ def test_registry_order_and_what_each_method_collects():
     assert "aggregate" in get("dagger").episodes and get("bc_rl").baseline == "bc"
     with pytest.raises(ConfigError, match="unknown learning method 'nope'"):
         get("nope")
-    with pytest.raises(ConfigError, match="aggregate episodes need teacher"):
+    with pytest.raises(ConfigError, match="or its own, built by its collect hook"):
         methods.Method("x", "X", "red", get("bc").loss, episodes=("aggregate",))
+    assert get("dagger").collect is not None and get("advisor").reports == "teacher_ce"
 
 
 def test_the_registry_is_the_only_place_a_method_is_named():
@@ -172,13 +173,13 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     hides far road points), the same states fully observed for the teacher; the teacher's
     labels are its network on those full observations."""
     from igdrivsim.observation import get_setting
-    from igdrivsim.policy.act import example_observation, policy_rollout
+    from igdrivsim.policy.act import WARMUP_STEPS, example_observation, policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
-    from igdrivsim.training.loop import init_buffer, load_teacher
+    from igdrivsim.training.loop import load_teacher
     from igdrivsim.training.update import (
-        WARMUP_STEPS,
         collect,
         expert_sequences,
+        init_buffer,
         settings_as_data,
         teacher_labels,
         update_spec,
@@ -187,12 +188,13 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     config = with_overrides(SMOKE, [
         "training.method=dagger", "observation.setting=circular_r4",
         f"training.teacher={teacher_run}", "training.seeds=1"]).validate()
-    spec = update_spec(config)
+    teacher_policy, teacher = load_teacher(str(teacher_run), config)
+    spec = update_spec(config, teacher_policy)
+    teacher = jax.tree.map(lambda x: x[0], teacher)
     dataset = inputs.Dataset.from_config(config, toy_data, spec.sim, need_states=True)
     rec, states = jax.tree.map(lambda x: jnp.asarray(x[0]), dataset.host_batch(0))
     params = jax.tree.map(lambda x: x[0], init_params_per_seed(
         config.policy, [jax.random.key(0)], example_observation(spec.obs)))
-    teacher = jax.tree.map(lambda x: x[0], load_teacher(str(teacher_run), config))
     buffer = jax.tree.map(lambda x: x[0, 0], init_buffer(config, spec))
     setting = jax.tree.map(lambda x: x[0], settings_as_data(config))
     key = jax.random.key(1)

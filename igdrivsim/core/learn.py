@@ -2,23 +2,16 @@
 categorical policies and the one optimisation loop.
 
 **Loss terms** (on explicit arrays, no network): GAE, the clipped PPO terms, and the
-log-probability, entropy, cross-entropy and KL of a categorical; the maze trains one
-categorical over 4 moves, the driving policy three over 257 levels
-(:mod:`igdrivsim.policy.act` sums these over its three action dimensions).
-Per-categorical functions reduce the last (class) axis only; sequences are time-major
-(``[T, ...]``).
+log-probability, entropy, cross-entropy and KL of a categorical, the one definition of each:
+the maze trains one categorical over 4 moves, the driving policy three over 257 levels (its
+methods sum these over the three action dimensions). Per-categorical functions reduce the last
+(class) axis only; sequences are time-major (``[T, ...]``).
 
-**The loop.** :func:`sgd_epochs` runs one pass (epoch) per key of ``epoch_keys``: the key draws
-a random split of the data's ``size`` examples into ``minibatches`` equal minibatches, and each
-minibatch is one optimiser step on ``loss_fn`` (``lax.scan`` over epochs, then over
-minibatches). :func:`sgd_steps` is the step itself over any sequence of minibatch choices
-(DAgger's draws from its buffer in the maze). The learning rate is an argument applied after
-the optimiser's transformation (``params - lr * tx(grads)``: ``tx`` clips and scales, without a
-learning rate of its own), so one compiled function serves any schedule.
-``loss_fn(params, minibatch) -> (loss, aux)``; ``select(data, choice) -> minibatch`` picks a
-minibatch (default: rows of every leaf, :func:`take_rows`). Both return the per-step ``aux``
-stacked (``[epochs, minibatches, ...]`` from :func:`sgd_epochs`, ``[steps, ...]`` from
-:func:`sgd_steps`) for the caller to reduce.
+**The loop.** :func:`sgd_epochs`: per key of ``epoch_keys``, a random split of the data into
+``minibatches``, each one optimiser step on ``loss_fn(params, minibatch) -> (loss, aux)``;
+:func:`sgd_steps` is the step over any sequence of minibatch choices (the maze DAgger's draws
+from its buffer). The learning rate is an argument applied after the optimiser's
+transformation (``params - lr * tx(grads)``), so one compiled function serves any schedule.
 """
 
 from __future__ import annotations

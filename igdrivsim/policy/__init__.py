@@ -1,19 +1,3 @@
-"""The driving policy network (flax): see :mod:`igdrivsim.policy.network`."""
-
-from igdrivsim.policy.network import (
-    NUM_ACTION_DIMS,
-    NUM_BINS,
-    DrivingPolicy,
-    PolicyConfig,
-    apply_step,
-    count_params,
-    init_params,
-    init_params_per_seed,
-    initial_carry,
-    masked_max,
-)
-
-__all__ = [
-    "NUM_ACTION_DIMS", "NUM_BINS", "DrivingPolicy", "PolicyConfig", "apply_step", "count_params",
-    "init_params", "init_params_per_seed", "initial_carry", "masked_max",
-]
+"""The driving policy: its network (:mod:`~igdrivsim.policy.network`), acting and its own
+episodes (:mod:`~igdrivsim.policy.act`), closed-loop rollouts
+(:mod:`~igdrivsim.policy.closed_loop`)."""

@@ -1,11 +1,10 @@
 """The policy acting: its action distribution, the actor, and its own training episodes.
 
 **The action distribution** is three independent categoricals (dx, dy, dyaw levels): logits
-``[..., 3, bins]`` and actions ``[..., 3]`` (level indices). :func:`action_log_prob` and the
-loss terms the learning methods sum (BC's NLL, entropy, cross-entropy, KL, PPO's surrogate) are
-the shared categorical terms of :mod:`igdrivsim.core.learn` summed over the three dimensions
-(GAE, the PPO terms and the masked statistics are the core's own). They live with the policy
-(acting needs the log-probability) so that ``policy`` does not import ``training``.
+``[..., 3, bins]`` and actions ``[..., 3]`` (level indices). :func:`action_log_prob` is the
+core's categorical log-probability summed over the three dimensions; the learning methods sum
+the core's other categorical terms (:mod:`igdrivsim.core.learn`: entropy, cross-entropy, KL)
+the same way.
 
 **Acting.** The training episode (and therefore evaluation) is: observe the logged warm-up steps
 ``t = 0..9`` (GRU state zeroed at ``t = 0``), then at every controlled step ``t = 10..89``
@@ -24,13 +23,10 @@ Every closed-loop episode of a learned policy goes through the simulator's runne
 :func:`warmup_carry` is the actor's GRU warm-up for one scenario; :func:`policy_step` is one
 step by hand from a given observation (tests, interactive use).
 
-**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: a batch of
-reset states driven by actions sampled from the policy, time-major (``[T, B, ...]``) with
-observations, log-probabilities, values and rewards. Steps 0..9 are the logged warm-up
-(observed only, to warm the GRU; the update does that from the teacher-forced observations),
-then 80 controlled steps 10..89. Each scenario has its own episode key (Gaussian noise offset,
-masking draws); the step key is ``fold_in(episode_key, t)``. The reward is the simulator's
-(``-1[overlap] - 1[offroad]``), zero where the logged SDC has no next pose.
+**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: the 80
+controlled steps of a batch of scenarios (the update warms the GRU on the logged steps), with
+observations, sampled levels, log-probabilities, values and the simulator's rewards
+(``-1[overlap] - 1[offroad]``, zero where the logged SDC has no next pose), time-major.
 """
 
 from __future__ import annotations
@@ -41,8 +37,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from igdrivsim.core import learn as core
-from igdrivsim.core.learn import log_prob, masked_mean, surrogate_terms
+from igdrivsim.core.learn import log_prob
 from igdrivsim.data.scenario import CURRENT_INDEX, NUM_STEPS
 from igdrivsim.observation import ROADGRAPH_FEATURES, Observation, ObservationConfig, observe
 from igdrivsim.observation.features import DEFAULT_CONFIG
@@ -55,33 +50,6 @@ from igdrivsim.simulator.state import SimParams, SimState, vmap_batch
 def action_log_prob(logits: jax.Array, actions: jax.Array) -> jax.Array:
     """log pi(a) = sum over the 3 dimensions of log softmax(logits)[a_d]; ``[...]``."""
     return log_prob(logits, actions).sum(-1)
-
-
-def entropy(logits: jax.Array) -> jax.Array:
-    """Entropy of the joint (product) distribution, ``[...]``."""
-    return core.entropy(logits).sum(-1)
-
-
-def soft_cross_entropy(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
-    """Cross-entropy of the policy to a target distribution (a teacher's log-probabilities),
-    summed over the 3 dimensions: ``[...]``."""
-    return core.soft_cross_entropy(target_logp, logits).sum(-1)
-
-
-def kl_divergence(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
-    """KL(target || policy) summed over the 3 dimensions, ``[...]``."""
-    return core.kl_divergence(target_logp, logits).sum(-1)
-
-
-def bc_loss(logits: jax.Array, expert_actions: jax.Array, mask: jax.Array | None = None):
-    """Mean negative log-likelihood of the discretised expert actions."""
-    return masked_mean(-action_log_prob(logits, expert_actions), mask)
-
-
-def clipped_surrogate(logp_new: jax.Array, logp_old: jax.Array, advantages: jax.Array,
-                      clip: float, mask: jax.Array | None = None) -> jax.Array:
-    """PPO policy loss (to minimise): -mean(min(r A, clip(r, 1-eps, 1+eps) A))."""
-    return masked_mean(surrogate_terms(logp_new, logp_old, advantages, clip), mask)
 
 
 def example_observation(obs_config: ObservationConfig = DEFAULT_CONFIG) -> Observation:

@@ -40,8 +40,15 @@ from igdrivsim.simulator import toy
 from igdrivsim.training import inputs
 from igdrivsim.training.commands import refuse_contradictions
 from igdrivsim.training.config import PROFILES, get_profile, with_overrides
-from igdrivsim.training.methods import METHODS, loss_key
-from igdrivsim.training.update import settings_as_data, update_spec
+from igdrivsim.training.methods import METHODS
+from igdrivsim.training.update import (
+    get_update,
+    init_buffer,
+    init_state,
+    seed_keys,
+    settings_as_data,
+    update_spec,
+)
 
 
 def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -190,9 +197,6 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
                   obs: str = ",".join(PAPER_SETTINGS), trace: str | None = None,
                   parts: bool = False) -> dict:
     """Measure one profile; returns the JSON record."""
-    # lazy: keeps `igdrivsim bench train --help` fast (the loop pulls in orbax, grain)
-    from igdrivsim.training.loop import get_update, init_buffer, init_state, seed_keys
-
     cpu = jax.default_backend() == "cpu"
     sets = [f"training.method={method}", f"observation.setting={obs}"]
     refuse_contradictions(sets, overrides)
@@ -273,7 +277,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
             "grad_steps_per_s": round(grads / per_update, 2),
             "matmul_flops_per_update": flops,
             "matmul_tflop_per_s": round(flops / per_update / 1e12, 4),
-            loss_key(m): float(np.mean(jax.device_get(m[loss_key(m)]))), **traced}
+            spec.learner.reports: float(np.mean(jax.device_get(m[spec.learner.reports]))),
+            **traced}
 
 
 def bench_train_command(args: argparse.Namespace) -> int:

@@ -1,5 +1,5 @@
-"""The training loop: ``make_train`` (the run's pure ``init`` and ``update``, PureJaxRL style)
-applied batch by batch, with :class:`~igdrivsim.training.run.Run` at its edges.
+"""The training driver: data, I/O, checkpoints, logging and hooks around a run's pure
+functions (:func:`igdrivsim.training.update.make_train`), batch by batch.
 
 ``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run: every
 setting of ``config.observation.setting`` (a comma list; settings as data, one compiled
@@ -9,13 +9,10 @@ program) x ``config.training.seeds`` seeds, into the run folder ``out_dir`` (its
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -24,26 +21,24 @@ import numpy as np
 from igdrivsim.core.devices import barrier, batch_sharding, make_mesh, place, replicated
 from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import ConfigError
-from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.closed_loop import evaluate_policy
-from igdrivsim.policy.network import count_params, init_params_per_seed
+from igdrivsim.policy.network import PolicyConfig, count_params
 from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.cost import warn_if_cpu
+from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import TEACHER_SETTING, teacher_config
 from igdrivsim.training.run import Hook, Run
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
-    empty_aggregate,
-    make_update,
+    get_update,
+    make_train,
     make_validation_loss,
-    optimizer,
+    seed_keys,
     settings_as_data,
     update_spec,
 )
-
-_UPDATE_CACHE: dict[UpdateSpec, object] = {}
 
 
 @dataclass
@@ -60,38 +55,6 @@ def total_updates(config: RunConfig, num_scenarios: int) -> int:
     if t.num_updates > 0:
         return t.num_updates
     return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
-
-
-def seed_keys(config: RunConfig) -> jax.Array:
-    return jax.vmap(jax.random.PRNGKey)(np.asarray(config.seeds))
-
-
-def init_state(config: RunConfig, spec: UpdateSpec):
-    """Parameters and optimiser state ``[G, S]`` for every setting and seed; a seed starts
-    from the same parameters in every setting (the settings' comparison is paired)."""
-    keys = seed_keys(config)
-    init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(keys)
-    params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
-    groups = len(config.settings)
-    params = jax.tree.map(lambda x: jnp.broadcast_to(x[None], (groups, *x.shape)), params)
-    opt_state = jax.vmap(jax.vmap(optimizer(spec).init))(params)
-    return params, opt_state
-
-
-def init_buffer(config: RunConfig, spec: UpdateSpec):
-    """DAgger's empty buffers ``[G, S]`` (``None`` for methods without one)."""
-    one = empty_aggregate(spec, config.data.batch_size)
-    if one is None:
-        return None
-    shape = (len(config.settings), config.training.seeds)
-    return jax.tree.map(lambda x: jnp.broadcast_to(x, (*shape, *x.shape)), one)
-
-
-def get_update(spec: UpdateSpec):
-    """The compiled update for ``spec`` (shared by every run in this process)."""
-    if spec not in _UPDATE_CACHE:
-        _UPDATE_CACHE[spec] = make_update(spec)
-    return _UPDATE_CACHE[spec]
 
 
 class Validation:
@@ -121,48 +84,16 @@ class Validation:
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
 
-def load_teacher(run_dir: str, student: RunConfig):
-    """The teacher's ``full``-setting parameters stacked over the student's seeds ``[S]``."""
-    teacher_config(run_dir, student)
+def load_teacher(run_dir: str, student: RunConfig) -> tuple[PolicyConfig, object]:
+    """The privileged teacher's network config and its ``full``-setting parameters stacked
+    over the student's seeds ``[S]``."""
+    config = teacher_config(run_dir, student)
     teacher = Run.open(run_dir)
     if not teacher.complete:
         raise ConfigError(f"training.teacher: {run_dir} has not finished training")
-    config, params = teacher.config, teacher.params()
     g = config.settings.index(TEACHER_SETTING)
-    seeds = config.training.seeds
-    pick = np.arange(student.training.seeds) % seeds
-    return jax.tree.map(lambda x: jnp.asarray(x[g])[pick], params)
-
-
-class Train(NamedTuple):
-    """A run's pure functions: ``init() -> state`` and ``update(state, batch, u) -> (state,
-    metrics, lr)``; a state is ``(params, opt_state, buffer)``, each ``[G, S]``."""
-
-    init: Callable[[], tuple]
-    update: Callable[[tuple, tuple, int], tuple]
-
-
-def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=None,
-               teacher_params=None, keys=None, step=None) -> Train:
-    """``(init, update)`` of a run (PureJaxRL's ``make_train``): ``update`` applies the
-    compiled update of ``spec`` (or ``step``, e.g. ahead-of-time compiled) to one batch
-    ``(teacher records, reset states)`` at update ``u`` with its cosine learning rate;
-    ``settings`` (stacked, or None for one static setting), ``teacher_params`` and ``keys``
-    (default: :func:`seed_keys`) are the run's constants."""
-    t = config.training
-    step = step or get_update(spec)
-    keys = seed_keys(config) if keys is None else keys
-
-    def init() -> tuple:
-        return (*init_state(config, spec), init_buffer(config, spec))
-
-    def update(state: tuple, batch: tuple, u: int) -> tuple:
-        lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
-        params, opt_state, buffer, metrics = step(*state, *batch, settings, teacher_params,
-                                                  keys, u, lr)
-        return (params, opt_state, buffer), metrics, lr
-
-    return Train(init, update)
+    pick = np.arange(student.training.seeds) % config.training.seeds
+    return config.policy, jax.tree.map(lambda x: jnp.asarray(x[g])[pick], teacher.params())
 
 
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
@@ -179,7 +110,11 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     run = Run(out_dir, config, resume, log)
     if run.complete_already():
         return TrainResult(None, -1, -1, True, 0.0)
-    spec = update_spec(config)
+    teacher_policy = teacher_params = None
+    if get_method(t.method).teacher:
+        teacher_policy, teacher_params = load_teacher(t.teacher, config)
+        log(f"privileged teacher: the full setting of {t.teacher}")
+    spec = update_spec(config, teacher_policy)
     mesh = make_mesh(devices)
     inputs.check_batch(config.data.batch_size, mesh)
     if config.data.stream:  # paper scale: per-process shards decoded on demand
@@ -200,10 +135,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
 
     rep = replicated(mesh)
-    teacher_params = None
-    if spec.learner.teacher:
-        teacher_params = place(load_teacher(t.teacher, config), rep)
-        log(f"privileged teacher: the full setting of {t.teacher}")
+    teacher_params = place(teacher_params, rep)
     settings = settings_as_data(config)
     settings = None if settings is None else place(settings, rep)
     keys = place(seed_keys(config), rep)
@@ -261,6 +193,3 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     complete = run.finish(end, num_updates)
     return TrainResult(state[0], end, num_updates, complete, time.perf_counter() - start_time)
 
-
-def replace_training(config: RunConfig, **changes) -> RunConfig:
-    return dataclasses.replace(config, training=dataclasses.replace(config.training, **changes))

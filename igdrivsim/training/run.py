@@ -25,7 +25,7 @@ Layout of a run folder:
 
 :class:`Run` owns everything a run writes, so the training loop
 (:func:`igdrivsim.training.loop.train`) is the pure update of
-:func:`~igdrivsim.training.loop.make_train` applied to batches, with ``Run`` called at its
+:func:`~igdrivsim.training.update.make_train` applied to batches, with ``Run`` called at its
 edges. A *hook* (:class:`Hook`) is called with the parameters every ``every`` updates (and at
 the start and the end of the run); the values it returns (``{name: [G, S] array}``) go to
 ``curves.jsonl``. The learning-curve validation is one (:class:`igdrivsim.training.loop.
@@ -64,7 +64,7 @@ from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_write_json, atomic_write_text, read_json
 from igdrivsim.machine import code_state
 from igdrivsim.training.config import RunConfig, from_dict, to_dict
-from igdrivsim.training.methods import loss_key
+from igdrivsim.training.methods import get_method
 
 # The files of a run folder (see the module docstring).
 CONFIG, METRICS, CURVES, DONE = "config.json", "metrics.jsonl", "curves.jsonl", "DONE"
@@ -395,7 +395,7 @@ class Run:
         line = log_line(done, lr, metrics, rates)
         self.metrics_file.write(json.dumps(line) + "\n")
         self.metrics_file.flush()
-        key = loss_key(metrics)
+        key = get_method(self.config.training.method).reports
         self.curves(done, {key: metrics[key]})
         if self.bar is not None:
             self.bar.set_postfix({key: f"{line[key]:.3f}"}, refresh=False)

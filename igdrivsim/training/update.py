@@ -1,41 +1,35 @@
-"""The jitted training update (PureJaxRL style), generic over the learning methods.
+"""A run's pure training functions (PureJaxRL's ``make_train``), read top to bottom: the static
+update and its optimiser and schedule; the state (parameters, optimiser state and the method's
+buffer, ``[G settings, S seeds]``); one update; ``make_train``, the run's ``(init, update)``
+that the driver (:mod:`igdrivsim.training.loop`) feeds batches. Nothing here reads or writes a
+run folder.
 
-One update consumes, per seed, a batch of ``B`` scenarios: their teacher-forced records
-(:mod:`igdrivsim.training.records`; computed once per dataset) and, for methods that drive,
-their simulator states at reset. Settings are data (stacked
-:class:`~igdrivsim.observation.ObservationSetting`, axis ``G``) and seeds a batch axis (``S``):
-one compiled program trains every (setting, seed) pair of a method.
-
-1. the episodes the method asks for (:mod:`igdrivsim.training.methods`): the logged episode
-   under the setting's observation model, built on the fly from the record (labels: the
-   discretised expert actions); the policy's own closed-loop episode from the same warm-up
-   state (sampled actions, rewards ``-1[overlap] - 1[offroad]``, GAE; the episode ends at step
-   90, so V = 0 there); a privileged teacher's labels of the states it visits (the teacher
-   sees them fully observed); the buffer of the last labelled episodes (DAgger);
-2. ``epochs`` passes over ``minibatches`` random minibatches of scenarios, each one Adam step
-   on the method's loss (the maze's loop too: :func:`igdrivsim.core.learn.sgd_epochs`). The
-   recurrent network is re-run over every episode of the minibatch with the current
-   parameters in one pass (encoders batched over time, see
-   :func:`~igdrivsim.policy.network.unroll_sequence`), so after the first step the PPO ratio
-   differs from 1.
-
-The learning rate is an argument (the driver computes the cosine schedule), so one compiled
-update serves any run length.
+One update is one compiled program for every (setting, seed) pair of a method: settings are
+data (stacked :class:`~igdrivsim.observation.ObservationSetting`), seeds a batch axis. Per
+pair, :func:`collect` builds the episodes the method asks for (:mod:`~igdrivsim.training.
+methods`): the logged episode under the setting, from the teacher-forced record; the policy's
+own closed-loop episode from the same warm-up (rewards ``-1[overlap] - 1[offroad]``, GAE, V = 0
+after step 90); a privileged teacher's labels of the states it visits; then the method's own
+``collect`` (DAgger's aggregate). Then ``epochs`` passes over ``minibatches`` random
+minibatches, each one Adam step on the method's loss (:func:`~igdrivsim.core.learn.sgd_epochs`)
+with the network re-run over every episode, so after the first step the PPO ratio differs
+from 1. The learning rate is an argument: one compiled update serves any run length.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
-from flax import struct
 
-from igdrivsim.core.learn import clipped_adam, gae, normalize, sgd_epochs
+from igdrivsim.core.learn import clipped_adam, gae, normalize, sgd_epochs, take_rows
 from igdrivsim.observation import (
     Observation,
     ObservationConfig,
@@ -45,15 +39,21 @@ from igdrivsim.observation import (
     get_setting,
     stack_settings,
 )
-from igdrivsim.policy.act import WARMUP_STEPS, bc_loss, example_observation, policy_rollout
-from igdrivsim.policy.network import PolicyConfig, initial_carry, unroll_sequence
+from igdrivsim.policy.act import WARMUP_STEPS, example_observation, policy_rollout
+from igdrivsim.policy.network import (
+    PolicyConfig,
+    init_params_per_seed,
+    initial_carry,
+    unroll_sequence,
+)
 from igdrivsim.simulator import SimParams, SimState
 from igdrivsim.training.config import LossConfig, RunConfig
-from igdrivsim.training.methods import Method, NoParams, Outputs, get_method
-from igdrivsim.training.privileged import teacher_config
+from igdrivsim.training.methods import SHARED_EPISODES, Method, NoParams, Outputs, get_method
+from igdrivsim.training.methods.bc import bc_loss
 from igdrivsim.training.records import EPISODE_STEPS, record_episode
 
 
+# --------------------------------------------------------------- the static update, optimiser
 @dataclass(frozen=True)
 class UpdateSpec:
     """Everything static about the compiled update (hashable). ``setting`` is ``None`` when
@@ -85,25 +85,20 @@ def settings_as_data(config: RunConfig) -> ObservationSetting | None:
 
 
 def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
-    """The static part of a run's update; ``teacher_policy`` overrides the teacher run's
-    network config (benchmarks use an untrained teacher)."""
+    """The static part of a run's update; ``teacher_policy``: the privileged teacher's network
+    (required by a method with a teacher; the driver reads it from the teacher run)."""
     t = config.training
+    method = get_method(t.method)
+    if method.teacher and teacher_policy is None:
+        raise ValueError(f"update_spec: method {t.method!r} needs its teacher's network")
     epochs, minibatches = config.sgd_passes
     static = None if settings_as_data(config) is not None else get_setting(config.settings[0])
     return UpdateSpec(
         policy=config.policy, setting=static, obs=config.obs_config, sim=config.sim_params,
         method=t.method, loss=config.loss, epochs=epochs, minibatches=minibatches,
-        grad_clip=t.grad_clip,
-        record=config.record_config,
-        teacher_policy=teacher_policy or teacher_policy_config(config),
-        params=get_method(t.method).with_params(dict(t.method_params)))
-
-
-def teacher_policy_config(config: RunConfig) -> PolicyConfig | None:
-    """The privileged teacher's network config (``None`` when the method has no teacher)."""
-    if not get_method(config.training.method).teacher:
-        return None
-    return teacher_config(config.training.teacher, config).policy
+        grad_clip=t.grad_clip, record=config.record_config,
+        teacher_policy=teacher_policy if method.teacher else None,
+        params=method.with_params(dict(t.method_params)))
 
 
 def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
@@ -118,97 +113,43 @@ def cosine_lr(update: int, num_updates: int, lr: float, lr_end: float) -> float:
     return lr_end + 0.5 * (lr - lr_end) * (1.0 + math.cos(math.pi * frac))
 
 
+# ------------------------------------------------------------------------------- the state
+def seed_keys(config: RunConfig) -> jax.Array:
+    return jax.vmap(jax.random.PRNGKey)(np.asarray(config.seeds))
+
+
+def init_state(config: RunConfig, spec: UpdateSpec):
+    """Parameters and optimiser state ``[G, S]`` for every setting and seed; a seed starts
+    from the same parameters in every setting (the settings' comparison is paired)."""
+    init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(seed_keys(config))
+    params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
+    groups = len(config.settings)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x[None], (groups, *x.shape)), params)
+    opt_state = jax.vmap(jax.vmap(optimizer(spec).init))(params)
+    return params, opt_state
+
+
+def init_buffer(config: RunConfig, spec: UpdateSpec):
+    """The method's empty buffers ``[G, S]`` (``None`` for methods without one)."""
+    if spec.learner.init_buffer is None:
+        return None
+    one = spec.learner.init_buffer(spec, config.data.batch_size)
+    shape = (len(config.settings), config.training.seeds)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (*shape, *x.shape)), one)
+
+
+# ------------------------------------------------------------------------------ one update
+def _time_major(x):
+    return jnp.swapaxes(x, 0, 1)
+
+
 def expert_sequences(spec: UpdateSpec, rec: ObservationRecord, setting, episode_keys,
                      steps: int = EPISODE_STEPS) -> Observation:
     """Time-major observations ``[steps, b, ...]`` of recorded episodes ``[b]``."""
     part = jax.tree.map(lambda x: x[:, :steps], rec.replace(actions=None, action_valid=None))
     obs = jax.vmap(lambda r, k: episode_observations(r, setting, k, spec.obs))(part,
                                                                                 episode_keys)
-    return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs)
-
-
-@struct.dataclass
-class Aggregate:
-    """DAgger's data set of one (setting, seed): the student's episodes of the last ``slots``
-    updates with the teacher's labels, written one batch of ``B`` at a time in a ring."""
-
-    obs: Observation  # [slots * B, 90, ...] the student's observations (warm-up + its steps)
-    logp: jax.Array  # f32[slots * B, 80, 3, bins] the teacher's log-probabilities
-    valid: jax.Array  # bool[slots * B, 80]
-    pushes: jax.Array  # int32, batches written so far
-    slots: int = struct.field(pytree_node=False, default=1)
-
-    @property
-    def episodes(self) -> jax.Array:
-        """Episodes held: grows by ``B`` per update up to ``slots * B``."""
-        b = self.valid.shape[0] // self.slots
-        return jnp.minimum(self.pushes, self.slots) * b
-
-    def push(self, obs: Observation, logp: jax.Array, valid: jax.Array) -> Aggregate:
-        """Write one batch ``[B, ...]`` over the oldest."""
-        at = (self.pushes % self.slots) * valid.shape[0]
-
-        def put(buf, x):
-            return jax.lax.dynamic_update_slice_in_dim(buf, x.astype(buf.dtype), at, axis=0)
-
-        return self.replace(obs=jax.tree.map(put, self.obs, obs), logp=put(self.logp, logp),
-                            valid=put(self.valid, valid), pushes=self.pushes + 1)
-
-    def sample(self, key: jax.Array, n: int):
-        """``(obs, logp, valid)`` of ``n`` episodes drawn uniformly from those held."""
-        idx = jax.random.randint(key, (n,), 0, jnp.maximum(self.episodes, 1))
-        return _take((self.obs, self.logp, self.valid), idx)
-
-
-def empty_aggregate(spec: UpdateSpec, batch: int) -> Aggregate | None:
-    """The empty buffer of one (setting, seed) (``None`` unless the method aggregates)."""
-    if "aggregate" not in spec.learner.episodes:
-        return None
-    n = spec.params.aggregate_batches * batch
-    obs = jax.tree.map(lambda x: jnp.zeros((n, EPISODE_STEPS, *x.shape), x.dtype),
-                       example_observation(spec.obs))
-    steps = EPISODE_STEPS - WARMUP_STEPS
-    return Aggregate(obs, jnp.zeros((n, steps, 3, spec.policy.num_bins)),
-                     jnp.zeros((n, steps), bool), jnp.zeros((), jnp.int32),
-                     spec.params.aggregate_batches)
-
-
-def _time_major(x):
-    return jnp.swapaxes(x, 0, 1)
-
-
-def _loss(spec: UpdateSpec, params, mb: dict):
-    """The method's loss on one minibatch (scenario axis first): the network runs once over
-    every episode kind the method reads, and the loss gets each kind's outputs."""
-    method = spec.learner
-    logged = jax.tree.map(_time_major, mb["logged_obs"])  # [90, b, ...]
-    sequences = {}
-    if "logged" in method.episodes:
-        sequences["logged"] = logged
-    if "rollout" in method.episodes:  # the same logged warm-up, then the policy's own steps
-        sequences["rollout"] = jax.tree.map(lambda w, p: jnp.concatenate(
-            [w[:WARMUP_STEPS], _time_major(p)]), logged, mb["rollout_obs"])
-    if "aggregate" in method.episodes:
-        sequences["aggregate"] = jax.tree.map(_time_major, mb["aggregate_obs"])
-    kinds = list(sequences)
-    obs = jax.tree.map(lambda *xs: jnp.concatenate(xs, 1), *sequences.values())
-    width = jax.tree.leaves(obs)[0].shape[1]
-    _, logits, values, aux = unroll_sequence(spec.policy, params,
-                                             initial_carry(spec.policy, (width,)), obs, True,
-                                             with_aux=True)
-    outputs, at = {}, 0
-    for kind in kinds:
-        n = jax.tree.leaves(sequences[kind])[0].shape[1]
-        lo, hi = at, at + n
-        outputs[kind] = Outputs(*(None if x is None else x[WARMUP_STEPS:, lo:hi]
-                                  for x in (logits, values, aux)))
-        at += n
-    batch = {k: _time_major(v) for k, v in mb.items() if not k.endswith("_obs")}
-    return method.loss(spec, outputs, batch)
-
-
-def _take(tree, idx):
-    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), tree)
+    return jax.tree.map(_time_major, obs)
 
 
 def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Observation
@@ -223,54 +164,79 @@ def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Ob
     return jax.nn.log_softmax(logits[WARMUP_STEPS:], axis=-1)
 
 
-def collect(spec: UpdateSpec, params, buffer: Aggregate | None, rec: ObservationRecord,
-            states: SimState | None, setting, teacher_params, key):
-    """The episodes of one update (scenario-major arrays for minibatching), the buffer after
-    this update's push, and the collection's metrics."""
+def collect(spec: UpdateSpec, params, buffer, rec: ObservationRecord, states: SimState | None,
+            setting, teacher_params, key):
+    """The episodes of one update (scenario-major arrays for minibatching), the method's buffer
+    after its collection, and the collection's metrics."""
     method = spec.learner
     b = rec.sdc_yaw.shape[0]
-    k_ep, k_act, k_agg = jax.random.split(key, 3)
+    k_ep, k_act, k_own = jax.random.split(key, 3)
     episode_keys = jax.random.split(k_ep, b)
     logged = expert_sequences(spec, rec, setting, episode_keys)  # [90, b]: built once
     data = {"logged_obs": jax.tree.map(_time_major, logged), "expert_actions": rec.actions,
             "expert_valid": rec.action_valid}
     metrics = {}
-    if not method.rollout:
-        return data, buffer, metrics
-    warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], logged)
-    carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
-                                  warm, True)
-    full = get_setting("full") if method.teacher else None
-    roll = policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
+    if method.rollout:
+        warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], logged)
+        carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
+                                      warm, True)
+        full = get_setting("full") if method.teacher else None
+        roll = policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
                               episode_keys, k_act, privileged=full)
-    roll = jax.tree.map(jax.lax.stop_gradient, roll)
-    # Episodes end at step 90 (terminal): the value after the last step is 0.
-    adv, ret = gae(roll.values.T, roll.rewards.T, jnp.zeros((b, roll.valid.shape[0]), bool),
-                   jnp.zeros((b,)), spec.loss.gamma, spec.loss.gae_lambda, axis=-1)  # [b, 80]
-    adv = normalize(adv.T, roll.valid)
-    bm = _time_major  # time-major -> scenario-major
-    data |= {"rollout_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),
-             "log_probs": bm(roll.log_probs), "valid": bm(roll.valid),
-             "advantages": bm(adv), "returns": ret}
-    metrics["mean_return"] = roll.rewards.sum(0).mean()
-    metrics["overlap_or_offroad_steps"] = (roll.rewards < 0).astype(jnp.float32).mean()
-    if method.teacher:
-        full_warm = expert_sequences(spec, rec, full, episode_keys, WARMUP_STEPS)
-        logp = jax.lax.stop_gradient(
-            teacher_labels(spec, teacher_params, full_warm, roll.privileged_obs))
-        data["teacher_logp"] = bm(logp)
-        if "aggregate" in method.episodes:
-            student = jax.tree.map(lambda w, p: bm(jnp.concatenate([w, p])), warm, roll.obs)
-            buffer = buffer.push(student, bm(logp), bm(roll.valid))
-            obs, agg_logp, agg_valid = buffer.sample(k_agg, b)
-            data |= {"aggregate_obs": obs, "aggregate_logp": agg_logp,
-                     "aggregate_valid": agg_valid}
-            metrics["aggregate_episodes"] = buffer.episodes.astype(jnp.float32)
+        roll = jax.tree.map(jax.lax.stop_gradient, roll)
+        # Episodes end at step 90 (terminal): the value after the last step is 0.
+        adv, ret = gae(roll.values.T, roll.rewards.T,
+                       jnp.zeros((b, roll.valid.shape[0]), bool), jnp.zeros((b,)),
+                       spec.loss.gamma, spec.loss.gae_lambda, axis=-1)  # [b, 80]
+        adv = normalize(adv.T, roll.valid)
+        bm = _time_major  # time-major -> scenario-major
+        data |= {"rollout_obs": jax.tree.map(bm, roll.obs), "actions": bm(roll.actions),
+                 "log_probs": bm(roll.log_probs), "valid": bm(roll.valid),
+                 "advantages": bm(adv), "returns": ret}
+        metrics["mean_return"] = roll.rewards.sum(0).mean()
+        metrics["overlap_or_offroad_steps"] = (roll.rewards < 0).astype(jnp.float32).mean()
+        if method.teacher:
+            full_warm = expert_sequences(spec, rec, full, episode_keys, WARMUP_STEPS)
+            logp = jax.lax.stop_gradient(
+                teacher_labels(spec, teacher_params, full_warm, roll.privileged_obs))
+            data["teacher_logp"] = bm(logp)
+    if method.collect is not None:
+        data, buffer, own = method.collect(spec, buffer, data, k_own)
+        metrics |= own
     return data, buffer, metrics
 
 
-def update_one(spec: UpdateSpec, params, opt_state, buffer: Aggregate | None,
-               rec: ObservationRecord, states: SimState | None, setting, teacher_params, key, lr):
+def _loss(spec: UpdateSpec, params, mb: dict):
+    """The method's loss on one minibatch (scenario axis first): the network runs once over
+    every episode kind the method reads, and the loss gets each kind's outputs."""
+    method = spec.learner
+    logged = jax.tree.map(_time_major, mb["logged_obs"])  # [90, b, ...]
+    sequences = {}
+    if "logged" in method.episodes:
+        sequences["logged"] = logged
+    if "rollout" in method.episodes:  # the same logged warm-up, then the policy's own steps
+        sequences["rollout"] = jax.tree.map(lambda w, p: jnp.concatenate(
+            [w[:WARMUP_STEPS], _time_major(p)]), logged, mb["rollout_obs"])
+    for kind in method.episodes:  # the method's own, [90, b, ...] each
+        if kind not in SHARED_EPISODES:
+            sequences[kind] = jax.tree.map(_time_major, mb[f"{kind}_obs"])
+    obs = jax.tree.map(lambda *xs: jnp.concatenate(xs, 1), *sequences.values())
+    width = jax.tree.leaves(obs)[0].shape[1]
+    _, logits, values, aux = unroll_sequence(spec.policy, params,
+                                             initial_carry(spec.policy, (width,)), obs, True,
+                                             with_aux=True)
+    outputs, at = {}, 0
+    for kind, seq in sequences.items():
+        n = jax.tree.leaves(seq)[0].shape[1]
+        outputs[kind] = Outputs(*(None if x is None else x[WARMUP_STEPS:, at:at + n]
+                                  for x in (logits, values, aux)))
+        at += n
+    batch = {k: _time_major(v) for k, v in mb.items() if not k.endswith("_obs")}
+    return method.loss(spec, outputs, batch)
+
+
+def update_one(spec: UpdateSpec, params, opt_state, buffer, rec: ObservationRecord,
+               states: SimState | None, setting, teacher_params, key, lr):
     """One update of one (setting, seed) on its batch ``[B]``: ``(params, opt_state, buffer,
     metrics)``."""
     b = rec.sdc_yaw.shape[0]
@@ -279,7 +245,7 @@ def update_one(spec: UpdateSpec, params, opt_state, buffer: Aggregate | None,
                                     k_collect)
     params, opt_state, aux = sgd_epochs(
         params, opt_state, data, partial(_loss, spec), optimizer(spec),
-        jax.random.split(k_perm, spec.epochs), spec.minibatches, lr, size=b, select=_take,
+        jax.random.split(k_perm, spec.epochs), spec.minibatches, lr, size=b, select=take_rows,
         grad_norm=True)
     metrics |= jax.tree.map(jnp.mean, aux)
     return params, opt_state, buffer, metrics
@@ -314,6 +280,48 @@ def make_update(spec: UpdateSpec, donate: bool = True):
         return jax.vmap(one_setting)(settings, params, opt_state, buffer)
 
     return jax.jit(update, donate_argnums=(0, 1, 2) if donate else ())
+
+
+_UPDATE_CACHE: dict[UpdateSpec, Any] = {}
+
+
+def get_update(spec: UpdateSpec):
+    """The compiled update for ``spec`` (shared by every run in this process)."""
+    if spec not in _UPDATE_CACHE:
+        _UPDATE_CACHE[spec] = make_update(spec)
+    return _UPDATE_CACHE[spec]
+
+
+# -------------------------------------------------------------------------------- the run
+class Train(NamedTuple):
+    """A run's pure functions: ``init() -> state`` and ``update(state, batch, u) -> (state,
+    metrics, lr)``; a state is ``(params, opt_state, buffer)``, each ``[G, S]``."""
+
+    init: Callable[[], tuple]
+    update: Callable[[tuple, tuple, int], tuple]
+
+
+def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=None,
+               teacher_params=None, keys=None, step=None) -> Train:
+    """``(init, update)`` of a run: ``update`` applies the compiled update of ``spec`` (or
+    ``step``, e.g. ahead-of-time compiled) to one batch ``(teacher records, reset states)`` at
+    update ``u`` with its cosine learning rate; ``settings`` (stacked, or None for one static
+    setting), ``teacher_params`` and ``keys`` (default: :func:`seed_keys`) are the run's
+    constants."""
+    t = config.training
+    step = step or get_update(spec)
+    keys = seed_keys(config) if keys is None else keys
+
+    def init() -> tuple:
+        return (*init_state(config, spec), init_buffer(config, spec))
+
+    def update(state: tuple, batch: tuple, u: int) -> tuple:
+        lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+        params, opt_state, buffer, metrics = step(*state, *batch, settings, teacher_params,
+                                                  keys, u, lr)
+        return (params, opt_state, buffer), metrics, lr
+
+    return Train(init, update)
 
 
 def make_validation_loss(spec: UpdateSpec):

@@ -1,29 +1,22 @@
-"""The registry of learning methods: what a method collects each update and its loss.
+"""The registry of learning methods: one module each, behind one :class:`Method` interface.
 
-A method is one module in this package ending with one :func:`register_method` call. The
-update (:mod:`igdrivsim.training.update`) is generic: every update builds, per (setting, seed),
-the episodes the method asks for (``episodes``), runs the network once over all of them and
-hands the method's ``loss`` the outputs. The episodes:
-
-- ``logged``: the logged (expert-driven) episodes of the batch under the setting's observation,
-  labelled with the discretised expert actions (teacher-forced; BC's data);
-- ``rollout``: the policy drives the same scenarios from the same warm-up (sampled actions),
-  with log-probabilities, values, rewards ``-1[overlap] - 1[offroad]``, GAE advantages and
-  returns; with ``teacher=True`` a privileged teacher (``training.teacher``, a Full-setting
-  run) labels each visited state with its action distribution, seeing the full observation;
-- ``aggregate``: teacher-labelled rollouts of the last ``aggregate_batches`` updates (a field
-  the method's ``params`` must declare), kept in a buffer that grows with the student's states
-  (DAgger's data set).
+A method is one module in this package ending with one :func:`register_method` call: its
+params, its loss, the episodes its loss reads, its own collection (with the buffer it keeps
+across updates, e.g. DAgger's aggregate) and the loss it reports. The update
+(:mod:`igdrivsim.training.update`) builds, per (setting, seed), the shared episodes the method
+asks for: ``logged`` (the logged episodes under the setting's observation, labelled with the
+discretised expert actions) and ``rollout`` (the policy's own closed-loop episode from the
+same warm-up, with log-probabilities, values, rewards, GAE; with ``teacher=True`` a privileged
+teacher's action distribution at every visited state). Any other kind ``K`` is the method's
+own: its ``collect`` puts ``K_obs [b, 90, ...]`` and what its loss reads into the data. The
+update runs the network once over all of them and hands the outputs to the method's ``loss``.
 
 A method's own hyper-parameters are a frozen dataclass declared next to its loss (``params``,
-an instance holding the defaults; validate in its ``__post_init__``): ``--set
-method.NAME=VALUE`` sets a field (parsed to the field's type), the loss reads
-``spec.params.NAME``; the shared configuration does not change.
-
-``igdrivsim train --method``, the configuration, the pipeline's ``--methods`` and the figures
-read this registry (name, label, colour, baseline); a method's label and colour are
-:mod:`igdrivsim.names`' (``LEARNED``, which the tables read without JAX). Table I compares
-BC-RL with BC; Table II every method with its ``baseline``.
+an instance holding the defaults; validate in its ``__post_init__``), set with ``--set
+method.NAME=VALUE`` and read in the loss as ``spec.params.NAME``. ``igdrivsim train
+--method``, the configuration, the pipeline and the figures read this registry; a method's label and
+colour are :mod:`igdrivsim.names`' (``LEARNED``, which the tables read without JAX).
+docs/ARCHITECTURE.md, "To add a method", has a worked example.
 """
 
 from __future__ import annotations
@@ -39,7 +32,7 @@ import jax
 
 from igdrivsim.errors import ConfigError
 
-EPISODES = ("logged", "rollout", "aggregate")
+SHARED_EPISODES = ("logged", "rollout")  # built by the update; any other kind is the method's
 
 
 class Outputs(NamedTuple):
@@ -53,9 +46,16 @@ class Outputs(NamedTuple):
 # loss(spec, outputs by episode kind, batch) -> (total, metrics): ``spec`` is the update's
 # static UpdateSpec (weights, clip, ...); ``batch`` holds time-major [80, b, ...] arrays:
 # expert_actions / expert_valid (logged), actions / log_probs / valid / advantages / returns
-# (rollout), teacher_logp (rollout with teacher), aggregate_logp / aggregate_valid (aggregate)
+# (rollout), teacher_logp (rollout with teacher), and what the method's collect added
 LossFn = Callable[[Any, dict[str, Outputs], dict[str, jax.Array]],
                   tuple[jax.Array, dict[str, jax.Array]]]
+# init_buffer(spec, batch) -> the method's empty buffer of one (setting, seed)
+# collect(spec, buffer, data, key) -> (data, buffer, metrics): ``data`` (scenario-major
+# [b, ...]) holds logged_obs [b, 90] and, when the policy drives, rollout_obs [b, 80], actions,
+# log_probs, valid, advantages, returns and teacher_logp (with a teacher)
+InitBuffer = Callable[[Any, int], Any]
+CollectFn = Callable[[Any, Any, dict[str, Any], jax.Array],
+                     tuple[dict[str, Any], Any, dict[str, jax.Array]]]
 
 
 @dataclass(frozen=True)
@@ -78,19 +78,19 @@ class Method:
     # the method's own hyper-parameters: a frozen dataclass instance holding their defaults;
     # set with ``--set method.NAME=VALUE``, read in the loss as ``spec.params.NAME``
     params: Any = NoParams()
+    # the training loss it reports first (progress bar, learning curves, ``bench train``)
+    reports: str = "bc_loss"
+    init_buffer: InitBuffer | None = None  # its state across updates (DAgger's aggregate)
+    collect: CollectFn | None = None  # adds its own episodes to an update's data
 
     def __post_init__(self):
         if not dataclasses.is_dataclass(self.params) or isinstance(self.params, type):
             raise ConfigError(f"method {self.name!r}: params must be a dataclass instance "
                               f"(its defaults), got {self.params!r}")
-        unknown = set(self.episodes) - set(EPISODES)
-        if unknown or not self.episodes:
-            raise ConfigError(f"method {self.name!r}: episodes must be among {EPISODES}")
-        if "aggregate" in self.episodes and not self.teacher:
-            raise ConfigError(f"method {self.name!r}: aggregate episodes need teacher=True")
-        if "aggregate" in self.episodes and not hasattr(self.params, "aggregate_batches"):
-            raise ConfigError(f"method {self.name!r}: aggregate episodes need an "
-                              "aggregate_batches field in its params")
+        own = [k for k in self.episodes if k not in SHARED_EPISODES]
+        if not self.episodes or (own and self.collect is None):
+            raise ConfigError(f"method {self.name!r}: episodes must be among "
+                              f"{SHARED_EPISODES} or its own, built by its collect hook")
 
     def with_params(self, values: Mapping[str, Any]) -> Any:
         """The method's params with those of ``values`` it declares set (the others are another
@@ -101,7 +101,7 @@ class Method:
     @property
     def rollout(self) -> bool:
         """The policy drives a closed-loop episode every update."""
-        return "rollout" in self.episodes or self.teacher  # aggregate implies teacher
+        return "rollout" in self.episodes or self.teacher
 
 
 METHODS: dict[str, Method] = {}
@@ -130,13 +130,6 @@ def get_method(name: str) -> Method:
     if name not in METHODS:
         raise ConfigError(f"unknown learning method {name!r}; choose from {', '.join(METHODS)}")
     return METHODS[name]
-
-
-def loss_key(metrics: Mapping[str, Any]) -> str:
-    """The training loss an update reports first (progress bar, learning curves, ``bench
-    train``): the imitation of the expert (``bc_loss``) when the method has one, else of the
-    teacher (``teacher_ce``, ADVISOR)."""
-    return "bc_loss" if "bc_loss" in metrics else "teacher_ce"
 
 
 # Every module of this package registers one method. The paper's two come first, then the

@@ -23,11 +23,18 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from igdrivsim.core.learn import masked_mean, surrogate_terms, value_loss
+from igdrivsim.core.learn import (
+    entropy,
+    kl_divergence,
+    log_prob,
+    masked_mean,
+    soft_cross_entropy,
+    surrogate_terms,
+    value_loss,
+)
 from igdrivsim.core.params import AdvisorParams
 from igdrivsim.errors import ConfigError
 from igdrivsim.names import LEARNED
-from igdrivsim.policy.act import action_log_prob, entropy, kl_divergence, soft_cross_entropy
 from igdrivsim.training.methods import Method, register_method
 
 
@@ -43,14 +50,14 @@ class Params(AdvisorParams):
 
 def loss(spec, out, batch):
     roll, mask, teacher = out["rollout"], batch["valid"], batch["teacher_logp"]
-    ce = soft_cross_entropy(teacher, roll.logits)
+    ce = soft_cross_entropy(teacher, roll.logits).sum(-1)
     weight = jnp.exp(-spec.params.alpha * jax.lax.stop_gradient(
-        kl_divergence(teacher, roll.aux_logits)))
-    pg = surrogate_terms(action_log_prob(roll.logits, batch["actions"]), batch["log_probs"],
+        kl_divergence(teacher, roll.aux_logits).sum(-1)))
+    pg = surrogate_terms(log_prob(roll.logits, batch["actions"]).sum(-1), batch["log_probs"],
                          batch["advantages"], spec.loss.clip_eps)
     vl = value_loss(roll.values, batch["returns"], mask)
-    ent = masked_mean(entropy(roll.logits), mask)
-    aux_ce = masked_mean(soft_cross_entropy(teacher, roll.aux_logits), mask)
+    ent = masked_mean(entropy(roll.logits).sum(-1), mask)
+    aux_ce = masked_mean(soft_cross_entropy(teacher, roll.aux_logits).sum(-1), mask)
     total = (masked_mean(weight * ce + (1.0 - weight) * pg, mask)
              + spec.loss.w_rl * (spec.loss.vf_coef * vl - spec.loss.ent_coef * ent) + aux_ce)
     return total, {"teacher_ce": masked_mean(ce, mask), "aux_teacher_ce": aux_ce,
@@ -59,4 +66,4 @@ def loss(spec, out, batch):
 
 
 register_method(Method("advisor", *LEARNED["advisor"], loss, episodes=("rollout",),
-                       teacher=True, aux_head=True, params=Params()))
+                       teacher=True, aux_head=True, params=Params(), reports="teacher_ce"))

@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from igdrivsim.core.learn import masked_mean, value_loss
+from igdrivsim.core.learn import entropy, log_prob, masked_mean, surrogate_terms, value_loss
 from igdrivsim.names import LEARNED
-from igdrivsim.policy.act import action_log_prob, clipped_surrogate, entropy
 from igdrivsim.training.methods import Method, register_method
 from igdrivsim.training.methods.bc import logged_bc
 
@@ -16,10 +15,11 @@ from igdrivsim.training.methods.bc import logged_bc
 def ppo(spec, rollout, batch):
     """``(PPO loss, metrics)`` of the rollout outputs against the collected batch."""
     mask = batch["valid"]
-    logp = action_log_prob(rollout.logits, batch["actions"])
-    pg = clipped_surrogate(logp, batch["log_probs"], batch["advantages"], spec.loss.clip_eps, mask)
+    logp = log_prob(rollout.logits, batch["actions"]).sum(-1)
+    pg = masked_mean(surrogate_terms(logp, batch["log_probs"], batch["advantages"],
+                                     spec.loss.clip_eps), mask)
     vl = value_loss(rollout.values, batch["returns"], mask)
-    ent = masked_mean(entropy(rollout.logits), mask)
+    ent = masked_mean(entropy(rollout.logits).sum(-1), mask)
     ratio = jnp.exp(logp - batch["log_probs"])
     return pg + spec.loss.vf_coef * vl - spec.loss.ent_coef * ent, {
         "policy_loss": pg, "value_loss": vl, "policy_entropy": ent,
