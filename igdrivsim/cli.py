@@ -12,11 +12,8 @@ import importlib
 import sys
 import warnings
 
-from igdrivsim.cli_args import FORMATTER, DefaultsFormatter, deprecated_alias
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import run_command
-
-# re-exported for callers of the old place
-__all__ = ["FORMATTER", "DefaultsFormatter", "deprecated_alias", "main"]
 
 # name -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {
