@@ -31,10 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 # `igdrivsim bench NAME`
 BENCHES: dict[str, tuple[str, str]] = {
-    "data": ("igdrivsim.data.bench", "scenarios/s read and decoded"),
-    "sim": ("igdrivsim.observation.bench", "scenario-steps/s of reset + 80 steps"),
-    "train": ("igdrivsim.training.bench", "training updates/s and scenario-steps/s"),
-    "pipeline": ("igdrivsim.pipeline.bench", "a reproduction's core-seconds per stage"),
+    "data": ("igdrivsim.bench.data", "scenarios/s read and decoded"),
+    "sim": ("igdrivsim.bench.sim", "scenario-steps/s of reset + 80 steps"),
+    "train": ("igdrivsim.bench.train", "training updates/s and scenario-steps/s"),
+    "pipeline": ("igdrivsim.bench.pipeline", "a reproduction's core-seconds per stage"),
 }
 
 

@@ -19,8 +19,8 @@ needs_womd = pytest.mark.skipif(not EXAMPLE.exists(), reason=f"real WOMD sample 
 def test_igdrivsim_path_equals_the_waymax_port_on_a_real_scenario():
     """The road-edge array gives the same offroad (and every other metric) as Waymax's test
     against every roadgraph point, and both observe the same thing, at every step."""
+    from igdrivsim.bench.sim import _batch, episode
     from igdrivsim.data import load_scenario
-    from igdrivsim.observation.bench import _batch, episode
 
     sc = _batch([load_scenario(EXAMPLE)], 2)  # different noise for the two examples
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=128)
