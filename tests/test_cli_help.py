@@ -74,3 +74,15 @@ def test_train_interface_is_stable():
     assert (args.obs, args.method, args.seeds, args.data) == ("circular_r4", "bc_rl", 3, "D")
     args = _parse(["evaluate", "RUN", "--data", "D", "--out", "O", "--references"])
     assert args.runs == ["RUN"] and args.references
+
+
+def test_only_the_clis_have_a_main_block():
+    """Every command is an ``igdrivsim`` subcommand (or the pipeline): no other module of the
+    package runs as ``python -m`` with its own ``if __name__ == "__main__"``."""
+    from pathlib import Path
+
+    root = Path(cli.__file__).parent
+    entries = {"cli.py", "pipeline/__main__.py"}
+    mains = sorted(p.relative_to(root).as_posix() for p in root.rglob("*.py")
+                   if 'if __name__ == "__main__"' in p.read_text())
+    assert [m for m in mains if m not in entries] == []

@@ -177,6 +177,3 @@ def main(argv: list[str] | None = None) -> int:
         if on_main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
-
-if __name__ == "__main__":
-    sys.exit(main())
