@@ -11,7 +11,7 @@ Both take the observation's nearest points with the same top-k over the whole ro
 they give the same metrics and the same observations (tested); the difference is the offroad
 metric's cost. Results kept in the repository: docs/bench/.
 
-Both run the discretised expert with the observation of ``--setting`` computed at every step (a
+Both run the discretised expert with the observation of ``--obs`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
 log divergence). ``--agents log,idm`` (the default) times the ``igdrivsim`` path with the other
 objects replaying their log and as IDM sim agents (:mod:`igdrivsim.simulator.agents`) in the same
