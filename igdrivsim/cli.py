@@ -12,11 +12,8 @@ import importlib
 import sys
 import warnings
 
-from igdrivsim.cli_args import FORMATTER, DefaultsFormatter, deprecated_alias
+from igdrivsim.cli_args import FORMATTER
 from igdrivsim.errors import run_command
-
-# re-exported for callers of the old place
-__all__ = ["FORMATTER", "DefaultsFormatter", "deprecated_alias", "main"]
 
 # name -> (module, help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -25,28 +22,36 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "samples": ("igdrivsim.data.samples", "fetch and verify public real WOMD samples (pip)"),
     "filter": ("igdrivsim.data.commands", "apply the paper's scenario filter, write a manifest"),
     "stats": ("igdrivsim.data.stats_command", "scene statistics of any data, beside each other"),
+    "cv-divergence": ("igdrivsim.data.synthetic.calibration",
+                      "the logged SDC's constant-velocity divergence per data set"),
     "replay": ("igdrivsim.observation.replay", "replay the discretised expert, report metrics"),
     "render": ("igdrivsim.observation.commands", "draw the observation models and a rollout"),
     "train": ("igdrivsim.training.commands",
               "train policies with a registered learning method (--method)"),
+    "teacher": ("igdrivsim.training.privileged",
+                "pick DAgger's and ADVISOR's privileged teacher among finished runs"),
     "evaluate": ("igdrivsim.evaluation.commands", "evaluate a trained run on validation data"),
+    "speed-walk": ("igdrivsim.evaluation.speed_walk",
+                   "the speed random walk of the discretised expert's labels (no policy)"),
     "report": ("igdrivsim.report.commands", "aggregate evaluations into tables and figures"),
+    "plan": ("igdrivsim.pipeline.planning", "a reproduction's estimated wall time per core count"),
 }
 # `igdrivsim bench NAME`
 BENCHES: dict[str, tuple[str, str]] = {
-    "data": ("igdrivsim.data.bench", "scenarios/s read and decoded"),
-    "sim": ("igdrivsim.observation.bench", "scenario-steps/s of reset + 80 steps"),
-    "train": ("igdrivsim.training.bench", "training updates/s and scenario-steps/s"),
-    "pipeline": ("igdrivsim.pipeline.bench", "a reproduction's core-seconds per stage"),
+    "data": ("igdrivsim.bench.data", "scenarios/s read and decoded"),
+    "sim": ("igdrivsim.bench.sim", "scenario-steps/s of reset + 80 steps"),
+    "train": ("igdrivsim.bench.train", "training updates/s and scenario-steps/s"),
+    "pipeline": ("igdrivsim.bench.pipeline", "a reproduction's core-seconds per stage"),
 }
 
 
 def _add(sub, name: str, module: str, help_: str, prefix: str = "") -> None:
     parser = sub.add_parser(name, help=help_, description=help_, formatter_class=FORMATTER)
-    parser.set_defaults(_module=module, _name=prefix + name)
+    func = prefix + name.replace("-", "_")  # the module's <func>_arguments and <func>_command
+    parser.set_defaults(_module=module, _name=func, _label=f"{prefix.replace('_', ' ')}{name}")
     # Defer importing heavy modules: only the chosen command's module configures its parser.
     parser.set_defaults(_configure=lambda p=parser: getattr(
-        importlib.import_module(module), f"{prefix}{name}_arguments")(p))
+        importlib.import_module(module), f"{func}_arguments")(p))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,14 +77,14 @@ def main(argv: list[str] | None = None) -> int:
     known, _ = parser.parse_known_args(first)
     known._configure()
     args = parser.parse_args(argv)
-    name = args._name.replace("_", " ")
+    name = args._label
     # warnings (a skipped bad record, ...) as one line each, not with their source line
     warnings.formatwarning = lambda message, *_, **__: f"igdrivsim {name}: warning: {message}\n"
     try:
         return run_command(f"igdrivsim {name}", lambda: getattr(
             importlib.import_module(args._module), f"{args._name}_command")(args))
     except KeyboardInterrupt:
-        print(f"igdrivsim {args._name}: interrupted", file=sys.stderr)
+        print(f"igdrivsim {name}: interrupted", file=sys.stderr)
         return 130
 
 

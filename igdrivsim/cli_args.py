@@ -1,5 +1,5 @@
-"""Argument-parser helpers shared by every command module (and ``maze``): the help formatter
-and hidden old option spellings. A low layer, so that command modules need not import
+"""The help formatter shared by every command module (and ``maze``). A low layer, so that
+command modules need not import
 :mod:`igdrivsim.cli` (the top layer, which maps command names to those modules).
 """
 
@@ -24,9 +24,3 @@ class DefaultsFormatter(argparse.HelpFormatter):
 
 
 FORMATTER = DefaultsFormatter  # every option's help shows its default
-
-
-def deprecated_alias(parser: argparse.ArgumentParser, name: str, dest: str, **kwargs) -> None:
-    """Accept an old option spelling (hidden from ``--help``) that sets ``dest`` like the new."""
-    parser.add_argument(name, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS,
-                        **kwargs)

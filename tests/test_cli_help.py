@@ -52,19 +52,20 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-@pytest.mark.parametrize("new, old, dest, value", [
-    (["evaluate", "R", "--data", "D", "--out", "O", "--limit", "5"], "--max-scenarios",
-     "max_scenarios", 5),
-    (["render", "--obs", "full"], "--setting", "setting", "full"),
-    (["bench", "sim", "--obs", "full"], "--setting", "setting", "full"),
-    (["bench", "sim", "--batch-sizes", "1,2"], "--batches", "batches", "1,2"),
-    (["bench", "train", "--batch-size", "4"], "--batch", "batch", 4),
-    (["bench", "data", "--limit", "7"], "--records", "records", 7),
-])
-def test_renamed_options_keep_old_spelling(new, old, dest, value):
-    assert getattr(_parse(new), dest) == value
-    old_argv = [old if a == new[-2] else a for a in new]
-    assert getattr(_parse(old_argv), dest) == value
+def test_an_old_config_json_reads_through_upgrade_config():
+    """A run written before the loss section and the methods' own params reads as today's."""
+    import dataclasses
+
+    from igdrivsim.training.config import from_dict, get_profile, to_dict
+
+    laptop = get_profile("laptop")
+    old = to_dict(laptop)
+    old["training"] |= old.pop("loss") | {"advisor_alpha": 0.5, "aggregate_batches": 4}
+    del old["training"]["method_params"]
+    expected = dataclasses.replace(laptop, training=dataclasses.replace(
+        laptop.training, method_params=(("alpha", 0.5),)))
+    assert from_dict(old) == expected
+    assert from_dict(to_dict(expected)) == expected
 
 
 def test_train_interface_is_stable():
@@ -73,3 +74,15 @@ def test_train_interface_is_stable():
     assert (args.obs, args.method, args.seeds, args.data) == ("circular_r4", "bc_rl", 3, "D")
     args = _parse(["evaluate", "RUN", "--data", "D", "--out", "O", "--references"])
     assert args.runs == ["RUN"] and args.references
+
+
+def test_only_the_clis_have_a_main_block():
+    """Every command is an ``igdrivsim`` subcommand (or the pipeline): no other module of the
+    package runs as ``python -m`` with its own ``if __name__ == "__main__"``."""
+    from pathlib import Path
+
+    root = Path(cli.__file__).parent
+    entries = {"cli.py", "pipeline/__main__.py"}
+    mains = sorted(p.relative_to(root).as_posix() for p in root.rglob("*.py")
+                   if 'if __name__ == "__main__"' in p.read_text())
+    assert [m for m in mains if m not in entries] == []

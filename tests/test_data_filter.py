@@ -255,7 +255,7 @@ def test_cli_filter_parallel_and_inspect(tmp_path, capsys):
 @needs_womd
 def test_bench_data_small(tmp_path, capsys):
     out = tmp_path / "bench.json"
-    assert main(["bench", "data", "--records", "4", "--shards", "2", "--workers", "1",
+    assert main(["bench", "data", "--limit", "4", "--shards", "2", "--workers", "1",
                  "--samples", str(WOMD), "--out", str(out)]) == 0
     rows = [json.loads(line) for line in capsys.readouterr().out.strip().splitlines()]
     assert [(r["input"], r["what"], r["scenarios"]) for r in rows] == [

@@ -170,7 +170,7 @@ def test_inspect_json_carries_source_id_and_first_step(capsys):
     from igdrivsim.cli import main
 
     path = str(SAMPLES / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")
-    assert main(["inspect", path, "--json"]) == 0
+    assert main(["inspect", path]) == 0
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert [(d["source_id"], d["first_step"], d["scenario_id"]) for d in lines] == [
         ("eb4b91b10ca94ff2", 0, "eb4b91b10ca94ff2_0"),

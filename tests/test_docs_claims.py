@@ -83,7 +83,7 @@ def doc_modules() -> list[str]:
 
 
 def test_the_docs_name_python_modules():
-    assert {"maze", "igdrivsim.pipeline.planning"} <= set(doc_modules())
+    assert "maze" in set(doc_modules())
 
 
 @pytest.mark.parametrize("module", doc_modules())

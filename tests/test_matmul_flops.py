@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from igdrivsim.training.bench import matmul_flops
+from igdrivsim.bench.train import matmul_flops
 
 PRODUCT = 2 * 8 * 64 * 64  # one [8, 64] @ [64, 64]
 
@@ -36,7 +36,7 @@ def test_trace_summary_sums_a_kernel_kind_per_timeline_line(tmp_path):
     import gzip
     import json
 
-    from igdrivsim.training.bench import trace_summary
+    from igdrivsim.bench.train import trace_summary
 
     meta = [{"ph": "M", "name": "process_name", "pid": 1, "args": {"name": "/device:GPU:0"}},
             {"ph": "M", "name": "process_name", "pid": 2, "args": {"name": "/host:CPU"}},
@@ -60,7 +60,7 @@ def test_trace_summary_sums_a_kernel_kind_per_timeline_line(tmp_path):
 def test_bench_train_times_the_update_and_its_parts():
     """`bench train --parts`: the record counts one update's work from the method's passes and
     times the update's parts alone."""
-    from igdrivsim.training.bench import bench_profile
+    from igdrivsim.bench.train import bench_profile
 
     r = bench_profile("smoke", "bc", updates=1, obs="full", parts=True)
     assert r["params_per_seed"] > 0 and r["seconds_per_update"] > 0
@@ -75,7 +75,7 @@ def test_bench_train_times_the_update_and_its_parts():
 
 def test_bench_train_times_a_method_without_an_expert_loss():
     """ADVISOR reports no ``bc_loss``: its record carries the loss it trains, ``teacher_ce``."""
-    from igdrivsim.training.bench import bench_profile
+    from igdrivsim.bench.train import bench_profile
 
     r = bench_profile("smoke", "advisor", updates=1, obs="circular_r4")
     assert r["seconds_per_update"] > 0 and r["teacher_ce"] > 0 and "bc_loss" not in r

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 
+from igdrivsim.bench.pipeline import group_of, stage_costs, summarise
 from igdrivsim.io import read_json
-from igdrivsim.pipeline.bench import group_of, stage_costs, summarise
 from igdrivsim.pipeline.profiles import PROFILES
 from igdrivsim.pipeline.stages import Pipeline
 

@@ -200,10 +200,10 @@ def test_speed_walk_cli_wires_no_progress(flag, progress, monkeypatch, capsys):
                         lambda data, caps, limit, progress=False: seen.append(progress))
     monkeypatch.setattr(speed_walk, "measure",
                         lambda sc, seed, progress=False: seen.append(progress) or {})
-    assert speed_walk.main(["--data", "D", *flag]) == 0
+    assert cli_main(["speed-walk", "--data", "D", *flag]) == 0
     assert seen == [progress, progress]
     with pytest.raises(SystemExit) as exc:
-        speed_walk.main(["--help"])
+        cli_main(["speed-walk", "--help"])
     assert exc.value.code == 0 and "--no-progress" in capsys.readouterr().out
 
 

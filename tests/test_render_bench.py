@@ -19,8 +19,8 @@ needs_womd = pytest.mark.skipif(not EXAMPLE.exists(), reason=f"real WOMD sample 
 def test_igdrivsim_path_equals_the_waymax_port_on_a_real_scenario():
     """The road-edge array gives the same offroad (and every other metric) as Waymax's test
     against every roadgraph point, and both observe the same thing, at every step."""
+    from igdrivsim.bench.sim import _batch, episode
     from igdrivsim.data import load_scenario
-    from igdrivsim.observation.bench import _batch, episode
 
     sc = _batch([load_scenario(EXAMPLE)], 2)  # different noise for the two examples
     cfg = ObservationConfig(num_objects=8, num_roadgraph_points=128)
@@ -41,7 +41,7 @@ def test_igdrivsim_path_equals_the_waymax_port_on_a_real_scenario():
 def test_bench_cli_rejects_bad_options(capsys):
     from igdrivsim.cli import main
 
-    assert main(["bench", "sim", "--batches", "1,x"]) == 2
+    assert main(["bench", "sim", "--batch-sizes", "1,x"]) == 2
     assert main(["bench", "sim", "--impls", "naive,bogus"]) == 2
     assert main(["bench", "sim", "--repeats", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -56,7 +56,7 @@ def test_bench_cli_writes_rows(tmp_path, capsys, distinct):
     from igdrivsim.cli import main
 
     out = tmp_path / "bench.json"
-    assert main(["bench", "sim", "--batches", "2", "--impls", "igdrivsim", "--repeats", "1",
+    assert main(["bench", "sim", "--batch-sizes", "2", "--impls", "igdrivsim", "--repeats", "1",
                  "--out", str(out)] + (["--distinct", "--data", str(WOMD)] if distinct else [])
                 ) == 0
     result = json.loads(out.read_text())

@@ -68,6 +68,6 @@ def test_figure_and_animation_are_written(states, tmp_path):
 
 def test_render_cli_errors_are_one_line(tmp_path, capsys):
     assert main(["render", "--data", str(tmp_path / "missing.tfrecord")]) == 2
-    assert main(["render", "--setting", "no_such_setting", "--out", str(tmp_path)]) == 2
+    assert main(["render", "--obs", "no_such_setting", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("igdrivsim render: error:") for line in err)

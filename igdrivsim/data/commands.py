@@ -59,8 +59,6 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TFRecord files, folders, globs or name@N (either WOMD format), "
                              "ScenarioNet .pkl files / dataset folders, GPUDrive .json files")
     parser.add_argument("--limit", type=int, default=None, help="stop after N scenarios")
-    parser.add_argument("--json", action="store_true",
-                        help=argparse.SUPPRESS)  # deprecated: JSON lines are the only output
     parser.add_argument("--skip-bad", action="store_true",
                         help="warn about and count bad records instead of stopping")
     parser.add_argument("--workers", type=int, default=1,

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.core.devices import maybe_init_distributed
 from igdrivsim.data.egos import add_egos_argument
 from igdrivsim.data.manifest import MANIFEST
@@ -52,7 +51,6 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                              "run's own setting (log)")
     parser.add_argument("--limit", dest="max_scenarios", type=int, default=0, metavar="N",
                         help="evaluate at most N validation scenarios (0: all)")
-    deprecated_alias(parser, "--max-scenarios", "max_scenarios", type=int)
     add_egos_argument(parser)
     parser.add_argument("--batch-size", type=int, default=32, help="scenarios per batch")
     parser.add_argument("--seed", type=int, default=0, help="evaluation key (actions, noise)")

@@ -1,7 +1,6 @@
 """Why sampled BC drifts along the road: the speed random walk of the discretised expert's labels.
 
-``python -m igdrivsim.evaluation.speed_walk --data DIR [--limit N] [--out FILE.json]
-[--no-progress]``
+``igdrivsim speed-walk --data DIR [--limit N] [--out FILE.json] [--no-progress]``
 
 Relative to the constant-velocity level, the expert's ``dx`` label (which corrects the
 quantisation error the imitator cannot see) is near-memoryless noise of +-1 level; sampling a
@@ -22,10 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.data import Capacities
 from igdrivsim.data.validation import load_validation
-from igdrivsim.errors import IGDrivSimError
 from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.rollout import Actor, expert_action, run_episode
@@ -176,7 +173,7 @@ def report_markdown(result: dict) -> str:
                                                         stats["offset_probability"],
                                                         strict=True))
     lines = [f"Speed walk on {result['scenarios']} scenarios "
-             "(`python -m igdrivsim.evaluation.speed_walk`).", "",
+             "(`igdrivsim speed-walk`).", "",
              f"Expert dx label minus the constant-velocity level: {pairs}; entropy "
              f"{stats['entropy_nats']:.3f} nats, {stats['entropy_given_previous_nats']:.3f} "
              "given the previous offset.", "",
@@ -188,30 +185,20 @@ def report_markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.evaluation.speed_walk",
-                                     description=__doc__.split("\n")[0],
-                                     formatter_class=DefaultsFormatter)
+def speed_walk_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True,
                         help="scenarios: a filter output folder or WOMD files")
     parser.add_argument("--limit", type=int, default=0, help="at most N scenarios (0: all)")
     parser.add_argument("--out", default=None, help="also write the result to this JSON file")
     parser.add_argument("--seed", type=int, default=0, help="key of the sampled offsets")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    args = parser.parse_args(argv)
-    try:
-        scenarios = load_validation(args.data, Capacities(max_objects=32,
-                                                          max_roadgraph_points=10_240),
-                                    args.limit, progress=not args.no_progress)
-        result = measure(scenarios, args.seed, progress=not args.no_progress)
-    except IGDrivSimError as err:
-        print(f"speed_walk: error: {err}", file=sys.stderr)
-        return 2
+
+
+def speed_walk_command(args: argparse.Namespace) -> int:
+    scenarios = load_validation(args.data, Capacities(max_objects=32, max_roadgraph_points=10_240),
+                                args.limit, progress=not args.no_progress)
+    result = measure(scenarios, args.seed, progress=not args.no_progress)
     print(json.dumps(result, indent=2))
     if args.out:
         atomic_write_json(args.out, result)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -11,7 +11,6 @@ from pathlib import Path
 import jax
 
 import igdrivsim.simulator as sim
-from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.data import decode_scenario_id, load_scenario
 from igdrivsim.data import scenarionet as sn
 from igdrivsim.data.samples import find_samples
@@ -25,8 +24,6 @@ DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data" / "womd" / "motion_data_one_
 
 
 def render_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data_file", nargs="?", default=None, metavar="FILE",
-                        help=argparse.SUPPRESS)  # deprecated spelling of --data
     parser.add_argument("--data", default=None,
                         help=f"WOMD file (tf.Example or Scenario proto) or ScenarioNet / "
                              f"MetaDrive pickle (default: {DEFAULT_DATA} when present, else the "
@@ -41,7 +38,6 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
                              "when given without PATH: OUT/rollout_<setting>.gif)")
     parser.add_argument("--obs", dest="setting", default="circular_r6", metavar="SETTING",
                         help="observation setting of the animation (a preset, '+' composes)")
-    deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--panels", default=None, metavar="SETTINGS",
                         help="comma-separated settings of the Fig. 1 panels (default: the paper's "
                              "six; e.g. full,occlusion)")
@@ -52,7 +48,7 @@ def render_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _data_path(args) -> str:
-    path = args.data or getattr(args, "data_file", None)
+    path = args.data
     if path is None:
         if DEFAULT_DATA.exists():
             return str(DEFAULT_DATA)

@@ -10,7 +10,7 @@ import sys
 import threading
 from pathlib import Path
 
-from igdrivsim.cli_args import DefaultsFormatter, deprecated_alias
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.data import expand_paths, samples
 from igdrivsim.errors import ConfigError, run_command
 from igdrivsim.io import require_folder
@@ -48,7 +48,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated observation settings: any of the paper's six, "
                              "a registered one (occlusion) or a '+' composition "
                              "(default: the paper's six)")
-    deprecated_alias(parser, "--settings", "settings")
     parser.add_argument("--methods", default=",".join(METHODS), metavar="METHODS",
                         help="comma-separated registered learning methods to train and "
                              "compare (igdrivsim/training/methods/); dagger and advisor are taught "
@@ -67,8 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", dest="quiet", action="store_true",
                         help="do not echo stage output and progress bars on the terminal (the "
                              "logs in WORK/logs/ are complete either way)")
-    deprecated_alias(parser, "--quiet", "quiet", action="store_true")
-    parser.add_argument("--samples", "--real", dest="samples", nargs="+", action="extend",
+    parser.add_argument("--samples", dest="samples", nargs="+", action="extend",
                         default=None, metavar="DIR",
                         help="real scenarios for Fig. 1 and the real-log table, besides the "
                              "samples cache (always used when fetched): folders of igdrivsim "
@@ -177,6 +175,3 @@ def main(argv: list[str] | None = None) -> int:
         if on_main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

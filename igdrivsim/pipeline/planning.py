@@ -8,7 +8,7 @@ the ideal); :func:`estimate_seconds` prices the run from the measured per-update
 parameters are a function of its seed and the data order only), so a run may be resumed on
 another machine.
 
-``python -m igdrivsim.pipeline.planning [--profile P] [--cores 1,2,4,8,16]`` prints the
+``igdrivsim plan [--profile P] [--cores 1,2,4,8,16]`` prints the
 estimated wall time of the default run for each core count.
 """
 
@@ -23,7 +23,6 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from igdrivsim.cli_args import FORMATTER
 from igdrivsim.names import METHODS, SETTINGS
 from igdrivsim.training import cost
 from igdrivsim.training.config import get_profile
@@ -212,15 +211,15 @@ def hours_text(seconds: float) -> str:
     return f"{minutes} min" if minutes < 90 else f"{seconds / 3600:.1f} h"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Print the estimated wall time of a profile's default run per core count (for
-    ``paper``: the cost of Table I at paper scale from the measured rates)."""
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.pipeline.planning",
-                                     description=main.__doc__, formatter_class=FORMATTER)
+def plan_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", default="laptop", choices=(*PRICED_PROFILES, "paper"),
                         help="the profile to estimate")
     parser.add_argument("--cores", default="1,2,4,8,16", help="comma-separated core counts")
-    args = parser.parse_args(argv)
+
+
+def plan_command(args: argparse.Namespace) -> int:
+    """Print the estimated wall time of a profile's default run per core count (for
+    ``paper``: the cost of Table I at paper scale from the measured rates)."""
     if args.profile == "paper":
         print(cost.table1_text(gpu=True))
         return 0
@@ -236,7 +235,3 @@ def main(argv: list[str] | None = None) -> int:
                                 cores)
         print(f"| {cores} | {len(parts)} | {hours_text(wall or 0.0)} |")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

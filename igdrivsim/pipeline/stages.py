@@ -154,7 +154,7 @@ class Pipeline(Publisher, StageRunner):
 
     def run_teacher(self, candidates: Sequence[str]) -> None:
         """Pick the privileged teacher among the finished runs of ``candidates``."""
-        self.stage("teacher", [["python", "-m", "igdrivsim.training.privileged", "--runs",
+        self.stage("teacher", [["igdrivsim", "teacher", "--runs",
                                 *[self.work / "runs" / m for m in candidates],
                                 "--out", self.teacher_choice]],
                    depends=[f"train_{m}" for m in candidates], outputs=[self.teacher_choice])
@@ -198,7 +198,7 @@ class Pipeline(Publisher, StageRunner):
     def run_speed_walk(self, val_manifest: Path, echo: bool = True) -> None:
         """The speed-walk diagnostic of the validation scenarios (no trained policy)."""
         out = self.work / "evals" / "speed_walk.json"
-        self.stage("speed_walk", [["python", "-m", "igdrivsim.evaluation.speed_walk", "--data",
+        self.stage("speed_walk", [["igdrivsim", "speed-walk", "--data",
                                    val_manifest, "--limit", self.profile.eval_max_scenarios,
                                    "--out", out]],
                    depends=["filter_validation"], outputs=[out], echo=echo)

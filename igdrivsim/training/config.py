@@ -427,32 +427,38 @@ def to_dict(config: RunConfig) -> dict:
 
 
 # training fields that became a method's own params: old name -> (param, its default)
-LEGACY_METHOD_PARAMS = {"advisor_alpha": ("alpha", 1.0),
-                        "aggregate_batches": ("aggregate_batches", 4)}
+MOVED_TO_METHOD_PARAMS = {"advisor_alpha": ("alpha", 1.0),
+                          "aggregate_batches": ("aggregate_batches", 4)}
+
+
+def upgrade_config(d: dict) -> dict:
+    """An older ``config.json`` in today's layout (the one place that knows older layouts): the
+    loss terms once under ``training`` go to ``loss``; ``advisor_alpha`` and ``aggregate_batches``
+    become method params (kept when not their default); a policy without ``object_encoder`` was
+    the pooled network with a value head."""
+    d = {k: dict(v) if isinstance(v, dict) else v for k, v in d.items()}
+    training = d.get("training", {})
+    loss_fields = {f.name for f in dataclasses.fields(LossConfig)}
+    if moved := {k: training.pop(k) for k in list(training) if k in loss_fields}:
+        d["loss"] = {**moved, **d.get("loss", {})}
+    if moved := {old: training.pop(old) for old in MOVED_TO_METHOD_PARAMS if old in training}:
+        training["method_params"] = [*training.get("method_params", []), *[
+            (MOVED_TO_METHOD_PARAMS[old][0], v) for old, v in moved.items()
+            if v != MOVED_TO_METHOD_PARAMS[old][1]]]
+    if d.get("policy") and "object_encoder" not in d["policy"]:
+        d["policy"] = {**POOLED_NETWORK, "value_head": True, **d["policy"]}
+    return d
 
 
 def from_dict(d: dict) -> RunConfig:
-    """Inverse of :func:`to_dict` (lists become tuples again); unknown keys are errors."""
+    """Inverse of :func:`to_dict` (lists become tuples again; an older layout is upgraded
+    first, :func:`upgrade_config`); unknown keys are errors."""
+    d = upgrade_config(d)
     classes = {"policy": PolicyConfig, "data": DataConfig, "observation": ObsConfig,
                "training": TrainConfig, "loss": LossConfig}
     kwargs: dict[str, Any] = {"profile": d.get("profile", "custom")}
-    loss_fields = {f.name for f in dataclasses.fields(LossConfig)}
-    # runs written before the loss had its own section kept its terms under training
-    legacy_loss = {k: v for k, v in d.get("training", {}).items() if k in loss_fields}
     for section, cls in classes.items():
-        values = dict(d.get(section, {}))
-        if section == "loss":
-            values = {**legacy_loss, **values}
-        if section == "training":  # runs written before the methods declared their params
-            values = {k: v for k, v in values.items() if k not in loss_fields}
-            moved = {old: values.pop(old) for old in LEGACY_METHOD_PARAMS if old in values}
-            values["method_params"] = [
-                *values.get("method_params", []),
-                *[(LEGACY_METHOD_PARAMS[old][0], v) for old, v in moved.items()
-                  if v != LEGACY_METHOD_PARAMS[old][1]]]
-        if section == "policy" and values and "object_encoder" not in values:
-            # runs written before the network had two shapes: the pooled one, with a value head
-            values = {**POOLED_NETWORK, "value_head": True, **values}
+        values = d.get(section, {})
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(values) - names
         if unknown:

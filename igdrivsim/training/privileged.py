@@ -6,7 +6,7 @@ student by seed ``s`` of the teacher (cycling when the teacher has fewer seeds).
 with the same capacities as the student (the student's rollout records the full observation at
 those capacities). :func:`choose_teacher` picks, among finished runs, the one that drives better
 on the validation subset of its learning curves (the paper's failure rate, overlap + offroad, at
-the last update).
+the last update; ``igdrivsim teacher``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from igdrivsim.errors import ConfigError, run_command
+from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_write_json
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.run import Run, is_run
@@ -70,26 +70,19 @@ def choose_teacher(run_dirs: list[str]) -> dict:
     return {**best, "candidates": scores}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m igdrivsim.training.privileged --runs RUN... --out teacher.json``: pick the
-    teacher among finished runs and record the choice (the pipeline's ``teacher`` stage)."""
-    parser = argparse.ArgumentParser(prog="python -m igdrivsim.training.privileged",
-                                     description=main.__doc__)
+def teacher_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runs", nargs="+", required=True, help="candidate run folders")
     parser.add_argument("--out", required=True, help="where to write the choice (JSON)")
-    args = parser.parse_args(argv)
-
-    def body() -> None:
-        choice = choose_teacher(args.runs)
-        atomic_write_json(args.out, choice, indent=2)
-        for s in choice["candidates"]:
-            print(f"{s['run']}: full setting at update {s['update']}: offroad "
-                  f"{100 * s['offroad']:.2f}%, overlap {100 * s['overlap']:.2f}%, log "
-                  f"divergence {s['log_divergence']:.2f} m")
-        print(f"teacher: {choice['run']}")
-
-    return run_command("teacher", body)
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def teacher_command(args: argparse.Namespace) -> int:
+    """Pick the teacher among finished runs and record the choice (the pipeline's ``teacher``
+    stage)."""
+    choice = choose_teacher(args.runs)
+    atomic_write_json(args.out, choice, indent=2)
+    for s in choice["candidates"]:
+        print(f"{s['run']}: full setting at update {s['update']}: offroad "
+              f"{100 * s['offroad']:.2f}%, overlap {100 * s['overlap']:.2f}%, log "
+              f"divergence {s['log_divergence']:.2f} m")
+    print(f"teacher: {choice['run']}")
+    return 0

@@ -1,6 +1,6 @@
 """The motion calibration target: the logged SDC's constant-velocity divergence.
 
-``python -m igdrivsim.data.synthetic.calibration [NAME=]PATH ... [--kept-only NAME] [--out F]``
+``igdrivsim cv-divergence [NAME=]PATH ... [--kept-only NAME] [--out F]``
 reads data sets as ``igdrivsim stats`` does and prints (and writes to ``F``) per data set the
 median [p10, p90] over SDCs of :func:`cv_divergence` and of its parts along and across the
 heading. ``igdrivsim stats`` reports the CV distance at single horizons; this is the mean over
@@ -14,7 +14,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from igdrivsim.cli_args import FORMATTER
 from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, Scenario
 from igdrivsim.data.stats_command import iter_dataset, parse_datasets
@@ -67,20 +66,17 @@ def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> s
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=FORMATTER)
+def cv_divergence_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="+", metavar="[NAME=]PATH",
                         help="data sets, as for igdrivsim stats")
     parser.add_argument("--kept-only", action="append", default=[], metavar="NAME",
                         help="only the filter-kept scenarios of data set NAME (repeatable)")
     parser.add_argument("--out", default=None, help="also write the table to this file")
-    args = parser.parse_args(argv)
+
+
+def cv_divergence_command(args: argparse.Namespace) -> int:
     table = cv_table(parse_datasets(args.files), args.kept_only)
     print(table)
     if args.out:
         atomic_write_text(args.out, table + "\n")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -11,7 +11,7 @@ Both take the observation's nearest points with the same top-k over the whole ro
 they give the same metrics and the same observations (tested); the difference is the offroad
 metric's cost. Results kept in the repository: docs/bench/.
 
-Both run the discretised expert with the observation of ``--setting`` computed at every step (a
+Both run the discretised expert with the observation of ``--obs`` computed at every step (a
 checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
 log divergence). ``--agents log,idm`` (the default) times the ``igdrivsim`` path with the other
 objects replaying their log and as IDM sim agents (:mod:`igdrivsim.simulator.agents`) in the same
@@ -39,7 +39,6 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.data import load_scenario, read_scenarios
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json
@@ -144,10 +143,8 @@ def bench_sim_arguments(parser: argparse.ArgumentParser) -> None:
                              "has fewer) instead of tiling --record")
     parser.add_argument("--batch-sizes", dest="batches", default="1,16,64,256",
                         help="comma-separated batch sizes (scenarios per call)")
-    deprecated_alias(parser, "--batches", "batches")
     parser.add_argument("--obs", dest="setting", default="full", metavar="SETTING",
                         help="observation setting")
-    deprecated_alias(parser, "--setting", "setting")
     parser.add_argument("--impls", default=",".join(IMPLS),
                         help=f"implementations to time (default {','.join(IMPLS)})")
     parser.add_argument("--agents", default="log,idm",

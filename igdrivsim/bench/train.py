@@ -28,7 +28,6 @@ import jax
 import numpy as np
 from jax.extend.core import ClosedJaxpr, Jaxpr
 
-from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_file_target
@@ -62,7 +61,6 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", dest="batch", type=int, default=0,
                         help="scenarios per update (0: the profile's; paper on CPU: 8, the "
                              "batch of the CPU rates in igdrivsim/training/cost.py)")
-    deprecated_alias(parser, "--batch", "batch", type=int)
     parser.add_argument("--seeds", type=int, default=0, help="seeds (0: the profile's)")
     parser.add_argument("--updates", type=int, default=3, help="timed updates (after compile)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],

@@ -16,7 +16,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from igdrivsim.cli_args import deprecated_alias
 from igdrivsim.data import tfrecord
 from igdrivsim.data.filter import run_filter
 from igdrivsim.data.manifest import write_json
@@ -35,7 +34,6 @@ def bench_data_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder with the real samples to tile (default: %(default)s)")
     parser.add_argument("--limit", dest="records", type=int, default=400, metavar="N",
                         help="tf.Example records to tile (default: %(default)s)")
-    deprecated_alias(parser, "--records", "records", type=int)
     parser.add_argument("--shards", type=int, default=4, help="shards to tile them into")
     parser.add_argument("--workers", type=int, default=available_cpus(),
                         help="N worker processes for the parallel runs (default: all CPUs)")

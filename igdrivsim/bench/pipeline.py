@@ -77,7 +77,7 @@ def training_inside(profile: str, method: str, updates: int, train_cpu: float,
                     parts_updates: int) -> dict:
     """One method's training CPU split into its updates (timed alone, with their parts) and
     the rest of its stages."""
-    from igdrivsim.training.bench import bench_profile  # JAX: only when timing
+    from igdrivsim.bench.train import bench_profile  # JAX: only when timing
 
     rec = bench_profile(profile, method, updates=parts_updates, parts=True)
     runs = rec["settings"] * rec["seeds"]  # the parts are timed for one setting and seed
