@@ -5,7 +5,7 @@ An entry (:class:`Entry`) holds the command, the kind of run that owns the file 
 wall time, date, and the code of each pipeline stage its numbers came from (``stages``:
 :func:`stages_behind` -> :func:`code_state` as stamped when the stage ran). A run publishes the
 files its kind owns, and another kind's only where missing. Schema 1 entries (no ``stages``)
-stay readable. ``igdrivsim report provenance backfill|check|derived|maze``.
+stay readable. ``igdrivsim report provenance check|derived|maze``.
 """
 
 from __future__ import annotations
