@@ -42,12 +42,6 @@ def test_every_committed_table_and_figure_has_an_entry():
             assert provenance.BELOW_TARGETS in entry["note"], rel
 
 
-def test_the_methods_run_owns_what_the_report_writes_for_it():
-    from igdrivsim.report.build import METHODS_OUTPUTS
-
-    assert set(provenance.METHODS_FILES) == set(METHODS_OUTPUTS)
-
-
 def _staged(root: Path, names: list[str], text: str) -> Path:
     for rel in names:
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
