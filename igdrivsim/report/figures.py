@@ -65,8 +65,10 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     colours = method_colours(methods)
     positions = plots.draw_bars(ax, cells, settings, methods, colours,
                                 {m: method_label(m) for m in methods})
-    plots.reference_lines(ax, plots.reference_levels(frame, key))
-    plots.floor_at_range(ax, unit)
+    plots.reference_lines(ax, frame, key)
+    low, _ = plots.feasible_range(unit)
+    if math.isfinite(low):  # rates and distances start at 0
+        ax.set_ylim(bottom=low)
     return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
 
 
