@@ -204,7 +204,7 @@ def test_republishing_from_cached_stages_keeps_their_commits(tmp_path, monkeypat
     from igdrivsim.pipeline.stages import Pipeline
 
     head = {"code": _code("aaaaaaa")}
-    monkeypatch.setattr(provenance, "code_state", lambda repo: dict(head["code"]))
+    monkeypatch.setattr(machine, "code_state", lambda repo: dict(head["code"]))
 
     def pipe() -> Pipeline:
         p = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True,
