@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from igdrivsim import cli
+from igdrivsim import cli, machine
 from igdrivsim.pipeline.runner import REPO_ROOT
 from igdrivsim.report import provenance
 
@@ -40,12 +40,6 @@ def test_every_committed_table_and_figure_has_an_entry():
             assert provenance.Entry.from_record(entry).line() in (paper / rel).read_text()
         if entry["updates"] is not None and entry["updates"] < 1000:
             assert provenance.BELOW_TARGETS in entry["note"], rel
-
-
-def test_the_methods_run_owns_what_the_report_writes_for_it():
-    from igdrivsim.report.build import METHODS_OUTPUTS
-
-    assert set(provenance.METHODS_FILES) == set(METHODS_OUTPUTS)
 
 
 def _staged(root: Path, names: list[str], text: str) -> Path:
@@ -125,24 +119,24 @@ def test_code_state_records_the_commit_the_dirty_flag_and_the_diff_hash(tmp_path
     _git(repo, "add", "code.py", "paper/table.md")
     _git(repo, "commit", "-qm", "one")
     head = _git(repo, "rev-parse", "--short", "HEAD")
-    assert provenance.code_state(repo) == {"commit": head, "dirty": False, "diff_hash": None}
+    assert machine.code_state(repo) == {"commit": head, "dirty": False, "diff_hash": None}
     (repo / "paper" / "table.md").write_text("| b |\n")  # the pipeline's own output: clean
-    assert provenance.code_state(repo)["dirty"] is False
+    assert machine.code_state(repo)["dirty"] is False
     (repo / "code.py").write_text("x = 2\n")
-    dirty = provenance.code_state(repo)
+    dirty = machine.code_state(repo)
     diff = subprocess.run(["git", "diff", "HEAD", "--", "code.py"], cwd=repo, check=True,
                           capture_output=True).stdout
     assert dirty == {"commit": head, "dirty": True,
                      "diff_hash": hashlib.sha256(diff).hexdigest()[:12]}
     (repo / "code.py").write_text("x = 3\n")  # other code, same commit: another hash
-    assert provenance.code_state(repo)["diff_hash"] not in (None, dirty["diff_hash"])
+    assert machine.code_state(repo)["diff_hash"] not in (None, dirty["diff_hash"])
     _git(repo, "commit", "-qam", "two")
-    assert provenance.code_state(repo)["commit"] not in (head, None)
+    assert machine.code_state(repo)["commit"] not in (head, None)
     # not a git checkout (an installed package), or a folder inside one: unknown, no error
     (tmp_path / "plain").mkdir()
     (repo / "sub").mkdir()
     for where in (tmp_path / "plain", repo / "sub", tmp_path / "absent"):
-        assert provenance.code_state(where) == provenance.UNKNOWN_CODE
+        assert machine.code_state(where) == machine.UNKNOWN_CODE
 
 
 def test_check_fails_when_a_published_file_lacks_its_stage_commits(tmp_path, capsys):
@@ -210,7 +204,7 @@ def test_republishing_from_cached_stages_keeps_their_commits(tmp_path, monkeypat
     from igdrivsim.pipeline.stages import Pipeline
 
     head = {"code": _code("aaaaaaa")}
-    monkeypatch.setattr(provenance, "code_state", lambda repo: dict(head["code"]))
+    monkeypatch.setattr(machine, "code_state", lambda repo: dict(head["code"]))
 
     def pipe() -> Pipeline:
         p = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True,

@@ -16,9 +16,9 @@ import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
+from igdrivsim import machine
 from igdrivsim.errors import ConfigError, IGDrivSimError
 from igdrivsim.io import atomic_write_text, read_json
-from igdrivsim.report import provenance
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
@@ -83,7 +83,7 @@ class StageRunner:
     def stamped_code(self, stage: str) -> dict:
         """The code a complete stage ran, as its stamp recorded it (unknown without the field)."""
         code = self.stamp(stage).get("code")
-        return dict(code) if isinstance(code, dict) else dict(provenance.UNKNOWN_CODE)
+        return dict(code) if isinstance(code, dict) else dict(machine.UNKNOWN_CODE)
 
     def stamped_stages(self) -> list[str]:
         """The complete stages, in the order they finished."""
@@ -112,7 +112,7 @@ class StageRunner:
             self.spent_path(name).unlink(missing_ok=True)
         self.stamp_path(name).unlink(missing_ok=True)
         self._say(f"{name}: running (log: {log})")
-        start, code = time.time(), provenance.code_state(REPO_ROOT)  # the code it runs
+        start, code = time.time(), machine.code_state(REPO_ROOT)  # the code it runs
         cpu: list[float] = []  # CPU seconds of this invocation's commands (user + system)
         self.running[name] = start - self.spent(name)  # as if begun with the earlier seconds
         try:

@@ -52,6 +52,11 @@ EVAL_FOLDERS = {"log": ("evals", "", []), "idm": ("evals_idm", "_idm", ["--agent
 READOUTS = ("greedy", "mean")
 
 
+def _paths(value) -> tuple[str, ...]:
+    """One location or several as a tuple of strings."""
+    return (str(value),) if isinstance(value, str | Path) else tuple(map(str, value or ()))
+
+
 @dataclass
 class Pipeline(Publisher, StageRunner):
     """One reproduction: profile, locations, and how commands run."""
@@ -73,12 +78,7 @@ class Pipeline(Publisher, StageRunner):
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
-        if isinstance(self.samples, str | Path):
-            self.samples = (str(self.samples),)
-        self.samples = tuple(map(str, self.samples or ()))
-        if isinstance(self.samples_given, str | Path):
-            self.samples_given = (str(self.samples_given),)
-        self.samples_given = tuple(map(str, self.samples_given or ()))
+        self.samples, self.samples_given = map(_paths, (self.samples, self.samples_given))
         self.settings = tuple(self.settings or self.profile.settings)
         for i, name in enumerate(self.settings):  # any registered setting or '+' composition
             if stack_settings(self.settings[:i + 1]) is None:

@@ -11,7 +11,6 @@ Every file but the provenance (which records the date) is a pure function of the
 from __future__ import annotations
 
 import datetime as _dt
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation import registry, speed_walk
 from igdrivsim.evaluation.aggregate import compare_methods, load_evaluations, seed_means, summarize
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
+from igdrivsim.machine import code_state
 from igdrivsim.names import BC_RL, REFERENCES, setting_labels
 from igdrivsim.report import methods_table
 from igdrivsim.report.figures import (
@@ -52,24 +52,15 @@ class Provenance:
     data: str = "unknown"
 
 
-def git_commit(repo: str | Path | None = None) -> str:
-    """Short commit of the repository holding this package (``-dirty`` if files other than
-    the report's own outputs under ``paper/`` are modified)."""
-    repo = Path(repo) if repo else Path(__file__).resolve().parents[2]
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, text=True,
-                                capture_output=True, check=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
-                                ".", ":(exclude)paper"],
-                               cwd=repo, text=True, capture_output=True, timeout=10).stdout
-        return commit + ("-dirty" if dirty.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 _TEX_SPECIAL = {"\\": r"\textbackslash{}", "_": r"\_", "%": r"\%", "&": r"\&", "#": r"\#",
                 "$": r"\$", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
                 "^": r"\textasciicircum{}"}
+
+
+def _commit() -> str:
+    """Short commit of this package's checkout, ``-dirty`` when its code is modified."""
+    state = code_state()
+    return (state["commit"] or "unknown") + ("-dirty" if state["dirty"] else "")
 
 
 def _tex_escape(text: str) -> str:
@@ -118,25 +109,6 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     return found
 
 
-# Table II's files (relative to ``out``, owned by the methods run): removed by a report without
-# extended methods, so a folder never shows a Table II from an earlier run beside this Table I.
-METHODS_OUTPUTS = METHODS_FILES
-
-
-def _methods_files(per_scenario, summary, seeds, tables: Path, figures: Path, header: str,
-                   caption: str) -> list[Path]:
-    """Table II, its tests (every learned method vs BC) and Fig. 6."""
-    tests_all = methods_table.compare_all(per_scenario)
-    return [
-        atomic_write_csv(tables / "tests_all.csv", tests_all.round(6)),
-        atomic_write_text(tables / "table2.md",
-                          methods_table.table2_markdown(summary, tests_all, header)),
-        atomic_write_text(tables / "table2.tex",
-                          methods_table.table2_latex(summary, tests_all, caption)),
-        *save_figure(fig6_methods(seeds, tests=tests_all), figures, "fig6_methods"),
-    ]
-
-
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
@@ -174,7 +146,7 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
         atomic_write_text(tables / "vs_paper.md", vs_paper_markdown(summary, tests, header)),
         atomic_write_text(generated / "verdicts.tex", verdicts_tex(tests)),
         atomic_write_text(generated / "provenance.tex", provenance_tex(
-            provenance, n_seeds, n_scenarios, date, git_commit())),
+            provenance, n_seeds, n_scenarios, date, _commit())),
     ]
     written += save_figure(fig3_metrics(seeds, tests), figures, "fig3_metrics")
     extra = registry.metrics()
@@ -190,9 +162,17 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
                            figures, "fig5_supplementary")
     written += _speed_walk_files(eval_dirs, tables, generated)
     if methods_table.extended_methods(per_scenario):
-        written += _methods_files(per_scenario, summary, seeds, tables, figures, header, caption)
-    else:
-        for name in METHODS_OUTPUTS:
+        tests_all = methods_table.compare_all(per_scenario)  # every learned method vs BC
+        written += [
+            atomic_write_csv(tables / "tests_all.csv", tests_all.round(6)),
+            atomic_write_text(tables / "table2.md",
+                              methods_table.table2_markdown(summary, tests_all, header)),
+            atomic_write_text(tables / "table2.tex",
+                              methods_table.table2_latex(summary, tests_all, caption)),
+            *save_figure(fig6_methods(seeds, tests=tests_all), figures, "fig6_methods"),
+        ]
+    else:  # a folder never shows a Table II from an earlier run beside this Table I
+        for name in METHODS_FILES:
             (out / name).unlink(missing_ok=True)
     runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
     references = per_scenario[per_scenario.method.isin(REFERENCES)]

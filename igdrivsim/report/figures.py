@@ -65,8 +65,10 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     colours = method_colours(methods)
     positions = plots.draw_bars(ax, cells, settings, methods, colours,
                                 {m: method_label(m) for m in methods})
-    plots.reference_lines(ax, plots.reference_levels(frame, key))
-    plots.floor_at_range(ax, unit)
+    plots.reference_lines(ax, frame, key)
+    low, _ = plots.feasible_range(unit)
+    if math.isfinite(low):  # rates and distances start at 0
+        ax.set_ylim(bottom=low)
     return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
 
 
@@ -142,22 +144,17 @@ CURVE_ROWS: tuple[tuple[str, str, float, str | None], ...] = (
 )
 
 
-def find_curves(run_dirs: Iterable[str | Path]) -> list[Path]:
-    """Every ``curves.jsonl`` in or below the given folders (a run folder or a folder of runs)."""
-    found: set[Path] = set()
-    for root in map(Path, run_dirs):
-        if root.is_file() and root.name == CURVES_FILE:
-            found.add(root)
-        elif root.is_dir():
-            found.update(root.rglob(CURVES_FILE))
-    return sorted(found)
-
-
 def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
     """All ``curves.jsonl`` records as one frame, one row per (setting, method, seed, update):
     a resumed run keeps its last record; a malformed line raises :class:`DataError`."""
+    found: set[Path] = set()  # each run folder, or folder of runs, searched below
+    for root in map(Path, run_dirs):
+        if root.is_dir():
+            found.update(root.rglob(CURVES_FILE))
+        elif root.name == CURVES_FILE and root.is_file():
+            found.add(root)
     records = []
-    for path in find_curves(run_dirs):
+    for path in sorted(found):
         for number, line in enumerate(path.read_text().splitlines(), 1):
             if not line.strip():
                 continue
@@ -231,8 +228,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     curves = load_curves(run_dirs)
     if curves.empty:
         return []
-    present = list(dict.fromkeys(curves.setting.astype(str)))
-    settings = [s for s in table_settings(curves) if s in present]
+    settings = _present_settings(curves)
     methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
         set(curves.method) - {BC, BC_RL})
     extra = sns.color_palette("tab10")

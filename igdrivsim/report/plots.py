@@ -119,22 +119,15 @@ def mark_significant(ax, positions: Mapping[Cell, tuple], significant: set[Cell]
     return marked
 
 
-def reference_levels(frame: pd.DataFrame, metric: str) -> dict[str, float]:
-    """The mean of each reference actor (constant velocity, expert) evaluated for ``metric``
-    in ``frame`` (seed level or summary)."""
+def reference_lines(ax, frame: pd.DataFrame, metric: str) -> None:
+    """A labelled horizontal line (:data:`REFERENCE_STYLE`) at the mean of each reference actor
+    evaluated for ``metric`` in ``frame`` (seed level or summary)."""
     column = "value" if "value" in frame.columns else "mean"
-    levels = {}
     for method in (CONSTANT_VELOCITY, EXPERT):
         value = frame[(frame.method == method) & (frame.metric == metric)][column].mean()
         if pd.notna(value):
-            levels[method] = float(value)
-    return levels
-
-
-def reference_lines(ax, levels: Mapping[str, float]) -> None:
-    """A labelled horizontal line per reference level (:data:`REFERENCE_STYLE`)."""
-    for method, level in levels.items():
-        ax.axhline(level, label=METHOD_LABELS[method], zorder=3, **REFERENCE_STYLE[method])
+            ax.axhline(float(value), label=METHOD_LABELS[method], zorder=3,
+                       **REFERENCE_STYLE[method])
 
 
 def significance_handle(baseline: str = BC):
@@ -144,13 +137,6 @@ def significance_handle(baseline: str = BC):
     return Line2D([], [], linestyle="", marker="$*$", markersize=7, color="0.1",
                   label=f"significant vs {METHOD_LABELS.get(baseline, baseline)} "
                         f"(Holm, α={ALPHA})")
-
-
-def floor_at_range(ax, unit: str) -> None:
-    """Start the y axis at the unit's lower bound (0 for rates and distances)."""
-    low, _ = feasible_range(unit)
-    if math.isfinite(low):
-        ax.set_ylim(bottom=low)
 
 
 def figure_handles(fig) -> dict[str, object]:

@@ -20,13 +20,7 @@ from pathlib import Path
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, read_json
-from igdrivsim.machine import (  # noqa: F401 (re-exported: the stamps' code)
-    CODE_KEYS,
-    OWN_OUTPUTS,
-    UNKNOWN_CODE,
-    code_label,
-    code_state,
-)
+from igdrivsim.machine import CODE_KEYS, code_label, code_state
 
 FILE = "provenance.json"
 SCHEMA = 2  # 2: per-stage code (``stages``, ``mixed_commits``); 1: no ``stages``

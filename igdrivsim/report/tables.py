@@ -276,11 +276,12 @@ def effects_markdown(tests: pd.DataFrame) -> str:
     return "\n".join(out) + "\n"
 
 
-def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, bool]]]]:
+def _power_rows(tests: pd.DataFrame) -> tuple[list[tuple], tuple[int, int, int]]:
     """Per metric: (name, unit, [(cell text, detectable)]) rows for the paper effect, MDE and
-    Holm MDE; a paper effect is "detectable" when its size is at least the MDE."""
+    Holm MDE, a paper effect "detectable" when its size is at least the MDE; and the counts
+    (paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
     cols = table_settings(tests)
-    rows = []
+    rows, n, k, kh = [], 0, 0, 0
     for metric in METRICS:
         paper, mde, holm = [], [], []
         for setting in cols:
@@ -291,35 +292,20 @@ def _power_rows(tests: pd.DataFrame) -> list[tuple[str, str, list[tuple[str, boo
                 pa, pb = PAPER_TABLE1[metric.key][setting]
                 effect = pa - pb
                 paper.append((_signed(effect), math.isfinite(m) and abs(effect) >= m))
+                if math.isfinite(m):
+                    n, k, kh = n + 1, k + (abs(effect) >= m), kh + (abs(effect) >= mh)
             else:  # a setting beyond the paper: no paper effect to compare with
                 paper.append((MISSING, False))
             mde.append((_fmt(m), False))
             holm.append((_fmt(mh), False))
         rows.append((_metric_name(metric), metric.unit, [paper, mde, holm]))
-    return rows
-
-
-def _power_counts(tests: pd.DataFrame) -> tuple[int, int, int]:
-    """(paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
-    cols = table_settings(tests)
-    n = k = kh = 0
-    for metric in METRICS:
-        for setting in cols:
-            row = _test_row(tests, metric.key, setting)
-            if (row is None or not math.isfinite(float(row.mde))
-                    or setting not in PAPER_TABLE1[metric.key]):
-                continue
-            pa, pb = PAPER_TABLE1[metric.key][setting]
-            n += 1
-            k += abs(pa - pb) >= float(row.mde)
-            kh += abs(pa - pb) >= float(row.mde_holm)
-    return k, kh, n
+    return rows, (k, kh, n)
 
 
 def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     """Minimum detectable effect (80% power) per cell next to the paper's BC-RL − BC."""
     cols = table_settings(tests)
-    k, kh, n = _power_counts(tests)
+    rows, (k, kh, n) = _power_rows(tests)
     n_cells = len(_cells(tests))
     out = heading("## Could the paper's effects be detected here?", header)
     out += [f"Minimum detectable effect (MDE): the smallest true BC-RL − BC difference a "
@@ -332,7 +318,7 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
             "| metric (unit) | row | " + " | ".join(setting_short(s) for s in cols) + " |",
             "|---|---|" + "---|" * len(cols)]
     labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
-    for name, unit, groups in _power_rows(tests):
+    for name, unit, groups in rows:
         for label, cells in zip(labels, groups, strict=True):
             texts = [f"**{t}**" if bold else t for t, bold in cells]
             out.append(f"| {name} ({unit}) | {label} | " + " | ".join(texts) + " |")
@@ -342,7 +328,7 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
 def power_latex(tests: pd.DataFrame) -> str:
     """The MDE table as a ``table*`` float (label ``tab:power``) for the report."""
     cols = table_settings(tests)
-    k, kh, n = _power_counts(tests)
+    rows, (k, kh, n) = _power_rows(tests)
     n_cells = len(_cells(tests))
     caption = (
         rf"\caption{{\textbf{{Minimum detectable effect of BC-RL versus BC}} (80\% power, "
@@ -353,7 +339,7 @@ def power_latex(tests: pd.DataFrame) -> str:
         rf"{k} of {n} cells ({kh} with Holm).}}")
     lines = setting_header(cols, r"\textbf{Metric} &")
     labels = ("paper effect", "MDE", "MDE (Holm)")
-    for name, unit, groups in _power_rows(tests):
+    for name, unit, groups in rows:
         lines.append(r"\midrule")
         for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
             texts = [(rf"\textbf{{{t}}}" if bold else t).replace("+", "$+$").replace(
