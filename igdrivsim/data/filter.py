@@ -23,14 +23,13 @@ import hashlib
 import json
 import os
 import warnings
-from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
-from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
+from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, pool_map
 from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
@@ -296,27 +295,13 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     if progress:
         bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
     scenarios = 0
+    tasks = [(f, shard_result_path(out, f), skip_bad, egos) for f in todo]
     try:
-        if workers > 1 and len(todo) > 1:
-            with process_pool(min(workers, len(todo))) as pool:
-                futures = [pool.submit(filter_shard, f, shard_result_path(out, f), skip_bad,
-                                       egos) for f in todo]
-                try:
-                    for fut in as_completed(futures):
-                        scenarios += fut.result()[0]
-                        if bar is not None:
-                            bar.update()
-                            bar.set_postfix(scenarios=scenarios)
-                except BaseException:
-                    for fut in futures:  # stop at the first error; finished shards stay saved
-                        fut.cancel()
-                    raise
-        else:
-            for f in todo:
-                scenarios += filter_shard(f, shard_result_path(out, f), skip_bad, egos)[0]
-                if bar is not None:
-                    bar.update()
-                    bar.set_postfix(scenarios=scenarios)
+        for done, _ in pool_map(filter_shard, tasks, min(workers, len(todo))):
+            scenarios += done
+            if bar is not None:
+                bar.update()
+                bar.set_postfix(scenarios=scenarios)
     finally:
         if bar is not None:
             bar.close()
