@@ -1,20 +1,12 @@
-"""The paper's scenario filter: keep scenarios where the SDC is interactive and actually drives.
+"""The paper's scenario filter: keep scenarios where the SDC is interactive and actually drives
+(docs/data.md, The paper's filter; thresholds in :class:`FilterConfig`).
 
-Definitions (thresholds are parameters of :class:`FilterConfig`):
-
-- **Logged path** of an object: the polyline through its logged (x, y) positions, made of the
-  segments between *consecutive* valid steps (``valid[t] and valid[t + 1]``); a gap in validity
-  breaks the path, and an object with fewer than two consecutive valid steps has no path.
-- **Interactive** (criterion ``paper``): the SDC's path intersects the path of at least one other
-  object (any type) of the scenario, regardless of time: some SDC segment and some segment of the
-  other object share a point. The test is the exact 2-D orientation test (touching and collinear
-  overlapping segments count), vectorised over all segment pairs in float64 with coordinates
-  taken relative to the SDC, after a bounding-box pre-check per object.
-- **Mean speed**: the mean of ``sqrt(vel_x**2 + vel_y**2)`` over the SDC's valid steps (the
-  original code averaged over the wrong axis); 0 if the SDC is never valid.
-- **Kept**: interactive and ``mean speed >= min_speed`` (0.7 m/s in the paper). The variant
-  ``objects_of_interest`` replaces "interactive" by "WOMD flags at least one object of interest"
-  (what the original code used).
+**Interactive** (criterion ``paper``): the SDC's logged path (segments between consecutive valid
+steps) intersects another object's, regardless of time: the exact 2-D orientation test
+(touching and collinear overlaps count) in float64 relative to the SDC, after a bounding-box
+pre-check. **Mean speed**: over the SDC's valid steps (the original code averaged over the wrong
+axis); 0 if never valid. ``objects_of_interest`` replaces "interactive" by WOMD's flag (what the
+original code used).
 """
 
 from __future__ import annotations

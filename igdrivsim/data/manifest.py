@@ -1,12 +1,6 @@
-"""Filter manifests: ``manifest.jsonl`` (one line per scenario) and ``counts.json``.
-
-A manifest line is ``{"file", "record", "scenario_id", "sdc_mean_speed", "interactive",
-"objects_of_interest", "kept"}``: ``file`` is an absolute path (a relative one is resolved
-against the manifest's folder), ``record`` the record index in that TFRecord file,
-``objects_of_interest`` the number of objects WOMD flags. A filter run with ``--egos all``
-writes one line per vehicle (``ego``: its object id, ``logged_sdc``); ``scenario_id`` stays the
-source scenario's. Every reader takes the kept rows through
-:func:`igdrivsim.data.source.open_scenarios`.
+"""Filter manifests: ``manifest.jsonl`` (one line per scenario, or per candidate ego with
+``--egos all``; fields in :data:`FIELDS`, ``file`` resolved against the manifest's folder) and
+``counts.json`` (docs/data.md, The paper's filter).
 """
 
 from __future__ import annotations

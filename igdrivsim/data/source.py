@@ -1,11 +1,6 @@
-"""One way in for data: :func:`open_scenarios` reads whatever a data path names.
-
-A data path is a filter output folder (``manifest.jsonl``: its kept scenarios), or files of any
-registered format (:mod:`igdrivsim.data.formats`) named by a file, folder, glob, ``name@N`` or a
-list of those. ``egos="all"`` turns every scenario into one per eligible vehicle
-(:mod:`igdrivsim.data.egos`). Training, validation, evaluation, statistics, the streamed input
-and the Gymnasium environment all read through here; :func:`count_scenarios`,
-:func:`data_identity` and :func:`scenario_refs` answer the questions they ask of a path without
+"""One way in for data: :func:`open_scenarios` reads whatever a data path names (a filter output
+folder, or files of any registered format; docs/data.md, Inputs); :func:`count_scenarios`,
+:func:`data_identity` and :func:`scenario_refs` answer the questions asked of a path without
 reading it whole.
 """
 

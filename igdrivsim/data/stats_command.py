@@ -1,13 +1,9 @@
-"""``igdrivsim stats``: scene and motion statistics of any data (synthetic, tf.Example, Scenario,
-ScenarioNet, GPUDrive JSON, a filter output folder; ``--egos all``: every eligible vehicle as the
-ego).
+"""``igdrivsim stats``: scene and motion statistics of any data set, beside each other.
 
-Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`:
-``stats.csv`` (one row per scenario), ``divergence.csv`` (Jensen-Shannon divergence of each data
-set's pooled speed / acceleration / nearest-object / road-edge histograms from the reference
-data set), ``stats.md`` (the scene and motion tables), ``stats.png`` (one panel per scene
-statistic), ``motion_stats.csv`` (per data set, group and motion statistic: summary and JS
-divergence), ``motion_agents.csv`` (one row per agent) and ``motion_stats.png``.
+Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`
+(``stats.csv`` and ``motion_agents.csv``: one row per scenario / agent; ``divergence.csv`` and
+``motion_stats.csv``: Jensen-Shannon divergences from the reference data set; ``stats.md``: the
+tables; the figures).
 """
 
 from __future__ import annotations

@@ -1,10 +1,9 @@
 """The motion calibration target: the logged SDC's constant-velocity divergence.
 
-``igdrivsim cv-divergence [NAME=]PATH ... [--kept-only NAME] [--out F]``
-reads data sets as ``igdrivsim stats`` does and prints (and writes to ``F``) per data set the
-median [p10, p90] over SDCs of :func:`cv_divergence` and of its parts along and across the
-heading. ``igdrivsim stats`` reports the CV distance at single horizons; this is the mean over
-every step of the 8 s future, i.e. exactly a constant-velocity actor's log divergence.
+``igdrivsim cv-divergence`` prints per data set the median [p10, p90] over SDCs of
+:func:`cv_divergence` and of its parts along and across the heading: the mean over every step of
+the 8 s future, i.e. exactly a constant-velocity actor's log divergence (``igdrivsim stats``
+reports the CV distance at single horizons).
 """
 
 from __future__ import annotations
