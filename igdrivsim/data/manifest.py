@@ -38,11 +38,8 @@ def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
 
 
 def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]:
-    """Manifest entries from a ``manifest.jsonl`` file or a folder holding one.
-
-    ``kept_only`` returns only the scenarios the filter kept. Raises :class:`DataError` naming the
-    line for a missing file, bad JSON or a missing field.
-    """
+    """Manifest entries (only the kept ones with ``kept_only``) from a ``manifest.jsonl`` or a
+    folder holding one; a bad line is a :class:`DataError` naming it."""
     path = os.fspath(path)
     if os.path.isdir(path):
         path = os.path.join(path, MANIFEST)
@@ -90,14 +87,9 @@ def _load_records(file: str, records: list[int], caps: Capacities | None
 def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
                             workers: int = 0, chunk: int = 32, check_ids: bool = True,
                             progress: bool = False) -> Iterator[tuple[dict, Scenario]]:
-    """Stream ``(entry, scenario)`` for manifest ``entries``, grouped by file (files in order of
-    first appearance, records ascending): each file is read once, front to back.
-
-    ``workers > 1`` decodes chunks of ``chunk`` records in that many processes (at most
-    ``2 * workers`` chunks in flight, same order). With ``check_ids`` the scenario id stored in
-    the manifest must match the record's. Raises :class:`DataError` naming the file and record
-    when an entry points at a missing file or record.
-    """
+    """Stream ``(entry, scenario)`` for manifest ``entries``, each file read once, front to back
+    (files in order of first appearance, records ascending; ``workers``: as :func:`pool_map`).
+    ``check_ids``: the manifest's scenario id must match the record's."""
     groups: dict[str, dict[int, dict]] = {}
     for e in entries:
         groups.setdefault(os.fspath(e["file"]), {})[int(e["record"])] = e
