@@ -402,31 +402,20 @@ def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
 
 
 def _decode_lights(desc: dict, map_ids: dict, length: int) -> dict[str, np.ndarray]:
-    states = desc.get("dynamic_map_states") or {}
-    rows = []
-    for light in states.values():
-        if not isinstance(light, dict):
-            continue
-        seq = (light.get("state") or {}).get("object_state") or []
-        code = np.zeros(length, np.int32)
-        valid = np.zeros(length, bool)
-        for t, s in enumerate(seq[:length]):
-            if s is not None:
-                code[t], valid[t] = LIGHT_STATES.get(str(s).upper(), 0), True
-        lane = light.get("lane")
-        lane_id = map_ids.get(lane, map_ids.get(str(lane), -1))
-        stop = np.zeros(3)
-        if light.get("stop_point") is not None:
-            p = np.asarray(light["stop_point"], np.float64).reshape(-1)
-            stop[: min(3, len(p))] = p[:3]
-        rows.append((code, valid, lane_id, stop))
-    n = len(rows)
+    lights = [x for x in (desc.get("dynamic_map_states") or {}).values() if isinstance(x, dict)]
+    n = len(lights)
     out = {"state": np.zeros((n, length), np.int32), "valid": np.zeros((n, length), bool),
            "lane_id": np.full((n, length), -1, np.int32), "xyz": np.zeros((n, length, 3))}
-    for i, (code, valid, lane_id, stop) in enumerate(rows):
-        out["state"][i], out["valid"][i] = code, valid
-        out["lane_id"][i] = np.where(valid, lane_id, -1)
-        out["xyz"][i] = stop
+    for i, light in enumerate(lights):
+        seq = (light.get("state") or {}).get("object_state") or []
+        for t, s in enumerate(seq[:length]):
+            if s is not None:
+                out["state"][i, t], out["valid"][i, t] = LIGHT_STATES.get(str(s).upper(), 0), True
+        lane = light.get("lane")
+        out["lane_id"][i, out["valid"][i]] = map_ids.get(lane, map_ids.get(str(lane), -1))
+        if light.get("stop_point") is not None:
+            p = np.asarray(light["stop_point"], np.float64).reshape(-1)
+            out["xyz"][i, :, : min(3, len(p))] = p[:3]
     return out
 
 
