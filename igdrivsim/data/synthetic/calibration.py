@@ -15,7 +15,8 @@ import numpy as np
 
 from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, Scenario
-from igdrivsim.data.stats_command import iter_dataset, parse_datasets
+from igdrivsim.data.source import open_scenarios
+from igdrivsim.data.stats_command import parse_datasets
 from igdrivsim.io import atomic_write_text
 
 HORIZON_STEPS = 80  # 8 s after the current step
@@ -52,7 +53,7 @@ def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> s
              "|---|---|---|---|---|"]
     for name, paths in datasets.items():
         rows = []
-        for _, _, s in iter_dataset(paths):
+        for s in (rec.scenario for rec in open_scenarios(paths, caps=None)):
             if name in kept_only and not (intersecting_objects(s).any()
                                           and sdc_mean_speed(s) >= 0.7):
                 continue
