@@ -262,15 +262,10 @@ def _read_shard_result(path: str, file: str | None = None, egos: str | None = No
 def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers: int = 0,
                part: tuple[int, int] | None = None, skip_bad: bool = False,
                progress: bool = True, egos: str = "sdc") -> dict | None:
-    """Filter the shards named by ``inputs`` into ``out``.
-
-    Each shard's statistics go to ``out/shards/`` as soon as it is done; shards already there are
-    skipped, so an interrupted run resumes. ``workers > 1`` processes shards in that many spawned
-    processes. Without ``part`` the run ends by writing ``manifest.jsonl`` and ``counts.json``
-    (returned); with ``part=(i, n)`` only slice ``i`` of ``n`` is processed and :func:`merge`
-    joins the slices later (returns None). ``egos="all"``: one manifest line per candidate ego
-    (a vehicle valid over the window), kept when it passes the filter as the ego.
-    """
+    """Filter the shards named by ``inputs`` into ``out`` (docs/data.md, The paper's filter): each
+    shard's result goes to ``out/shards/`` as soon as it is done (a rerun skips the finished ones);
+    without ``part`` the run ends by writing and returning the counts, with ``part=(i, n)`` it does
+    slice ``i`` of ``n`` only (joined by :func:`merge`) and returns None."""
     files = expand_paths(inputs)
     if part is not None:
         files = files[part[0]::part[1]]
@@ -349,11 +344,8 @@ def stored_config(dirs) -> FilterConfig | None:
 
 
 def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
-    """Join the per-shard results of filter runs (e.g. ``--part`` slices) found in ``dirs`` into
-    ``out/manifest.jsonl`` and ``out/counts.json`` (entries sorted by file, then record).
-
-    ``config=None`` uses the settings the runs were made with (the paper's if none stored).
-    """
+    """Join the per-shard results of the filter runs in ``dirs`` into ``out`` (entries sorted by
+    file, then record); ``config=None``: the runs' own settings (else the paper's)."""
     dirs = [os.fspath(d) for d in ([dirs] if isinstance(dirs, str | os.PathLike) else dirs)]
     paths = []
     for d in dirs:
