@@ -1,13 +1,6 @@
-"""Every vehicle as the ego: one scenario per eligible vehicle of a logged scenario.
-
-A vehicle is **eligible** when it is valid at every step of the window and passes the scenario
-filter (:mod:`igdrivsim.data.filter`, the paper's criterion or the ``objects_of_interest``
-variant, with its minimum mean speed) with itself as the SDC. :func:`as_ego` makes it the SDC
-(the simulator controls it, the observation is taken from it and leaves it out) and the logged
-SDC an ordinary log-replayed object; the scenario id becomes ``<scenario id>#<object id>``
-(stable: it names the source scenario and the vehicle; :func:`~igdrivsim.data.scenario.as_ego`,
-``ego_id`` and ``split_ego_id`` live with the scenario model), and :func:`expand_egos` says
-whether the ego is the logged SDC.
+"""Every vehicle as the ego: one scenario per eligible vehicle (valid over the whole window and
+passing the scenario filter as the SDC) of a logged scenario (docs/data.md, Every vehicle as the
+ego; :func:`~igdrivsim.data.scenario.as_ego` lives with the scenario model).
 """
 
 from __future__ import annotations

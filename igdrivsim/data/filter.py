@@ -1,20 +1,12 @@
-"""The paper's scenario filter: keep scenarios where the SDC is interactive and actually drives.
+"""The paper's scenario filter: keep scenarios where the SDC is interactive and actually drives
+(docs/data.md, The paper's filter; thresholds in :class:`FilterConfig`).
 
-Definitions (thresholds are parameters of :class:`FilterConfig`):
-
-- **Logged path** of an object: the polyline through its logged (x, y) positions, made of the
-  segments between *consecutive* valid steps (``valid[t] and valid[t + 1]``); a gap in validity
-  breaks the path, and an object with fewer than two consecutive valid steps has no path.
-- **Interactive** (criterion ``paper``): the SDC's path intersects the path of at least one other
-  object (any type) of the scenario, regardless of time: some SDC segment and some segment of the
-  other object share a point. The test is the exact 2-D orientation test (touching and collinear
-  overlapping segments count), vectorised over all segment pairs in float64 with coordinates
-  taken relative to the SDC, after a bounding-box pre-check per object.
-- **Mean speed**: the mean of ``sqrt(vel_x**2 + vel_y**2)`` over the SDC's valid steps (the
-  original code averaged over the wrong axis); 0 if the SDC is never valid.
-- **Kept**: interactive and ``mean speed >= min_speed`` (0.7 m/s in the paper). The variant
-  ``objects_of_interest`` replaces "interactive" by "WOMD flags at least one object of interest"
-  (what the original code used).
+**Interactive** (criterion ``paper``): the SDC's logged path (segments between consecutive valid
+steps) intersects another object's, regardless of time: the exact 2-D orientation test
+(touching and collinear overlaps count) in float64 relative to the SDC, after a bounding-box
+pre-check. **Mean speed**: over the SDC's valid steps (the original code averaged over the wrong
+axis); 0 if never valid. ``objects_of_interest`` replaces "interactive" by WOMD's flag (what the
+original code used).
 """
 
 from __future__ import annotations
@@ -23,14 +15,13 @@ import hashlib
 import json
 import os
 import warnings
-from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
-from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, process_pool
+from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, pool_map
 from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
@@ -271,15 +262,10 @@ def _read_shard_result(path: str, file: str | None = None, egos: str | None = No
 def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers: int = 0,
                part: tuple[int, int] | None = None, skip_bad: bool = False,
                progress: bool = True, egos: str = "sdc") -> dict | None:
-    """Filter the shards named by ``inputs`` into ``out``.
-
-    Each shard's statistics go to ``out/shards/`` as soon as it is done; shards already there are
-    skipped, so an interrupted run resumes. ``workers > 1`` processes shards in that many spawned
-    processes. Without ``part`` the run ends by writing ``manifest.jsonl`` and ``counts.json``
-    (returned); with ``part=(i, n)`` only slice ``i`` of ``n`` is processed and :func:`merge`
-    joins the slices later (returns None). ``egos="all"``: one manifest line per candidate ego
-    (a vehicle valid over the window), kept when it passes the filter as the ego.
-    """
+    """Filter the shards named by ``inputs`` into ``out`` (docs/data.md, The paper's filter): each
+    shard's result goes to ``out/shards/`` as soon as it is done (a rerun skips the finished ones);
+    without ``part`` the run ends by writing and returning the counts, with ``part=(i, n)`` it does
+    slice ``i`` of ``n`` only (joined by :func:`merge`) and returns None."""
     files = expand_paths(inputs)
     if part is not None:
         files = files[part[0]::part[1]]
@@ -296,27 +282,13 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     if progress:
         bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
     scenarios = 0
+    tasks = [(f, shard_result_path(out, f), skip_bad, egos) for f in todo]
     try:
-        if workers > 1 and len(todo) > 1:
-            with process_pool(min(workers, len(todo))) as pool:
-                futures = [pool.submit(filter_shard, f, shard_result_path(out, f), skip_bad,
-                                       egos) for f in todo]
-                try:
-                    for fut in as_completed(futures):
-                        scenarios += fut.result()[0]
-                        if bar is not None:
-                            bar.update()
-                            bar.set_postfix(scenarios=scenarios)
-                except BaseException:
-                    for fut in futures:  # stop at the first error; finished shards stay saved
-                        fut.cancel()
-                    raise
-        else:
-            for f in todo:
-                scenarios += filter_shard(f, shard_result_path(out, f), skip_bad, egos)[0]
-                if bar is not None:
-                    bar.update()
-                    bar.set_postfix(scenarios=scenarios)
+        for done, _ in pool_map(filter_shard, tasks, min(workers, len(todo))):
+            scenarios += done
+            if bar is not None:
+                bar.update()
+                bar.set_postfix(scenarios=scenarios)
     finally:
         if bar is not None:
             bar.close()
@@ -372,11 +344,8 @@ def stored_config(dirs) -> FilterConfig | None:
 
 
 def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
-    """Join the per-shard results of filter runs (e.g. ``--part`` slices) found in ``dirs`` into
-    ``out/manifest.jsonl`` and ``out/counts.json`` (entries sorted by file, then record).
-
-    ``config=None`` uses the settings the runs were made with (the paper's if none stored).
-    """
+    """Join the per-shard results of the filter runs in ``dirs`` into ``out`` (entries sorted by
+    file, then record); ``config=None``: the runs' own settings (else the paper's)."""
     dirs = [os.fspath(d) for d in ([dirs] if isinstance(dirs, str | os.PathLike) else dirs)]
     paths = []
     for d in dirs:

@@ -1,16 +1,7 @@
-"""The registry of data formats: how a file is recognised, decoded and counted.
-
-A format is one :class:`Format` entry of :data:`FORMATS`: ``detect(path)`` (cheap: the name or
-the first bytes), ``decode(path, start, stop)`` (the scenarios ``start <= i < stop`` of the file
-at native sizes, as ``(index, format name, scenario, source)``; ``source`` says where a window of
-a longer log starts, else None; a bad record comes as a :class:`DataError` in place of the
-scenario, so that the rest of the file can still be read; a file that cannot be read at all
-raises it) and ``count(path)`` (how many scenarios the file holds). A file belongs to the first
-format, in registry order, that detects it, else to :data:`FALLBACK` (TFRecord); a folder is a
-format's dataset folder (``folder``), else it reads the files of the first format that lists
-any, TFRecords first, then the others in registry order.
-Adding a format is one module plus one entry here (tests/test_data_formats.py adds one); every
-reader (:func:`igdrivsim.data.source.open_scenarios`) goes through :func:`format_of`.
+"""The registry of data formats: how a file is recognised (``detect``), decoded (``decode``: its
+scenarios at native sizes, a bad record as a :class:`DataError` in place of its scenario) and
+counted (``count``). Adding a format is one module plus one entry of :data:`FORMATS`
+(docs/data.md, Inputs; tests/test_data_formats.py adds one).
 """
 
 from __future__ import annotations

@@ -1,24 +1,6 @@
 """GPUDrive / PufferDrive JSON scenarios -> :class:`Scenario` (one file, one scenario, native
-sizes).
-
-GPUDrive distributes processed WOMD as one JSON file per scenario, written by its converter
-(``data_utils/process_waymo_files.py`` of Emerge-Lab/gpudrive). Top-level keys: ``scenario_id``,
-``objects``, ``roads``, ``tl_states`` and ``metadata``.
-
-- **Objects** become trajectory rows in file order: per step ``position`` {x, y, z}, ``heading``
-  (radians), ``velocity`` {x, y} and ``valid``; one ``width``, ``length``, ``height`` (the last
-  valid state's) for all steps; ``id``; ``type`` ``unset / vehicle / pedestrian / cyclist /
-  other`` -> WOMD's 0-4. Invalid steps hold -10000 in every field: they are stored as -1, as a
-  WOMD tf.Example stores them.
-- **Roads** are typed polylines: ``map_element_id`` is already the tf.Example roadgraph code
-  (lanes 0-3, road lines 5-13, road edges 14-16, stop sign 17, crosswalk 18, speed bump 19); a
-  file without it falls back on the coarse ``type`` (:data:`COARSE_TYPES`). Driveways (code 20
-  or -1) have no tf.Example type and are skipped, as in the Scenario-proto reader. Crosswalk and
-  speed-bump polygons are closed; segments are subdivided to WOMD's 0.5 m.
-- **Traffic lights** (``tl_states``: per controlled lane, its ``state`` strings, stop point
-  ``x, y, z`` and ``time_index``) become one slot per lane, WOMD's state enum.
-- **Metadata**: ``sdc_track_index`` (an index into ``objects``), ``tracks_to_predict`` as
-  ``{track_index, difficulty}``, ``objects_of_interest`` as object ids.
+sizes), as GPUDrive's converter (``data_utils/process_waymo_files.py`` of Emerge-Lab/gpudrive)
+writes them. Field mapping (objects, roads, traffic lights, metadata): docs/data.md.
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
-"""Filter manifests: ``manifest.jsonl`` (one line per scenario) and ``counts.json``.
-
-A manifest line is ``{"file", "record", "scenario_id", "sdc_mean_speed", "interactive",
-"objects_of_interest", "kept"}``: ``file`` is an absolute path (a relative one is resolved
-against the manifest's folder), ``record`` the record index in that TFRecord file,
-``objects_of_interest`` the number of objects WOMD flags. A filter run with ``--egos all``
-writes one line per vehicle (``ego``: its object id, ``logged_sdc``); ``scenario_id`` stays the
-source scenario's. Every reader takes the kept rows through
-:func:`igdrivsim.data.source.open_scenarios`.
+"""Filter manifests: ``manifest.jsonl`` (one line per scenario, or per candidate ego with
+``--egos all``; fields in :data:`FIELDS`, ``file`` resolved against the manifest's folder) and
+``counts.json`` (docs/data.md, The paper's filter).
 """
 
 from __future__ import annotations
@@ -44,11 +38,8 @@ def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
 
 
 def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]:
-    """Manifest entries from a ``manifest.jsonl`` file or a folder holding one.
-
-    ``kept_only`` returns only the scenarios the filter kept. Raises :class:`DataError` naming the
-    line for a missing file, bad JSON or a missing field.
-    """
+    """Manifest entries (only the kept ones with ``kept_only``) from a ``manifest.jsonl`` or a
+    folder holding one; a bad line is a :class:`DataError` naming it."""
     path = os.fspath(path)
     if os.path.isdir(path):
         path = os.path.join(path, MANIFEST)
@@ -96,14 +87,9 @@ def _load_records(file: str, records: list[int], caps: Capacities | None
 def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
                             workers: int = 0, chunk: int = 32, check_ids: bool = True,
                             progress: bool = False) -> Iterator[tuple[dict, Scenario]]:
-    """Stream ``(entry, scenario)`` for manifest ``entries``, grouped by file (files in order of
-    first appearance, records ascending): each file is read once, front to back.
-
-    ``workers > 1`` decodes chunks of ``chunk`` records in that many processes (at most
-    ``2 * workers`` chunks in flight, same order). With ``check_ids`` the scenario id stored in
-    the manifest must match the record's. Raises :class:`DataError` naming the file and record
-    when an entry points at a missing file or record.
-    """
+    """Stream ``(entry, scenario)`` for manifest ``entries``, each file read once, front to back
+    (files in order of first appearance, records ascending; ``workers``: as :func:`pool_map`).
+    ``check_ids``: the manifest's scenario id must match the record's."""
     groups: dict[str, dict[int, dict]] = {}
     for e in entries:
         groups.setdefault(os.fspath(e["file"]), {})[int(e["record"])] = e

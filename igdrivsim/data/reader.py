@@ -77,12 +77,9 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
 
 
 def expand_paths(spec: PathSpec) -> list[str]:
-    """Files named by a path, a directory (its files), a glob, ``name@N``, or a list of those.
-
-    A folder written by ``igdrivsim samples`` names its scenario files. ``name@N`` is WOMD's
-    sharded notation: ``name-00000-of-0000N`` ... ``name-0000(N-1)-of-...``.
-    Raises :class:`DataError` if something names no file.
-    """
+    """Files named by a path, a directory (its files; an ``igdrivsim samples`` folder: its
+    scenario files), a glob, ``name@N`` (``name-00000-of-0000N`` ...), or a list of those;
+    :class:`DataError` if something names no file."""
     if not isinstance(spec, str | os.PathLike):
         return [p for s in spec for p in expand_paths(s)]
     spec = os.fspath(spec)
@@ -144,11 +141,8 @@ def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool 
 def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
                    skip_bad: bool = False, stats: ReadStats | None = None, workers: int = 0,
                    chunk: int = 16, progress: bool = False) -> Iterator[ScenarioRecord]:
-    """Stream :class:`ScenarioRecord` over all files of ``paths`` in order.
-
-    ``workers > 1`` decodes chunks of ``chunk`` records in that many processes (at most
-    ``2 * workers`` chunks in flight, results in file order). ``progress`` shows a tqdm bar.
-    """
+    """Stream :class:`ScenarioRecord` over all files of ``paths`` in order; ``workers > 1``
+    decodes chunks of ``chunk`` records in that many processes (:func:`pool_map`)."""
     files = expand_paths(paths)
     stats = stats if stats is not None else ReadStats()
     if workers <= 1:
@@ -213,9 +207,7 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
 def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,
                    stats: ReadStats | None = None, workers: int = 0,
                    progress: bool = False) -> Iterator[Scenario]:
-    """Stream the scenarios of ``paths`` (file, dir, glob, ``name@N``, or a list), fitted to
-    ``caps``; the format of each record is detected (tf.Example or Scenario protobuf).
-    ``workers > 1`` decodes in that many processes; ``progress`` shows a tqdm bar."""
+    """The scenarios of :func:`iter_scenarios`, without where they come from."""
     for rec in iter_scenarios(paths, caps, skip_bad, stats, workers, progress=progress):
         yield rec.scenario
 
@@ -241,12 +233,9 @@ def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
 
 def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario,
                     trim: bool = False) -> int:
-    """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns count.
-
-    ``trim=True`` drops trailing padding slots first (:func:`trim_padding`): much smaller files
-    that this package reads back identically once fitted to capacities (other WOMD readers
-    expect the fixed sizes: 128 objects, 20,000 roadgraph points, 16 traffic lights).
-    """
+    """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns the count.
+    ``trim=True``: without trailing padding slots (:func:`trim_padding`; other WOMD readers expect
+    fixed sizes)."""
     if isinstance(scenarios, Scenario):
         scenarios = [scenarios]
     prepare = trim_padding if trim else (lambda s: s)

@@ -1,17 +1,10 @@
 """ScenarioNet scenario descriptions (pickled dicts) -> :class:`Scenario` windows.
 
-ScenarioNet converts WOMD, nuScenes, nuPlan, Argoverse 2 and Lyft into one pickled dict per
-scenario (``id``, ``version``, ``length``, ``metadata``, ``tracks``, ``dynamic_map_states``,
-``map_features``); a dataset folder adds ``dataset_summary.pkl`` and ``dataset_mapping.pkl``.
-Files are loaded with :class:`SafeUnpickler`, which rebuilds NumPy arrays and builtin containers
-only, plus the enum type tags of older MetaDrive exports as inert names (:class:`LegacyTag`;
-MetaDrive 0.2's WOMD pickles, :func:`legacy_description`): nothing in a file can run code.
-Logs are resampled to 10 Hz if needed and cut into consecutive 91-step windows (10 past,
-1 current, 80 future), each one scenario (one "record").
-Where a map has no road edges (nuScenes) they are derived from the boundary of the union of the
-lane polygons and closed road-line outlines (ScenarioNet stores nuScenes' drivable area as closed
-``boundary_*`` lines), with the road interior on the left of ``dir``. Field mapping:
-docs/scenarionet.md.
+Files are loaded with :class:`SafeUnpickler` (NumPy arrays, builtin containers and the inert
+:class:`LegacyTag` stand-ins of old MetaDrive enum tags only: nothing in a file can run code).
+Logs are resampled to 10 Hz if needed and cut into consecutive 91-step windows, each one
+scenario; maps without road edges (nuScenes) get them from the union of the lane polygons
+(:func:`union_boundary`). Field mapping, legacy pickles and windows: docs/scenarionet.md.
 """
 
 from __future__ import annotations
@@ -53,7 +46,6 @@ from igdrivsim.errors import DataError
 FORMAT_SCENARIONET = "scenarionet"
 SUMMARY_FILE, MAPPING_FILE = "dataset_summary.pkl", "dataset_mapping.pkl"
 PICKLE_SUFFIXES = (".pkl", ".pickle")
-WINDOW_STRIDE = NUM_STEPS  # consecutive, non-overlapping windows
 
 _ALLOWED = {
     ("builtins", n) for n in ("dict", "list", "tuple", "set", "frozenset", "str", "bytes",
@@ -307,13 +299,6 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
     return xyz
 
 
-def _inside(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-polygon of ``points [N, 2]`` in the closed ring ``[V, 2]``."""
-    from matplotlib.path import Path  # heavy: only when drawing
-
-    return Path(ring).contains_points(points)
-
-
 def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPACING,
                    probe: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boundary of the union of polygons as sampled, oriented polylines.
@@ -323,6 +308,8 @@ def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPAC
     its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
     dir [N, 2], polyline [N])``.
     """
+    from matplotlib.path import Path  # heavy: only for maps without road edges
+
     rings, bbox = [], []
     for p in polygons:
         p = np.asarray(p, np.float64)[:, :2]
@@ -359,7 +346,7 @@ def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPAC
             outside[:, 1] >= y0) & (outside[:, 1] <= y1)
         if near.any():
             idx = np.flatnonzero(near)
-            covered[idx[_inside(outside[idx], ring)]] = True
+            covered[idx[Path(ring).contains_points(outside[idx])]] = True
     keep = ~covered
     # a new polyline starts at each kept sample whose predecessor (same ring) was dropped
     prev_kept = np.r_[False, keep[:-1]] & np.r_[False, ring_of[1:] == ring_of[:-1]]
@@ -415,31 +402,20 @@ def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
 
 
 def _decode_lights(desc: dict, map_ids: dict, length: int) -> dict[str, np.ndarray]:
-    states = desc.get("dynamic_map_states") or {}
-    rows = []
-    for light in states.values():
-        if not isinstance(light, dict):
-            continue
-        seq = (light.get("state") or {}).get("object_state") or []
-        code = np.zeros(length, np.int32)
-        valid = np.zeros(length, bool)
-        for t, s in enumerate(seq[:length]):
-            if s is not None:
-                code[t], valid[t] = LIGHT_STATES.get(str(s).upper(), 0), True
-        lane = light.get("lane")
-        lane_id = map_ids.get(lane, map_ids.get(str(lane), -1))
-        stop = np.zeros(3)
-        if light.get("stop_point") is not None:
-            p = np.asarray(light["stop_point"], np.float64).reshape(-1)
-            stop[: min(3, len(p))] = p[:3]
-        rows.append((code, valid, lane_id, stop))
-    n = len(rows)
+    lights = [x for x in (desc.get("dynamic_map_states") or {}).values() if isinstance(x, dict)]
+    n = len(lights)
     out = {"state": np.zeros((n, length), np.int32), "valid": np.zeros((n, length), bool),
            "lane_id": np.full((n, length), -1, np.int32), "xyz": np.zeros((n, length, 3))}
-    for i, (code, valid, lane_id, stop) in enumerate(rows):
-        out["state"][i], out["valid"][i] = code, valid
-        out["lane_id"][i] = np.where(valid, lane_id, -1)
-        out["xyz"][i] = stop
+    for i, light in enumerate(lights):
+        seq = (light.get("state") or {}).get("object_state") or []
+        for t, s in enumerate(seq[:length]):
+            if s is not None:
+                out["state"][i, t], out["valid"][i, t] = LIGHT_STATES.get(str(s).upper(), 0), True
+        lane = light.get("lane")
+        out["lane_id"][i, out["valid"][i]] = map_ids.get(lane, map_ids.get(str(lane), -1))
+        if light.get("stop_point") is not None:
+            p = np.asarray(light["stop_point"], np.float64).reshape(-1)
+            out["xyz"][i, :, : min(3, len(p))] = p[:3]
     return out
 
 
@@ -513,8 +489,7 @@ def legacy_description(desc: dict) -> dict:
             "tracks": tracks, "dynamic_map_states": {}, "map_features": feats}
 
 
-def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING,
-                       stride: int = WINDOW_STRIDE) -> list[Window]:
+def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING) -> list[Window]:
     """A ScenarioNet scenario dict (or a legacy MetaDrive export, :func:`legacy_description`)
     as its 91-step windows (native sizes, no capacities)."""
     if is_legacy_description(desc):
@@ -556,7 +531,7 @@ def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING,
     if length <= CURRENT_INDEX:
         raise DataError(f"log has {length} steps at 10 Hz, needs > {CURRENT_INDEX}",
                         key="length")
-    starts = list(range(0, max(length - NUM_STEPS, 0) + 1, stride))
+    starts = list(range(0, max(length - NUM_STEPS, 0) + 1, NUM_STEPS))  # consecutive windows
     return [Window(_window(tr, lights, roadgraph, s, window_id(source_id, s, len(starts))),
                    source_id, s) for s in starts]
 

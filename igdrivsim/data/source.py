@@ -1,11 +1,6 @@
-"""One way in for data: :func:`open_scenarios` reads whatever a data path names.
-
-A data path is a filter output folder (``manifest.jsonl``: its kept scenarios), or files of any
-registered format (:mod:`igdrivsim.data.formats`) named by a file, folder, glob, ``name@N`` or a
-list of those. ``egos="all"`` turns every scenario into one per eligible vehicle
-(:mod:`igdrivsim.data.egos`). Training, validation, evaluation, statistics, the streamed input
-and the Gymnasium environment all read through here; :func:`count_scenarios`,
-:func:`data_identity` and :func:`scenario_refs` answer the questions they ask of a path without
+"""One way in for data: :func:`open_scenarios` reads whatever a data path names (a filter output
+folder, or files of any registered format; docs/data.md, Inputs); :func:`count_scenarios`,
+:func:`data_identity` and :func:`scenario_refs` answer the questions asked of a path without
 reading it whole.
 """
 
@@ -120,16 +115,10 @@ def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
                    limit: int = 0, skip_bad: bool = False, stats: ReadStats | None = None,
                    workers: int = 0, check_ids: bool = True,
                    progress: bool = False) -> Iterator[ScenarioRecord]:
-    """Stream the scenarios ``path`` names as :class:`ScenarioRecord`, fitted to ``caps``
-    (None: native sizes), at most ``limit`` of them (0: all).
-
-    ``path``: a filter output folder (its kept rows; per-ego rows when the filter ran with
-    ``--egos all``), or files of any registered format (file, folder, glob, ``name@N``, or a
-    list of those, each read in turn). ``egos``: ``"sdc"`` reads each scenario as logged;
-    ``"all"`` yields one scenario per vehicle eligible under ``filter_config``
-    (:mod:`igdrivsim.data.egos`), each record's ``ego`` saying which. ``skip_bad``, ``stats``,
-    ``workers`` and ``progress`` are the reader's (:func:`~igdrivsim.data.reader.iter_scenarios`).
-    """
+    """Stream the scenarios ``path`` names (docs/data.md, Inputs) as :class:`ScenarioRecord`,
+    fitted to ``caps`` (None: native sizes), at most ``limit`` (0: all); ``egos="all"``: one per
+    vehicle eligible under ``filter_config``. ``skip_bad``, ``stats``, ``workers`` and ``progress``
+    are the reader's (:func:`~igdrivsim.data.reader.iter_scenarios`)."""
     check_egos(egos)
     if not isinstance(path, str | os.PathLike):
         records = chain.from_iterable(
@@ -148,12 +137,9 @@ def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
 
 
 def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | None:
-    """How many scenarios :func:`open_scenarios` yields for ``data``, at most ``max_scenarios``
-    (0: no cap), for a progress bar's total: the kept rows of a filter manifest, else the
-    record count of the files (cheap counts only; files past the cap are not opened). None
-    where that is not cheap or not known: every vehicle as the ego (eligibility takes a decode),
-    formats whose count decodes the file (ScenarioNet), paths that do not read (the read itself
-    reports them)."""
+    """How many scenarios :func:`open_scenarios` yields for ``data`` (at most ``max_scenarios``; 0:
+    no cap), for a progress bar's total; None where that is not cheap (every vehicle as the ego,
+    ScenarioNet) or the path does not read (the read itself reports it)."""
     if not isinstance(data, str | os.PathLike):  # a list: each item as open_scenarios reads it
         total = 0
         for item in data:

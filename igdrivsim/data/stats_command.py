@@ -1,13 +1,9 @@
-"""``igdrivsim stats``: scene and motion statistics of any data (synthetic, tf.Example, Scenario,
-ScenarioNet, GPUDrive JSON, a filter output folder; ``--egos all``: every eligible vehicle as the
-ego).
+"""``igdrivsim stats``: scene and motion statistics of any data set, beside each other.
 
-Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`:
-``stats.csv`` (one row per scenario), ``divergence.csv`` (Jensen-Shannon divergence of each data
-set's pooled speed / acceleration / nearest-object / road-edge histograms from the reference
-data set), ``stats.md`` (the scene and motion tables), ``stats.png`` (one panel per scene
-statistic), ``motion_stats.csv`` (per data set, group and motion statistic: summary and JS
-divergence), ``motion_agents.csv`` (one row per agent) and ``motion_stats.png``.
+Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`
+(``stats.csv`` and ``motion_agents.csv``: one row per scenario / agent; ``divergence.csv`` and
+``motion_stats.csv``: Jensen-Shannon divergences from the reference data set; ``stats.md``: the
+tables; the figures).
 """
 
 from __future__ import annotations
@@ -15,7 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 from collections import defaultdict
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from itertools import islice
 
 import numpy as np
@@ -31,7 +27,6 @@ from igdrivsim.data.motion_stats import (
     motion_summary,
     plot_motion,
 )
-from igdrivsim.data.scenario import Scenario
 from igdrivsim.data.source import open_scenarios
 from igdrivsim.data.stats import FEATURES, STATISTICS, js_divergence, scene_statistics, summary
 from igdrivsim.errors import ConfigError, DataError, check_min
@@ -77,14 +72,6 @@ def stats_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def iter_dataset(paths: list[str], egos: str = "sdc") -> Iterator[tuple[str, int, Scenario]]:
-    """``(file, record, scenario)`` at native sizes over ``paths`` (:func:`open_scenarios`: a
-    filter output folder gives its kept scenarios, as ``train`` and ``evaluate`` read it);
-    ``egos="all"``: one per eligible vehicle."""
-    for rec in open_scenarios(paths, caps=None, egos=egos):
-        yield rec.file, rec.record, rec.scenario
-
-
 def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: bool = True,
             kept_only: Sequence[str] = (), egos: str = "sdc"):
     """Scene rows (one per scenario, with ``dataset, file, record``), pooled scene histograms
@@ -94,13 +81,12 @@ def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: 
     for name, paths in datasets.items():
         pooled = {k: np.zeros(len(e) - 1, np.int64) for k, e in FEATURES.items()}
         pools[name] = MotionPool()
-        records = islice(iter_dataset(paths, egos), limit)
+        records = islice(open_scenarios(paths, caps=None, egos=egos), limit)
         count = 0
-        for file, record, scenario in tqdm(records, desc=name, unit="scn", disable=not progress,
-                                           total=limit):
-            count += 1
+        for rec in tqdm(records, desc=name, unit="scn", disable=not progress, total=limit):
+            count, scenario = count + 1, rec.scenario
             row, h = scene_statistics(scenario)
-            where = {"dataset": name, "file": file, "record": record}
+            where = {"dataset": name, "file": rec.file, "record": rec.record}
             rows.append({**where, **row})
             for k in pooled:
                 pooled[k] += h[k]

@@ -49,8 +49,6 @@ def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
 
 def load_validation(data, caps, max_scenarios: int = 0, progress: bool = False,
                     egos: str = "sdc"):
-    """Stacked validation scenarios ``[N]`` of ``data`` (:func:`open_scenarios`: a filter output
-    folder's kept scenarios, or files, folder, glob, ``name@N``, or a list of those), at most
-    ``max_scenarios``; ``egos="all"``: one per eligible vehicle. ``progress``: a "loading" bar
-    on stderr with the number of scenarios as its total (when it is cheap to know)."""
+    """Stacked validation scenarios ``[N]`` of ``data`` (:func:`load_scenarios`); ``progress``: a
+    "loading" bar on stderr, with a total where that is cheap to know."""
     return load_scenarios(data, caps, max_scenarios, progress, egos)[0]

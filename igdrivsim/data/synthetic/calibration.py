@@ -1,10 +1,9 @@
 """The motion calibration target: the logged SDC's constant-velocity divergence.
 
-``igdrivsim cv-divergence [NAME=]PATH ... [--kept-only NAME] [--out F]``
-reads data sets as ``igdrivsim stats`` does and prints (and writes to ``F``) per data set the
-median [p10, p90] over SDCs of :func:`cv_divergence` and of its parts along and across the
-heading. ``igdrivsim stats`` reports the CV distance at single horizons; this is the mean over
-every step of the 8 s future, i.e. exactly a constant-velocity actor's log divergence.
+``igdrivsim cv-divergence`` prints per data set the median [p10, p90] over SDCs of
+:func:`cv_divergence` and of its parts along and across the heading: the mean over every step of
+the 8 s future, i.e. exactly a constant-velocity actor's log divergence (``igdrivsim stats``
+reports the CV distance at single horizons).
 """
 
 from __future__ import annotations
@@ -16,7 +15,8 @@ import numpy as np
 
 from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, Scenario
-from igdrivsim.data.stats_command import iter_dataset, parse_datasets
+from igdrivsim.data.source import open_scenarios
+from igdrivsim.data.stats_command import parse_datasets
 from igdrivsim.io import atomic_write_text
 
 HORIZON_STEPS = 80  # 8 s after the current step
@@ -53,7 +53,7 @@ def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> s
              "|---|---|---|---|---|"]
     for name, paths in datasets.items():
         rows = []
-        for _, _, s in iter_dataset(paths):
+        for s in (rec.scenario for rec in open_scenarios(paths, caps=None)):
             if name in kept_only and not (intersecting_objects(s).any()
                                           and sdc_mean_speed(s) >= 0.7):
                 continue

@@ -11,14 +11,12 @@ from __future__ import annotations
 import argparse
 import glob
 import json
-import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 from tqdm.auto import tqdm
 
-from igdrivsim.data.reader import available_cpus
+from igdrivsim.data.reader import available_cpus, pool_map
 from igdrivsim.data.scenario import trim_padding
 from igdrivsim.data.synthetic.generator import GeneratorConfig, generate_scenario
 from igdrivsim.data.synthetic.motion import MOTIONS
@@ -101,7 +99,7 @@ def generate_command(args: argparse.Namespace) -> int:
     _check(args)
     require_folder(args.out)
     config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection,
-                             motion=getattr(args, "motion", GeneratorConfig.motion))
+                             motion=args.motion)
     plan = {}
     for split, count in (("training", args.train), ("validation", args.val)):
         if count:
@@ -130,19 +128,14 @@ def generate_command(args: argparse.Namespace) -> int:
                 todo.append((split, path, indices))
     total = sum(len(r) for _, _, r in todo)
     start, cpu = time.perf_counter(), _cpu_seconds()
-    # Every shard's chunks go to the pool at once (no worker waits at a shard's end); the
-    # shards are written in order as their chunks come back.
+    # One stream of chunks over all shards (no worker waits at a shard's end); the shards are
+    # written in order as their chunks come back.
     chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
                for i in range(indices.start, indices.stop, CHUNK)] for split, _, indices in todo]
     flat = [chunk for shard in chunks for chunk in shard]
-    # forkserver: a fork of a process whose JAX runtime holds threads can deadlock
-    pool = (ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context(
-        "forkserver")) if args.workers > 1 and flat else None)
+    results = pool_map(_encode_chunk, flat, args.workers)
     try:
-        results = (pool.map(_encode_chunk, *zip(*flat, strict=True)) if pool
-                   else (_encode_chunk(*c) for c in flat))
-        with tqdm(total=total, desc="generating", unit="scn",
-                  disable=getattr(args, "no_progress", False)) as bar:
+        with tqdm(total=total, desc="generating", unit="scn", disable=args.no_progress) as bar:
             for (_, path, _), shard in zip(todo, chunks, strict=True):
                 os.makedirs(os.path.dirname(path), exist_ok=True)
 
@@ -154,8 +147,7 @@ def generate_command(args: argparse.Namespace) -> int:
 
                 write_records(path, records())
     finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+        results.close()  # the worker processes end here: their CPU time is counted below
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
     if args.plot:
         scenarios = [generate_scenario(args.seed, i, "training", config)

@@ -1,16 +1,8 @@
 """Calibrated motion (``GeneratorConfig(motion="calibrated")``): the map and the cast drawn as
-by default, then the driving retuned towards real logs (docs/synthetic.md, "Calibrated motion").
-
-Measured on the default, the SDC's distance from its constant-velocity (CV)
-extrapolation comes from: the route geometry (bends of radius 35-140 m on road maps, junction
-arms up to 0.4 rad off straight, a turn on 20% of the kept SDCs); a start at 60-100% of the
-desired speed, so that IDM accelerates over the whole log; and braking to a stop or to a slower
-vehicle (stalled cars, braking leaders, cut-ins, slower traffic ahead in its lane, cross
-traffic it yields to). Calibrated: straighter roads and junctions, fewer SDC turns, vehicles
-that start near their desired speed and keep pace with the SDC ahead of it, fewer stops, a
-gentler SDC, speed limits spread wider, desired speeds that vary slowly (real drivers do not
-hold a speed exactly), and lateral offsets per lane and driver (real drivers are off the lane
-centre by decimetres).
+by default, then the driving retuned towards real logs: straighter roads and junctions, fewer SDC
+turns and stops, vehicles starting near their desired speed, a gentler SDC, slowly varying
+desired speeds and lateral offsets per lane and driver (docs/synthetic.md, "Calibrated motion",
+says what was measured and why).
 """
 
 from __future__ import annotations
