@@ -48,6 +48,7 @@ from igdrivsim.training.records import (
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
                    chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
     """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
+    check_data(data, "training")
     records = open_scenarios(data, caps, egos=egos, limit=max_scenarios)
     return iter(lambda: [rec.scenario for rec in islice(records, chunk)], [])
 
@@ -111,37 +112,31 @@ class Dataset:
         the teacher-forced records come from ``cache_dir`` when they were computed before.
         ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
         update records each batch itself."""
-        d = config.data
+        d, rec = config.data, config.record_config
         limit = d.max_scenarios if max_scenarios is None else max_scenarios
+        on_disk = isinstance(data, (str, os.PathLike))
 
-        def chunks():
-            if isinstance(data, (str, os.PathLike)):
-                check_data(data, "training")
-                return iter_scenarios(data, config.capacities, limit, chunk, d.egos)
-            scenarios = list(data)[: limit or None]
-            return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+        def load() -> SimState:  # the bar's total: the manifest's kept rows, the records, the list
+            if on_disk:
+                total = count_scenarios(data, limit, d.egos) if progress else None
+                chunks = iter_scenarios(data, config.capacities, limit, chunk, d.egos)
+            else:
+                scenarios = list(data)[: limit or None]
+                total = len(scenarios)
+                chunks = (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+            return reset_all(chunks, params, chunk, progress, total)
 
-        def load() -> SimState:
-            total = None  # the bar's: the manifest's kept rows, the records, the list
-            if progress and isinstance(data, (str, os.PathLike)):
-                total = count_scenarios(data, limit, d.egos)
-            elif progress and isinstance(data, Sequence):
-                total = min(len(data), limit or len(data))
-            return reset_all(chunks(), params, chunk, progress, total)
-
+        if not (d.record_teacher if record is None else record):
+            return cls(None, load(), d.batch_size, config.seeds)
         states = None
-        rec = config.record_config
 
         def compute():
             nonlocal states
             states = load()
             return compute_records(states, params, rec, progress=progress)
 
-        if not (d.record_teacher if record is None else record):
-            states = load()
-            return cls(None, states, d.batch_size, config.seeds)
         key = None
-        if cache_dir and isinstance(data, (str, os.PathLike)):
+        if cache_dir and on_disk:
             egos = {} if d.egos == "sdc" else {"egos": d.egos}  # the keys of before, for sdc
             key = cache_key(data_identity(data), caps=config.capacities, rec=rec, sim=params,
                             limit=limit, **egos)

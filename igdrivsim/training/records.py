@@ -76,19 +76,15 @@ def compute_records(states: SimState, sim: SimParams, rec: ObservationConfig,
     """Teacher-forced records of host states ``[N]`` (chunks of ``chunk``), as NumPy."""
     n = int(np.shape(states.timestep)[0])
     fn = _jit_episodes(sim, rec)
-    bar = None
-    if progress:
-        bar = tqdm(total=n, desc="teacher-forced observations", unit="scn", dynamic_ncols=True)
     parts = []
-    for start in range(0, n, chunk):
-        idx = np.minimum(np.arange(start, start + chunk), n - 1)
-        size = min(chunk, n - start)
-        part = jax.device_get(fn(jax.tree.map(lambda x, i=idx: x[i], states)))
-        parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], part))
-        if bar is not None:
+    with tqdm(total=n, desc="teacher-forced observations", unit="scn", dynamic_ncols=True,
+              disable=not progress) as bar:
+        for start in range(0, n, chunk):
+            idx = np.minimum(np.arange(start, start + chunk), n - 1)
+            size = min(chunk, n - start)
+            part = jax.device_get(fn(jax.tree.map(lambda x, i=idx: x[i], states)))
+            parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], part))
             bar.update(size)
-    if bar is not None:
-        bar.close()
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
