@@ -1,16 +1,10 @@
 """What every learner shares, the maze's and the driving benchmark's: the loss terms of
 categorical policies and the one optimisation loop.
 
-**Loss terms** (on explicit arrays, no network): GAE, the clipped PPO terms, and the
-log-probability, entropy, cross-entropy and KL of a categorical, the one definition of each:
-the maze trains one categorical over 4 moves, the driving policy three over 257 levels (its
-methods sum these over the three action dimensions). Per-categorical functions reduce the last
-(class) axis only; sequences are time-major (``[T, ...]``).
-
-**The loop.** :func:`sgd_epochs`: per key of ``epoch_keys``, a random split of the data into
-``minibatches``, each one optimiser step on ``loss_fn(params, minibatch) -> (loss, aux)``;
-:func:`sgd_steps` is the step over any sequence of minibatch choices (the maze DAgger's draws
-from its buffer). The learning rate is an argument applied after the optimiser's
+The loss terms (GAE, PPO's, a categorical's log-probability, entropy, cross-entropy and KL) take
+explicit arrays, reduce the last (class) axis only and read sequences time-major; the driving
+methods sum them over the three action dimensions. :func:`sgd_epochs` / :func:`sgd_steps` take
+one optimiser step per minibatch; the learning rate is applied after the optimiser's
 transformation (``params - lr * tx(grads)``), so one compiled function serves any schedule.
 """
 
