@@ -1,29 +1,17 @@
 """``igdrivsim bench sim``: scenario-steps/s of reset + 80 steps with observation and metrics.
 
-Two implementations of the same episode are timed in the same run, on the same batch:
+Two implementations of the same episode, timed in one run on one batch: **naive** (a port of
+Waymax's approach: the offroad metric measures the distance from the SDC box corners to every
+roadgraph point, non-edges masked) and **igdrivsim** (what every rollout runs: the map's road
+edges in their own array, compacted once at reset). They give the same metrics and
+observations (tested); the difference is the offroad metric's cost. Both run the discretised
+expert with the observation of ``--obs`` at every step (a checksum kept so that XLA cannot drop
+it) and the per-step metrics; ``--agents log,idm`` also times the igdrivsim path under IDM sim
+agents (column ``igdrivsim+idm``). Results kept in the repository: docs/bench/.
 
-* **naive** (a port of Waymax's approach): the offroad metric measures the distance from the SDC
-  box corners to every roadgraph point (non-edges masked);
-* **igdrivsim** (what every rollout of this package runs): every road edge of the map in its own
-  array, compacted once at reset (at most ``SimParams.edge_capacity``), for the offroad metric.
-
-Both take the observation's nearest points with the same top-k over the whole roadgraph, so
-they give the same metrics and the same observations (tested); the difference is the offroad
-metric's cost. Results kept in the repository: docs/bench/.
-
-Both run the discretised expert with the observation of ``--obs`` computed at every step (a
-checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
-log divergence). ``--agents log,idm`` (the default) times the ``igdrivsim`` path with the other
-objects replaying their log and as IDM sim agents (:mod:`igdrivsim.simulator.agents`) in the same
-run (column ``igdrivsim+idm``, and their ratio). The scenario is a real one tiled to the batch
-size (``--distinct``: different scenarios of ``--data``). Results: one JSON line per (batch,
-implementation) and a table; ``--out FILE`` also writes them as JSON (atomically).
-
-This is the one episode loop not on the simulator's runner
-(:func:`igdrivsim.simulator.rollout.run_episode`), on purpose: it times the observation
-paths themselves, so its scan carries only what changes (the simulated SDC and the timestep)
-and keeps the log and the roadgraph as loop constants, and the naive path needs its own reset;
-through the runner (the whole state carried) it would measure something else.
+This is the one episode loop not on :func:`igdrivsim.simulator.rollout.run_episode`, on
+purpose: its scan carries only what changes (the simulated SDC, the sim agents, the timestep)
+and keeps the log and the roadgraph as loop constants, timing the observation paths themselves.
 """
 
 from __future__ import annotations
@@ -174,12 +162,7 @@ def bench_sim_command(args) -> int:
     else:
         pool = [load_scenario(path, args.record)]
     key = jax.random.PRNGKey(0)
-    impls = [i.strip() for i in args.impls.split(",") if i.strip()]
-    if not impls or any(i not in IMPLS for i in impls):
-        raise ConfigError(f"--impls must be a comma-separated subset of {','.join(IMPLS)}")
-    agents = [a.strip() for a in args.agents.split(",") if a.strip()]
-    if not agents or any(a not in AGENTS for a in agents):
-        raise ConfigError(f"--agents must be a comma-separated subset of {','.join(AGENTS)}")
+    impls, agents = _subset("--impls", args.impls, IMPLS), _subset("--agents", args.agents, AGENTS)
     cells = [(i, a) for i in impls for a in agents if i != "naive" or a == "log"]
     sims = {a: SimParams(agents=a) for a in agents}
     fns = {label(i, a): jax.jit(lambda sc, k, impl=i, p=sims[a]: episode(
@@ -217,6 +200,14 @@ def bench_sim_command(args) -> int:
                                      "jax": jax.__version__, "steps_per_episode": steps,
                                      "setting": args.setting, "machine": machine_record()})
     return 0
+
+
+def _subset(option: str, text: str, allowed) -> list[str]:
+    """The names of a comma list, each one of ``allowed`` (a one-line error otherwise)."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names or any(n not in allowed for n in names):
+        raise ConfigError(f"{option} must be a comma-separated subset of {','.join(allowed)}")
+    return names
 
 
 def label(impl: str, agents: str) -> str:

@@ -1,15 +1,12 @@
 """``igdrivsim bench train``: training samples/s and gradient steps/s of a profile.
 
-Times the real jitted update (the settings' observations built from the teacher-forced records,
-forward + backward through the recurrent network over the 90-step episode, Adam; plus the
-closed-loop policy rollout and PPO for ``--method bc_rl``) for every setting of ``--obs`` and
-every seed in one program, on constructed straight-road scenarios, after compiling it ahead of
-time (``compile_s``) and one untimed call. A *sample* (scenario-step) is one scenario at one of
-the 80 controlled steps trained forward+backward: ``settings * seeds * batch * 80 *
-ppo_epochs`` per update; a gradient step is one Adam step of one (setting, seed):
-``settings * seeds * ppo_epochs * ppo_minibatches`` per update. Recording the teacher-forced
-observations (once per dataset) is not timed. Prints one JSON line per profile
-(``cpu_seconds_per_update``: process CPU time, all threads; useful on a shared machine).
+Times the real jitted update (a method's whole update: observations, rollout for the methods
+that drive, forward + backward over the 90-step episode, Adam) for every setting of ``--obs``
+and every seed in one program, on constructed straight-road scenarios, after compiling it
+(``compile_s``) and one untimed call. A *sample* is one scenario at one of the 80 controlled
+steps trained forward and backward; a gradient step one Adam step of one (setting, seed).
+Recording the teacher-forced observations (once per dataset) is not timed. Prints one JSON line
+per profile (``cpu_seconds_per_update``: process CPU time, robust on a shared machine).
 """
 
 from __future__ import annotations
