@@ -67,12 +67,9 @@ IMPLS = ("naive", "igdrivsim")
 def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
             setting_name: str = "full", params: SimParams = DEFAULT_PARAMS,
             obs_config: ObservationConfig | None = None, collect: bool = False):
-    """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
-
-    ``impl``: ``"naive"`` (offroad against every roadgraph point) or ``"igdrivsim"`` (the
-    road-edge array). Returns ``(per-step metrics [B, T], observation checksum [B, T])``; with
-    ``collect`` also the per-step observations ``[B, T, ...]`` (for the equivalence test).
-    """
+    """``(per-step metrics [B, T], observation checksum [B, T])`` of reset + the expert's
+    controlled steps on a batch ``[B]`` by ``impl``; with ``collect`` also the observations
+    ``[B, T, ...]`` (for the equivalence test)."""
     setting = get_setting(setting_name)
     obs_config = obs_config or ObservationConfig()
     if impl not in IMPLS:
@@ -80,9 +77,7 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
     episode_keys = jax.random.split(key, state.timestep.shape[0])
 
-    # Only what changes is carried through the scan (the SDC's simulated trajectory, the sim
-    # agents and the timestep); the log and the roadgraph are loop constants, so XLA never
-    # copies them.
+    # only what changes is carried (module docstring): XLA never copies the log or the roadgraph
     def body(carry, _):
         sdc, t, agents = carry
         st = state.replace(sdc=sdc, timestep=t, agents=agents)
@@ -105,9 +100,8 @@ def _batch(pool: list[Any], size: int) -> Any:
 
 
 def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float, float, Any]:
-    """``(compile seconds, best wall seconds per call, best process-CPU seconds per call, last
-    output)`` of a jitted episode function. CPU time (all threads of this process) measures the
-    work done even when other processes share the cores; wall time is what a user waits."""
+    """``(compile s, best wall s per call, best process-CPU s per call, last output)`` of a
+    jitted episode function (CPU time measures the work even on shared cores)."""
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn(scenario, key))
     compile_s = time.perf_counter() - t0

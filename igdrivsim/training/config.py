@@ -107,11 +107,9 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class LossConfig(MixWeights, PPOParams):
-    """The loss's weights and PPO's coefficients (paper: w_BC=1, w_RL=0.05), held whole by the
-    update's static spec: ``w_bc`` weighs every method's imitation term, ``w_rl`` the RL terms
-    of the methods that drive (BC-RL, ADVISOR), GAE and PPO's coefficients their own episodes.
-    The defaults are the ones the maze reads (:mod:`igdrivsim.core.params`);
-    ``--set loss.w_rl=0.1``."""
+    """The loss's weights (``w_bc``: every method's imitation term, ``w_rl``: the RL terms of
+    BC-RL and ADVISOR) and PPO's coefficients, with the defaults the maze reads
+    (:mod:`igdrivsim.core.params`); ``--set loss.w_rl=0.1``."""
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,11 @@
 """A cost model of a training run: episodes trained per second on one device -> hours.
 
-An *episode* is one (setting, seed, scenario) of an update: 90 steps forward and the method's
-passes backward. ``igdrivsim bench train --profiles paper --method bc`` measures the paper
-network's seconds per update on 1 seed x 1 scenario x ``settings``; dividing by ``settings``
-gives seconds per episode on one device. A run then costs ``updates x settings x seeds x
-batch x seconds per episode / devices`` (data parallel over devices, ignoring communication);
-:func:`table1_hours` prices the paper's Table I (6 settings x {BC, BC-RL} x 3 seeds, 200 epochs
-over 152,808 scenarios) that way.
-
-The laptop network (profiles laptop, quick, gpu) is priced per (setting x update) of one
-training process from whole measured runs (:func:`laptop_train_seconds`); the pipeline's plan
-(:mod:`igdrivsim.pipeline.planning`) spreads those over its worker processes.
+An *episode* is one (setting, seed, scenario) of an update. The paper network costs ``updates x
+settings x seeds x batch x seconds per episode / devices`` (data parallel, communication
+ignored), the seconds per episode measured by ``igdrivsim bench train --profiles paper``;
+:func:`table1_hours` prices the paper's Table I that way. The laptop network (profiles laptop,
+quick, gpu) is priced per (setting x update) of one training process from whole measured runs
+(:func:`laptop_train_seconds`), which :mod:`igdrivsim.pipeline.planning` spreads over workers.
 """
 
 from __future__ import annotations

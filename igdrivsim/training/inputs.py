@@ -1,20 +1,13 @@
 """The training input pipeline: load once, reset once, record once, shuffle, prefetch.
 
-Scenarios come from :func:`~igdrivsim.data.source.open_scenarios` (a filter manifest's kept rows,
-or every file of the folder in any registered format; ``data.egos="all"``: one scenario per
-eligible vehicle). Each is fitted to the profile's capacities
-while decoding, then ``reset`` ONCE; the teacher-forced records of BC
-(:mod:`igdrivsim.training.records`) are computed from those states, or read from the on-disk
-cache, and kept in host memory (NumPy) with the states (BC-RL only). A batch is then a gather.
-
-Order: seed ``s`` walks through the data in epochs, each a permutation drawn from
-``numpy.random.default_rng([seed, epoch])``; the batch of update ``u`` is positions
-``u*B .. (u+1)*B - 1`` of that stream. It is a pure function of ``(seed, u)``, so a resumed run
-sees exactly the batches an uninterrupted one would. A background thread prepares and places
-the next ``prefetch`` batches on the devices while the current update runs.
-
-Paper scale (``data.stream``) keeps nothing of the dataset in memory: see
-:mod:`igdrivsim.training.stream`, whose batches go through the same :func:`prefetch`.
+Scenarios come from :func:`~igdrivsim.data.source.open_scenarios`, fitted to the profile's
+capacities and ``reset`` once; the teacher-forced records (:mod:`igdrivsim.training.records`,
+computed or read from the on-disk cache) and, for the methods that drive, the states stay in
+host memory, so a batch is a gather. Seed ``s`` walks the data in epochs, each a permutation
+drawn from ``numpy.random.default_rng([seed, epoch])``: the batch of update ``u`` is a pure
+function of ``(seed, u)``, so a resumed run sees the batches an uninterrupted one would. A
+background thread places the next ``prefetch`` batches on the devices (streamed batches too,
+:mod:`igdrivsim.training.stream`).
 """
 
 from __future__ import annotations

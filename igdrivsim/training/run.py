@@ -225,10 +225,10 @@ class Run:
     process 0 writes. Use as a context manager around the update loop."""
 
     def __init__(self, out_dir: str | os.PathLike, config: RunConfig, resume: bool = False,
-                 log: Callable[[str], None] = print, hooks: tuple[Hook, ...] = ()):
+                 log: Callable[[str], None] = print):
         self.dir = os.fspath(out_dir)
         self.config, self.settings, self.resume, self.log = config, config.settings, resume, log
-        self.hooks = hooks
+        self.hooks: tuple[Hook, ...] = ()  # the driver's (the learning-curve validation)
         self.main = jax.process_index() == 0
         self.seeds = list(config.seeds)
         # the code that trains (igdrivsim.machine.code_state); a resumed run keeps the code it
