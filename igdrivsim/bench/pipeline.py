@@ -33,8 +33,7 @@ def bench_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--updates", type=int, default=20,
                         help="updates per training run (default: %(default)s; the profile's "
                              "own are far more, priced from the measured update)")
-    parser.add_argument("--methods", default="bc,bc_rl", help="methods trained (default: "
-                                                              "%(default)s)")
+    parser.add_argument("--methods", default="bc,bc_rl", help="methods trained")
     parser.add_argument("--work", default=None, metavar="DIR",
                         help="work folder of the run (default: a temporary one, removed)")
     parser.add_argument("--from-work", default=None, metavar="DIR",

@@ -50,8 +50,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
                              "the ego (default: the profile's data.egos, sdc)")
     parser.add_argument("--val-data", default=None, metavar="DIR",
                         help="validation data for the learning curves (curves.jsonl): "
-                             "closed-loop metrics every training.eval_every updates "
-                             "(default: none)")
+                             "closed-loop metrics every training.eval_every updates")
     parser.add_argument("--cache-dir", default=None, metavar="DIR",
                         help="cache of the teacher-forced observations, shared by runs on "
                              "the same data (default: DATA/../cache when DATA is a folder)")
