@@ -61,8 +61,8 @@ def reset_chunk(scenarios: Sequence[Scenario], params: SimParams, size: int) -> 
 
 def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False,
               total: int | None = None) -> SimState:
-    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
-    ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
+    """Every scenario of ``chunks`` (lists of scenarios) reset, stacked on the host ``[N]``;
+    ``total``: the bar's (None: unknown)."""
     parts = []
     with tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True,
               disable=not progress) as bar:
@@ -101,10 +101,9 @@ class Dataset:
     def from_config(cls, config: RunConfig, data, params: SimParams, progress: bool = False,
                     chunk: int = 64, cache_dir: str | None = None, need_states: bool = False,
                     max_scenarios: int | None = None, record: bool | None = None) -> Dataset:
-        """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``;
-        the teacher-forced records come from ``cache_dir`` when they were computed before.
-        ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
-        update records each batch itself."""
+        """Load ``data`` (folder / files, or a list of :class:`Scenario`), the records from
+        ``cache_dir`` when computed before; ``record`` False (default:
+        ``config.data.record_teacher``) keeps states only: the update records each batch."""
         d, rec = config.data, config.record_config
         limit = d.max_scenarios if max_scenarios is None else max_scenarios
         on_disk = isinstance(data, (str, os.PathLike))

@@ -100,8 +100,7 @@ class Checkpoints:
         self.manager.wait_until_finished()
 
     def restore(self, step: int, params_like, opt_state_like, buffer_like=None):
-        """``(params, opt_state, buffer)`` restored into the structure (and shardings) of the
-        given templates (``buffer`` is ``None`` without a template)."""
+        """``(params, opt_state, buffer)`` in the templates' structure and shardings."""
         items = {"params": params_like, "opt_state": opt_state_like}
         if buffer_like is not None:
             items["buffer"] = serialization.to_state_dict(buffer_like)
@@ -112,8 +111,7 @@ class Checkpoints:
         return out["params"], out["opt_state"], buffer
 
     def restore_params(self, step: int):
-        """The parameters of checkpoint ``step`` in the structure they were saved with (read
-        from the checkpoint itself: no template; the rest of the checkpoint is dropped)."""
+        """The parameters of checkpoint ``step`` as saved (no template needed)."""
 
         def saved():
             return jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype),
@@ -122,8 +120,8 @@ class Checkpoints:
         return self._restore(step, saved)["params"]
 
     def _restore(self, step: int, items: Callable[[], dict]) -> dict:
-        """Restore the tree ``items()`` (arrays or shapes and dtypes), each on its template's
-        sharding, else on this process's first device."""
+        """The tree ``items()``, each leaf on its template's sharding, else this process's first
+        device."""
         default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
 
         def abstract(x):
@@ -246,9 +244,8 @@ class Run:
 
     # ------------------------------------------------------------------------- the folder
     def complete_already(self) -> bool:
-        """Look at the folder before anything is written: True when the run is complete (then
-        nothing is to be done); refuses another configuration, and an unfinished run without
-        ``resume``."""
+        """True when the run is complete (nothing to do); refuses another configuration, and an
+        unfinished run without ``resume``."""
         os.makedirs(self.dir, exist_ok=True)
         if is_run(self.dir):
             self._check_config()
@@ -375,8 +372,7 @@ class Run:
 
 
 class SavedRun:
-    """A run folder read back (:meth:`Run.open`): ``record`` (its ``config.json``), the
-    config, the parameters of a checkpoint, the learning curves and the logged metrics."""
+    """A run folder read back (:meth:`Run.open`)."""
 
     def __init__(self, out_dir: str | os.PathLike):
         """Read ``config.json``; a one-line error when the folder holds no run or it cannot
