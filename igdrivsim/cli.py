@@ -12,7 +12,7 @@ import importlib
 import sys
 import warnings
 
-from igdrivsim.cli_args import FORMATTER
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.errors import run_command
 
 # name -> (module, help)
@@ -46,7 +46,7 @@ BENCHES: dict[str, tuple[str, str]] = {
 
 
 def _add(sub, name: str, module: str, help_: str, prefix: str = "") -> None:
-    parser = sub.add_parser(name, help=help_, description=help_, formatter_class=FORMATTER)
+    parser = sub.add_parser(name, help=help_, description=help_, formatter_class=DefaultsFormatter)
     func = prefix + name.replace("-", "_")  # the module's <func>_arguments and <func>_command
     parser.set_defaults(_module=module, _name=func, _label=f"{prefix.replace('_', ' ')}{name}")
     # Defer importing heavy modules: only the chosen command's module configures its parser.

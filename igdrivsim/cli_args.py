@@ -1,7 +1,5 @@
-"""The help formatter shared by every command module (and ``maze``). A low layer, so that
-command modules need not import
-:mod:`igdrivsim.cli` (the top layer, which maps command names to those modules).
-"""
+"""The help formatter shared by every command module (and ``maze``): a low layer, so that
+command modules need not import :mod:`igdrivsim.cli` (the top layer)."""
 
 from __future__ import annotations
 
@@ -22,5 +20,3 @@ class DefaultsFormatter(argparse.HelpFormatter):
             return help_  # a repeatable option, empty unless given
         return f"{help_} (default: %(default)s)".strip()
 
-
-FORMATTER = DefaultsFormatter  # every option's help shows its default

@@ -156,8 +156,9 @@ def test_every_learner_trains_through_the_core():
     assert issubclass(LossConfig, params.PPOParams) and issubclass(LossConfig, params.MixWeights)
     t, p, m = LossConfig(), ppo.PPOConfig(), mixed.MixedConfig()
     for name in ("gamma", "gae_lambda", "clip_eps", "ent_coef", "vf_coef"):
-        assert getattr(t, name) == getattr(p, name) == getattr(params.PPO, name)
-    assert (t.w_bc, t.w_rl) == (m.w_bc, m.w_rl) == (params.MIX.w_bc, params.MIX.w_rl)
+        assert getattr(t, name) == getattr(p, name) == getattr(params.PPOParams(), name)
+    assert (t.w_bc, t.w_rl) == (m.w_bc, m.w_rl) == (params.MixWeights().w_bc,
+                                                 params.MixWeights().w_rl)
     assert m.alpha == advisor.Params().alpha == params.AdvisorParams().alpha
     assert study.PROFILES["default"].mixed.alpha == study.MAZE_ADVISOR_ALPHA
     assert study.PROFILES["smoke"].mixed.alpha == study.MAZE_ADVISOR_ALPHA

@@ -1,10 +1,9 @@
 """``igdrivsim bench data``: scenarios/s read + decoded (+ fitted to capacities) and filtered.
 
-Default input: the real WOMD samples in ``../shared/data/womd`` tiled into temporary shards
-(the tf.Example sample ``--limit`` times over ``--shards`` shards; the Scenario-protobuf
-sample a tenth as often). Each measurement runs once in one process and once with ``--workers``
-spawned processes; rates are given with and without the worker start-up time, plus the CPU time
-per scenario (this process and its workers), which a busy machine does not distort.
+Default input: the real WOMD samples in ``../shared/data/womd`` tiled ``--limit`` times into
+temporary shards (the Scenario-protobuf sample a tenth as often). Each measurement runs in one
+process and with ``--workers`` processes; rates with and without the workers' start-up, and the
+CPU time per scenario (this process and its workers), which a busy machine does not distort.
 """
 
 from __future__ import annotations

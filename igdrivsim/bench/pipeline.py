@@ -1,14 +1,11 @@
 """``igdrivsim bench pipeline``: where a reproduction's core-seconds go, stage by stage.
 
-Runs the reproduction (``python -m igdrivsim.pipeline``) of ``--profile`` at ``--updates``
-updates per training run into a work folder (or reads a finished one, ``--from-work``) and
-reports each stage's wall and CPU seconds from its stamp (the CPU time of the stage's processes:
-a shared machine does not distort it), grouped into data (generation, filtering), training,
-evaluation, maze and the rest. Inside training, ``bench train --parts`` (the profile's real
-update on constructed scenarios) times each method's update and its parts; the training stages'
-CPU beyond ``updates x`` the update's is what the stage does besides updating (loading,
-teacher-forced records, compiling, the learning-curve validation). So a change is judged by
-ratios measured in one run.
+Runs the reproduction of ``--profile`` at ``--updates`` updates per training run (or reads a
+finished one, ``--from-work``) and reports each stage's wall and CPU seconds from its stamp
+(CPU time is not distorted by a shared machine), grouped into data, filter, train, evaluate,
+maze and the rest. ``bench train --parts`` times each method's update and its parts; a training
+stage's CPU beyond ``updates x`` the update's is what it does besides updating (loading,
+teacher-forced records, compiling, the learning-curve validation).
 """
 
 from __future__ import annotations
@@ -36,8 +33,7 @@ def bench_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--updates", type=int, default=20,
                         help="updates per training run (default: %(default)s; the profile's "
                              "own are far more, priced from the measured update)")
-    parser.add_argument("--methods", default="bc,bc_rl", help="methods trained (default: "
-                                                              "%(default)s)")
+    parser.add_argument("--methods", default="bc,bc_rl", help="methods trained")
     parser.add_argument("--work", default=None, metavar="DIR",
                         help="work folder of the run (default: a temporary one, removed)")
     parser.add_argument("--from-work", default=None, metavar="DIR",

@@ -1,29 +1,17 @@
 """``igdrivsim bench sim``: scenario-steps/s of reset + 80 steps with observation and metrics.
 
-Two implementations of the same episode are timed in the same run, on the same batch:
+Two implementations of the same episode, timed in one run on one batch: **naive** (a port of
+Waymax's approach: the offroad metric measures the distance from the SDC box corners to every
+roadgraph point, non-edges masked) and **igdrivsim** (what every rollout runs: the map's road
+edges in their own array, compacted once at reset). They give the same metrics and
+observations (tested); the difference is the offroad metric's cost. Both run the discretised
+expert with the observation of ``--obs`` at every step (a checksum kept so that XLA cannot drop
+it) and the per-step metrics; ``--agents log,idm`` also times the igdrivsim path under IDM sim
+agents (column ``igdrivsim+idm``). Results kept in the repository: docs/bench/.
 
-* **naive** (a port of Waymax's approach): the offroad metric measures the distance from the SDC
-  box corners to every roadgraph point (non-edges masked);
-* **igdrivsim** (what every rollout of this package runs): every road edge of the map in its own
-  array, compacted once at reset (at most ``SimParams.edge_capacity``), for the offroad metric.
-
-Both take the observation's nearest points with the same top-k over the whole roadgraph, so
-they give the same metrics and the same observations (tested); the difference is the offroad
-metric's cost. Results kept in the repository: docs/bench/.
-
-Both run the discretised expert with the observation of ``--obs`` computed at every step (a
-checksum of it is kept so that XLA cannot drop it) and the per-step metrics (overlap, offroad,
-log divergence). ``--agents log,idm`` (the default) times the ``igdrivsim`` path with the other
-objects replaying their log and as IDM sim agents (:mod:`igdrivsim.simulator.agents`) in the same
-run (column ``igdrivsim+idm``, and their ratio). The scenario is a real one tiled to the batch
-size (``--distinct``: different scenarios of ``--data``). Results: one JSON line per (batch,
-implementation) and a table; ``--out FILE`` also writes them as JSON (atomically).
-
-This is the one episode loop not on the simulator's runner
-(:func:`igdrivsim.simulator.rollout.run_episode`), on purpose: it times the observation
-paths themselves, so its scan carries only what changes (the simulated SDC and the timestep)
-and keeps the log and the roadgraph as loop constants, and the naive path needs its own reset;
-through the runner (the whole state carried) it would measure something else.
+This is the one episode loop not on :func:`igdrivsim.simulator.rollout.run_episode`, on
+purpose: its scan carries only what changes (the simulated SDC, the sim agents, the timestep)
+and keeps the log and the roadgraph as loop constants, timing the observation paths themselves.
 """
 
 from __future__ import annotations
@@ -79,12 +67,9 @@ IMPLS = ("naive", "igdrivsim")
 def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
             setting_name: str = "full", params: SimParams = DEFAULT_PARAMS,
             obs_config: ObservationConfig | None = None, collect: bool = False):
-    """Reset + ``params.num_controlled_steps`` expert steps on a batch ``[B]`` of scenarios.
-
-    ``impl``: ``"naive"`` (offroad against every roadgraph point) or ``"igdrivsim"`` (the
-    road-edge array). Returns ``(per-step metrics [B, T], observation checksum [B, T])``; with
-    ``collect`` also the per-step observations ``[B, T, ...]`` (for the equivalence test).
-    """
+    """``(per-step metrics [B, T], observation checksum [B, T])`` of reset + the expert's
+    controlled steps on a batch ``[B]`` by ``impl``; with ``collect`` also the observations
+    ``[B, T, ...]`` (for the equivalence test)."""
     setting = get_setting(setting_name)
     obs_config = obs_config or ObservationConfig()
     if impl not in IMPLS:
@@ -92,9 +77,7 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
     episode_keys = jax.random.split(key, state.timestep.shape[0])
 
-    # Only what changes is carried through the scan (the SDC's simulated trajectory, the sim
-    # agents and the timestep); the log and the roadgraph are loop constants, so XLA never
-    # copies them.
+    # only what changes is carried (module docstring): XLA never copies the log or the roadgraph
     def body(carry, _):
         sdc, t, agents = carry
         st = state.replace(sdc=sdc, timestep=t, agents=agents)
@@ -117,9 +100,8 @@ def _batch(pool: list[Any], size: int) -> Any:
 
 
 def time_episode(fn, scenario, key, repeats: int) -> tuple[float, float, float, Any]:
-    """``(compile seconds, best wall seconds per call, best process-CPU seconds per call, last
-    output)`` of a jitted episode function. CPU time (all threads of this process) measures the
-    work done even when other processes share the cores; wall time is what a user waits."""
+    """``(compile s, best wall s per call, best process-CPU s per call, last output)`` of a
+    jitted episode function (CPU time measures the work even on shared cores)."""
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn(scenario, key))
     compile_s = time.perf_counter() - t0
@@ -174,12 +156,7 @@ def bench_sim_command(args) -> int:
     else:
         pool = [load_scenario(path, args.record)]
     key = jax.random.PRNGKey(0)
-    impls = [i.strip() for i in args.impls.split(",") if i.strip()]
-    if not impls or any(i not in IMPLS for i in impls):
-        raise ConfigError(f"--impls must be a comma-separated subset of {','.join(IMPLS)}")
-    agents = [a.strip() for a in args.agents.split(",") if a.strip()]
-    if not agents or any(a not in AGENTS for a in agents):
-        raise ConfigError(f"--agents must be a comma-separated subset of {','.join(AGENTS)}")
+    impls, agents = _subset("--impls", args.impls, IMPLS), _subset("--agents", args.agents, AGENTS)
     cells = [(i, a) for i in impls for a in agents if i != "naive" or a == "log"]
     sims = {a: SimParams(agents=a) for a in agents}
     fns = {label(i, a): jax.jit(lambda sc, k, impl=i, p=sims[a]: episode(
@@ -217,6 +194,14 @@ def bench_sim_command(args) -> int:
                                      "jax": jax.__version__, "steps_per_episode": steps,
                                      "setting": args.setting, "machine": machine_record()})
     return 0
+
+
+def _subset(option: str, text: str, allowed) -> list[str]:
+    """The names of a comma list, each one of ``allowed`` (a one-line error otherwise)."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names or any(n not in allowed for n in names):
+        raise ConfigError(f"{option} must be a comma-separated subset of {','.join(allowed)}")
+    return names
 
 
 def label(impl: str, agents: str) -> str:

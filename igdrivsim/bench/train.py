@@ -1,15 +1,12 @@
 """``igdrivsim bench train``: training samples/s and gradient steps/s of a profile.
 
-Times the real jitted update (the settings' observations built from the teacher-forced records,
-forward + backward through the recurrent network over the 90-step episode, Adam; plus the
-closed-loop policy rollout and PPO for ``--method bc_rl``) for every setting of ``--obs`` and
-every seed in one program, on constructed straight-road scenarios, after compiling it ahead of
-time (``compile_s``) and one untimed call. A *sample* (scenario-step) is one scenario at one of
-the 80 controlled steps trained forward+backward: ``settings * seeds * batch * 80 *
-ppo_epochs`` per update; a gradient step is one Adam step of one (setting, seed):
-``settings * seeds * ppo_epochs * ppo_minibatches`` per update. Recording the teacher-forced
-observations (once per dataset) is not timed. Prints one JSON line per profile
-(``cpu_seconds_per_update``: process CPU time, all threads; useful on a shared machine).
+Times the real jitted update (a method's whole update: observations, rollout for the methods
+that drive, forward + backward over the 90-step episode, Adam) for every setting of ``--obs``
+and every seed in one program, on constructed straight-road scenarios, after compiling it
+(``compile_s``) and one untimed call. A *sample* is one scenario at one of the 80 controlled
+steps trained forward and backward; a gradient step one Adam step of one (setting, seed).
+Recording the teacher-forced observations (once per dataset) is not timed. Prints one JSON line
+per profile (``cpu_seconds_per_update``: process CPU time, robust on a shared machine).
 """
 
 from __future__ import annotations
@@ -38,7 +35,7 @@ from igdrivsim.policy.network import apply_step, init_params_per_seed, initial_c
 from igdrivsim.simulator import toy
 from igdrivsim.training import inputs
 from igdrivsim.training.commands import refuse_contradictions
-from igdrivsim.training.config import PROFILES, get_profile, with_overrides
+from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
 from igdrivsim.training.update import (
     get_update,
@@ -80,11 +77,9 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def matmul_flops(fn, *args) -> int:
-    """Floating-point operations of the matrix products (``dot_general``) one call of ``fn``
-    does: 2 x output size x contracted size each, a ``scan`` body's times its length. XLA's
-    cost analysis counts a loop's body once whatever its trip count, so it cannot price a
-    90-step episode; the products are nearly all of a network's arithmetic (the element-wise
-    rest is left out, so the rate derived from this is a lower bound)."""
+    """Floating-point operations of the matrix products one call of ``fn`` does (a ``scan``
+    body's times its length: XLA's cost analysis counts a loop's body once, so it cannot price
+    a 90-step episode); the element-wise rest is left out, so a rate from it is a lower bound."""
     def count(jaxpr) -> int:
         total = 0
         for eqn in jaxpr.eqns:
@@ -109,11 +104,10 @@ def matmul_flops(fn, *args) -> int:
 
 
 def trace_summary(trace_dir: str, top: int = 15) -> dict:
-    """Where a traced update's time went, from the Perfetto trace ``jax.profiler`` wrote under
-    ``trace_dir``: the busiest device (or, on a CPU, XLA thread) operations by total duration,
-    each named by its timeline line (a device's streams, "XLA Ops" and "XLA Modules" lines
-    overlap, so shares are of all lines' busy time) and their digits folded (``fusion.123`` ->
-    ``fusion.N``) so that one kind of kernel sums over its instances; and the traced span."""
+    """Where a traced update's time went, from the Perfetto trace under ``trace_dir``: the
+    busiest device (on a CPU, XLA thread) operations by total duration, named by their timeline
+    line with digits folded (``fusion.123`` -> ``fusion.N``) so that a kernel kind sums over its
+    instances (lines overlap: shares are of all lines' busy time); and the traced span."""
     files = sorted(glob.glob(os.path.join(trace_dir, "**", "perfetto_trace.json.gz"),
                              recursive=True))
     if not files:
@@ -131,7 +125,6 @@ def trace_summary(trace_dir: str, top: int = 15) -> dict:
     busy: dict[str, float] = defaultdict(float)
     count: dict[str, int] = defaultdict(int)
     for e in spans:
-        # one line per (thread, kernel kind): a device's streams, XLA ops and modules overlap
         thread = re.sub(r"\d+", "N", threads.get((e["pid"], e.get("tid")), ""))
         name = thread + ": " + re.sub(r"\d+", "N", e.get("name", "?"))
         busy[name] += e["dur"] / 1e6
@@ -155,11 +148,9 @@ def forward_flops_per_step(policy, obs_config, params) -> int:
 
 
 def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> dict:
-    """Seconds of each part of one update of the first setting and seed on its batch, each
-    part jitted and timed alone (mean of ``repeats`` calls after one untimed): recording the
-    teacher-forced episodes from the reset states, the setting's observations of them, the
-    method's collection (with the policy's closed-loop rollout for a method that drives) and
-    one forward and backward pass of the loss over the collected batch."""
+    """Seconds of each part of one update of the first setting and seed, each jitted and timed
+    alone (mean of ``repeats`` calls after one untimed): recording the teacher-forced episodes,
+    the setting's observations, the method's collection and one forward and backward pass."""
     from functools import partial
 
     from igdrivsim.observation import get_setting
@@ -287,8 +278,7 @@ def bench_train_command(args: argparse.Namespace) -> int:
     check_min("--batch-size", args.batch, 0)
     check_min("--seeds", args.seeds, 0)
     for name in names:
-        if name not in PROFILES:
-            raise ConfigError(f"unknown profile {name!r}; choose from {', '.join(PROFILES)}")
+        get_profile(name)  # an unknown name fails before anything is timed
     if args.out:
         require_file_target(args.out)
     records = []

@@ -1,9 +1,6 @@
-"""Devices and processes: the one-axis device mesh, host arrays placed on it, and several
-processes working together (initialised from the environment, meeting at barriers).
-
-Training (its batches and replicated parameters) and the closed-loop rollouts of the
-evaluation (:mod:`igdrivsim.policy.closed_loop`, scenarios spread over every device) place
-their arrays through these functions; JAX only.
+"""Devices and processes: the one-axis device mesh that training and the closed-loop rollouts
+place their arrays on, and several processes working together (initialised from the
+environment, meeting at barriers); JAX only.
 """
 
 from __future__ import annotations

@@ -1,23 +1,13 @@
 """The one episode runner: an actor and a pure environment step in a ``lax.scan``.
 
-Environments are gymnax-style: pure ``reset`` / ``step`` functions over an immutable state (the
-maze's :mod:`maze.env`, the driving simulator's :mod:`igdrivsim.simulator.state`). The runner
-needs only a step, closed over the environment's parameters::
-
-    env_step(state, action) -> (state, out)   # out: what the step reports (reward, done, ...)
-
-An :class:`Actor` is two pure functions (Waymax's ``init`` / ``select_action`` split):
-
-* ``init(state, key) -> carry``: the actor's memory before the first step (a GRU state);
-* ``step(state, carry, key) -> (action, carry, info)``: the actor *observes the state itself*
-  (what it may see is its own observation model: the maze's full or partial view, a driving
-  observation setting), and ``info`` is any pytree recorded per step, usually a
-  :class:`StepInfo`.
-
-:func:`run_episode` returns the final state and carry and the time-major record of every step,
-as PureJaxRL's transition tuple is the only interface between rollout and loss. It works on a
-single state or a batched one (the actor and the step then act on the whole batch) and is
-``jit``- and ``vmap``-able.
+Environments are gymnax-style (the maze's :mod:`maze.env`, the driving simulator's
+:mod:`igdrivsim.simulator.state`); the runner needs only ``env_step(state, action) -> (state,
+out)`` (``out``: reward, done, ...), closed over the environment's parameters. An
+:class:`Actor` is Waymax's ``init`` / ``select_action`` split: ``init(state, key) -> carry`` (its
+memory) and ``step(state, carry, key) -> (action, carry, info)``, where the actor *observes the
+state itself* (its own observation model) and ``info`` is any pytree recorded per step, usually
+a :class:`StepInfo`. :func:`run_episode` returns the time-major record of every step, as
+PureJaxRL's transition tuple, for a single or a batched state; ``jit``- and ``vmap``-able.
 """
 
 from __future__ import annotations
@@ -38,8 +28,7 @@ def no_carry(state: Any, key: jax.Array) -> None:
 
 
 class Actor(NamedTuple):
-    """``init(state, key) -> carry`` and ``step(state, carry, key) -> (action, carry, info)``,
-    pure functions (see the module docstring). Calling the actor calls ``step``."""
+    """Two pure functions (see the module docstring); calling the actor calls ``step``."""
 
     step: StepFn
     init: Callable[[Any, jax.Array], Any] = no_carry
@@ -68,13 +57,10 @@ class Step(NamedTuple):
 def run_episode(env_step: EnvStep, actor: Actor, state: Any, key: jax.Array, num_steps: int,
                 carry: Any = None, record: Callable[[Step], Any] = lambda step: step
                 ) -> tuple[Any, Any, Any]:
-    """``num_steps`` steps of ``actor`` in ``env_step`` from ``state``.
-
-    ``carry``: the actor's initial memory (``None``: ``actor.init(state, key)``). The actor's
-    key at step ``t`` is ``split(key, num_steps)[t]``. ``record(Step)``: what is kept of each
-    step (default all; what it drops is never stacked). Returns ``(final state, final carry,
-    record [T, ...])``.
-    """
+    """``(final state, final carry, record [T, ...])`` of ``num_steps`` steps from ``state``.
+    ``carry`` (``None``: ``actor.init(state, key)``); the actor's key at step ``t`` is
+    ``split(key, num_steps)[t]``; ``record(Step)``: what is kept of each step (never stacked
+    otherwise)."""
     if carry is None:
         carry = actor.init(state, key)
 

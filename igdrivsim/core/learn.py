@@ -1,16 +1,10 @@
 """What every learner shares, the maze's and the driving benchmark's: the loss terms of
 categorical policies and the one optimisation loop.
 
-**Loss terms** (on explicit arrays, no network): GAE, the clipped PPO terms, and the
-log-probability, entropy, cross-entropy and KL of a categorical, the one definition of each:
-the maze trains one categorical over 4 moves, the driving policy three over 257 levels (its
-methods sum these over the three action dimensions). Per-categorical functions reduce the last
-(class) axis only; sequences are time-major (``[T, ...]``).
-
-**The loop.** :func:`sgd_epochs`: per key of ``epoch_keys``, a random split of the data into
-``minibatches``, each one optimiser step on ``loss_fn(params, minibatch) -> (loss, aux)``;
-:func:`sgd_steps` is the step over any sequence of minibatch choices (the maze DAgger's draws
-from its buffer). The learning rate is an argument applied after the optimiser's
+The loss terms (GAE, PPO's, a categorical's log-probability, entropy, cross-entropy and KL) take
+explicit arrays, reduce the last (class) axis only and read sequences time-major; the driving
+methods sum them over the three action dimensions. :func:`sgd_epochs` / :func:`sgd_steps` take
+one optimiser step per minibatch; the learning rate is applied after the optimiser's
 transformation (``params - lr * tx(grads)``), so one compiled function serves any schedule.
 """
 
@@ -68,13 +62,9 @@ def kl_divergence(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
 # -------------------------------------------------------------------------------- PPO
 def gae(values: jax.Array, rewards: jax.Array, dones: jax.Array, last_value: jax.Array,
         gamma: float, lam: float, axis: int = 0) -> tuple[jax.Array, jax.Array]:
-    """Generalised advantage estimates and returns along the time axis ``axis``.
-
-    ``rewards[t]`` follows the action at ``t``; ``values[t] = V(s_t)``; ``dones[t]``: the
-    episode ended with that step (no bootstrap across it); ``last_value = V(s_T)`` (0 after a
-    terminal state), shaped like one step. Returns ``(advantages, returns)`` shaped like
-    ``rewards``.
-    """
+    """``(advantages, returns)`` shaped like ``rewards`` along the time axis ``axis``:
+    ``rewards[t]`` follows the action at ``t``, ``values[t] = V(s_t)``, ``dones[t]``: the episode
+    ended with that step (no bootstrap across it), ``last_value = V(s_T)`` shaped like one step."""
     keep = 1.0 - dones.astype(values.dtype)
     next_values = jnp.concatenate(
         [jax.lax.slice_in_dim(values, 1, None, axis=axis),
@@ -147,11 +137,9 @@ def sgd_steps(params, opt_state, data, loss_fn: Callable, tx: optax.GradientTran
 def sgd_epochs(params, opt_state, data, loss_fn: Callable, tx: optax.GradientTransformation,
                epoch_keys: jax.Array, minibatches: int, lr, size: int | None = None,
                select: Callable = take_rows, grad_norm: bool = False):
-    """``len(epoch_keys)`` passes over the ``size`` examples of ``data`` (default: the leading
-    axis of its first leaf), each in ``minibatches`` random minibatches of ``size //
-    minibatches`` (``size`` must be a multiple): ``(params, opt_state, aux [epochs,
-    minibatches, ...])``. ``select(data, idx)`` takes the examples ``idx [size //
-    minibatches]`` (another axis than the first: pass ``size`` and ``select``)."""
+    """``(params, opt_state, aux [epochs, minibatches, ...])`` of ``len(epoch_keys)`` passes over
+    the ``size`` examples of ``data`` (default: its first leaf's leading axis), each in
+    ``minibatches`` random minibatches; ``select(data, idx)`` takes the examples ``idx``."""
     if size is None:
         size = jax.tree.leaves(data)[0].shape[0]
 

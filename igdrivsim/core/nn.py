@@ -1,12 +1,8 @@
 """The network parts the maze's and the driving benchmark's flax networks share: a dense layer
-as one 2-D product, and a GRU over a whole sequence, fast on a CPU (fused gates and a
-hand-written gradient).
-
-Only the GRU's recurrence is sequential: the input projection of every step is one matrix
-product computed before the time scan (``x_proj``), each step does one recurrent matmul, and
-the backward pass (:func:`gru_scan`'s custom VJP) does one matmul per step too. The equations
-are flax's ``nn.GRUCell`` (:func:`fused_gru_cell` reads its parameters), so a network can act
-step by step with the cell and train on sequences with :func:`gru_scan`.
+as one 2-D product, and a GRU over a whole sequence, fast on a CPU: the input projection is one
+product before the time scan, each step (forward and in the hand-written backward pass) one
+recurrent matmul. The equations are flax's ``nn.GRUCell`` (:func:`fused_gru_cell` reads its
+parameters): a network acts step by step with the cell and trains with :func:`gru_scan`.
 """
 
 from __future__ import annotations
@@ -56,14 +52,10 @@ def _gru_forward(x_proj, first, h0, w_h, b_hn, save: bool = False):
 def gru_scan(x_proj, first, h0, w_h, b_hn):
     """GRU over ``x_proj[T, B..., 3H]`` (input projection included) -> ``(h_T, hs[T, B..., H])``.
 
-    ``first[T, B...]`` zeroes the state before the flagged steps; ``w_h [H, 3H]`` holds the
-    recurrent kernels of the reset, update and candidate gates side by side and ``b_hn`` is the
-    candidate's recurrent bias (flax's ``GRUCell`` equations).
-
-    The gradient is hand-written: the forward pass keeps every step's gates, the backward loop
-    carries only ``dh`` (one fused matmul and a few elementwise products per step), and what
-    needs no loop (the candidate's recurrent input, the weights' gradient) is one matmul over
-    the whole sequence.
+    ``first[T, B...]`` zeroes the state before the flagged steps; ``w_h [H, 3H]``: the reset,
+    update and candidate gates' recurrent kernels side by side; ``b_hn``: the candidate's
+    recurrent bias. The hand-written gradient keeps every step's gates, carries only ``dh``
+    through the backward loop, and computes what needs no loop in one matmul over the sequence.
     """
     return _gru_forward(x_proj, first, h0, w_h, b_hn)
 

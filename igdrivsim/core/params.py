@@ -37,7 +37,3 @@ class AdvisorParams:
     """ADVISOR's (Weihs et al. 2021) imitation weight ``exp(-alpha KL(teacher || aux))``."""
 
     alpha: float = 1.0  # 0: imitation only
-
-
-PPO = PPOParams()
-MIX = MixWeights()

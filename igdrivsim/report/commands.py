@@ -15,7 +15,7 @@ import importlib
 import os
 from pathlib import Path
 
-from igdrivsim.cli_args import FORMATTER
+from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation.schema import EVAL_CONFIG
 from igdrivsim.io import atomic_write_text, read_json, require_folder
@@ -52,7 +52,7 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION")
     for name, (help_, arguments, _) in ACTIONS.items():
         arguments(actions.add_parser(name, help=help_, description=help_,
-                                     formatter_class=FORMATTER))
+                                     formatter_class=DefaultsFormatter))
 
 
 def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:

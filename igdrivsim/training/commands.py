@@ -50,8 +50,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
                              "the ego (default: the profile's data.egos, sdc)")
     parser.add_argument("--val-data", default=None, metavar="DIR",
                         help="validation data for the learning curves (curves.jsonl): "
-                             "closed-loop metrics every training.eval_every updates "
-                             "(default: none)")
+                             "closed-loop metrics every training.eval_every updates")
     parser.add_argument("--cache-dir", default=None, metavar="DIR",
                         help="cache of the teacher-forced observations, shared by runs on "
                              "the same data (default: DATA/../cache when DATA is a folder)")
@@ -65,6 +64,7 @@ def train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+# the config field each shortcut option sets
 SHORTCUTS = {"observation.setting": "--obs", "training.method": "--method",
              "training.seeds": "--seeds", "data.egos": "--egos"}
 
@@ -83,18 +83,10 @@ def refuse_contradictions(shortcuts: list[str], overrides: list[str] | tuple[str
 
 def resolve_config(args: argparse.Namespace):
     """The run's config: profile, then the shortcut options, then ``--set`` overrides."""
-    config = get_profile(args.profile)
-    shortcuts = []
-    if args.obs is not None:
-        shortcuts.append(f"observation.setting={args.obs}")
-    if args.method is not None:
-        shortcuts.append(f"training.method={args.method}")
-    if args.seeds is not None:
-        shortcuts.append(f"training.seeds={args.seeds}")
-    if getattr(args, "egos", None) is not None:
-        shortcuts.append(f"data.egos={args.egos}")
+    shortcuts = [f"{key}={value}" for key, option in SHORTCUTS.items()
+                 if (value := getattr(args, option[2:], None)) is not None]
     refuse_contradictions(shortcuts, args.overrides)
-    config = with_overrides(config, shortcuts + list(args.overrides))
+    config = with_overrides(get_profile(args.profile), shortcuts + list(args.overrides))
     for name in config.observation.setting.split(","):
         get_setting(name)  # fail early on an unknown setting
     return config.validate()

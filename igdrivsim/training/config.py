@@ -1,14 +1,9 @@
 """Typed run configuration (frozen dataclasses with the paper's defaults) and the profiles.
 
-A run is described by :class:`RunConfig` = policy widths + data/input settings + observation
-setting + training hyper-parameters + the loss's terms. ``PROFILES`` holds ``smoke`` (seconds,
-tests/CI), ``laptop`` (the default: small network, 1,000 updates, about 3 hours for 6 settings x 2
-methods x 3 seeds on a 2-core CPU; how close its Full BC comes to the competence targets is
-measured in ``paper/findings.tex``, "On the calibrated scenes"),
-``quick`` (the laptop network at 300 updates, about 50 minutes on 2 cores: a first look, below
-the competence targets), ``gpu`` (the laptop's updates with more seeds, for power; one GPU) and
-``paper`` (the paper's sizes and schedule). Any field can be overridden with
-``section.field=value`` strings (``--set training.lr=3e-4``).
+:class:`RunConfig` = policy widths + data/input settings + observation setting + training
+hyper-parameters + the loss's terms. ``PROFILES``: ``smoke`` (seconds, tests), ``laptop`` (the
+default), ``quick``, ``gpu`` and ``paper`` (each function's docstring says what it is for). Any
+field can be overridden with ``section.field=value`` strings (``--set training.lr=3e-4``).
 """
 
 from __future__ import annotations
@@ -112,11 +107,9 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class LossConfig(MixWeights, PPOParams):
-    """The loss's weights and PPO's coefficients (paper: w_BC=1, w_RL=0.05), held whole by the
-    update's static spec: ``w_bc`` weighs every method's imitation term, ``w_rl`` the RL terms
-    of the methods that drive (BC-RL, ADVISOR), GAE and PPO's coefficients their own episodes.
-    The defaults are the ones the maze reads (:mod:`igdrivsim.core.params`);
-    ``--set loss.w_rl=0.1``."""
+    """The loss's weights (``w_bc``: every method's imitation term, ``w_rl``: the RL terms of
+    BC-RL and ADVISOR) and PPO's coefficients, with the defaults the maze reads
+    (:mod:`igdrivsim.core.params`); ``--set loss.w_rl=0.1``."""
 
 
 @dataclass(frozen=True)
@@ -243,7 +236,8 @@ class RunConfig:
         return self
 
 
-SECTIONS = ("policy", "data", "observation", "training", "loss")
+SECTIONS = {"policy": PolicyConfig, "data": DataConfig, "observation": ObsConfig,
+            "training": TrainConfig, "loss": LossConfig}
 
 # (section, field) -> (lowest, highest) allowed; None: unbounded on that side. Sizes and periods
 # are at least 1; rates are finite. The fields not named here are checked in ``validate``.
@@ -296,8 +290,8 @@ QUICK_UPDATES = 300
 
 
 def laptop() -> RunConfig:
-    """Scaled-down but honest, ``COMPETENT_UPDATES`` updates (see its comment): every setting and
-    seed of a method in one program per CPU core; each batch of teacher-forced episodes is
+    """The default: ``COMPETENT_UPDATES`` updates (see its comment), about 3 hours for 6
+    settings x 2 methods x 3 seeds on a 2-core CPU; each batch of teacher-forced episodes is
     reused for two gradient passes. Chosen by
     the sweep in paper/findings.tex: the observable map thinned to every 8th point (4 m apart),
     so 64 points reach ~20 m; the dx head scores offsets from constant velocity; the policy
@@ -454,14 +448,10 @@ def from_dict(d: dict) -> RunConfig:
     """Inverse of :func:`to_dict` (lists become tuples again; an older layout is upgraded
     first, :func:`upgrade_config`); unknown keys are errors."""
     d = upgrade_config(d)
-    classes = {"policy": PolicyConfig, "data": DataConfig, "observation": ObsConfig,
-               "training": TrainConfig, "loss": LossConfig}
     kwargs: dict[str, Any] = {"profile": d.get("profile", "custom")}
-    for section, cls in classes.items():
+    for section, cls in SECTIONS.items():
         values = d.get(section, {})
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(values) - names
-        if unknown:
+        if unknown := set(values) - {f.name for f in dataclasses.fields(cls)}:
             raise ConfigError(f"config.json: unknown key {section}.{sorted(unknown)[0]}")
         kwargs[section] = cls(**{k: tuple(v) if isinstance(v, list) else v
                                  for k, v in values.items()})

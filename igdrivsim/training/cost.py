@@ -1,16 +1,11 @@
 """A cost model of a training run: episodes trained per second on one device -> hours.
 
-An *episode* is one (setting, seed, scenario) of an update: 90 steps forward and the method's
-passes backward. ``igdrivsim bench train --profiles paper --method bc`` measures the paper
-network's seconds per update on 1 seed x 1 scenario x ``settings``; dividing by ``settings``
-gives seconds per episode on one device. A run then costs ``updates x settings x seeds x
-batch x seconds per episode / devices`` (data parallel over devices, ignoring communication);
-:func:`table1_hours` prices the paper's Table I (6 settings x {BC, BC-RL} x 3 seeds, 200 epochs
-over 152,808 scenarios) that way.
-
-The laptop network (profiles laptop, quick, gpu) is priced per (setting x update) of one
-training process from whole measured runs (:func:`laptop_train_seconds`); the pipeline's plan
-(:mod:`igdrivsim.pipeline.planning`) spreads those over its worker processes.
+An *episode* is one (setting, seed, scenario) of an update. The paper network costs ``updates x
+settings x seeds x batch x seconds per episode / devices`` (data parallel, communication
+ignored), the seconds per episode measured by ``igdrivsim bench train --profiles paper``;
+:func:`table1_hours` prices the paper's Table I that way. The laptop network (profiles laptop,
+quick, gpu) is priced per (setting x update) of one training process from whole measured runs
+(:func:`laptop_train_seconds`), which :mod:`igdrivsim.pipeline.planning` spreads over workers.
 """
 
 from __future__ import annotations
@@ -18,6 +13,7 @@ from __future__ import annotations
 import math
 import sys
 
+from igdrivsim.names import GPU_SEEDS
 from igdrivsim.training.config import RunConfig, get_profile
 
 # Paper network (the original's) on the 2-core AMD EPYC, 8 scenarios x 1 seed per update (its
@@ -26,10 +22,6 @@ from igdrivsim.training.config import RunConfig, get_profile
 # --updates 2` (train_paper_bc_rl_cpu.json); seconds per update / 8 = per episode.
 CPU_SECONDS_PER_EPISODE = 2.0966 / 8  # teacher-forced methods (BC): one Adam step per batch
 CPU_SECONDS_PER_ROLLOUT_EPISODE = 12.3355 / 8  # methods that drive (BC-RL: 4 x 4 PPO steps)
-# The paper network has not been timed on a GPU yet (`bash scripts/bench_gpu.sh docs/bench` on
-# a machine with one writes train_paper_bc_<gpu>.json; set these from it): None, unmeasured.
-GPU_SECONDS_PER_EPISODE: float | None = None
-GPU_SECONDS_PER_ROLLOUT_EPISODE: float | None = None
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 # Laptop network, 3 seeds, 16 scenarios per update: seconds per update of ONE setting in one
 # one-XLA-thread worker process while another worker keeps the second core busy (the default
@@ -54,7 +46,6 @@ MAZE_CPU_S = 399.0
 # after a first update (compile) of 63 s. The same network at 3 seeds on one H200 took 0.0262 /
 # 0.0907 s (docs/bench/train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU is not
 # filled by 3 seeds, so the 12-seed rates are the ones to scale from.
-GPU_SEEDS = get_profile("gpu").training.seeds
 GPU_S_PER_SETTING_UPDATE = 0.067 / 6
 GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.236 / 6
 GPU_COMPILE_S = 63.0
@@ -96,8 +87,9 @@ def table1_hours(bc_seconds: float, rollout_seconds: float,
 
 
 def table1_text(gpu: bool) -> str:
-    """One line: what Table I at paper scale costs on this kind of machine, from the measured
-    rates (or that the GPU rate is not measured)."""
+    """One line: what Table I at paper scale costs at the rates measured on a CPU. The paper
+    network has not been timed on a GPU yet (``bash scripts/bench_gpu.sh docs/bench`` on a
+    machine with one writes train_paper_bc_<gpu>.json): ``gpu`` says so."""
     config = get_profile("paper")
     updates = num_updates(config)
     head = (f"Table I at paper scale (6 settings x {{BC, BC-RL}} x {config.training.seeds} "
@@ -107,18 +99,14 @@ def table1_text(gpu: bool) -> str:
     text = (f"{head}: ~{cpu['total']:,.0f} CPU-process-hours at the rates measured on 2 CPU "
             f"cores (BC {cpu['teacher_forced']:,.0f}, BC-RL {cpu['rollout']:,.0f}; "
             "igdrivsim/training/cost.py)")
-    if GPU_SECONDS_PER_EPISODE is None or GPU_SECONDS_PER_ROLLOUT_EPISODE is None:
-        return text + ("; the GPU rate of this network is not measured yet (scripts/bench_gpu.sh)"
-                       if gpu else "")
-    g = table1_hours(GPU_SECONDS_PER_EPISODE, GPU_SECONDS_PER_ROLLOUT_EPISODE)
-    return text + f"; ~{g['total']:,.0f} GPU-hours at the measured GPU rate"
+    return text + ("; the GPU rate of this network is not measured yet (scripts/bench_gpu.sh)"
+                   if gpu else "")
 
 
 def run_hours(config: RunConfig, seconds_per_episode: float, num_scenarios: int,
               devices: int = 1) -> float:
     """Hours of a run of ``config`` on ``devices`` devices at ``seconds_per_episode``."""
-    settings = len([s for s in config.observation.setting.split(",") if s.strip()])
-    episodes = settings * config.training.seeds * config.data.batch_size
+    episodes = len(config.settings) * config.training.seeds * config.data.batch_size
     return num_updates(config, num_scenarios) * episodes * seconds_per_episode / devices / 3600
 
 
@@ -140,12 +128,11 @@ def _paper_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str:
     rollout = config.collects_rollout
     per = CPU_SECONDS_PER_ROLLOUT_EPISODE if rollout else CPU_SECONDS_PER_EPISODE
     hours = run_hours(config, per, num_scenarios, devices)
-    settings = len([s for s in config.observation.setting.split(",") if s.strip()])
     return (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
             f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
-            f"scenarios x {config.training.seeds} seed(s) x {settings} setting(s) at ~{per} s "
-            f"per episode (paper network, bench train) is ~{hours:,.0f} hours; use GPUs "
-            "(docs/scaling.md) or --profile laptop")
+            f"scenarios x {config.training.seeds} seed(s) x {len(config.settings)} setting(s) "
+            f"at ~{per} s per episode (paper network, bench train) is ~{hours:,.0f} hours; "
+            "use GPUs (docs/scaling.md) or --profile laptop")
 
 
 def _gpu_profile_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str | None:

@@ -1,20 +1,13 @@
 """The training input pipeline: load once, reset once, record once, shuffle, prefetch.
 
-Scenarios come from :func:`~igdrivsim.data.source.open_scenarios` (a filter manifest's kept rows,
-or every file of the folder in any registered format; ``data.egos="all"``: one scenario per
-eligible vehicle). Each is fitted to the profile's capacities
-while decoding, then ``reset`` ONCE; the teacher-forced records of BC
-(:mod:`igdrivsim.training.records`) are computed from those states, or read from the on-disk
-cache, and kept in host memory (NumPy) with the states (BC-RL only). A batch is then a gather.
-
-Order: seed ``s`` walks through the data in epochs, each a permutation drawn from
-``numpy.random.default_rng([seed, epoch])``; the batch of update ``u`` is positions
-``u*B .. (u+1)*B - 1`` of that stream. It is a pure function of ``(seed, u)``, so a resumed run
-sees exactly the batches an uninterrupted one would. A background thread prepares and places
-the next ``prefetch`` batches on the devices while the current update runs.
-
-Paper scale (``data.stream``) keeps nothing of the dataset in memory: see
-:mod:`igdrivsim.training.stream`, whose batches go through the same :func:`prefetch`.
+Scenarios come from :func:`~igdrivsim.data.source.open_scenarios`, fitted to the profile's
+capacities and ``reset`` once; the teacher-forced records (:mod:`igdrivsim.training.records`,
+computed or read from the on-disk cache) and, for the methods that drive, the states stay in
+host memory, so a batch is a gather. Seed ``s`` walks the data in epochs, each a permutation
+drawn from ``numpy.random.default_rng([seed, epoch])``: the batch of update ``u`` is a pure
+function of ``(seed, u)``, so a resumed run sees the batches an uninterrupted one would. A
+background thread places the next ``prefetch`` batches on the devices (streamed batches too,
+:mod:`igdrivsim.training.stream`).
 """
 
 from __future__ import annotations
@@ -48,6 +41,7 @@ from igdrivsim.training.records import (
 def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
                    chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
     """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
+    check_data(data, "training")
     records = open_scenarios(data, caps, egos=egos, limit=max_scenarios)
     return iter(lambda: [rec.scenario for rec in islice(records, chunk)], [])
 
@@ -67,8 +61,8 @@ def reset_chunk(scenarios: Sequence[Scenario], params: SimParams, size: int) -> 
 
 def reset_all(chunks, params: SimParams, chunk: int = 64, progress: bool = False,
               total: int | None = None) -> SimState:
-    """Reset every scenario of ``chunks`` (lists of scenarios), stacked on the host: ``[N]``.
-    ``total``: how many scenarios ``chunks`` holds (the bar's rate and ETA; None: unknown)."""
+    """Every scenario of ``chunks`` (lists of scenarios) reset, stacked on the host ``[N]``;
+    ``total``: the bar's (None: unknown)."""
     parts = []
     with tqdm(total=total, desc="loading", unit="scn", dynamic_ncols=True,
               disable=not progress) as bar:
@@ -107,41 +101,34 @@ class Dataset:
     def from_config(cls, config: RunConfig, data, params: SimParams, progress: bool = False,
                     chunk: int = 64, cache_dir: str | None = None, need_states: bool = False,
                     max_scenarios: int | None = None, record: bool | None = None) -> Dataset:
-        """Load ``data`` (folder / files, or a list of :class:`Scenario`) for ``config``;
-        the teacher-forced records come from ``cache_dir`` when they were computed before.
-        ``record`` (default: ``config.data.record_teacher``) False keeps states only: the
-        update records each batch itself."""
-        d = config.data
+        """Load ``data`` (folder / files, or a list of :class:`Scenario`), the records from
+        ``cache_dir`` when computed before; ``record`` False (default:
+        ``config.data.record_teacher``) keeps states only: the update records each batch."""
+        d, rec = config.data, config.record_config
         limit = d.max_scenarios if max_scenarios is None else max_scenarios
+        on_disk = isinstance(data, (str, os.PathLike))
 
-        def chunks():
-            if isinstance(data, (str, os.PathLike)):
-                check_data(data, "training")
-                return iter_scenarios(data, config.capacities, limit, chunk, d.egos)
-            scenarios = list(data)[: limit or None]
-            return (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+        def load() -> SimState:  # the bar's total: the manifest's kept rows, the records, the list
+            if on_disk:
+                total = count_scenarios(data, limit, d.egos) if progress else None
+                chunks = iter_scenarios(data, config.capacities, limit, chunk, d.egos)
+            else:
+                scenarios = list(data)[: limit or None]
+                total = len(scenarios)
+                chunks = (scenarios[i:i + chunk] for i in range(0, len(scenarios), chunk))
+            return reset_all(chunks, params, chunk, progress, total)
 
-        def load() -> SimState:
-            total = None  # the bar's: the manifest's kept rows, the records, the list
-            if progress and isinstance(data, (str, os.PathLike)):
-                total = count_scenarios(data, limit, d.egos)
-            elif progress and isinstance(data, Sequence):
-                total = min(len(data), limit or len(data))
-            return reset_all(chunks(), params, chunk, progress, total)
-
+        if not (d.record_teacher if record is None else record):
+            return cls(None, load(), d.batch_size, config.seeds)
         states = None
-        rec = config.record_config
 
         def compute():
             nonlocal states
             states = load()
             return compute_records(states, params, rec, progress=progress)
 
-        if not (d.record_teacher if record is None else record):
-            states = load()
-            return cls(None, states, d.batch_size, config.seeds)
         key = None
-        if cache_dir and isinstance(data, (str, os.PathLike)):
+        if cache_dir and on_disk:
             egos = {} if d.egos == "sdc" else {"egos": d.egos}  # the keys of before, for sdc
             key = cache_key(data_identity(data), caps=config.capacities, rec=rec, sim=params,
                             limit=limit, **egos)

@@ -1,12 +1,10 @@
 """The privileged teacher of DAgger and ADVISOR: a policy trained with the ``full`` setting.
 
-The teacher is an earlier run (``training.teacher``): its ``full`` setting's parameters
-(:func:`igdrivsim.training.loop.load_teacher`) label the student's states, seed ``s`` of the
-student by seed ``s`` of the teacher (cycling when the teacher has fewer seeds). It must observe
-with the same capacities as the student (the student's rollout records the full observation at
-those capacities). :func:`choose_teacher` picks, among finished runs, the one that drives better
-on the validation subset of its learning curves (the paper's failure rate, overlap + offroad, at
-the last update; ``igdrivsim teacher``).
+The teacher is an earlier run (``training.teacher``) observing with the student's capacities:
+its ``full`` setting's parameters (:func:`igdrivsim.training.loop.load_teacher`) label the
+student's states, seed by seed (cycling when the teacher has fewer seeds). ``igdrivsim teacher``
+(:func:`choose_teacher`) picks among finished runs the one that fails least (overlap + offroad)
+on the validation subset of its learning curves at the last update.
 """
 
 from __future__ import annotations

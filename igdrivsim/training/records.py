@@ -1,16 +1,12 @@
 """Teacher-forced observation records: computed once per dataset, cached on disk, shared by
 every run.
 
-BC is trained on the logged (expert-driven) episode: the warm-up steps 0..9 replayed from the
-log, then the discretised expert driving steps 10..89. :func:`compute_records` records what the
-ego sees along it before any setting, with the expert's labels, as an
-:class:`~igdrivsim.observation.observe.ObservationRecord` (its docstring says what is recorded and
-how a setting is applied to it: ``observe(record step, setting, ...)``).
-
-The cache file is keyed by a hash of the data's identity (the manifest's bytes, or the files'
-names, sizes and modification times) and of everything that shapes the recording
-(capacities, simulator parameters, this module's format version): change either and it is
-recomputed. Files are written atomically.
+BC is trained on the logged episode: warm-up steps 0..9 replayed from the log, then the
+discretised expert driving steps 10..89. :func:`compute_records` records what the ego sees along
+it before any setting, with the expert's labels, as an
+:class:`~igdrivsim.observation.observe.ObservationRecord`. The cache file is keyed by a hash of
+the data's identity and of everything that shapes the recording (capacities, simulator
+parameters, :data:`FORMAT_VERSION`): change either and it is recomputed.
 """
 
 from __future__ import annotations
@@ -76,19 +72,15 @@ def compute_records(states: SimState, sim: SimParams, rec: ObservationConfig,
     """Teacher-forced records of host states ``[N]`` (chunks of ``chunk``), as NumPy."""
     n = int(np.shape(states.timestep)[0])
     fn = _jit_episodes(sim, rec)
-    bar = None
-    if progress:
-        bar = tqdm(total=n, desc="teacher-forced observations", unit="scn", dynamic_ncols=True)
     parts = []
-    for start in range(0, n, chunk):
-        idx = np.minimum(np.arange(start, start + chunk), n - 1)
-        size = min(chunk, n - start)
-        part = jax.device_get(fn(jax.tree.map(lambda x, i=idx: x[i], states)))
-        parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], part))
-        if bar is not None:
+    with tqdm(total=n, desc="teacher-forced observations", unit="scn", dynamic_ncols=True,
+              disable=not progress) as bar:
+        for start in range(0, n, chunk):
+            idx = np.minimum(np.arange(start, start + chunk), n - 1)
+            size = min(chunk, n - start)
+            part = jax.device_get(fn(jax.tree.map(lambda x, i=idx: x[i], states)))
+            parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], part))
             bar.update(size)
-    if bar is not None:
-        bar.close()
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 

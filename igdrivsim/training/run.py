@@ -1,46 +1,21 @@
 """A training run's folder: what a run writes (:class:`Run`) and reads back
-(:meth:`Run.open`); every file name of the folder is spelled here, once.
+(:meth:`Run.open`, a :class:`SavedRun`); every file name of the folder is spelled here, once.
 
-Layout of a run folder:
-
-- ``config.json`` (:data:`CONFIG`): the resolved :class:`RunConfig` under ``"config"``, plus
-  ``num_updates``, ``num_scenarios``, ``settings``, ``devices``, ``processes`` and the code
-  that trained (``code``: commit, dirty tree, diff hash; ``code_resumed``: other code that
-  continued the run);
+- ``config.json`` (:data:`CONFIG`): the resolved :class:`RunConfig` under ``"config"``, the
+  run's facts (``num_updates``, ``num_scenarios``, ``settings``, ``devices``, ``processes``)
+  and the code that trained (``code``; ``code_resumed``: other code that continued the run);
 - ``metrics.jsonl`` (:data:`METRICS`): one line per logged update (``update`` = updates done,
-  ``bc_loss``, ``lr``, ``entropy``, ``grad_norm``, ``updates_per_s``,
-  ``scenario_steps_per_s``, ``grad_steps_per_s``; BC-RL adds ``mean_return``, ``ppo_loss``,
-  ``value_loss``, ``clip_frac``, ``ratio_dev``); each metric is the mean over settings and
-  seeds, and ``<metric>_seeds`` lists the per-seed values (mean over settings);
-- ``curves.jsonl`` (:data:`CURVES`): learning curves, one line per (update, setting, seed):
-  the training ``bc_loss`` at every logged update and, every ``training.eval_every`` updates
-  when validation data is given, ``val_bc_loss`` (teacher-forced, fixed validation subset) and
-  the closed-loop ``log_divergence`` (m), ``offroad`` and ``overlap`` (fractions of steps) of
-  the policy driving that subset (sampled actions);
-- ``checkpoints/<updates done>/`` (:data:`CHECKPOINTS`, orbax), every ``checkpoint_every``
-  updates and at the end; with a streamed input (``data.stream``),
-  ``checkpoints/data/<updates done>.p<process>.json`` (:data:`DATA_STATES`) holds each
-  process's input iterator state, restored by ``--resume``;
+  ``lr``, the rates and the method's losses), each metric the mean over settings and seeds
+  and ``<metric>_seeds`` its per-seed means;
+- ``curves.jsonl`` (:data:`CURVES`): one line per (update, setting, seed): the reported
+  training loss, and what the hooks (:class:`Hook`, e.g. the learning-curve validation of
+  :mod:`igdrivsim.training.loop`) return every ``every`` updates;
+- ``checkpoints/<updates done>/`` (:data:`CHECKPOINTS`, :class:`Checkpoints`): params +
+  optimiser (+ DAgger's buffer), written by Orbax into a temporary folder renamed when
+  complete; with ``data.stream``, ``checkpoints/data/`` (:data:`DATA_STATES`) holds each
+  process's input iterator state. Data order, keys and learning rate are functions of the
+  update, so restoring step ``k`` resumes the run exactly;
 - ``DONE`` (:data:`DONE`): written when the last checkpoint is saved.
-
-:class:`Run` owns everything a run writes, so the training loop
-(:func:`igdrivsim.training.loop.train`) is the pure update of
-:func:`~igdrivsim.training.update.make_train` applied to batches, with ``Run`` called at its
-edges. A *hook* (:class:`Hook`) is called with the parameters every ``every`` updates (and at
-the start and the end of the run); the values it returns (``{name: [G, S] array}``) go to
-``curves.jsonl``. The learning-curve validation is one (:class:`igdrivsim.training.loop.
-Validation`); training never imports the evaluation package.
-
-:meth:`Run.open` is the read side (:class:`SavedRun`): the config, the parameters of a
-checkpoint, the curves and the metrics, for the evaluation, the privileged teacher, the report's
-sweep and the tests.
-
-Checkpoints (:class:`Checkpoints`) are orbax's ``<updates done>/`` folders holding params +
-optimiser (+ DAgger's buffer of labelled episodes, for the methods that keep one). Orbax writes
-each step into a temporary folder and renames it when complete, so a run killed mid-save leaves
-the previous checkpoint intact. The step number is the number of updates done; everything else
-(data order, keys, learning rate) is a function of it, so restoring
-``(params, opt_state, buffer)`` at step ``k`` resumes the run exactly.
 """
 
 from __future__ import annotations
@@ -125,8 +100,7 @@ class Checkpoints:
         self.manager.wait_until_finished()
 
     def restore(self, step: int, params_like, opt_state_like, buffer_like=None):
-        """``(params, opt_state, buffer)`` restored into the structure (and shardings) of the
-        given templates (``buffer`` is ``None`` without a template)."""
+        """``(params, opt_state, buffer)`` in the templates' structure and shardings."""
         items = {"params": params_like, "opt_state": opt_state_like}
         if buffer_like is not None:
             items["buffer"] = serialization.to_state_dict(buffer_like)
@@ -137,8 +111,7 @@ class Checkpoints:
         return out["params"], out["opt_state"], buffer
 
     def restore_params(self, step: int):
-        """The parameters of checkpoint ``step`` in the structure they were saved with (read
-        from the checkpoint itself: no template; the rest of the checkpoint is dropped)."""
+        """The parameters of checkpoint ``step`` as saved (no template needed)."""
 
         def saved():
             return jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype),
@@ -147,8 +120,8 @@ class Checkpoints:
         return self._restore(step, saved)["params"]
 
     def _restore(self, step: int, items: Callable[[], dict]) -> dict:
-        """Restore the tree ``items()`` (arrays or shapes and dtypes), each on its template's
-        sharding, else on this process's first device."""
+        """The tree ``items()``, each leaf on its template's sharding, else this process's first
+        device."""
         default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
 
         def abstract(x):
@@ -230,25 +203,6 @@ def read_jsonl(path: str | os.PathLike) -> list[dict]:
     return records
 
 
-def log_line(update: int, lr: float, metrics: dict, rates: dict) -> dict:
-    """One ``metrics.jsonl`` line: each metric's mean over settings and seeds, and its
-    per-seed means (over settings) as ``<name>_seeds``."""
-    line = {"update": update, "lr": lr, **rates}
-    for name, values in metrics.items():
-        values = np.asarray(values, np.float64)  # [G, S]
-        line[name] = float(values.mean())
-        line[f"{name}_seeds"] = [float(v) for v in values.mean(axis=0)]
-    return line
-
-
-def curve_lines(update: int, settings: list[str], method: str, seeds: list[int],
-                values: dict) -> list[dict]:
-    """One curves.jsonl line per (setting, seed) from ``{name: [G, S] array}``."""
-    return [{"update": update, "setting": name, "method": method, "seed": seed,
-             **{k: float(np.asarray(v)[g, i]) for k, v in values.items()}}
-            for g, name in enumerate(settings) for i, seed in enumerate(seeds)]
-
-
 # How a run is kept, not what it computes: a run resumes under other values of these.
 BOOKKEEPING = (("training", "checkpoint_every"), ("training", "max_checkpoints"),
                ("data", "prefetch"))
@@ -269,10 +223,10 @@ class Run:
     process 0 writes. Use as a context manager around the update loop."""
 
     def __init__(self, out_dir: str | os.PathLike, config: RunConfig, resume: bool = False,
-                 log: Callable[[str], None] = print, hooks: tuple[Hook, ...] = ()):
+                 log: Callable[[str], None] = print):
         self.dir = os.fspath(out_dir)
         self.config, self.settings, self.resume, self.log = config, config.settings, resume, log
-        self.hooks = hooks
+        self.hooks: tuple[Hook, ...] = ()  # the driver's (the learning-curve validation)
         self.main = jax.process_index() == 0
         self.seeds = list(config.seeds)
         # the code that trains (igdrivsim.machine.code_state); a resumed run keeps the code it
@@ -286,13 +240,12 @@ class Run:
     @staticmethod
     def open(out_dir: str | os.PathLike) -> SavedRun:
         """The read side: the run in ``out_dir`` as training left it (:class:`SavedRun`)."""
-        return SavedRun.read(out_dir)
+        return SavedRun(out_dir)
 
     # ------------------------------------------------------------------------- the folder
     def complete_already(self) -> bool:
-        """Look at the folder before anything is written: True when the run is complete (then
-        nothing is to be done); refuses another configuration, and an unfinished run without
-        ``resume``."""
+        """True when the run is complete (nothing to do); refuses another configuration, and an
+        unfinished run without ``resume``."""
         os.makedirs(self.dir, exist_ok=True)
         if is_run(self.dir):
             self._check_config()
@@ -385,14 +338,22 @@ class Run:
                             dynamic_ncols=True)
 
     def curves(self, done: int, values: dict) -> None:
-        for line in curve_lines(done, self.settings, self.config.training.method, self.seeds,
-                                values):
-            self.curves_file.write(json.dumps(line) + "\n")
+        """One ``curves.jsonl`` line per (setting, seed) from ``{name: [G, S] array}``."""
+        for g, name in enumerate(self.settings):
+            for i, seed in enumerate(self.seeds):
+                line = {"update": done, "setting": name, "method": self.config.training.method,
+                        "seed": seed, **{k: float(np.asarray(v)[g, i]) for k, v in values.items()}}
+                self.curves_file.write(json.dumps(line) + "\n")
         self.curves_file.flush()
 
     def metrics(self, done: int, lr: float, metrics: dict, rates: dict) -> None:
-        """A ``metrics.jsonl`` line and the training loss's curve points."""
-        line = log_line(done, lr, metrics, rates)
+        """A ``metrics.jsonl`` line (each metric's mean over settings and seeds, and its
+        per-seed means as ``<name>_seeds``) and the reported loss's curve points."""
+        line = {"update": done, "lr": lr, **rates}
+        for name, values in metrics.items():
+            values = np.asarray(values, np.float64)  # [G, S]
+            line[name] = float(values.mean())
+            line[f"{name}_seeds"] = [float(v) for v in values.mean(axis=0)]
         self.metrics_file.write(json.dumps(line) + "\n")
         self.metrics_file.flush()
         key = get_method(self.config.training.method).reports
@@ -411,23 +372,18 @@ class Run:
 
 
 class SavedRun:
-    """A run folder read back (:meth:`Run.open`): ``record`` (its ``config.json``), the
-    config, the parameters of a checkpoint, the learning curves and the logged metrics."""
+    """A run folder read back (:meth:`Run.open`)."""
 
-    def __init__(self, out_dir: str | os.PathLike, record: dict):
-        self.dir, self.record = os.fspath(out_dir), record
-
-    @classmethod
-    def read(cls, out_dir: str | os.PathLike) -> SavedRun:
+    def __init__(self, out_dir: str | os.PathLike):
         """Read ``config.json``; a one-line error when the folder holds no run or it cannot
         be read."""
-        path = os.path.join(os.fspath(out_dir), CONFIG)
+        self.dir = os.fspath(out_dir)
+        path = os.path.join(self.dir, CONFIG)
         if not os.path.isfile(path):
             raise ConfigError(f"{path}: not a training run (no {CONFIG})")
-        record = read_json(path)
-        if not isinstance(record.get("config"), dict):
+        self.record = read_json(path)
+        if not isinstance(self.record.get("config"), dict):
             raise DataError("not a run config (no \"config\" object)", file=path)
-        return cls(out_dir, record)
 
     @functools.cached_property
     def config(self) -> RunConfig:
@@ -444,23 +400,17 @@ class SavedRun:
 
     def latest_step(self) -> int | None:
         """The updates done at the latest checkpoint (``None`` without one)."""
-        ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS))
-        try:
+        with contextlib.closing(Checkpoints(os.path.join(self.dir, CHECKPOINTS))) as ckpt:
             return ckpt.latest_step()
-        finally:
-            ckpt.close()
 
     def params(self, step: int | None = None):
         """The parameters stacked over settings and seeds ``[G, S]`` at checkpoint ``step``
         (default: the latest), on this process's first device."""
-        ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS))
-        try:
+        with contextlib.closing(Checkpoints(os.path.join(self.dir, CHECKPOINTS))) as ckpt:
             step = ckpt.latest_step() if step is None else step
             if step is None:
                 raise ConfigError(f"{self.dir}: no checkpoint yet")
             return ckpt.restore_params(step)
-        finally:
-            ckpt.close()
 
     def curves(self) -> list[dict]:
         """The ``curves.jsonl`` records (one per update, setting and seed; ``[]`` without)."""

@@ -1,17 +1,13 @@
 """Streaming training input for paper scale (``data.stream``): bounded host memory, per-host
 shards, resumable order. Built on Grain.
 
-Scenarios are addressed by a compact index (file id, record) of the filter manifest's kept
-rows (or of every record of the folder's TFRecord files). The index is split into
-``n = data.shards`` (default: the number of processes) disjoint shards ``j::n``; process ``p``
-of ``P`` owns shards ``p n/P .. (p+1) n/P - 1``. For each training seed and shard, Grain's
-``MapDataset.range(len).shuffle(seed).repeat()`` gives a global permutation per epoch (seeded
-by ``(seed, shard)``, reseeded each epoch) without materialising anything. Batch ``u`` of a
-process is, per seed, positions ``u b .. (u+1) b - 1`` of each owned shard's stream (``b =
-B / n``), concatenated: a pure function of (seed, epoch, shard). Grain's threaded prefetch
-decodes and ``reset``\\ s ``data.buffer`` batches ahead in ``data.workers`` threads, so host
-memory is a few batches, independent of the dataset size. The iterator's state
-(``get_state``) is saved beside each checkpoint and restored on ``--resume``.
+Scenarios are addressed by a compact index (:class:`ScenarioIndex`) split into ``n =
+data.shards`` (default: the number of processes) disjoint shards ``j::n``, each process owning
+a contiguous block. Per seed and shard, Grain's ``MapDataset.range(len).shuffle(seed).repeat()``
+permutes each epoch without materialising anything; batch ``u`` of a process is, per seed,
+positions ``u b .. (u+1) b - 1`` of each owned shard's stream (``b = B / n``). Grain decodes and
+resets ``data.buffer`` batches ahead in ``data.workers`` threads, so host memory is a few
+batches; the iterator's state is saved beside each checkpoint and restored on ``--resume``.
 """
 
 from __future__ import annotations
