@@ -60,7 +60,8 @@ def test_train_refuses_an_output_file(a_file, capsys):
     ("training.log_every=0", "training.log_every"), ("training.lr=nan", "training.lr"),
     ("training.lr=-1", "training.lr"), ("loss.gamma=1.5", "loss.gamma"),
     ("policy.object_hidden=[64,0]", "policy.object_hidden"),
-    ("policy.num_bins=1", "policy.num_bins")])
+    ("policy.num_bins=1", "policy.num_bins"),
+    ("training.ppo_minibatches=0", "training.ppo_minibatches")])
 def test_config_values_out_of_range_are_refused(override, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         with_overrides(get_profile("smoke"), [override]).validate()

@@ -199,6 +199,9 @@ class RunConfig:
         if t.seeds < 1:
             raise ConfigError(f"training.seeds must be >= 1, got {t.seeds}")
         epochs, minibatches = self.sgd_passes
+        if minibatches < 1:
+            raise ConfigError(f"training.ppo_minibatches (or rollout_minibatches) must be >= 1, "
+                              f"got {minibatches}")
         if d.batch_size < 1 or d.batch_size % minibatches:
             raise ConfigError(f"data.batch_size ({d.batch_size}) must be a positive multiple of "
                               f"the minibatches per pass ({minibatches}: "
