@@ -18,6 +18,7 @@ from 1. The learning rate is an argument: one compiled update serves any run len
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -282,14 +283,10 @@ def make_update(spec: UpdateSpec, donate: bool = True):
     return jax.jit(update, donate_argnums=(0, 1, 2) if donate else ())
 
 
-_UPDATE_CACHE: dict[UpdateSpec, Any] = {}
-
-
+@functools.cache
 def get_update(spec: UpdateSpec):
     """The compiled update for ``spec`` (shared by every run in this process)."""
-    if spec not in _UPDATE_CACHE:
-        _UPDATE_CACHE[spec] = make_update(spec)
-    return _UPDATE_CACHE[spec]
+    return make_update(spec)
 
 
 # -------------------------------------------------------------------------------- the run
