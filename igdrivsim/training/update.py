@@ -339,6 +339,9 @@ def make_validation_loss(spec: UpdateSpec):
         if spec.setting is not None:
             return jax.vmap(lambda p: one(spec.setting, p))(
                 jax.tree.map(lambda x: x[0], params))[None]
-        return jax.vmap(lambda s, p: jax.vmap(lambda q: one(s, q))(p))(settings, params)
+        # one (setting, seed) at a time: the whole grid at once holds every episode's
+        # observations (72 x 64 episodes in the gpu profile: out of GPU memory)
+        return jax.lax.map(lambda sp: jax.lax.map(lambda q: one(sp[0], q), sp[1]),
+                           (settings, params))
 
     return jax.jit(loss)
