@@ -322,26 +322,32 @@ def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=N
 
 
 def make_validation_loss(spec: UpdateSpec):
-    """Jitted teacher-forced BC loss ``[G, S]`` of ``params [G, S]`` on recorded validation
-    episodes ``[V]`` (fixed keys: comparable across updates)."""
+    """Teacher-forced BC loss ``[G, S]`` of ``params [G, S]`` on recorded validation episodes
+    ``[V]`` (fixed keys: comparable across updates), one compiled program per setting over the
+    seeds: the whole grid at once holds every episode's observations (72 x 64 in the gpu
+    profile, out of GPU memory beside the other lanes)."""
 
-    def loss(params, teacher, settings, key):
+    @jax.jit
+    def per_setting(setting, params, teacher, key):
+        setting = spec.setting if setting is None else setting  # a static one, or data
         v = teacher.sdc_yaw.shape[0]
         keys = jax.random.split(key, v)
 
-        def one(setting, p):
+        def one(p):
             obs = expert_sequences(spec, teacher, setting, keys)
             _, logits, _ = unroll_sequence(spec.policy, p, initial_carry(spec.policy, (v,)),
                                            obs, True)
             return bc_loss(logits[WARMUP_STEPS:], _time_major(teacher.actions),
                            _time_major(teacher.action_valid))
 
-        if spec.setting is not None:
-            return jax.vmap(lambda p: one(spec.setting, p))(
-                jax.tree.map(lambda x: x[0], params))[None]
-        # one (setting, seed) at a time: the whole grid at once holds every episode's
-        # observations (72 x 64 episodes in the gpu profile: out of GPU memory)
-        return jax.lax.map(lambda sp: jax.lax.map(lambda q: one(sp[0], q), sp[1]),
-                           (settings, params))
+        return jax.vmap(one)(params)
 
-    return jax.jit(loss)
+    def loss(params, teacher, settings, key):
+        if spec.setting is not None:
+            return per_setting(None, jax.tree.map(lambda x: x[0], params), teacher, key)[None]
+        groups = jax.tree.leaves(params)[0].shape[0]
+        return jnp.stack([per_setting(jax.tree.map(lambda x, g=g: x[g], settings),
+                                      jax.tree.map(lambda x, g=g: x[g], params), teacher, key)
+                          for g in range(groups)])
+
+    return loss
