@@ -280,8 +280,12 @@ def test_the_paper_plan_prices_table_one_at_paper_scale(tmp_path, monkeypatch):
     hours = cost.table1_hours(cost.CPU_SECONDS_PER_EPISODE, cost.CPU_SECONDS_PER_ROLLOUT_EPISODE)
     assert f"~{hours['total']:,.0f} CPU-process-hours" in table
     gpu = planning.estimate_seconds("gpu", ("bc", "bc_rl"), (), SETTINGS, 12, 1000, 2, gpu=True)
-    train = max(cost.laptop_train_seconds(1000, 6, 12, r, gpu=True) for r in (False, True))
-    assert gpu == pytest.approx(max(train, cost.GPU_MACHINE_MAZE_S) + cost.LAPTOP_OTHER_CPU_S)
+    # the two methods' unsplit runs and the maze on 2 lanes bound it above; splitting a method
+    # over the lanes costs a compile per part, so half the unsplit work bounds it below
+    jobs = [cost.laptop_train_seconds(1000, 6, 12, r, gpu=True) for r in (False, True)]
+    jobs.append(cost.GPU_MACHINE_MAZE_S)
+    other = cost.LAPTOP_OTHER_CPU_S
+    assert sum(jobs) / 2 + other <= gpu <= planning.makespan(jobs, 2) + other
 
 
 def test_the_lanes_run_jobs_after_their_inputs_and_stop_at_the_first_failure():

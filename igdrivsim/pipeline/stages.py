@@ -397,7 +397,7 @@ class Pipeline(Publisher, StageRunner):
             if self.profile.name == "paper":
                 lines.append("plan: " + cost.table1_text(self.machine.accelerator is not None))
         else:
-            where = ("training at the measured H100 rates, the other stages at their measured "
+            where = ("training at the measured H200 rates, the other stages at their measured "
                      "CPU costs" if self.machine.accelerator else "measured per-update costs")
             lines.append(f"plan: estimated wall time ~{planning.hours_text(wall)} ({where}: "
                          "igdrivsim/training/cost.py; work already complete or checkpointed "

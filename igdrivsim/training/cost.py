@@ -41,22 +41,24 @@ LAPTOP_OTHER_CPU_S = 1211.0 - 534.0
 # The maze study with its converged references and baselines: `python -m maze` on 2 quiet cores
 # printed 205 s wall, 399 s CPU (2026-11-28).
 MAZE_CPU_S = 399.0
-# One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H100 (16 CPU
-# cores), `igdrivsim bench train --profiles gpu --method M`: BC 0.067 s per update, BC-RL 0.236 s,
-# after a first update (compile) of 63 s. The same network at 3 seeds on one H200 took 0.0262 /
-# 0.0907 s (docs/bench/train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU is not
-# filled by 3 seeds, so the 12-seed rates are the ones to scale from.
-GPU_S_PER_SETTING_UPDATE = 0.067 / 6
-GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.236 / 6
-GPU_COMPILE_S = 63.0
-# The maze study on that machine (16 cores): 64 s (against MAZE_CPU_S on 2 cores).
-GPU_MACHINE_MAZE_S = 64.0
+# One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H200 (16 CPU
+# cores), `igdrivsim bench train --profiles gpu --method M --updates 5`: BC 0.0513 s per update
+# (compiling 17.8 s), BC-RL 0.1994 s (compiling 46.7 s) (docs/bench/train_gpu_bc_h200.json,
+# train_gpu_bc_rl_h200.json; an H100 took 0.067 / 0.236 s after 63 s). The same network at 3
+# seeds took 0.0262 / 0.0907 s (train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU
+# is not filled by 3 seeds, so the 12-seed rates are the ones to scale from.
+GPU_S_PER_SETTING_UPDATE = 0.0513 / 6
+GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.1994 / 6
+GPU_COMPILE_S = 46.7
+# The maze study on that machine beside the training lanes (16 cores): 86 s (the gpu profile's
+# maze stage, docs/bench/reproduce_gpu_h200_slow_compile.log), against MAZE_CPU_S on 2 cores.
+GPU_MACHINE_MAZE_S = 86.0
 
 
 def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
                          gpu: bool = False) -> float:
     """Seconds of one training process of the laptop network: CPU-s on one core (``gpu``
-    False), or seconds on one H100 (compile included; seeds scale linearly from the measured
+    False), or seconds on one H200 (compile included; seeds scale linearly from the measured
     12, a lower bound for fewer seeds on a GPU that is not filled)."""
     if gpu:
         per = GPU_S_PER_SETTING_UPDATE_ROLLOUT if rollout else GPU_S_PER_SETTING_UPDATE
