@@ -24,7 +24,8 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
-    encode_scenario_id,
+    object_flags,
+    read_scenario_id,
 )
 from igdrivsim.data.womd_proto import (
     DEFAULT_MAX_SPACING,
@@ -97,8 +98,7 @@ def _decode_objects(objects: list) -> tuple[Trajectory, ObjectMetadata, np.ndarr
             raise DataError(f"unknown object type {kind!r}; known: {', '.join(OBJECT_TYPES)}",
                             key=f"{w}.type")
         types[i] = OBJECT_TYPES[kind]
-    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
-                            length=f[6], width=f[7], height=f[8], valid=valid)
+    trajectory = Trajectory(*f, valid=valid)
     metadata = ObjectMetadata(id=ids, object_type=types, is_sdc=np.zeros(num, bool),
                               tracks_to_predict=np.zeros(num, bool),
                               objects_of_interest=np.zeros(num, bool), valid=valid.any(axis=1))
@@ -176,25 +176,14 @@ def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Sce
     if not 0 <= sdc < len(objects):
         raise DataError(f"sdc_track_index is {sdc} with {len(objects)} objects",
                         key="metadata.sdc_track_index")
-    is_sdc = np.zeros(len(objects), bool)
-    is_sdc[sdc] = True
-    ttp = np.zeros(len(objects), bool)
-    for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list)):
-        index = _get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
-        if 0 <= index < len(objects):
-            ttp[index] = True
+    predict = [_get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
+               for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list))]
     interest = _get(meta, "objects_of_interest", "metadata", list)
-    metadata = metadata.replace(is_sdc=is_sdc, tracks_to_predict=ttp,
-                                objects_of_interest=np.isin(ids, np.asarray(interest, np.int64)))
-    sid = _get(desc, "scenario_id", "", str)
-    try:
-        sid_bytes = encode_scenario_id(sid)
-    except (UnicodeEncodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    metadata = metadata.replace(**object_flags(ids, sdc, predict, interest))
+    sid = read_scenario_id(_get(desc, "scenario_id", "", str), "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
                     roadgraph=_decode_roads(_get(desc, "roads", "", list), max_spacing),
-                    traffic_lights=_decode_lights(desc.get("tl_states", {})),
-                    scenario_id=sid_bytes)
+                    traffic_lights=_decode_lights(desc.get("tl_states", {})), scenario_id=sid)
 
 
 def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:

@@ -11,11 +11,14 @@ current at index 10, 80 future), roadgraph points ``R``, traffic lights ``L``.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import jax
 import numpy as np
 from flax import struct
+
+from igdrivsim.errors import DataError
 
 NUM_STEPS = 91  # 9.1 s at 10 Hz
 CURRENT_INDEX = 10  # index of the "current" step; steps 0..10 are the warm-up
@@ -140,6 +143,26 @@ def encode_scenario_id(sid: str) -> np.ndarray:
     out = np.zeros(SCENARIO_ID_BYTES, np.uint8)
     out[: len(raw)] = np.frombuffer(raw, np.uint8)
     return out
+
+
+def read_scenario_id(sid: str | bytes, key: str) -> np.ndarray:
+    """A reader's :func:`encode_scenario_id`: a non-ASCII or too long id is a
+    :class:`DataError` at ``key``."""
+    try:
+        return encode_scenario_id(sid.decode("ascii") if isinstance(sid, bytes) else sid)
+    except ValueError as err:  # UnicodeError included
+        raise DataError(f"bad scenario id: {err}", key=key) from None
+
+
+def object_flags(ids: np.ndarray, sdc: int, predict: Iterable[int], interest) -> dict:
+    """A reader's ``is_sdc``, ``tracks_to_predict`` (track indices; those outside the objects
+    are ignored) and ``objects_of_interest`` (object ids) for :class:`ObjectMetadata`."""
+    num = len(ids)
+    is_sdc, ttp = np.zeros(num, bool), np.zeros(num, bool)
+    is_sdc[sdc] = True
+    ttp[[i for i in predict if 0 <= i < num]] = True
+    return {"is_sdc": is_sdc, "tracks_to_predict": ttp,
+            "objects_of_interest": np.isin(ids, np.asarray(interest, np.int64))}
 
 
 def decode_scenario_id(arr: np.ndarray) -> str:

@@ -19,7 +19,7 @@ from igdrivsim.data.scenario import (
     TrafficLights,
     Trajectory,
     decode_scenario_id,
-    encode_scenario_id,
+    read_scenario_id,
 )
 from igdrivsim.errors import DataError
 
@@ -129,10 +129,7 @@ def _decode_id(fm) -> np.ndarray:
     values = fm["scenario/id"].bytes_list.value
     if len(values) != 1:
         raise DataError(f"expected 1 bytes value, found {len(values)}", key="scenario/id")
-    try:
-        return encode_scenario_id(values[0].decode("ascii"))
-    except (UnicodeDecodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario/id") from None
+    return read_scenario_id(values[0], "scenario/id")
 
 
 def encode_tfexample(scenario: Scenario) -> bytes:

@@ -27,7 +27,8 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
-    encode_scenario_id,
+    object_flags,
+    read_scenario_id,
 )
 from igdrivsim.errors import DataError
 
@@ -56,10 +57,7 @@ def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX
         raise DataError(f"current_time_index is {current}, expected {CURRENT_INDEX}",
                         key="current_time_index")
     trajectory, metadata = _decode_tracks(msg)
-    try:
-        sid = encode_scenario_id(msg.scenario_id)
-    except (UnicodeEncodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    sid = read_scenario_id(msg.scenario_id, "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
                     roadgraph=_decode_map(msg.map_features, max_spacing),
                     traffic_lights=_decode_lights(msg.dynamic_map_states), scenario_id=sid)
@@ -90,25 +88,16 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
                         key="tracks.states")
     f = values[:-1].astype(np.float32)
     f[:, ~valid] = np.where(np.isfinite(f[:, ~valid]), f[:, ~valid], -1.0)
-    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
-                            length=f[6], width=f[7], height=f[8], valid=valid)
+    trajectory = Trajectory(*f, valid=valid)  # f: the Trajectory fields in order
     if not msg.HasField("sdc_track_index") or not 0 <= msg.sdc_track_index < num:
         found = msg.sdc_track_index if msg.HasField("sdc_track_index") else "none"
         raise DataError(f"no SDC: sdc_track_index is {found} with {num} tracks",
                         key="sdc_track_index")
     ids = np.array([t.id for t in msg.tracks], np.int32)
-    is_sdc = np.zeros(num, bool)
-    is_sdc[msg.sdc_track_index] = True
-    ttp = np.zeros(num, bool)
-    for req in msg.tracks_to_predict:
-        if 0 <= req.track_index < num:
-            ttp[req.track_index] = True
     metadata = ObjectMetadata(
         id=ids, object_type=np.array([t.object_type for t in msg.tracks], np.int32),
-        is_sdc=is_sdc, tracks_to_predict=ttp,
-        objects_of_interest=np.isin(ids, np.asarray(msg.objects_of_interest, np.int64)),
-        valid=valid.any(axis=1),
-    )
+        **object_flags(ids, msg.sdc_track_index, [r.track_index for r in msg.tracks_to_predict],
+                       msg.objects_of_interest), valid=valid.any(axis=1))
     return trajectory, metadata
 
 

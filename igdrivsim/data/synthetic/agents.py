@@ -295,6 +295,20 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     return out
 
 
+def stop_cap(agent: Agent) -> float:
+    """The largest start speed that stops (at 1.5 m/s^2) before a stop sign or a red/yellow
+    light ahead."""
+    route, cap = agent.route, np.inf
+    lines = [route.stop_at]
+    if route.signal is not None and route.signal[0] != LIGHT_GO:
+        lines.append(route.signal_at)
+    for line in lines:
+        if line is not None and agent.s0 < line:
+            room = max(line - agent.s0 - agent.length / 2 - 1.0, 0.0)
+            cap = min(cap, float(np.sqrt(2 * 1.5 * room)))
+    return cap
+
+
 def _stopping(agent: Agent, room: float, v: float) -> float:
     """Acceleration to stop ``room`` metres ahead like a driver: roll on while the needed
     deceleration is below 0.8 of the comfortable one, then brake at the needed constant rate
