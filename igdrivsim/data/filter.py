@@ -283,20 +283,14 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
     write_json(os.path.join(out, name), resolved)
     todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f, egos) is None]
-    bar = None
-    if progress:
-        bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
     scenarios = 0
     tasks = [(f, shard_result_path(out, f), skip_bad, egos) for f in todo]
-    try:
+    with tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard",
+              disable=not progress) as bar:
         for done, _ in pool_map(filter_shard, tasks, min(workers, len(todo))):
             scenarios += done
-            if bar is not None:
-                bar.update()
-                bar.set_postfix(scenarios=scenarios)
-    finally:
-        if bar is not None:
-            bar.close()
+            bar.update()
+            bar.set_postfix(scenarios=scenarios)
     if part is not None:
         return None
     return _write_outputs(out, [shard_result_path(out, f) for f in files], config)

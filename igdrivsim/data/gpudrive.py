@@ -24,6 +24,7 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
+    empty_lights,
     object_flags,
     read_scenario_id,
 )
@@ -139,11 +140,7 @@ def _decode_lights(tl_states) -> TrafficLights:
     if not isinstance(tl_states, dict):
         raise DataError(f"expected an object keyed by lane id, got {type(tl_states).__name__}",
                         key="tl_states")
-    num = len(tl_states)
-    state = np.zeros((num, NUM_STEPS), np.int32)
-    valid = np.zeros((num, NUM_STEPS), bool)
-    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
-    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    out = empty_lights(len(tl_states))
     for slot, (lane, tl) in enumerate(tl_states.items()):
         w = f"tl_states.{lane}"
         steps = _get(tl, "time_index", w, list)
@@ -157,10 +154,10 @@ def _decode_lights(tl_states) -> TrafficLights:
                                 key=f"{w}.time_index")
             if names[k] not in LIGHT_STATES:
                 raise DataError(f"unknown light state {names[k]!r}", key=f"{w}.state")
-            state[slot, t], valid[slot, t] = LIGHT_STATES[names[k]], True
-            lane_id[slot, t] = int(lane)
-            pos[:, slot, t] = [float(c[k]) for c in coords]
-    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])
+            out.state[slot, t], out.valid[slot, t] = LIGHT_STATES[names[k]], True
+            out.lane_id[slot, t] = int(lane)
+            out.x[slot, t], out.y[slot, t], out.z[slot, t] = (float(c[k]) for c in coords)
+    return out
 
 
 def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:

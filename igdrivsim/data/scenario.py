@@ -232,6 +232,11 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     )
 
 
+def empty_lights(num: int) -> TrafficLights:
+    """``num`` all-invalid traffic-light slots over :data:`NUM_STEPS` (a reader fills them)."""
+    return empty_scenario(Capacities(0, 0, num)).traffic_lights
+
+
 def stack_scenarios(scenarios: list[Scenario]) -> Scenario:
     """Stack unbatched scenarios (same capacities) into one batch along a new leading axis."""
     return jax.tree.map(lambda *xs: np.stack(xs), *scenarios)

@@ -19,6 +19,7 @@ from igdrivsim.data.scenario import (
     TrafficLights,
     Trajectory,
     decode_scenario_id,
+    empty_lights,
     read_scenario_id,
 )
 from igdrivsim.errors import DataError
@@ -114,10 +115,7 @@ def _decode_lights(fm) -> TrafficLights:
         return np.concatenate(parts, axis=0).T.copy()
 
     if num_lights == 0:
-        z = np.zeros((0, NUM_STEPS))
-        return TrafficLights(state=z.astype(np.int32), valid=z.astype(bool),
-                             lane_id=z.astype(np.int32), x=z.astype(np.float32),
-                             y=z.astype(np.float32), z=z.astype(np.float32))
+        return empty_lights(0)
     fields = {name: light(key, np.int32 if name in ("state", "lane_id") else np.float32)
               for name, key in LIGHT_KEYS.items()}
     return TrafficLights(valid=light("valid", np.int64) > 0, **fields)

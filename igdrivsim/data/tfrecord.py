@@ -83,20 +83,12 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
             index += 1
 
 
-def iter_records(path: str | os.PathLike, check_crc: bool = True,
-                 start: int = 0) -> Iterator[tuple[int, bytes]]:
-    """Yield ``(record_index, data)`` for each record; raises :class:`DataError` on bad ones."""
-    for index, data, error in iter_frames(path, check_crc, start):
+def read_record(path: str | os.PathLike, index: int) -> bytes:
+    """The data of record ``index`` (raises :class:`DataError` if it is bad or missing)."""
+    for _, data, error in iter_frames(path, start=index):
         if error is not None:
             raise error
-        yield index, data
-
-
-def read_record(path: str | os.PathLike, index: int) -> bytes:
-    """The data of record ``index`` (raises :class:`DataError` if the file has fewer)."""
-    for i, data in iter_records(path, start=index):
-        if i == index:
-            return data
+        return data
     raise DataError(f"no record {index} (file has fewer records)", file=os.fspath(path),
                     record=index)
 

@@ -27,6 +27,7 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
+    empty_lights,
     object_flags,
     read_scenario_id,
 )
@@ -188,14 +189,10 @@ def _decode_lights(dynamic_states) -> TrafficLights:
             slot = slots.setdefault(ls.lane, len(slots))
             p = ls.stop_point
             rows.append((slot, t, ls.state, p.x, p.y, p.z))
-    num = len(slots)
-    state = np.zeros((num, NUM_STEPS), np.int32)
-    valid = np.zeros((num, NUM_STEPS), bool)
-    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
-    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    tl = empty_lights(len(slots))
     if rows:
         lanes = np.array(list(slots), np.int64)
         slot, t, s = (np.array([r[k] for r in rows], np.int64) for k in range(3))
-        state[slot, t], valid[slot, t], lane_id[slot, t] = s, True, lanes[slot]
-        pos[:, slot, t] = np.array([r[3:] for r in rows], np.float64).T
-    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])
+        tl.state[slot, t], tl.valid[slot, t], tl.lane_id[slot, t] = s, True, lanes[slot]
+        tl.x[slot, t], tl.y[slot, t], tl.z[slot, t] = np.array([r[3:] for r in rows]).T
+    return tl
