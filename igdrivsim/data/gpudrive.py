@@ -28,10 +28,7 @@ from igdrivsim.data.scenario import (
     object_flags,
     read_scenario_id,
 )
-from igdrivsim.data.womd_proto import (
-    DEFAULT_MAX_SPACING,
-    roadgraph_from_polylines,
-)
+from igdrivsim.data.womd_proto import roadgraph_from_polylines
 from igdrivsim.errors import DataError
 
 FORMAT_GPUDRIVE = "gpudrive_json"
@@ -116,7 +113,7 @@ def road_code(road: dict, where: str) -> int | None:
     return None  # 20: driveway; -1: unknown
 
 
-def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
+def _decode_roads(roads: list) -> Roadgraph:
     xyz, types, ids = [], [], []
     for i, road in enumerate(roads):
         w = f"roads[{i}]"
@@ -133,7 +130,7 @@ def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
         xyz.append(pts)
         types.append(code)
         ids.append(int(road.get("id", i)))
-    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
+    return roadgraph_from_polylines(xyz, types, ids)
 
 
 def _decode_lights(tl_states) -> TrafficLights:
@@ -160,7 +157,7 @@ def _decode_lights(tl_states) -> TrafficLights:
     return out
 
 
-def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+def decode_gpudrive(desc: dict) -> Scenario:
     """Decode one parsed GPUDrive JSON scenario (raises :class:`DataError` naming the key)."""
     if not isinstance(desc, dict):
         raise DataError(f"expected a JSON object, got {type(desc).__name__}")
@@ -179,11 +176,11 @@ def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Sce
     metadata = metadata.replace(**object_flags(ids, sdc, predict, interest))
     sid = read_scenario_id(_get(desc, "scenario_id", "", str), "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
-                    roadgraph=_decode_roads(_get(desc, "roads", "", list), max_spacing),
+                    roadgraph=_decode_roads(_get(desc, "roads", "", list)),
                     traffic_lights=_decode_lights(desc.get("tl_states", {})), scenario_id=sid)
 
 
-def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+def read_file(path: str | os.PathLike) -> Scenario:
     """The scenario of one GPUDrive JSON file; a malformed file raises one :class:`DataError`
     naming the file and the key."""
     path = os.fspath(path)
@@ -195,7 +192,7 @@ def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING)
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise DataError(f"not valid JSON ({err})", file=path) from None
     try:
-        return decode_gpudrive(desc, max_spacing)
+        return decode_gpudrive(desc)
     except DataError as err:
         raise DataError(err.problem, file=path, key=err.key) from None
     except (TypeError, ValueError, KeyError, AttributeError) as err:

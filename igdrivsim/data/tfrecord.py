@@ -33,7 +33,7 @@ def encode_record(data: bytes) -> bytes:
     return (length + _FOOTER.pack(masked_crc(length)) + data + _FOOTER.pack(masked_crc(data)))
 
 
-def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
+def iter_frames(path: str | os.PathLike, start: int = 0
                 ) -> Iterator[tuple[int, bytes | None, DataError | None]]:
     """Yield ``(record_index, data, error)`` for the records of a TFRecord file, from ``start``.
 
@@ -59,7 +59,7 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
                     record=index)
                 return
             length, length_crc = _HEADER.unpack(header)
-            if check_crc and masked_crc(header[:8]) != length_crc:
+            if masked_crc(header[:8]) != length_crc:
                 yield index, None, DataError(
                     "corrupt record: length CRC mismatch (not a TFRecord file?)", file=path,
                     record=index)
@@ -75,7 +75,7 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
                     f"{len(body)}", file=path, record=index)
                 return
             data = body[:length]
-            if check_crc and masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
+            if masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
                 yield index, None, DataError("corrupt record: data CRC mismatch", file=path,
                                              record=index)
             else:

@@ -4,7 +4,7 @@ Tracks become trajectory rows (one per track, in file order). Map features becom
 points with the tf.Example type codes: lane centres 1-3 (``LaneCenter.type``), road lines 5-13
 (``RoadLine.type + 5``), road edges 14-16 (``RoadEdge.type + 14``), stop signs 17 (one point),
 crosswalks 18 and speed bumps 19 (closed polygons). Driveways have no tf.Example type and are
-skipped. Polylines keep their vertices and segments longer than ``max_spacing`` are subdivided;
+skipped. Polylines keep their vertices and segments longer than ``MAX_SPACING`` are subdivided;
 ``dir`` is the unit vector to the next point of the polyline (zero at its end), so road edges keep
 WOMD's orientation (road interior on the left). Traffic lights get one slot per controlled lane,
 in order of first appearance.
@@ -34,7 +34,7 @@ from igdrivsim.data.scenario import (
 from igdrivsim.errors import DataError
 
 ROAD_LINE_OFFSET = 5
-DEFAULT_MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
+MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
 
 
 def parse_scenario_proto(data: bytes):
@@ -47,8 +47,7 @@ def is_scenario_proto(message) -> bool:
     return len(message.tracks) > 0 and message.HasField("scenario_id")
 
 
-def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX_SPACING
-                          ) -> Scenario:
+def decode_scenario_proto(data: bytes | object) -> Scenario:
     """Decode a serialized (or parsed) WOMD Scenario protobuf into a :class:`Scenario`."""
     msg = parse_scenario_proto(data) if isinstance(data, bytes | bytearray) else data
     if not is_scenario_proto(msg):
@@ -60,7 +59,7 @@ def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX
     trajectory, metadata = _decode_tracks(msg)
     sid = read_scenario_id(msg.scenario_id, "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
-                    roadgraph=_decode_map(msg.map_features, max_spacing),
+                    roadgraph=_decode_map(msg.map_features),
                     traffic_lights=_decode_lights(msg.dynamic_map_states), scenario_id=sid)
 
 
@@ -110,10 +109,8 @@ def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
     seg = np.zeros_like(points)
     inside = poly[1:] == poly[:-1]  # vertex k starts a segment of its polyline
     seg[:-1] = np.where(inside[:, None], np.diff(points, axis=0), 0.0)
-    pieces = np.ones(len(points), np.int64)
-    if max_spacing and max_spacing > 0:
-        length = np.linalg.norm(seg[:, :2], axis=1)
-        pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
+    length = np.linalg.norm(seg[:, :2], axis=1)
+    pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
     if (pieces == 1).all():
         return points, poly
     source = np.repeat(np.arange(len(points)), pieces)
@@ -132,16 +129,16 @@ def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return d
 
 
-def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int],
-                             max_spacing: float) -> Roadgraph:
+def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int]
+                             ) -> Roadgraph:
     """The roadgraph of typed polylines (``xyz[i]`` ``[V_i, 3]`` of type ``types[i]`` and id
-    ``ids[i]``), densified to ``max_spacing``: one place for every reader's map."""
+    ``ids[i]``), densified to :data:`MAX_SPACING`: one place for every reader's map."""
     if not xyz:
         z = np.zeros((0, 3), np.float32)
         return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
                          valid=np.zeros(0, bool))
     poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
+    points, poly = densify_polylines(np.concatenate(xyz), poly, MAX_SPACING)
     return Roadgraph(xyz=points.astype(np.float32),
                      dir=polyline_directions(points, poly).astype(np.float32),
                      type=np.asarray(types, np.int32)[poly],
@@ -149,7 +146,7 @@ def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[
                      valid=np.ones(len(points), bool))
 
 
-def _decode_map(features, max_spacing: float) -> Roadgraph:
+def _decode_map(features) -> Roadgraph:
     xyz, types, ids = [], [], []
     for feature in features:
         kind = feature.WhichOneof("feature_data")
@@ -175,7 +172,7 @@ def _decode_map(features, max_spacing: float) -> Roadgraph:
         xyz.append(points)
         types.append(rg_type)
         ids.append(feature.id)
-    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
+    return roadgraph_from_polylines(xyz, types, ids)
 
 
 def _decode_lights(dynamic_states) -> TrafficLights:
