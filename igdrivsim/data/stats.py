@@ -71,7 +71,6 @@ STATISTICS = (
     Statistic("track_seconds", "mean track length", "s"),
     Statistic("sdc_edge_distance", "SDC distance to the road edge at t = 10", "m"),
 )
-STATISTIC_KEYS = tuple(s.key for s in STATISTICS)
 
 # WOSAC-style per-object-step features: name -> histogram bin edges
 FEATURES: dict[str, np.ndarray] = {
@@ -131,7 +130,7 @@ def _lane_length(scenario: Scenario, centre: np.ndarray, radius: float = 50.0) -
 def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     """Statistics of one unbatched scenario: ``(row, histograms)``.
 
-    ``row`` holds :data:`STATISTIC_KEYS` plus ``scenario_id`` and ``kept`` (the paper's filter);
+    ``row`` holds the :data:`STATISTICS` keys, ``scenario_id`` and ``kept`` (the paper's filter);
     ``histograms`` the :data:`FEATURES` counts over every valid object and step.
     """
     md = scenario.metadata
