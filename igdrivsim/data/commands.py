@@ -69,8 +69,7 @@ def inspect_arguments(parser: argparse.ArgumentParser) -> None:
 
 def inspect_command(args: argparse.Namespace) -> int:
     """Print one JSON line per scenario: where it is, its format and :func:`describe`."""
-    if args.limit is not None and args.limit < 0:
-        raise ConfigError(f"--limit must be >= 0, got {args.limit}")
+    check_min("--limit", args.limit, 0)
     check_min("--workers", args.workers, 1)
     stats = ReadStats()
     shown = 0
@@ -127,8 +126,7 @@ def filter_command(args: argparse.Namespace) -> int:
         counts = merge(args.inputs, args.out, config if explicit else None)
     else:
         part = parse_part(args.part)
-        if args.workers < 0:
-            raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+        check_min("--workers", args.workers, 0)
         counts = run_filter(args.inputs, args.out, config, workers=args.workers, part=part,
                             skip_bad=args.skip_bad, progress=not args.no_progress,
                             egos=args.egos)

@@ -80,19 +80,24 @@ def path_segments(xy: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.nda
     return xy[:-1][both], xy[1:][both]
 
 
+def valid_xy(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """``(valid [O, T], xy [O, T, 2])`` of one unbatched scenario: steps valid in a valid slot,
+    positions in float64."""
+    tr, md = scenario.trajectory, scenario.metadata
+    valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
+    return valid, np.stack([np.asarray(tr.x, np.float64), np.asarray(tr.y, np.float64)], -1)
+
+
 def intersecting_objects(scenario: Scenario) -> np.ndarray:
     """Bool ``[O]``: which other objects' logged paths intersect the SDC's (unbatched scenario)."""
-    tr, md = scenario.trajectory, scenario.metadata
-    is_sdc = np.asarray(md.is_sdc, bool)
-    num = is_sdc.shape[-1]
-    hits = np.zeros(num, bool)
+    is_sdc = np.asarray(scenario.metadata.is_sdc, bool)
+    hits = np.zeros(is_sdc.shape[-1], bool)
     if scenario.batch_shape:
         raise ValueError(f"intersecting_objects takes one scenario, got {scenario.batch_shape}")
     if not is_sdc.any():
         return hits
     sdc = int(np.argmax(is_sdc))
-    xy = np.stack([np.asarray(tr.x, np.float64), np.asarray(tr.y, np.float64)], -1)
-    valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
+    valid, xy = valid_xy(scenario)
     s0, s1 = path_segments(xy[sdc], valid[sdc])
     if len(s0) == 0:
         return hits
@@ -278,20 +283,14 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
     write_json(os.path.join(out, name), resolved)
     todo = [f for f in files if _read_shard_result(shard_result_path(out, f), f, egos) is None]
-    bar = None
-    if progress:
-        bar = tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard")
     scenarios = 0
     tasks = [(f, shard_result_path(out, f), skip_bad, egos) for f in todo]
-    try:
+    with tqdm(total=len(files), initial=len(files) - len(todo), desc="filter", unit="shard",
+              disable=not progress) as bar:
         for done, _ in pool_map(filter_shard, tasks, min(workers, len(todo))):
             scenarios += done
-            if bar is not None:
-                bar.update()
-                bar.set_postfix(scenarios=scenarios)
-    finally:
-        if bar is not None:
-            bar.close()
+            bar.update()
+            bar.set_postfix(scenarios=scenarios)
     if part is not None:
         return None
     return _write_outputs(out, [shard_result_path(out, f) for f in files], config)
@@ -364,6 +363,5 @@ def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
                             "unreadable shards)", file=p)
         files.setdefault(result["file"], p)
     os.makedirs(out, exist_ok=True)
-    write_json_config = {**config.to_dict(), "merged": dirs}
-    write_json(os.path.join(out, CONFIG_FILE), write_json_config)
+    write_json(os.path.join(out, CONFIG_FILE), {**config.to_dict(), "merged": dirs})
     return _write_outputs(out, [files[f] for f in sorted(files)], config)

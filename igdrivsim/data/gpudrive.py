@@ -24,12 +24,11 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
-    encode_scenario_id,
+    empty_lights,
+    object_flags,
+    read_scenario_id,
 )
-from igdrivsim.data.womd_proto import (
-    DEFAULT_MAX_SPACING,
-    roadgraph_from_polylines,
-)
+from igdrivsim.data.womd_proto import roadgraph_from_polylines
 from igdrivsim.errors import DataError
 
 FORMAT_GPUDRIVE = "gpudrive_json"
@@ -97,8 +96,7 @@ def _decode_objects(objects: list) -> tuple[Trajectory, ObjectMetadata, np.ndarr
             raise DataError(f"unknown object type {kind!r}; known: {', '.join(OBJECT_TYPES)}",
                             key=f"{w}.type")
         types[i] = OBJECT_TYPES[kind]
-    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
-                            length=f[6], width=f[7], height=f[8], valid=valid)
+    trajectory = Trajectory(*f, valid=valid)
     metadata = ObjectMetadata(id=ids, object_type=types, is_sdc=np.zeros(num, bool),
                               tracks_to_predict=np.zeros(num, bool),
                               objects_of_interest=np.zeros(num, bool), valid=valid.any(axis=1))
@@ -115,7 +113,7 @@ def road_code(road: dict, where: str) -> int | None:
     return None  # 20: driveway; -1: unknown
 
 
-def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
+def _decode_roads(roads: list) -> Roadgraph:
     xyz, types, ids = [], [], []
     for i, road in enumerate(roads):
         w = f"roads[{i}]"
@@ -132,18 +130,14 @@ def _decode_roads(roads: list, max_spacing: float) -> Roadgraph:
         xyz.append(pts)
         types.append(code)
         ids.append(int(road.get("id", i)))
-    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
+    return roadgraph_from_polylines(xyz, types, ids)
 
 
 def _decode_lights(tl_states) -> TrafficLights:
     if not isinstance(tl_states, dict):
         raise DataError(f"expected an object keyed by lane id, got {type(tl_states).__name__}",
                         key="tl_states")
-    num = len(tl_states)
-    state = np.zeros((num, NUM_STEPS), np.int32)
-    valid = np.zeros((num, NUM_STEPS), bool)
-    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
-    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    out = empty_lights(len(tl_states))
     for slot, (lane, tl) in enumerate(tl_states.items()):
         w = f"tl_states.{lane}"
         steps = _get(tl, "time_index", w, list)
@@ -157,13 +151,13 @@ def _decode_lights(tl_states) -> TrafficLights:
                                 key=f"{w}.time_index")
             if names[k] not in LIGHT_STATES:
                 raise DataError(f"unknown light state {names[k]!r}", key=f"{w}.state")
-            state[slot, t], valid[slot, t] = LIGHT_STATES[names[k]], True
-            lane_id[slot, t] = int(lane)
-            pos[:, slot, t] = [float(c[k]) for c in coords]
-    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])
+            out.state[slot, t], out.valid[slot, t] = LIGHT_STATES[names[k]], True
+            out.lane_id[slot, t] = int(lane)
+            out.x[slot, t], out.y[slot, t], out.z[slot, t] = (float(c[k]) for c in coords)
+    return out
 
 
-def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+def decode_gpudrive(desc: dict) -> Scenario:
     """Decode one parsed GPUDrive JSON scenario (raises :class:`DataError` naming the key)."""
     if not isinstance(desc, dict):
         raise DataError(f"expected a JSON object, got {type(desc).__name__}")
@@ -176,28 +170,17 @@ def decode_gpudrive(desc: dict, max_spacing: float = DEFAULT_MAX_SPACING) -> Sce
     if not 0 <= sdc < len(objects):
         raise DataError(f"sdc_track_index is {sdc} with {len(objects)} objects",
                         key="metadata.sdc_track_index")
-    is_sdc = np.zeros(len(objects), bool)
-    is_sdc[sdc] = True
-    ttp = np.zeros(len(objects), bool)
-    for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list)):
-        index = _get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
-        if 0 <= index < len(objects):
-            ttp[index] = True
+    predict = [_get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
+               for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list))]
     interest = _get(meta, "objects_of_interest", "metadata", list)
-    metadata = metadata.replace(is_sdc=is_sdc, tracks_to_predict=ttp,
-                                objects_of_interest=np.isin(ids, np.asarray(interest, np.int64)))
-    sid = _get(desc, "scenario_id", "", str)
-    try:
-        sid_bytes = encode_scenario_id(sid)
-    except (UnicodeEncodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    metadata = metadata.replace(**object_flags(ids, sdc, predict, interest))
+    sid = read_scenario_id(_get(desc, "scenario_id", "", str), "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
-                    roadgraph=_decode_roads(_get(desc, "roads", "", list), max_spacing),
-                    traffic_lights=_decode_lights(desc.get("tl_states", {})),
-                    scenario_id=sid_bytes)
+                    roadgraph=_decode_roads(_get(desc, "roads", "", list)),
+                    traffic_lights=_decode_lights(desc.get("tl_states", {})), scenario_id=sid)
 
 
-def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING) -> Scenario:
+def read_file(path: str | os.PathLike) -> Scenario:
     """The scenario of one GPUDrive JSON file; a malformed file raises one :class:`DataError`
     naming the file and the key."""
     path = os.fspath(path)
@@ -209,7 +192,7 @@ def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING)
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise DataError(f"not valid JSON ({err})", file=path) from None
     try:
-        return decode_gpudrive(desc, max_spacing)
+        return decode_gpudrive(desc)
     except DataError as err:
         raise DataError(err.problem, file=path, key=err.key) from None
     except (TypeError, ValueError, KeyError, AttributeError) as err:

@@ -29,12 +29,12 @@ Definitions (``DT`` = 0.1 s, ``LAG`` = 4 steps = 0.4 s, every rate is a differen
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from igdrivsim.data.filter import valid_xy
 from igdrivsim.data.scenario import CURRENT_INDEX, DT, TYPE_CYCLIST, TYPE_VEHICLE, Scenario
 from igdrivsim.data.stats import (
     ACCEL_LAG,
@@ -42,7 +42,10 @@ from igdrivsim.data.stats import (
     MAX_POLYLINE_GAP,
     STATIC_M,
     STATIC_MIN_STEPS,
+    Statistic,
+    histogram,
     js_divergence,
+    path_extent,
     summary,
 )
 from igdrivsim.io import atomic_savefig
@@ -64,44 +67,31 @@ GROUP_SHORT = {"sdc": "SDC", "others": "others"}
 AGENT_TYPES = (TYPE_VEHICLE, TYPE_CYCLIST)
 
 
-@dataclass(frozen=True)
-class MotionStatistic:
-    """A motion statistic: key, label, unit, histogram ``edges`` (JS divergence, figure) and
-    ``per`` ("agent": one value per agent, "step": one per valid window)."""
-
-    key: str
-    label: str
-    unit: str
-    edges: np.ndarray = field(repr=False, compare=False)
-    per: str = "step"
-    count: bool = False  # summarised by its mean (events per agent)
-
-
-def _cv(h: int) -> tuple[MotionStatistic, ...]:
+def _cv(h: int) -> tuple[Statistic, ...]:
     top = {1: 5.0, 3: 20.0, 5: 40.0, 8: 80.0}[h]
-    return (MotionStatistic(f"cv_distance_{h}s", f"CV distance at {h} s", "m",
+    return (Statistic(f"cv_distance_{h}s", f"CV distance at {h} s", "m",
                             np.linspace(0, top, 51), "agent"),
-            MotionStatistic(f"cv_along_{h}s", f"CV distance along the heading at {h} s", "m",
+            Statistic(f"cv_along_{h}s", f"CV distance along the heading at {h} s", "m",
                             np.linspace(-top, top, 81), "agent"),
-            MotionStatistic(f"cv_across_{h}s", f"CV distance across the heading at {h} s (abs.)",
+            Statistic(f"cv_across_{h}s", f"CV distance across the heading at {h} s (abs.)",
                             "m", np.linspace(0, top / 2, 51), "agent"))
 
 
-MOTION_STATISTICS: tuple[MotionStatistic, ...] = (
+MOTION_STATISTICS: tuple[Statistic, ...] = (
     *(s for h in HORIZONS for s in _cv(h)),
-    MotionStatistic("speed", "speed", "m/s", np.linspace(0, 30, 61)),
-    MotionStatistic("acceleration", "acceleration", "m/s^2", np.linspace(-8, 8, 65)),
-    MotionStatistic("jerk", "longitudinal jerk", "m/s^3", np.linspace(-10, 10, 81)),
-    MotionStatistic("yaw_rate", "yaw rate (speed > 1 m/s)", "rad/s", np.linspace(-0.5, 0.5, 81)),
-    MotionStatistic("curvature", "curvature (speed > 1 m/s)", "1/m", np.linspace(-0.1, 0.1, 81)),
-    MotionStatistic("lane_offset", "lateral offset from the lane centre", "m",
+    Statistic("speed", "speed", "m/s", np.linspace(0, 30, 61)),
+    Statistic("acceleration", "acceleration", "m/s^2", np.linspace(-8, 8, 65)),
+    Statistic("jerk", "longitudinal jerk", "m/s^3", np.linspace(-10, 10, 81)),
+    Statistic("yaw_rate", "yaw rate (speed > 1 m/s)", "rad/s", np.linspace(-0.5, 0.5, 81)),
+    Statistic("curvature", "curvature (speed > 1 m/s)", "1/m", np.linspace(-0.1, 0.1, 81)),
+    Statistic("lane_offset", "lateral offset from the lane centre", "m",
                     np.linspace(-4, 4, 81)),
-    MotionStatistic("lane_offset_rate", "lateral offset rate", "m/s", np.linspace(-2, 2, 81)),
-    MotionStatistic("stopped_share", "share of the future stopped (< 0.5 m/s)", "",
+    Statistic("lane_offset_rate", "lateral offset rate", "m/s", np.linspace(-2, 2, 81)),
+    Statistic("stopped_share", "share of the future stopped (< 0.5 m/s)", "",
                     np.linspace(0, 1, 21), "agent"),
-    MotionStatistic("lane_changes", "lane changes per agent (mean)", "",
+    Statistic("lane_changes", "lane changes per agent (mean)", "",
                     np.arange(-0.5, 6.0), "agent", count=True),
-    MotionStatistic("turns", "turns > 45 deg per agent (mean)", "",
+    Statistic("turns", "turns > 45 deg per agent (mean)", "",
                     np.arange(-0.5, 2.0), "agent", count=True),
 )
 AGENT_KEYS = tuple(s.key for s in MOTION_STATISTICS if s.per == "agent")
@@ -260,15 +250,10 @@ class Motion(NamedTuple):
 
 def motion_agents(scenario: Scenario) -> tuple[int | None, np.ndarray]:
     """The SDC's index (None when it has no valid step) and the other moving agents' indices."""
-    tr, md = scenario.trajectory, scenario.metadata
-    valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
-    xy = np.stack([np.asarray(tr.x, np.float64), np.asarray(tr.y, np.float64)], -1)
+    md = scenario.metadata
+    valid, xy = valid_xy(scenario)
     sdc = int(np.argmax(np.asarray(md.is_sdc)))
-    lo = np.where(valid[..., None], xy, np.inf).min(1)
-    hi = np.where(valid[..., None], xy, -np.inf).max(1)
-    with np.errstate(invalid="ignore"):
-        extent = np.linalg.norm(hi - lo, axis=-1)
-    moving = ((valid.sum(1) > STATIC_MIN_STEPS) & (extent >= STATIC_M)
+    moving = ((valid.sum(1) > STATIC_MIN_STEPS) & (path_extent(xy, valid) >= STATIC_M)
               & np.isin(np.asarray(md.object_type), AGENT_TYPES))
     moving[sdc] = False
     return (sdc if valid[sdc].any() else None), np.flatnonzero(moving)
@@ -276,9 +261,8 @@ def motion_agents(scenario: Scenario) -> tuple[int | None, np.ndarray]:
 
 def motion_statistics(scenario: Scenario) -> Motion:
     """Motion statistics of one unbatched scenario (module docstring)."""
-    tr, md = scenario.trajectory, scenario.metadata
-    valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
-    xy = np.stack([np.asarray(tr.x), np.asarray(tr.y)], -1)
+    tr = scenario.trajectory
+    valid, xy = valid_xy(scenario)
     vel = np.stack([np.asarray(tr.vel_x), np.asarray(tr.vel_y)], -1)
     yaw = np.asarray(tr.yaw)
     lanes = LaneMap.of(scenario)
@@ -322,10 +306,9 @@ class MotionPool:
             parts[:] = [np.concatenate(parts) if parts else np.zeros(0)]
         return parts[0][np.isfinite(parts[0])]
 
-    def histogram(self, group: str, stat: MotionStatistic) -> np.ndarray:
-        """Counts over ``stat.edges``; values beyond the ends go to the outer bins."""
-        v = np.clip(self.values(group, stat.key), stat.edges[0], stat.edges[-1])
-        return np.histogram(v, stat.edges)[0]
+    def histogram(self, group: str, stat: Statistic) -> np.ndarray:
+        """Counts over ``stat.edges`` (:func:`~igdrivsim.data.stats.histogram`)."""
+        return histogram(self.values(group, stat.key), stat.edges)
 
 
 def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:

@@ -70,12 +70,6 @@ def available_cpus() -> int:
         return os.cpu_count() or 1
 
 
-def process_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` fresh (spawned) processes: forking a process that runs JAX threads
-    can deadlock, and workers only need NumPy and protobuf."""
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
-
-
 def expand_paths(spec: PathSpec) -> list[str]:
     """Files named by a path, a directory (its files; an ``igdrivsim samples`` folder: its
     scenario files), a glob, ``name@N`` (``name-00000-of-0000N`` ...), or a list of those;
@@ -169,7 +163,8 @@ def pool_map(fn, tasks, workers: int) -> Iterator:
     if workers <= 1:
         yield from (fn(*task) for task in tasks)
         return
-    with process_pool(workers) as pool:
+    # spawned, not forked: forking a process that runs JAX threads can deadlock
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         todo = iter(tasks)
         pending = [pool.submit(fn, *task) for task in itertools.islice(todo, 2 * workers)]
         try:

@@ -11,11 +11,14 @@ current at index 10, 80 future), roadgraph points ``R``, traffic lights ``L``.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import jax
 import numpy as np
 from flax import struct
+
+from igdrivsim.errors import DataError
 
 NUM_STEPS = 91  # 9.1 s at 10 Hz
 CURRENT_INDEX = 10  # index of the "current" step; steps 0..10 are the warm-up
@@ -142,6 +145,26 @@ def encode_scenario_id(sid: str) -> np.ndarray:
     return out
 
 
+def read_scenario_id(sid: str | bytes, key: str) -> np.ndarray:
+    """A reader's :func:`encode_scenario_id`: a non-ASCII or too long id is a
+    :class:`DataError` at ``key``."""
+    try:
+        return encode_scenario_id(sid.decode("ascii") if isinstance(sid, bytes) else sid)
+    except ValueError as err:  # UnicodeError included
+        raise DataError(f"bad scenario id: {err}", key=key) from None
+
+
+def object_flags(ids: np.ndarray, sdc: int, predict: Iterable[int], interest) -> dict:
+    """A reader's ``is_sdc``, ``tracks_to_predict`` (track indices; those outside the objects
+    are ignored) and ``objects_of_interest`` (object ids) for :class:`ObjectMetadata`."""
+    num = len(ids)
+    is_sdc, ttp = np.zeros(num, bool), np.zeros(num, bool)
+    is_sdc[sdc] = True
+    ttp[[i for i in predict if 0 <= i < num]] = True
+    return {"is_sdc": is_sdc, "tracks_to_predict": ttp,
+            "objects_of_interest": np.isin(ids, np.asarray(interest, np.int64))}
+
+
 def decode_scenario_id(arr: np.ndarray) -> str:
     """Scenario id of one (unbatched) scenario as a string."""
     return bytes(np.asarray(arr, np.uint8)).rstrip(b"\0").decode("ascii")
@@ -207,6 +230,11 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
         ),
         scenario_id=np.zeros(SCENARIO_ID_BYTES, np.uint8),
     )
+
+
+def empty_lights(num: int) -> TrafficLights:
+    """``num`` all-invalid traffic-light slots over :data:`NUM_STEPS` (a reader fills them)."""
+    return empty_scenario(Capacities(0, 0, num)).traffic_lights
 
 
 def stack_scenarios(scenarios: list[Scenario]) -> Scenario:

@@ -40,7 +40,7 @@ from igdrivsim.data.scenario import (
     Trajectory,
     encode_scenario_id,
 )
-from igdrivsim.data.womd_proto import DEFAULT_MAX_SPACING, roadgraph_from_polylines
+from igdrivsim.data.womd_proto import MAX_SPACING, roadgraph_from_polylines
 from igdrivsim.errors import DataError
 
 FORMAT_SCENARIONET = "scenarionet"
@@ -213,7 +213,7 @@ def _array(value, shape_tail: tuple[int, ...], key: str) -> np.ndarray:
     return a
 
 
-def _timestep(desc: dict, length: int) -> float:
+def _timestep(desc: dict) -> float:
     meta = desc.get("metadata", {})
     ts = meta.get("ts")
     if ts is not None and len(ts) >= 2:
@@ -299,7 +299,7 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
     return xyz
 
 
-def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPACING,
+def union_boundary(polygons: list[np.ndarray], spacing: float = MAX_SPACING,
                    probe: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boundary of the union of polygons as sampled, oriented polylines.
 
@@ -354,7 +354,7 @@ def union_boundary(polygons: list[np.ndarray], spacing: float = DEFAULT_MAX_SPAC
     return xy[keep], d[keep], poly[keep]
 
 
-def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
+def _decode_map(desc: dict) -> tuple[Roadgraph, dict]:
     """Roadgraph at native size and the map-feature-key -> id mapping."""
     features = desc.get("map_features") or {}
     drop_z = str(desc.get("metadata", {}).get("dataset", "")).lower() == "nuscenes"
@@ -387,9 +387,9 @@ def _decode_map(desc: dict, max_spacing: float) -> tuple[Roadgraph, dict]:
         xyz.append(pts)
         types.append(rg_type)
         pids.append(ids[k])
-    rg = roadgraph_from_polylines(xyz, types, pids, max_spacing)
+    rg = roadgraph_from_polylines(xyz, types, pids)
     if not any(t in RG_ROAD_EDGE_TYPES for t in types) and lane_polygons:
-        bxy, bdir, bpoly = union_boundary(lane_polygons, max_spacing)
+        bxy, bdir, bpoly = union_boundary(lane_polygons)
         base = int(max(ids.values(), default=-1)) + 1
         flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
         rg = Roadgraph(xyz=np.concatenate([rg.xyz, flat(bxy)]),
@@ -489,7 +489,7 @@ def legacy_description(desc: dict) -> dict:
             "tracks": tracks, "dynamic_map_states": {}, "map_features": feats}
 
 
-def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING) -> list[Window]:
+def decode_description(desc: Any) -> list[Window]:
     """A ScenarioNet scenario dict (or a legacy MetaDrive export, :func:`legacy_description`)
     as its 91-step windows (native sizes, no capacities)."""
     if is_legacy_description(desc):
@@ -510,7 +510,7 @@ def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING) -> l
     source_id = str(meta.get("scenario_id") or meta.get("id") or desc.get("id") or "")
     tr = _decode_tracks(desc)
     length = tr["xyz"].shape[1]
-    dt = _timestep(desc, length)
+    dt = _timestep(desc)
     if not 0.001 < dt < 10:
         raise DataError(f"bad timestep {dt} s", key="metadata/ts")
     if abs(dt - DT) > 0.01:  # resample to 10 Hz
@@ -525,7 +525,7 @@ def decode_description(desc: Any, max_spacing: float = DEFAULT_MAX_SPACING) -> l
         length = len(dst)
     else:
         light_src = np.arange(length)
-    roadgraph, map_ids = _decode_map(desc, max_spacing)
+    roadgraph, map_ids = _decode_map(desc)
     lights = _decode_lights(desc, map_ids, int(light_src[-1]) + 1)
     lights = {k: v[:, light_src] for k, v in lights.items()}
     if length <= CURRENT_INDEX:
@@ -587,13 +587,12 @@ def source_dataset(path: str | os.PathLike) -> str | None:
     return DATASET_NAMES.get(name.lower(), name or None)
 
 
-def read_file(path: str | os.PathLike, max_spacing: float = DEFAULT_MAX_SPACING
-              ) -> list[Window]:
+def read_file(path: str | os.PathLike) -> list[Window]:
     """The windows of one ScenarioNet ``.pkl`` file (native sizes)."""
     path = os.fspath(path)
     desc = safe_load(path)
     try:
-        return decode_description(desc, max_spacing)
+        return decode_description(desc)
     except DataError as err:
         raise DataError(err.problem, file=path, key=err.key) from None
 

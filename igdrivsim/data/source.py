@@ -140,37 +140,30 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
     """How many scenarios :func:`open_scenarios` yields for ``data`` (at most ``max_scenarios``; 0:
     no cap), for a progress bar's total; None where that is not cheap (every vehicle as the ego,
     ScenarioNet) or the path does not read (the read itself reports it)."""
-    if not isinstance(data, str | os.PathLike):  # a list: each item as open_scenarios reads it
-        total = 0
-        for item in data:
-            n = count_scenarios(item, max_scenarios - total if max_scenarios else 0, egos)
-            if n is None:
+    total = 0
+    try:
+        for item in [data] if isinstance(data, str | os.PathLike) else data:
+            manifest = manifest_of(item)
+            if manifest is not None:
+                entries = read_manifest(manifest)
+                if egos == "all" and not any("ego" in e for e in entries):
+                    return None
+                total += len(entries)
+            elif egos == "all":
                 return None
-            total += n
+            else:
+                for path in expand_paths(item):
+                    if max_scenarios and total >= max_scenarios:
+                        break
+                    fmt = format_of(path)
+                    if not fmt.cheap_count:
+                        return None
+                    total += fmt.count(path)
             if max_scenarios and total >= max_scenarios:
                 break
-        return total
-    try:
-        manifest = manifest_of(data)
-        if manifest is not None:
-            entries = read_manifest(manifest)
-            if egos == "all" and not any("ego" in e for e in entries):
-                return None
-            total = len(entries)
-        elif egos == "all":
-            return None
-        else:
-            total = 0
-            for path in expand_paths(data):
-                if max_scenarios and total >= max_scenarios:
-                    break
-                fmt = format_of(path)
-                if not fmt.cheap_count:
-                    return None
-                total += fmt.count(path)
-        return min(total, max_scenarios) if max_scenarios else total
     except (DataError, OSError):
         return None
+    return min(total, max_scenarios) if max_scenarios else total
 
 
 def data_identity(data) -> str:

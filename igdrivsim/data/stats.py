@@ -10,12 +10,12 @@ divergence says how close two data sets' whole distributions are.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed
+from igdrivsim.data.filter import intersecting_objects, sdc_mean_speed, valid_xy
 from igdrivsim.data.scenario import (
     CURRENT_INDEX,
     DT,
@@ -38,11 +38,20 @@ MAX_POLYLINE_GAP = 5.0  # m: consecutive same-id points farther apart are not on
 
 @dataclass(frozen=True)
 class Statistic:
-    """A per-scenario statistic: CSV column, label, unit."""
+    """A statistic: CSV column, label, unit; a motion statistic (:mod:`.motion_stats`) also has
+    histogram ``edges`` (JS divergence, figure), ``per`` ("agent": one value per agent, "step":
+    one per valid window) and ``count`` (summarised by its mean: events per agent)."""
 
     key: str
     label: str
     unit: str = ""
+    edges: np.ndarray | None = field(default=None, repr=False, compare=False)
+    per: str = "step"
+    count: bool = False
+
+    @property
+    def title(self) -> str:
+        return f"{self.label} ({self.unit})" if self.unit else self.label
 
 
 STATISTICS = (
@@ -62,7 +71,6 @@ STATISTICS = (
     Statistic("track_seconds", "mean track length", "s"),
     Statistic("sdc_edge_distance", "SDC distance to the road edge at t = 10", "m"),
 )
-STATISTIC_KEYS = tuple(s.key for s in STATISTICS)
 
 # WOSAC-style per-object-step features: name -> histogram bin edges
 FEATURES: dict[str, np.ndarray] = {
@@ -73,10 +81,18 @@ FEATURES: dict[str, np.ndarray] = {
 }
 
 
-def _histogram(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def histogram(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Counts over ``edges``; values beyond the ends go to the outer bins."""
     values = np.clip(values[np.isfinite(values)], edges[0], edges[-1])
     return np.histogram(values, edges)[0].astype(np.int64)
+
+
+def path_extent(xy: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Diagonal ``[O]`` of each object's box of valid positions (``xy [O, T, 2]``)."""
+    lo = np.where(valid[..., None], xy, np.inf).min(1)
+    hi = np.where(valid[..., None], xy, -np.inf).max(1)
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(hi - lo, axis=-1)
 
 
 def _edges(scenario: Scenario) -> tuple[cKDTree | None, np.ndarray]:
@@ -114,12 +130,11 @@ def _lane_length(scenario: Scenario, centre: np.ndarray, radius: float = 50.0) -
 def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     """Statistics of one unbatched scenario: ``(row, histograms)``.
 
-    ``row`` holds :data:`STATISTIC_KEYS` plus ``scenario_id`` and ``kept`` (the paper's filter);
+    ``row`` holds the :data:`STATISTICS` keys, ``scenario_id`` and ``kept`` (the paper's filter);
     ``histograms`` the :data:`FEATURES` counts over every valid object and step.
     """
-    tr, md = scenario.trajectory, scenario.metadata
-    valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
-    xy = np.stack([np.asarray(tr.x, np.float64), np.asarray(tr.y, np.float64)], -1)
+    md = scenario.metadata
+    valid, xy = valid_xy(scenario)
     types = np.asarray(md.object_type)
     sdc = int(np.argmax(np.asarray(md.is_sdc)))
     n, steps = valid.shape
@@ -133,10 +148,7 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     future = dist[:, CURRENT_INDEX + 1:]
     future_ok = valid[sdc, CURRENT_INDEX + 1:]
     counted = valid.sum(1) > STATIC_MIN_STEPS
-    lo = np.where(valid[..., None], xy, np.inf).min(1)
-    hi = np.where(valid[..., None], xy, -np.inf).max(1)
-    extent = np.linalg.norm(hi - lo, axis=-1)
-    static = counted & others & (extent < STATIC_M)
+    static = counted & others & (path_extent(xy, valid) < STATIC_M)
     moving = counted & others & ~static
     speed = np.linalg.norm(np.diff(xy[sdc], axis=0), axis=1) / DT  # from positions, per 0.1 s
     ok = valid[sdc, 1:] & valid[sdc, :-1]
@@ -181,10 +193,10 @@ def _feature_histograms(xy: np.ndarray, valid: np.ndarray, edges) -> dict[str, n
             d, _ = cKDTree(xy[idx, t]).query(xy[idx, t], k=2)
             nearest[idx, t] = d[:, 1]
     return {
-        "speed": _histogram(step[step_ok], FEATURES["speed"]),
-        "acceleration": _histogram(acc[acc_ok], FEATURES["acceleration"]),
-        "nearest_object_distance": _histogram(nearest[valid], FEATURES["nearest_object_distance"]),
-        "road_edge_distance": _histogram(_edge_distance(edges, xy[valid]),
+        "speed": histogram(step[step_ok], FEATURES["speed"]),
+        "acceleration": histogram(acc[acc_ok], FEATURES["acceleration"]),
+        "nearest_object_distance": histogram(nearest[valid], FEATURES["nearest_object_distance"]),
+        "road_edge_distance": histogram(_edge_distance(edges, xy[valid]),
                                          FEATURES["road_edge_distance"]),
     }
 

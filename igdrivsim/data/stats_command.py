@@ -113,14 +113,13 @@ def summary_table(frame, kept_only=()) -> str:
     head = [f"{n} ({cells[n][0]}{' kept' if n in kept_only else ''})" for n in names]
     lines = ["| statistic | " + " | ".join(head) + " |", "|---" * (len(names) + 1) + "|"]
     for s in STATISTICS:
-        label = f"{s.label} ({s.unit})" if s.unit else s.label
         vals = []
         for n in names:
             med, p10, p90 = cells[n][1][s.key]
             fmt = ".2f" if abs(med) < 10 else ".1f" if abs(med) < 100 else ".0f"
             vals.append("-" if np.isnan(med) else
                         f"{med:{fmt}} [{p10:{fmt}}, {p90:{fmt}}]")
-        lines.append(f"| {label} | " + " | ".join(vals) + " |")
+        lines.append(f"| {s.title} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
 
 
@@ -156,8 +155,7 @@ def motion_tables(summary_frame, kept_only: Sequence[str] = ()) -> str:
                              else _cell(r["median"], r["p10"], r["p90"]))
             cells += ["-" if np.isnan(sub.loc[(n, s.key), "js"]) else
                       f"{sub.loc[(n, s.key), 'js']:.3f}" for n in others]
-            label = f"{s.label} ({s.unit})" if s.unit else s.label
-            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+            lines.append(f"| {s.title} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
 

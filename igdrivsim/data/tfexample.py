@@ -19,7 +19,8 @@ from igdrivsim.data.scenario import (
     TrafficLights,
     Trajectory,
     decode_scenario_id,
-    encode_scenario_id,
+    empty_lights,
+    read_scenario_id,
 )
 from igdrivsim.errors import DataError
 
@@ -114,10 +115,7 @@ def _decode_lights(fm) -> TrafficLights:
         return np.concatenate(parts, axis=0).T.copy()
 
     if num_lights == 0:
-        z = np.zeros((0, NUM_STEPS))
-        return TrafficLights(state=z.astype(np.int32), valid=z.astype(bool),
-                             lane_id=z.astype(np.int32), x=z.astype(np.float32),
-                             y=z.astype(np.float32), z=z.astype(np.float32))
+        return empty_lights(0)
     fields = {name: light(key, np.int32 if name in ("state", "lane_id") else np.float32)
               for name, key in LIGHT_KEYS.items()}
     return TrafficLights(valid=light("valid", np.int64) > 0, **fields)
@@ -129,10 +127,7 @@ def _decode_id(fm) -> np.ndarray:
     values = fm["scenario/id"].bytes_list.value
     if len(values) != 1:
         raise DataError(f"expected 1 bytes value, found {len(values)}", key="scenario/id")
-    try:
-        return encode_scenario_id(values[0].decode("ascii"))
-    except (UnicodeDecodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario/id") from None
+    return read_scenario_id(values[0], "scenario/id")
 
 
 def encode_tfexample(scenario: Scenario) -> bytes:
@@ -152,19 +147,24 @@ def encode_tfexample(scenario: Scenario) -> bytes:
     def ints(key: str, a) -> None:
         fm[key].int64_list.value.extend(np.asarray(a, np.int64).ravel().tolist())
 
-    tr, md = scenario.trajectory, scenario.metadata
+    tr, md, tl = scenario.trajectory, scenario.metadata, scenario.traffic_lights
     num_objects = md.is_sdc.shape[-1]
     start = 0
-    for part, width in PARTS:
+    for part, width in PARTS:  # states object-major, lights time-major
         sl = slice(start, start + width)
+        steps = np.arange(start, start + width, dtype=np.int64) * 100_000
         for name, key in STATE_KEYS.items():
             floats(f"state/{part}/{key}", np.asarray(getattr(tr, name))[:, sl])
         floats(f"state/{part}/speed", np.asarray(tr.speed)[:, sl])
         floats(f"state/{part}/vel_yaw",
                np.arctan2(np.asarray(tr.vel_y)[:, sl], np.asarray(tr.vel_x)[:, sl]))
         ints(f"state/{part}/valid", np.asarray(tr.valid)[:, sl])
-        steps = np.arange(start, start + width, dtype=np.int64) * 100_000
         ints(f"state/{part}/timestamp_micros", np.broadcast_to(steps, (num_objects, width)))
+        for name, key in LIGHT_KEYS.items():
+            (ints if name in ("state", "lane_id") else floats)(
+                f"traffic_light_state/{part}/{key}", np.asarray(getattr(tl, name))[:, sl].T)
+        ints(f"traffic_light_state/{part}/valid", np.asarray(tl.valid)[:, sl].T)
+        ints(f"traffic_light_state/{part}/timestamp_micros", steps)
         start += width
     # WOMD stores ids and types as floats; ids that float32 cannot hold exactly go as int64.
     (floats if np.all(np.abs(np.asarray(md.id)) < 2**24) else ints)("state/id", md.id)
@@ -179,18 +179,6 @@ def encode_tfexample(scenario: Scenario) -> bytes:
     ints("roadgraph_samples/id", rg.id)
     ints("roadgraph_samples/valid", rg.valid)
 
-    tl = scenario.traffic_lights
-    start = 0
-    for part, width in PARTS:
-        sl = slice(start, start + width)
-        for name, key in LIGHT_KEYS.items():
-            values = np.asarray(getattr(tl, name))[:, sl].T
-            (ints if name in ("state", "lane_id") else floats)(
-                f"traffic_light_state/{part}/{key}", values)
-        ints(f"traffic_light_state/{part}/valid", np.asarray(tl.valid)[:, sl].T)
-        ints(f"traffic_light_state/{part}/timestamp_micros",
-             np.arange(start, start + width, dtype=np.int64) * 100_000)
-        start += width
     fm["scenario/id"].bytes_list.value.append(
         decode_scenario_id(scenario.scenario_id).encode("ascii"))
     # deterministic: a map's entries in key order, so the same scenario is the same bytes in any

@@ -33,7 +33,7 @@ def encode_record(data: bytes) -> bytes:
     return (length + _FOOTER.pack(masked_crc(length)) + data + _FOOTER.pack(masked_crc(data)))
 
 
-def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
+def iter_frames(path: str | os.PathLike, start: int = 0
                 ) -> Iterator[tuple[int, bytes | None, DataError | None]]:
     """Yield ``(record_index, data, error)`` for the records of a TFRecord file, from ``start``.
 
@@ -59,7 +59,7 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
                     record=index)
                 return
             length, length_crc = _HEADER.unpack(header)
-            if check_crc and masked_crc(header[:8]) != length_crc:
+            if masked_crc(header[:8]) != length_crc:
                 yield index, None, DataError(
                     "corrupt record: length CRC mismatch (not a TFRecord file?)", file=path,
                     record=index)
@@ -75,7 +75,7 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
                     f"{len(body)}", file=path, record=index)
                 return
             data = body[:length]
-            if check_crc and masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
+            if masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
                 yield index, None, DataError("corrupt record: data CRC mismatch", file=path,
                                              record=index)
             else:
@@ -83,20 +83,12 @@ def iter_frames(path: str | os.PathLike, check_crc: bool = True, start: int = 0
             index += 1
 
 
-def iter_records(path: str | os.PathLike, check_crc: bool = True,
-                 start: int = 0) -> Iterator[tuple[int, bytes]]:
-    """Yield ``(record_index, data)`` for each record; raises :class:`DataError` on bad ones."""
-    for index, data, error in iter_frames(path, check_crc, start):
+def read_record(path: str | os.PathLike, index: int) -> bytes:
+    """The data of record ``index`` (raises :class:`DataError` if it is bad or missing)."""
+    for _, data, error in iter_frames(path, start=index):
         if error is not None:
             raise error
-        yield index, data
-
-
-def read_record(path: str | os.PathLike, index: int) -> bytes:
-    """The data of record ``index`` (raises :class:`DataError` if the file has fewer)."""
-    for i, data in iter_records(path, start=index):
-        if i == index:
-            return data
+        return data
     raise DataError(f"no record {index} (file has fewer records)", file=os.fspath(path),
                     record=index)
 

@@ -4,7 +4,7 @@ Tracks become trajectory rows (one per track, in file order). Map features becom
 points with the tf.Example type codes: lane centres 1-3 (``LaneCenter.type``), road lines 5-13
 (``RoadLine.type + 5``), road edges 14-16 (``RoadEdge.type + 14``), stop signs 17 (one point),
 crosswalks 18 and speed bumps 19 (closed polygons). Driveways have no tf.Example type and are
-skipped. Polylines keep their vertices and segments longer than ``max_spacing`` are subdivided;
+skipped. Polylines keep their vertices and segments longer than ``MAX_SPACING`` are subdivided;
 ``dir`` is the unit vector to the next point of the polyline (zero at its end), so road edges keep
 WOMD's orientation (road interior on the left). Traffic lights get one slot per controlled lane,
 in order of first appearance.
@@ -27,12 +27,14 @@ from igdrivsim.data.scenario import (
     Scenario,
     TrafficLights,
     Trajectory,
-    encode_scenario_id,
+    empty_lights,
+    object_flags,
+    read_scenario_id,
 )
 from igdrivsim.errors import DataError
 
 ROAD_LINE_OFFSET = 5
-DEFAULT_MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
+MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
 
 
 def parse_scenario_proto(data: bytes):
@@ -45,8 +47,7 @@ def is_scenario_proto(message) -> bool:
     return len(message.tracks) > 0 and message.HasField("scenario_id")
 
 
-def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX_SPACING
-                          ) -> Scenario:
+def decode_scenario_proto(data: bytes | object) -> Scenario:
     """Decode a serialized (or parsed) WOMD Scenario protobuf into a :class:`Scenario`."""
     msg = parse_scenario_proto(data) if isinstance(data, bytes | bytearray) else data
     if not is_scenario_proto(msg):
@@ -56,12 +57,9 @@ def decode_scenario_proto(data: bytes | object, max_spacing: float = DEFAULT_MAX
         raise DataError(f"current_time_index is {current}, expected {CURRENT_INDEX}",
                         key="current_time_index")
     trajectory, metadata = _decode_tracks(msg)
-    try:
-        sid = encode_scenario_id(msg.scenario_id)
-    except (UnicodeEncodeError, ValueError) as err:
-        raise DataError(f"bad scenario id: {err}", key="scenario_id") from None
+    sid = read_scenario_id(msg.scenario_id, "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
-                    roadgraph=_decode_map(msg.map_features, max_spacing),
+                    roadgraph=_decode_map(msg.map_features),
                     traffic_lights=_decode_lights(msg.dynamic_map_states), scenario_id=sid)
 
 
@@ -90,25 +88,16 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
                         key="tracks.states")
     f = values[:-1].astype(np.float32)
     f[:, ~valid] = np.where(np.isfinite(f[:, ~valid]), f[:, ~valid], -1.0)
-    trajectory = Trajectory(x=f[0], y=f[1], z=f[2], yaw=f[3], vel_x=f[4], vel_y=f[5],
-                            length=f[6], width=f[7], height=f[8], valid=valid)
+    trajectory = Trajectory(*f, valid=valid)  # f: the Trajectory fields in order
     if not msg.HasField("sdc_track_index") or not 0 <= msg.sdc_track_index < num:
         found = msg.sdc_track_index if msg.HasField("sdc_track_index") else "none"
         raise DataError(f"no SDC: sdc_track_index is {found} with {num} tracks",
                         key="sdc_track_index")
     ids = np.array([t.id for t in msg.tracks], np.int32)
-    is_sdc = np.zeros(num, bool)
-    is_sdc[msg.sdc_track_index] = True
-    ttp = np.zeros(num, bool)
-    for req in msg.tracks_to_predict:
-        if 0 <= req.track_index < num:
-            ttp[req.track_index] = True
     metadata = ObjectMetadata(
         id=ids, object_type=np.array([t.object_type for t in msg.tracks], np.int32),
-        is_sdc=is_sdc, tracks_to_predict=ttp,
-        objects_of_interest=np.isin(ids, np.asarray(msg.objects_of_interest, np.int64)),
-        valid=valid.any(axis=1),
-    )
+        **object_flags(ids, msg.sdc_track_index, [r.track_index for r in msg.tracks_to_predict],
+                       msg.objects_of_interest), valid=valid.any(axis=1))
     return trajectory, metadata
 
 
@@ -120,10 +109,8 @@ def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
     seg = np.zeros_like(points)
     inside = poly[1:] == poly[:-1]  # vertex k starts a segment of its polyline
     seg[:-1] = np.where(inside[:, None], np.diff(points, axis=0), 0.0)
-    pieces = np.ones(len(points), np.int64)
-    if max_spacing and max_spacing > 0:
-        length = np.linalg.norm(seg[:, :2], axis=1)
-        pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
+    length = np.linalg.norm(seg[:, :2], axis=1)
+    pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
     if (pieces == 1).all():
         return points, poly
     source = np.repeat(np.arange(len(points)), pieces)
@@ -142,16 +129,16 @@ def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return d
 
 
-def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int],
-                             max_spacing: float) -> Roadgraph:
+def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int]
+                             ) -> Roadgraph:
     """The roadgraph of typed polylines (``xyz[i]`` ``[V_i, 3]`` of type ``types[i]`` and id
-    ``ids[i]``), densified to ``max_spacing``: one place for every reader's map."""
+    ``ids[i]``), densified to :data:`MAX_SPACING`: one place for every reader's map."""
     if not xyz:
         z = np.zeros((0, 3), np.float32)
         return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
                          valid=np.zeros(0, bool))
     poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(np.concatenate(xyz), poly, max_spacing)
+    points, poly = densify_polylines(np.concatenate(xyz), poly, MAX_SPACING)
     return Roadgraph(xyz=points.astype(np.float32),
                      dir=polyline_directions(points, poly).astype(np.float32),
                      type=np.asarray(types, np.int32)[poly],
@@ -159,7 +146,7 @@ def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[
                      valid=np.ones(len(points), bool))
 
 
-def _decode_map(features, max_spacing: float) -> Roadgraph:
+def _decode_map(features) -> Roadgraph:
     xyz, types, ids = [], [], []
     for feature in features:
         kind = feature.WhichOneof("feature_data")
@@ -185,7 +172,7 @@ def _decode_map(features, max_spacing: float) -> Roadgraph:
         xyz.append(points)
         types.append(rg_type)
         ids.append(feature.id)
-    return roadgraph_from_polylines(xyz, types, ids, max_spacing)
+    return roadgraph_from_polylines(xyz, types, ids)
 
 
 def _decode_lights(dynamic_states) -> TrafficLights:
@@ -199,14 +186,10 @@ def _decode_lights(dynamic_states) -> TrafficLights:
             slot = slots.setdefault(ls.lane, len(slots))
             p = ls.stop_point
             rows.append((slot, t, ls.state, p.x, p.y, p.z))
-    num = len(slots)
-    state = np.zeros((num, NUM_STEPS), np.int32)
-    valid = np.zeros((num, NUM_STEPS), bool)
-    lane_id = np.full((num, NUM_STEPS), -1, np.int32)
-    pos = np.zeros((3, num, NUM_STEPS), np.float32)
+    tl = empty_lights(len(slots))
     if rows:
         lanes = np.array(list(slots), np.int64)
         slot, t, s = (np.array([r[k] for r in rows], np.int64) for k in range(3))
-        state[slot, t], valid[slot, t], lane_id[slot, t] = s, True, lanes[slot]
-        pos[:, slot, t] = np.array([r[3:] for r in rows], np.float64).T
-    return TrafficLights(state=state, valid=valid, lane_id=lane_id, x=pos[0], y=pos[1], z=pos[2])
+        tl.state[slot, t], tl.valid[slot, t], tl.lane_id[slot, t] = s, True, lanes[slot]
+        tl.x[slot, t], tl.y[slot, t], tl.z[slot, t] = np.array([r[3:] for r in rows]).T
+    return tl

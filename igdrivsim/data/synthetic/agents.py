@@ -295,6 +295,20 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     return out
 
 
+def stop_cap(agent: Agent) -> float:
+    """The largest start speed that stops (at 1.5 m/s^2) before a stop sign or a red/yellow
+    light ahead."""
+    route, cap = agent.route, np.inf
+    lines = [route.stop_at]
+    if route.signal is not None and route.signal[0] != LIGHT_GO:
+        lines.append(route.signal_at)
+    for line in lines:
+        if line is not None and agent.s0 < line:
+            room = max(line - agent.s0 - agent.length / 2 - 1.0, 0.0)
+            cap = min(cap, float(np.sqrt(2 * 1.5 * room)))
+    return cap
+
+
 def _stopping(agent: Agent, room: float, v: float) -> float:
     """Acceleration to stop ``room`` metres ahead like a driver: roll on while the needed
     deceleration is below 0.8 of the comfortable one, then brake at the needed constant rate
@@ -378,29 +392,9 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return hit
 
 
-def collides(a: Agent, b: Agent) -> bool:
-    """Whether two planned agents' boxes overlap at some step where both are valid."""
-    if (a.route.kind in PARALLEL and b.route.kind in PARALLEL
-            and a.route.group != b.route.group):
-        return False  # two lanes of a road: a lane's width apart
-    both = a.valid & b.valid
-    if not both.any():
-        return False
-    reach = a.reach + b.reach
-    if (a.lo[0] - reach > b.hi[0] or a.hi[0] + reach < b.lo[0]
-            or a.lo[1] - reach > b.hi[1] or a.hi[1] + reach < b.lo[1]):
-        return False
-    d = a.xy - b.xy
-    near = both & (np.einsum("ij,ij->i", d, d) < reach * reach)
-    if not near.any():
-        return False
-    ca = box_corners(a.xy[near], a.yaw[near], a.length, a.width)
-    cb = box_corners(b.xy[near], b.yaw[near], b.length, b.width)
-    return bool(boxes_overlap(ca, cb).any())
-
-
 def collides_any(a: Agent, others: list[Agent]) -> bool:
-    """Whether ``a`` collides with one of ``others`` (:func:`collides` of each, in one batch)."""
+    """Whether ``a``'s box overlaps one of ``others``' at a step where both are valid (all
+    pairs in one batch)."""
     if a.route.kind in PARALLEL:
         others = [b for b in others
                   if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]

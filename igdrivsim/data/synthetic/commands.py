@@ -84,12 +84,10 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
 def _check(args: argparse.Namespace) -> None:
     if args.train < 0 or args.val < 0:
         raise ConfigError(f"--train/--val must be >= 0, got {args.train}/{args.val}")
-    if args.shards is not None and args.shards < 1:
-        raise ConfigError(f"--shards must be >= 1, got {args.shards}")
+    check_min("--shards", args.shards, 1)
     if not 0.0 <= args.p_intersection <= 1.0:
         raise ConfigError(f"--p-intersection must be in [0, 1], got {args.p_intersection}")
-    if args.seed < 0:
-        raise ConfigError(f"--seed must be >= 0, got {args.seed}")
+    check_min("--seed", args.seed, 0)
     check_min("--workers", args.workers, 1)
     check_min("--plot", args.plot, 0)
 

@@ -30,7 +30,7 @@ from igdrivsim.data.scenario import (
     fit_to_capacities,
 )
 from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.agents import Agent, box_corners, collides_any, plan
+from igdrivsim.data.synthetic.agents import Agent, box_corners, collides_any, plan, stop_cap
 from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
@@ -90,13 +90,7 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
               role=role)
     for key, value in kw.items():
         setattr(a, key, value)
-    lines = [route.stop_at]
-    if route.signal is not None and route.signal[0] != LIGHT_GO:
-        lines.append(route.signal_at)
-    for line in lines:  # able to stop comfortably in time
-        if line is not None and s0 < line:
-            room = max(line - s0 - length / 2 - 1.0, 0.0)
-            a.v0 = min(a.v0, float(np.sqrt(2 * 1.5 * room)))
+    a.v0 = min(a.v0, stop_cap(a))
     return a
 
 

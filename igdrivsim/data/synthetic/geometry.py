@@ -27,15 +27,10 @@ def tangents(points: np.ndarray) -> np.ndarray:
     return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
 
 
-def left_normals(points: np.ndarray) -> np.ndarray:
-    """Unit normals pointing to the left of the direction of travel."""
-    t = tangents(points)
-    return np.stack([-t[:, 1], t[:, 0]], axis=1)
-
-
 def offset(points: np.ndarray, d) -> np.ndarray:
     """The polyline shifted by ``d`` (scalar or ``[N]``) metres to its left."""
-    return points + np.asarray(d, float).reshape(-1, 1) * left_normals(points)
+    t = tangents(points)
+    return points + np.asarray(d, float).reshape(-1, 1) * np.stack([-t[:, 1], t[:, 0]], axis=1)
 
 
 def next_dirs(points: np.ndarray) -> np.ndarray:
@@ -61,10 +56,8 @@ def curvature(points: np.ndarray) -> np.ndarray:
 
 
 def bezier_cubic(p0, t0, p1, t1, n: int) -> np.ndarray:
-    """Cubic Bezier from ``p0`` leaving along ``t0`` to ``p1`` arriving along ``t1``.
-
-    ``t0``/``t1`` are tangent vectors whose lengths set the control-point distances.
-    """
+    """Cubic Bezier from ``p0`` leaving along ``t0`` to ``p1`` arriving along ``t1`` (the
+    tangents' lengths set the control-point distances)."""
     p0, t0, p1, t1 = (np.asarray(v, float) for v in (p0, t0, p1, t1))
     u = np.linspace(0.0, 1.0, n)[:, None]
     c0, c1 = p0 + t0, p1 - t1
@@ -81,10 +74,6 @@ def concat(*pieces: np.ndarray) -> np.ndarray:
             piece = piece[1:]
         out.append(piece)
     return np.concatenate(out, axis=0)
-
-
-def rot(angle: float) -> np.ndarray:
-    return np.array([np.cos(angle), np.sin(angle)])
 
 
 def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,

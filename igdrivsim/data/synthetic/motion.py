@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from igdrivsim.data.synthetic.agents import Agent
-from igdrivsim.data.synthetic.maps import LIGHT_GO, MapData
+from igdrivsim.data.synthetic.agents import Agent, stop_cap
+from igdrivsim.data.synthetic.maps import MapData
 
 MOTIONS = ("default", "calibrated")
 ROAD_BEND = 0.15  # road maps: the bends' curvature times this (real streets are straighter)
@@ -47,20 +47,6 @@ def calibrate_map(rng: np.random.Generator, m: MapData) -> None:
     scale = rng.uniform(*SPEED_SCALE)
     for route in m.routes:
         route.speed_limit *= scale
-
-
-def _stop_cap(agent: Agent) -> float:
-    """The largest start speed that stops comfortably before a stop sign or a red/yellow light
-    ahead (as the default generator caps it)."""
-    route, cap = agent.route, np.inf
-    lines = [route.stop_at]
-    if route.signal is not None and route.signal[0] != LIGHT_GO:
-        lines.append(route.signal_at)
-    for line in lines:
-        if line is not None and agent.s0 < line:
-            room = max(line - agent.s0 - agent.length / 2 - 1.0, 0.0)
-            cap = min(cap, float(np.sqrt(2 * 1.5 * room)))
-    return cap
 
 
 def _straight_on(m: MapData, sdc: Agent) -> None:
@@ -104,7 +90,7 @@ def calibrate_cast(rng: np.random.Generator, m: MapData, cast: list[Agent]) -> l
         if a.role == "braking_leader" and rng.random() > P_LEADER_STOPS:
             a.stop_window = None
             a.v_des *= rng.uniform(0.75, 0.95)  # a slower leader: followed, not stopped for
-        a.v0 = min(a.v0, _stop_cap(a))
+        a.v0 = min(a.v0, stop_cap(a))
         a.speed_wave = (rng.uniform(*SPEED_WAVE[0]), rng.uniform(*SPEED_WAVE[1]),
                         rng.uniform(0, 2 * np.pi))
         a.lateral = (rng.uniform(*WANDER), rng.uniform(*WAVELENGTH), a.lateral[2])
@@ -117,5 +103,5 @@ def calibrate_cast(rng: np.random.Generator, m: MapData, cast: list[Agent]) -> l
     cast = [a for a in cast if a.role != "stalled" or waits or rng.random() < P_STALLED_KEPT]
     for a in cast:  # a car alongside the SDC keeps pace with it
         if a.role == "alongside":
-            a.v0 = min(sdc.v0 * rng.uniform(0.9, 1.1), _stop_cap(a))
+            a.v0 = min(sdc.v0 * rng.uniform(0.9, 1.1), stop_cap(a))
     return cast
