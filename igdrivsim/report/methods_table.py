@@ -29,10 +29,13 @@ from igdrivsim.report.tables import (
     _has_references,
     _lookup,
     _metric_name,
+    _reference_rows,
     _signed,
     _tex,
     heading,
     latex_float,
+    md_head,
+    md_row,
     setting_header,
 )
 
@@ -131,8 +134,7 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
             f"(alpha={ALPHA}). `{MISSING}`: not evaluated in that setting.", "",
-            "| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |",
-            "|---|---|" + "---|" * len(cols)]
+            *md_head("metric", "method", *map(setting_short, cols))]
     references = _has_references(summary)
     for metric in METRICS:
         name = _metric_name(metric) + f" ({metric.unit})"
@@ -145,11 +147,8 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
                     text = f"{text} (Δ {_diff_text(row)})"
                     text = f"**{text}**" if bool(row.significant) else text
                 cells.append(text)
-            out.append(f"| {name} | {method_label(method)} | " + " | ".join(cells) + " |")
-        for method in references:
-            text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-            out.append(f"| {name} | *{method_label(method)}* | "
-                       + " | ".join([f"*{text}*"] * len(cols)) + " |")
+            out.append(md_row(name, method_label(method), *cells))
+        out += _reference_rows(summary, metric, name, len(cols), references)
     out += ["", methods_caption(tests)]
     return "\n".join(out) + "\n"
 

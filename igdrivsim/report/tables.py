@@ -1,7 +1,6 @@
-"""Table I (LaTeX and Markdown), its effects, power and safety verdicts, the comparison with
-the paper's numbers and the supplementary metrics' table, from the ``summary`` and ``tests``
-frames of :mod:`igdrivsim.evaluation.aggregate`, laid out as the paper's Table I.
-"""
+"""Table I (LaTeX and Markdown) with its effects, power and safety verdicts, the comparison with
+the paper's numbers and the supplementary metrics, from :mod:`igdrivsim.evaluation.aggregate`'s
+``summary`` and ``tests``; the Markdown and LaTeX writers the other tables share."""
 
 from __future__ import annotations
 
@@ -47,6 +46,16 @@ def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
 def heading(title: str, header: str = "") -> list[str]:
     """A markdown page's first lines: its title, then ``header`` (the run's scope) if any."""
     return [title, "", *([header, ""] if header else [])]
+
+
+def md_row(*cells: str) -> str:
+    """A Markdown table row."""
+    return "| " + " | ".join(cells) + " |"
+
+
+def md_head(*cells: str) -> list[str]:
+    """A Markdown table's header row and rule."""
+    return [md_row(*cells), "|" + "---|" * len(cells)]
 
 
 def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd.Series | None:
@@ -176,11 +185,10 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
-    out.append("| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |")
-    out.append("|---|---|" + "---|" * len(cols))
+    out += md_head("metric", "method", *map(setting_short, cols))
     references = _has_references(summary)
     for metric in METRICS:
-        name = f"{' '.join(metric.label).replace(chr(92), '')}"
+        name = " ".join(metric.label).replace("\\", "")
         for method in (BC_RL, BC):
             cells = []
             for setting in cols:
@@ -188,17 +196,28 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
                 if _better(tests, metric.key, setting) == method:
                     text = f"**{text}**"
                 cells.append(text)
-            out.append(f"| {name} | {METHOD_LABELS[method]} | " + " | ".join(cells) + " |")
-        for method in references:
-            text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-            out.append(f"| {name} | *{METHOD_LABELS[method]}* | " + " | ".join(
-                [f"*{text}*"] * len(cols)) + " |")
+            out.append(md_row(name, METHOD_LABELS[method], *cells))
+        out += _reference_rows(summary, metric, name, len(cols), references)
     if len(_cells(tests)):
         out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
     out += ["", "## Is BC-RL safer than BC?", ""]
     for setting, verdict in safety_verdicts(tests).items():
         out.append(f"- **{setting_short(setting)}**: {verdict}")
     return "\n".join(out) + "\n"
+
+
+def _metric_name(metric) -> str:
+    return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
+
+
+def _reference_rows(summary: pd.DataFrame, metric, name: str, ncols: int,
+                    references: list[str]) -> list[str]:
+    """Markdown rows repeating each reference's one value (italic) in every setting column."""
+    rows = []
+    for method in references:
+        text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
+        rows.append(md_row(name, f"*{METHOD_LABELS[method]}*", *[f"*{text}*"] * ncols))
+    return rows
 
 
 def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
@@ -212,11 +231,9 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
             "direction of the BC-RL minus BC difference.", ""]
     agree = total = 0
     for metric in METRICS:
-        unit = f" ({metric.unit})"
-        out += [f"## {' '.join(metric.label).replace(chr(92), '').replace(' (%)', '')}{unit}", "",
-                "| setting | ours BC-RL | ours BC | ours diff | significant (95% CI) | "
-                "paper BC-RL | paper BC | paper diff | same direction |",
-                "|---|---|---|---|---|---|---|---|---|"]
+        out += [f"## {_metric_name(metric)} ({metric.unit})", "",
+                *md_head("setting", "ours BC-RL", "ours BC", "ours diff", "significant (95% CI)",
+                         "paper BC-RL", "paper BC", "paper diff", "same direction")]
         for setting in SETTINGS:
             ra = _lookup(summary, metric.key, setting, BC_RL)
             rb = _lookup(summary, metric.key, setting, BC)
@@ -244,10 +261,6 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
     return "\n".join(out) + "\n"
 
 
-def _metric_name(metric) -> str:
-    return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
-
-
 def _signed(value: float) -> str:
     """``+1.23`` / ``-1.23``; a value that rounds to zero prints as ``+0.00`` (never ``-0.00``)."""
     return f"{value:+.2f}" if round(value, 2) != 0 else "+0.00"
@@ -268,11 +281,10 @@ def effects_markdown(tests: pd.DataFrame) -> str:
     out = ["## BC-RL − BC (95% bootstrap interval over seeds and scenarios)", "",
            f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
            f"{len(_cells(tests))} cells ({TEST_NAME}).", "",
-           "| metric (unit) | " + " | ".join(setting_short(s) for s in cols) + " |",
-           "|---|" + "---|" * len(cols)]
+           *md_head("metric (unit)", *map(setting_short, cols))]
     for metric in METRICS:
         cells = [_interval_text(_test_row(tests, metric.key, s)) for s in cols]
-        out.append(f"| {_metric_name(metric)} ({metric.unit}) | " + " | ".join(cells) + " |")
+        out.append(md_row(f"{_metric_name(metric)} ({metric.unit})", *cells))
     return "\n".join(out) + "\n"
 
 
@@ -315,13 +327,12 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
             f"(the first Holm step). Paper effect: BC-RL − BC in the paper's Table I, **bold** "
             f"where its size reaches the uncorrected MDE. Paper effects at least the MDE: {k} of "
             f"{n} cells (uncorrected), {kh} of {n} (Holm).", "",
-            "| metric (unit) | row | " + " | ".join(setting_short(s) for s in cols) + " |",
-            "|---|---|" + "---|" * len(cols)]
+            *md_head("metric (unit)", "row", *map(setting_short, cols))]
     labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
     for name, unit, groups in rows:
         for label, cells in zip(labels, groups, strict=True):
             texts = [f"**{t}**" if bold else t for t, bold in cells]
-            out.append(f"| {name} ({unit}) | {label} | " + " | ".join(texts) + " |")
+            out.append(md_row(f"{name} ({unit})", label, *texts))
     return "\n".join(out) + "\n"
 
 
@@ -389,17 +400,16 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
             "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
             "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
             "existed).", "",
-            "| metric (unit) | method | " + " | ".join(setting_short(s) for s in cols)
-            + " |", "|---|---|" + "---|" * len(cols)]
+            *md_head("metric (unit)", "method", *map(setting_short, cols))]
     for metric, groups in _supplementary_rows(summary, metrics):
         name = _md(f"{metric.label} ({metric.unit}; {_direction(metric)})")
         for method, italic, cells in groups:
             label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
             texts = [_ci_text(c) for c in cells]
             texts = [f"*{t}*" for t in texts] if italic else texts
-            out.append(f"| {name} | {label} | " + " | ".join(texts) + " |")
-    out += ["", "| metric | source |", "|---|---|"]
-    out += [f"| {_md(m.label)} | {_md(m.source)} |" for m in metrics]
+            out.append(md_row(name, label, *texts))
+    out += ["", *md_head("metric", "source")]
+    out += [md_row(_md(m.label), _md(m.source)) for m in metrics]
     return "\n".join(out) + "\n"
 
 
