@@ -1,11 +1,6 @@
-"""``igdrivsim report --evals DIR... --out DIR`` aggregates every evaluation found under the
-``--evals`` folders into Table I, the comparison with the paper and Fig. 3, then writes the
-run's results page (``--results``, default ``OUT/results.md``) and, with ``--readme FILE``, fills
-that file's results block, and the PDF's result macros (``OUT/generated/results.tex``,
-``OUT/generated/maze.tex``); ``--from-tables`` rewrites only those from ``OUT``'s tables.
-
-``igdrivsim report ACTION ...`` runs one of the report's side tools (:data:`ACTIONS`): each
-module is imported only when its action runs.
+"""``igdrivsim report --evals DIR... --out DIR``: the report's tables and figures, the results
+page, the README's block and the PDF's macros (``--from-tables``: only the last three, from
+``OUT``'s tables). ``igdrivsim report ACTION``: a side tool (:data:`ACTIONS`), imported when run.
 """
 
 from __future__ import annotations

@@ -1,7 +1,5 @@
 """Table II: every learned method against BC (Markdown and LaTeX), written when the evaluations
-hold methods beyond BC and BC-RL. Rows in :func:`learned_methods` order, then the references;
-a non-BC cell adds its difference from BC (:func:`compare_all`, Holm over the table's cells).
-"""
+hold methods beyond BC and BC-RL; Holm runs over the table's cells (:func:`compare_all`)."""
 
 from __future__ import annotations
 
@@ -43,8 +41,7 @@ PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
 
 
 def learned_methods(frame: pd.DataFrame) -> list[str]:
-    """The learned methods in ``frame`` (any frame with a ``method`` column), in Table II
-    order: BC, BC-RL, the rest in the method registry's order, then unregistered names."""
+    """The learned methods in ``frame``: BC, BC-RL, the registry's order, the rest."""
     present = set(frame["method"].astype(str)) - set(REFERENCES) if len(frame) else set()
     first = [m for m in PAPER_METHODS if m in present]
     registered = [m for m in LEARNED if m in present and m not in PAPER_METHODS]
@@ -62,8 +59,7 @@ def method_label(name: str) -> str:
 
 
 def method_colours(methods: Sequence[str]) -> dict[str, str]:
-    """Each method's registry colour; an unregistered one gets a matplotlib cycle colour
-    (``C2`` onwards, so never the default blue/orange of BC and BC-RL)."""
+    """Each method's registry colour, else a matplotlib cycle colour from ``C2``."""
     colours, spare = {}, 0
     for name in methods:
         if name in METHOD_COLOURS:
@@ -75,8 +71,7 @@ def method_colours(methods: Sequence[str]) -> dict[str, str]:
 
 
 def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
-    """Every learned method but ``baseline`` against it (:func:`compare_methods`), rows in
-    Table II order; Holm runs over all of these rows (Table II's comparison cells)."""
+    """Every learned method but ``baseline`` against it, Holm over Table II's cells."""
     methods = [m for m in learned_methods(per_scenario) if m != baseline]
     return compare_methods(per_scenario, baseline=baseline, methods=methods)
 
@@ -125,8 +120,7 @@ def _diff_text(row: pd.Series) -> str:
 
 
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Markdown Table II from ``summary`` (:func:`summarize`) and ``tests``
-    (:func:`compare_all`)."""
+    """Markdown Table II from ``summary`` and ``tests`` (:func:`compare_all`)."""
     methods = learned_methods(summary)
     cols = _columns(summary, methods)
     out = heading("# Table II: learned methods vs BC", header)
@@ -166,9 +160,7 @@ def _mean(row: pd.Series | None) -> float | None:
 
 
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
-    """Table II as a ``table*`` float (label ``tab:methods``; needs booktabs and graphicx):
-    per metric a row per method (mean ± CI half-width), under each non-BC method a row with
-    its difference from BC and bootstrap interval, bold where significant after Holm."""
+    """Table II as a ``table*`` float (label ``tab:methods``)."""
     methods = learned_methods(summary)
     cols = _columns(summary, methods)
     holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")

@@ -1,12 +1,6 @@
-"""Which command wrote each report file: ``paper/provenance.json`` and one line in each table.
-
-An entry (:class:`Entry`) holds the command, the kind of run that owns the file (``default``, or
-``methods``: Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device,
-wall time, date, and the code of each pipeline stage its numbers came from (``stages``:
-:func:`stages_behind` -> :func:`code_state` as stamped when the stage ran). A run publishes the
-files its kind owns, and another kind's only where missing. Schema 1 entries (no ``stages``)
-stay readable. ``igdrivsim report provenance check|derived|maze``.
-"""
+"""Which command wrote each report file, and the code of each stage behind its numbers:
+``paper/provenance.json`` (:class:`Entry`) and one line in each table. A run publishes the files
+its kind owns, and another kind's only where missing. ``igdrivsim report provenance``."""
 
 from __future__ import annotations
 
@@ -144,8 +138,7 @@ def save(paper: Path, files: dict[str, dict]) -> Path:
 
 
 def outputs(folder: Path) -> list[str]:
-    """Every output file under ``folder`` (relative paths): the tables, figures and generated
-    LaTeX, and the maze's config."""
+    """Every output file under ``folder``, relative."""
     folder = Path(folder)
     found = [str(p.relative_to(folder)) for sub in OUTPUT_FOLDERS if (folder / sub).is_dir()
              for p in sorted((folder / sub).iterdir()) if p.is_file()]
@@ -258,9 +251,7 @@ def missing(paper: Path) -> list[str]:
 
 
 def stage_check(files: Mapping[str, Mapping]) -> tuple[list[str], list[str]]:
-    """``(problems, legacy)``: the entries whose stage commits are missing (no stage, a stage
-    without its code, a wrong ``mixed_commits``), and the files of schema 1 entries (no
-    ``stages``: published before per-stage provenance, reported, not failed)."""
+    """``(problems, legacy)``: entries lacking stage commits, and schema 1 entries."""
     problems, legacy = [], []
     for rel, entry in sorted(files.items()):
         stages = entry.get("stages")

@@ -1,11 +1,6 @@
-"""Table I's companion under reactive traffic: every driver judged with log-replay and IDM agents.
-
-Two evaluations of the same drivers on the same scenarios (``--log``: Table I's; ``--idm``:
-``igdrivsim evaluate --agents idm``): per driver (each setting's BC and BC-RL, the references)
-and metric (Table I's per-scenario rates, the registry's at-fault overlap), the mean over seeds
-with its 95% t-interval under each, and log - idm with Table I's two-level bootstrap, Holm over
-the table. ``igdrivsim report reactive`` writes ``tables/reactive.{md,csv}`` and Fig. 7.
-"""
+"""Table I's companion under reactive traffic (``igdrivsim report reactive``): every driver's
+per-scenario rates with log-replay and with IDM agents, and log - idm with Table I's two-level
+bootstrap, Holm over the table; ``tables/reactive.{md,csv}`` and Fig. 7."""
 
 from __future__ import annotations
 
@@ -58,8 +53,7 @@ def _complete(frame: pd.DataFrame) -> set:
 
 
 def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
-    """The ``(setting, method)`` pairs evaluated under both: every setting's BC-RL and BC (in
-    Table I's order), then the reference actors."""
+    """The ``(setting, method)`` pairs evaluated under both, in Table I's order."""
     both = set(zip(log.setting, log.method, strict=True)) & set(
         zip(idm.setting, idm.method, strict=True))
     out = [(s, m) for s in table_settings(log, idm) for m in (BC, BC_RL) if (s, m) in both]
@@ -68,8 +62,7 @@ def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
 
 def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_000
                    ) -> pd.DataFrame:
-    """One row per (driver, metric): means and intervals under log and idm, and the
-    difference log - idm with its bootstrap interval, p, Holm p and significance."""
+    """One row per (driver, metric): under log, under idm, and log - idm."""
     pairs = drivers(log, idm)
     if not pairs:
         raise DataError("no driver was evaluated under both log and idm agents")

@@ -1,12 +1,7 @@
-"""Synthetic-trained drivers on real logs (the pipeline's ``real_logs`` stage).
-
-Per ``(setting, method)``: each metric's mean over seeds on real logs and on validation, and
-against constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`);
-Full BC under each action read-out. ``igdrivsim report real-logs --real DIR --synthetic DIR
---out TABLES`` writes ``real_logs.{md,tex,csv}``, ``real_logs_readouts.csv`` and the abstract's
-sentence ``real_logs_summary.tex``; :func:`real_logs_section`, their section of ``results.md``
-and the README's sentence, from those tables.
-"""
+"""Synthetic-trained drivers on real logs (``igdrivsim report real-logs``): per ``(setting,
+method)`` the metrics on real logs and on validation, the comparison with the references ego by
+ego (:mod:`igdrivsim.evaluation.paired`) and Full BC under each action read-out; then their
+section of ``results.md`` and the README's sentence, from those tables."""
 
 from __future__ import annotations
 
@@ -53,8 +48,7 @@ PAIRED_HEAD = ["N egos (sources)", "closer to the log [95% CI]",
 
 
 def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -> pd.DataFrame:
-    """One row per ``(setting, method)`` evaluated on real logs: per source and metric the mean
-    over seeds of the seed means, and per source the number of scenarios and seeds."""
+    """One row per ``(setting, method)`` on real logs: means over seeds and counts."""
     metrics = [METRIC_BY_KEY[k] for k in METRIC_KEYS]
     rows: dict[tuple[str, str], dict] = {}
     for source, frame in (("real", real), ("validation", validation)):
@@ -92,9 +86,7 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
 
 
 def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
-    """A learned driver against :data:`PAIRED_REFERENCES` ego by ego on the real logs
-    (:func:`~igdrivsim.evaluation.paired.compare_on_egos`) and :data:`VS_CV`; NaN for a
-    reference."""
+    """A learned driver against each reference ego by ego; NaN for a reference."""
     out = dict.fromkeys(PAIRED + VS_CV, float("nan"))
     if method in REFERENCES:
         return out
@@ -159,8 +151,7 @@ READOUT_COLUMNS = ["actions", *[f"real_vs_cv_{k}" for k in PAIRED_STATS]]
 
 
 def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFrame:
-    """Full BC against constant velocity ego by ego under each action read-out: ``real``'s
-    sampled actions, then each evaluation under ``readouts`` (one row each)."""
+    """Full BC against constant velocity ego by ego under each action read-out."""
     frames = {"sample": real}
     cv = real[real.method == CONSTANT_VELOCITY]
     for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
@@ -226,8 +217,7 @@ def _egos_text(table: pd.DataFrame) -> str:
 
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
                        readouts: pd.DataFrame | None = None) -> str:
-    """The table as Markdown: per metric a validation and a real column, N beside each value;
-    then the ego-by-ego table and Full BC's action read-outs (:func:`readout_table`)."""
+    """The tables as Markdown: the metrics, ego by ego, the read-outs."""
     head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
@@ -282,8 +272,7 @@ def _span(values: pd.Series, digits: int) -> str:
 
 
 def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
-    """The abstract's sentence: the learned drivers' real log divergence against constant
-    velocity's, with N and the detectable differences; None without constant velocity."""
+    """The abstract's sentence; None without constant velocity."""
     cv = table[table.method == CONSTANT_VELOCITY]
     learned = table[~table.method.isin(REFERENCES)].dropna(subset=["real_log_divergence"])
     if cv.empty or learned.empty or pd.isna(cv.real_log_divergence.iloc[0]):
@@ -331,9 +320,7 @@ def _summary_tex(table: pd.DataFrame) -> str:
 def write_tables(real: str | Path, validation: str | Path | None, out: str | Path,
                  real_label: str, validation_label: str,
                  readouts: str | Path | None = None) -> list[Path]:
-    """Read both evaluation folders (and Full BC's read-outs, ``readouts``), write
-    ``out/real_logs.{md,tex,csv}``, ``out/real_logs_readouts.csv`` and
-    ``out/real_logs_summary.tex``; returns the paths."""
+    """Write ``out/real_logs*`` from the evaluation folders; the paths."""
     real_frame = load_evaluations([real])[1]
     validation_frame = load_evaluations([validation])[1] if validation else None
     table = real_log_table(real_frame, validation_frame)
@@ -358,8 +345,7 @@ READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, wh
 
 
 def _vs_cv(row: pd.Series) -> str:
-    """``x% [lo, hi]; r.rrx [lo, hi]``: a driver's share of egos closer to the log than constant
-    velocity and its mean log divergence over constant velocity's (real_logs.csv's columns)."""
+    """The share of egos closer to the log than constant velocity, and the ratio."""
     if pd.isna(row.get("real_vs_cv_win")):
         return "-- | --"
     return (f"{100 * row.real_vs_cv_win:.0f}% [{100 * row.real_vs_cv_win_lo:.0f}, "
@@ -368,8 +354,7 @@ def _vs_cv(row: pd.Series) -> str:
 
 
 def _full_bc_line(table: pd.DataFrame) -> str | None:
-    """The headline sentence: Full BC against constant velocity ego by ego, with N egos and N
-    source scenarios; None without that comparison."""
+    """The headline sentence on Full BC; None without that comparison."""
     full = table[(table.setting == "full") & (table.method == BC)]
     if full.empty or "real_vs_cv_win" not in full or pd.isna(full.real_vs_cv_win.iloc[0]):
         return None
@@ -399,9 +384,7 @@ def _readouts(tables: Path) -> list[str]:
 
 
 def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
-    """The section of ``results.md`` on real logs (nothing without ``tables/real_logs.csv``):
-    ego-by-ego comparisons, read-outs, the summary sentence and the log divergence per setting;
-    with ``headline`` (the link to the full results), the README's one sentence."""
+    """The real-log section of ``results.md`` (``headline``: the README's)."""
     table = read_table(tables / "real_logs.csv")
     if table is None or table.empty:
         return []

@@ -1,8 +1,5 @@
-"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``:
-``runs/NAME``, ``evals/NAME``): per variant its overrides of the profile, the updates evaluated,
-its compute relative to the profile's budget (updates x batch x passes) and the closed-loop
-metrics, with the ratio to constant velocity's (``--references``).
-"""
+"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``):
+per variant its overrides, updates, compute relative to the profile's budget and metrics."""
 
 from __future__ import annotations
 
@@ -19,8 +16,7 @@ _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
 
 
 def _overrides(config: dict, base: dict) -> list[str]:
-    """``section.field=value`` of every field where ``config`` differs from ``base``, leaving
-    out bookkeeping (logging, validation, checkpoints)."""
+    """``section.field=value`` where ``config`` differs from ``base`` (no bookkeeping)."""
     skip = {"log_every", "eval_every", "val_scenarios", "checkpoint_every", "max_checkpoints"}
     return [f"{section}.{key}={value}" for section, fields in config.items()
             if isinstance(fields, dict) for key, value in fields.items()
@@ -28,9 +24,7 @@ def _overrides(config: dict, base: dict) -> list[str]:
 
 
 def _evaluated_update(run, planned: int) -> int:
-    """The update a run's evaluation saw (``run``: a
-    :class:`~igdrivsim.training.run.SavedRun`): its last closed-loop validation (a run
-    validates at each of its checkpoints), or the planned updates when the run finished."""
+    """The update a run's evaluation saw: its last validation, or all if done."""
     if run.complete:
         return planned
     return max((c.get("update", 0) for c in run.curves() if "log_divergence" in c), default=0)

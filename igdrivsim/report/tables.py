@@ -108,8 +108,7 @@ def latex_float(caption: str, label: str, spec: str, rows: list[str]) -> str:
 
 
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
-    """The ``table*`` float for the report (needs booktabs, colortbl and the colours
-    ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
+    """Table I as a ``table*`` float (colours ``bcrlcolor`` / ``bccolor``)."""
     cols = table_settings(summary, tests)
     colours = {BC_RL: "bcrlcolor", BC: "bccolor"}
     caption = (
@@ -150,8 +149,7 @@ def _ci_text(row: pd.Series | None) -> str:
 
 
 def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
-    """Per setting, a one-line answer to "is BC-RL safer than BC?" from the safety metrics
-    (overlap %, overlap rate, offroad %, offroad rate) and their significance."""
+    """Per setting, a one-line answer to "is BC-RL safer than BC?"."""
     cols = table_settings(tests)
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
     verdicts = {}
@@ -178,8 +176,7 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
 
 
 def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
-    bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
+    """Markdown Table I with CIs, effects, detectable effects and safety verdicts."""
     cols = table_settings(summary, tests)
     out = heading("# Table I: BC-RL vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
@@ -221,10 +218,7 @@ def _reference_rows(summary: pd.DataFrame, metric, name: str, ncols: int,
 
 
 def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Our BC-RL / BC means next to the paper's published Table I, cell by cell.
-
-    ``same direction`` says whether the sign of BC-RL minus BC agrees with the paper's.
-    """
+    """Our BC-RL / BC means next to the paper's Table I, cell by cell."""
     out = heading("# Our Table I next to the paper's", header)
     out += ["Paper: Grislain et al., Table I (WOMD validation, mean of 3 seeds). Absolute values "
             "are comparable only when both were computed on WOMD; on synthetic data compare the "
@@ -275,8 +269,7 @@ def _interval_text(row: pd.Series | None) -> str:
 
 
 def effects_markdown(tests: pd.DataFrame) -> str:
-    """BC-RL minus BC per metric and setting with the 95% two-level bootstrap interval;
-    bold where significant after the Holm correction."""
+    """BC-RL minus BC per cell with its bootstrap interval; bold if significant."""
     cols = table_settings(tests)
     out = ["## BC-RL − BC (95% bootstrap interval over seeds and scenarios)", "",
            f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
@@ -362,8 +355,7 @@ def power_latex(tests: pd.DataFrame) -> str:
 
 # ------------------------------------------------------------------ supplementary metrics
 def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
-    """Per registry metric: (metric, [(method, italic, [cell per setting])]) for the methods
-    present; a reference row repeats its one value in every setting column."""
+    """Per metric: (metric, [(method, italic, [cell per setting])])."""
     cols = table_settings(summary)
     rows = []
     references = _has_references(summary)
@@ -392,8 +384,7 @@ def _md(text: str) -> str:
 
 
 def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> str:
-    """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
-    half-width, with each metric's unit, direction and source (no significance tests)."""
+    """The registry's metrics per setting and method, with their sources."""
     cols = table_settings(summary)
     out = heading("# Supplementary metrics (beyond Table I)", header)
     out += ["Per-scenario metrics of closed-loop driving benchmarks (definitions and sources: "

@@ -1,12 +1,7 @@
 """Do drivers trained on a synthetic motion model hold up on real logs? The table of
-``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``).
-
-``WORK/<motion>/evals_<data set>/{bc,references,...}``: per (data set, motion) Full BC against
-constant velocity (hierarchical bootstrap over seeds, then paired scenarios:
-:func:`igdrivsim.evaluation.aggregate.paired_difference`), the motion models' BC against each
-other on the real sets (also pooled: ``real, pooled``), and every learned driver against
-constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`).
-"""
+``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``, evaluations under
+``WORK/<motion>/evals_<data set>/``): Full BC against constant velocity, the motion models'
+BC against each other, and every driver against the references ego by ego."""
 
 from __future__ import annotations
 
@@ -35,8 +30,7 @@ POOLED = "real, pooled"  # every real set of a motion model together
 
 
 def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
-    """``{(data set, motion): per-scenario rows of BC, the references and any other evaluated
-    run beside them (e.g. ``bc_rl``)}``."""
+    """``{(data set, motion): per-scenario rows}`` under ``work``."""
     found = {}
     for folder in sorted(work.glob("*/evals_*")):
         if (folder / BC / PER_SCENARIO_FILE).is_file() and \
@@ -97,9 +91,7 @@ def against_constant_velocity(found: dict) -> pd.DataFrame:
 
 
 def ego_by_ego(found: dict) -> pd.DataFrame:
-    """One row per (data set, motion, setting, learned method, reference): the driver against
-    constant velocity and the expert, ego by ego on log divergence
-    (:func:`igdrivsim.evaluation.paired.compare_on_egos`)."""
+    """Every learned driver against each reference, ego by ego."""
     rows = []
     for (data, motion), frame in _in_order(found):
         learned = frame.loc[~frame.method.isin(REFERENCES), ["setting", "method"]]
@@ -116,8 +108,7 @@ def ego_by_ego(found: dict) -> pd.DataFrame:
 
 
 def between_motions(found: dict) -> pd.DataFrame:
-    """On each data set every motion was evaluated on (the real sets): BC of each motion
-    against BC of the first (alphabetical), paired scenarios."""
+    """On each real set, BC of each motion against BC of the first."""
     rows = []
     for data in sorted({d for d, _ in found} - {VALIDATION, POOLED}) + [POOLED]:
         motions = sorted(m for d, m in found if d == data)
