@@ -29,7 +29,7 @@ from igdrivsim.names import (
     setting_short,
 )
 from igdrivsim.report.results_tex import read_table
-from igdrivsim.report.tables import wrap
+from igdrivsim.report.tables import md_head, md_row, wrap
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -54,7 +54,7 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
     for source, frame in (("real", real), ("validation", validation)):
         if frame is None or frame.empty:
             continue
-        means = seed_means(frame, metrics).groupby(["setting", "method", "metric"])["value"]
+        means = seed_means(frame, metrics).groupby(["setting", "method", "metric"])["value"].mean()
         counts = frame.assign(source=sources(frame)).groupby(["setting", "method"]).agg(
             n=("scenario_id", "nunique"), seeds=("seed", "nunique"),
             sources=("source", "nunique"))
@@ -66,10 +66,7 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
             if source == "real":
                 row["real_sources"] = int(c.sources)
             for key in METRIC_KEYS:
-                try:
-                    row[f"{source}_{key}"] = float(means.mean().loc[(setting, method, key)])
-                except KeyError:
-                    row[f"{source}_{key}"] = float("nan")
+                row[f"{source}_{key}"] = float(means.get((setting, method, key), float("nan")))
     for row in rows.values():
         row |= _ego_by_ego(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
@@ -94,12 +91,17 @@ def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
         c = compare_on_egos(real, setting, method, reference)
         if not c["n_egos"]:
             continue
-        out |= {f"real_vs_{prefix}_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
-                for k in PAIRED_STATS}
+        out |= _paired_stats(c, f"real_vs_{prefix}_")
         if reference == CONSTANT_VELOCITY:
             out |= dict(zip(VS_CV, (c["diff"], c["diff_lo"], c["diff_hi"], c["diff_mde"]),
                             strict=True))
     return out
+
+
+def _paired_stats(c: dict, prefix: str) -> dict[str, float]:
+    """:data:`PAIRED_STATS` of a :func:`~igdrivsim.evaluation.paired.compare_on_egos` result."""
+    return {prefix + k: float(c[f"n_{k}" if k in ("egos", "sources") else k])
+            for k in PAIRED_STATS}
 
 
 def paired_cells(values: dict | pd.Series, prefix: str = "") -> list[str]:
@@ -134,13 +136,11 @@ def _paired_markdown(table: pd.DataFrame) -> list[str]:
         for prefix, reference in PAIRED_REFERENCES.items():
             cells = paired_cells(row, f"real_vs_{prefix}_")
             if cells[0] != "--":
-                lines.append("| " + " | ".join([*_label(row), METHOD_LABELS.get(
-                    reference, reference), *cells]) + " |")
+                lines.append(md_row(*_label(row), METHOD_LABELS.get(reference, reference), *cells))
     if not lines:
         return []
-    head = ["setting", "method", "against", *PAIRED_HEAD]
     return ["", "## Ego by ego on the real logs", "", PAIRED_NOTE, "",
-            "| " + " | ".join(head) + " |", "|" + "---|" * len(head), *lines]
+            *md_head("setting", "method", "against", *PAIRED_HEAD), *lines]
 
 
 # Full BC under each action read-out (policy.act.ACTION_MODES), Table I's sampled one first
@@ -164,9 +164,7 @@ def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFra
                           if a in READOUT_LABELS else len(READOUT_LABELS)):
         c = compare_on_egos(frames[actions], READOUT_SETTING, BC, CONSTANT_VELOCITY)
         if c["n_egos"]:
-            rows.append({"actions": actions, **{
-                f"real_vs_cv_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
-                for k in PAIRED_STATS}})
+            rows.append({"actions": actions, **_paired_stats(c, "real_vs_cv_")})
     return pd.DataFrame(rows, columns=READOUT_COLUMNS)
 
 
@@ -178,10 +176,10 @@ def readout_markdown(readouts: pd.DataFrame) -> list[str]:
              "Table I's protocol samples each action from the policy; beside it, the most "
              "likely action (greedy) and the expected action under the policy's distribution "
              "(mean), each against constant velocity, ego by ego (as above).", "",
-             "| actions | " + " | ".join(PAIRED_HEAD) + " |", "|---|" + "---|" * len(PAIRED_HEAD)]
+             *md_head("actions", *PAIRED_HEAD)]
     for _, row in readouts.iterrows():
-        lines.append(f"| {READOUT_LABELS.get(row.actions, row.actions)} | "
-                     + " | ".join(paired_cells(row, "real_vs_cv_")) + " |")
+        lines.append(md_row(READOUT_LABELS.get(row.actions, row.actions),
+                            *paired_cells(row, "real_vs_cv_")))
     return lines
 
 
@@ -229,12 +227,10 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
              "velocity's on the same scenarios, its 95% interval (bootstrap resampling source "
              "scenarios, then seeds) and the smallest difference these scenarios detect "
              "at 80% power (MDE); a few real scenarios cannot separate the methods.",
-             "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+             "", *md_head(*head)]
     for _, row in table.iterrows():
-        cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS
-                                  for s in SOURCES] + [_vs_cv_cell(row)]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(md_row(*_label(row), *[_cell(row, s, k) for k in METRIC_KEYS for s in SOURCES],
+                            _vs_cv_cell(row)))
     extra = [] if readouts is None else readout_markdown(readouts)
     return "\n".join(lines + _paired_markdown(table) + extra) + "\n"
 
@@ -418,10 +414,7 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
         ego_table += [*_readouts(tables), ""]
 
     def cell(row: pd.DataFrame, source: str) -> str:
-        if row.empty or pd.isna(row[f"{source}_log_divergence"].iloc[0]):
-            return "--"
-        value = row[f"{source}_log_divergence"].iloc[0]
-        return f"{value:.2f} (N={int(row[f'{source}_n'].iloc[0])})"
+        return "--" if row.empty else _cell(row.iloc[0], source, "log_divergence")
 
     head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
             for m in learned]
@@ -429,12 +422,12 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
            *wrap(sentence), "",
            "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
            "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
-           "| setting | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+           *md_head("setting", *head)]
     for setting in settings:
         rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
-        out.append(f"| {setting_short(setting)} | " + " | ".join(
-            cell(r, src) for src in ("real", "validation") for r in rows) + " |")
+        out.append(md_row(setting_short(setting), *[cell(r, src) for src in ("real", "validation")
+                                                    for r in rows]))
     cv = table[table.method == CONSTANT_VELOCITY]
-    out.append("| constant velocity | " + " | ".join(
-        cell(cv, src) for src in ("real", "validation") for _ in learned) + " |")
+    out.append(md_row("constant velocity", *[cell(cv, src) for src in ("real", "validation")
+                                             for _ in learned]))
     return [*out, ""]

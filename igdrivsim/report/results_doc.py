@@ -19,7 +19,7 @@ from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
 from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
-from igdrivsim.report.tables import _fmt, _test_row, table1_markdown, wrap
+from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 # the README's block near the top: measured run times and the choice of profile (optional)
@@ -103,15 +103,14 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
                  "points of steps offroad, **bold** if significant after Holm."), "",
-           "| setting | " + " | ".join(f"BC {label}" for _, label in _HEADLINE)
-           + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
-           "|---|" + "---|" * (len(_HEADLINE) + 2)]
+           *md_head("setting", *[f"BC {label}" for _, label in _HEADLINE],
+                    "BC-RL − BC offroad", "paper's BC-RL − BC offroad")]
     for setting in settings:
         cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
-        out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
-                   + f" | {_interval(_test_row(tests, 'offroad', setting))} | {paper_text} |")
+        out.append(md_row(setting_short(setting), *cells,
+                          _interval(_test_row(tests, "offroad", setting)), paper_text))
     out.append("| constant velocity | " + " | ".join(_fmt(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
     k, n = _significant(tests)
@@ -138,9 +137,8 @@ def _competence(summary: pd.DataFrame) -> list[str]:
                      for ratio, label, _ in COMPETENCE.values())
     out = [f"Targets (this project's, not the paper's): {bars}. Each cell: the value, its ratio "
            "to constant velocity, and whether the target is met.", "",
-           "| setting | method | " + " | ".join(f"{label} ({unit})" for _, label, unit in
-                                               COMPETENCE.values()) + " | targets met |",
-           "|---|---|" + "---|" * (len(COMPETENCE) + 1),
+           *md_head("setting", "method", *[f"{label} ({unit})" for _, label, unit in
+                                           COMPETENCE.values()], "targets met"),
            "| target | | " + " | ".join(f"<= {_fmt(ratio * cv[m])}" for m, (ratio, _, _) in
                                        COMPETENCE.items()) + " | |"]
     for setting in settings:
@@ -152,8 +150,8 @@ def _competence(summary: pd.DataFrame) -> list[str]:
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
                 cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
-            out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
-                       + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
+            out.append(md_row(setting_short(setting), METHOD_LABELS.get(method, method), *cells,
+                              f"{met} of {len(COMPETENCE)}"))
     expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "

@@ -10,6 +10,7 @@ import pandas as pd
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
 from igdrivsim.names import CONSTANT_VELOCITY
+from igdrivsim.report.tables import md_head, md_row
 
 # the fields a variant's compute per update scales with (and the updates it trained)
 _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
@@ -79,7 +80,6 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
     head = ("Log divergence (m): mean over seeds, and the range of the seed means; offroad and "
             "overlap: % of steps. compute: scenario-episodes trained, relative to the "
             "profile's budget.\n\n")
-    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    lines += ["| " + " | ".join(str(v) for v in row) + " |"
-              for row in table.itertuples(index=False)]
+    lines = md_head(*table.columns) + [md_row(*map(str, row))
+                                       for row in table.itertuples(index=False)]
     return head + "\n".join(lines) + "\n"

@@ -22,6 +22,7 @@ from igdrivsim.io import read_json
 from igdrivsim.machine import code_label, code_state
 from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
+from igdrivsim.report.tables import md_head, md_row
 
 METRICS = ("log_divergence", "offroad", "overlap")
 FULL = "full"  # the observation setting of the first table's BC
@@ -188,12 +189,11 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
                   "log divergence over the reference's, with the smallest departure from 1 "
                   "detectable at 80% power (MDE). 95% intervals: bootstrap resampling source "
                   "scenarios, then seeds.", "",
-                  "| data | motion | setting | method | against | " + " | ".join(PAIRED_HEAD)
-                  + " |", "|---|---|---|---|---|" + "---|" * len(PAIRED_HEAD)]
+                  *md_head("data", "motion", "setting", "method", "against", *PAIRED_HEAD)]
         for _, r in egos.iterrows():
             names = [r.data, r.motion, setting_short(r.setting), METHOD_LABELS.get(
                 r.method, r.method), METHOD_LABELS.get(r.reference, r.reference)]
-            lines.append("| " + " | ".join([*names, *paired_cells(r)]) + " |")
+            lines.append(md_row(*names, *paired_cells(r)))
     if code:
         lines += ["", "Each motion model's training set and the code (commit) behind its numbers:",
                   "", *code,
