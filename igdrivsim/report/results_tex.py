@@ -77,10 +77,7 @@ def _means(summary: pd.DataFrame, metric_codes: dict[str, str], settings) -> lis
 
 
 def _methods_means(tests_all: pd.DataFrame) -> list[str]:
-    """Table II's means from its own run (``tests_all.csv``): each method's cell
-    (``\\ResDAggerCircFourOffroad``) and the BC it is compared with there
-    (``\\ResMethodsBCCircFourOffroad``), so the prose never sets a method of one run beside
-    the BC of another."""
+    """Table II's method means and the BC they were compared with, from ``tests_all.csv``."""
     lines, seen = [], set()
     for row in tests_all.itertuples():
         if row.setting not in SETTING_CODES:

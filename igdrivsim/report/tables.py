@@ -282,9 +282,7 @@ def effects_markdown(tests: pd.DataFrame) -> str:
 
 
 def _power_rows(tests: pd.DataFrame) -> tuple[list[tuple], tuple[int, int, int]]:
-    """Per metric: (name, unit, [(cell text, detectable)]) rows for the paper effect, MDE and
-    Holm MDE, a paper effect "detectable" when its size is at least the MDE; and the counts
-    (paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
+    """Per metric (name, unit, [paper, MDE, Holm MDE cells]); the counts (>= MDE, >= Holm, n)."""
     cols = table_settings(tests)
     rows, n, k, kh = [], 0, 0, 0
     for metric in METRICS:

@@ -47,9 +47,7 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
 
 
 def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], pd.DataFrame]:
-    """``{(POOLED, motion): every real set of that motion}`` where a motion has several real
-    sets (each scenario and source scenario named by its set, ``set/id``): the comparison with
-    the most power."""
+    """``{(POOLED, motion): every real set of that motion}`` where it has several."""
     out = {}
     for motion in sorted({m for _, m in found}):
         real = [f.assign(scenario_id=d + "/" + f.scenario_id, **(
@@ -131,9 +129,7 @@ def _diff(row: pd.Series, key: str) -> str:
 
 
 def code_lines(work: Path) -> list[str]:
-    """Per motion folder, the code that trained its BC run and the code of its evaluations
-    (:func:`igdrivsim.machine.code_state`, as the evaluation records ``eval_config.json``
-    hold them: ``code`` and the run's ``trained``; ``unknown`` where they do not)."""
+    """Per motion folder, the code behind its BC run and its evaluations."""
 
     def label(code) -> str:
         return code_label(code) if isinstance(code, dict) else "unknown"
