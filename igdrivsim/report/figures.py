@@ -19,7 +19,7 @@ import seaborn as sns  # noqa: E402
 from matplotlib.container import BarContainer  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import METRIC_BY_KEY, table_settings  # noqa: E402
+from igdrivsim.evaluation.schema import METRIC_BY_KEY  # noqa: E402
 from igdrivsim.io import atomic_savefig  # noqa: E402
 from igdrivsim.names import (  # noqa: E402
     BC,
@@ -36,7 +36,7 @@ from igdrivsim.report.methods_table import (  # noqa: E402
     method_colours,
     method_label,
 )
-from igdrivsim.report.tables import _metric_name  # noqa: E402
+from igdrivsim.report.tables import _metric_name, present_settings  # noqa: E402
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
 
@@ -61,12 +61,6 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     if math.isfinite(low):  # rates and distances start at 0
         ax.set_ylim(bottom=low)
     return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
-
-
-def _present_settings(frame: pd.DataFrame) -> list[str]:
-    """The table's settings (Table I order) that ``frame`` holds."""
-    present = set(frame.setting.astype(str))
-    return [s for s in table_settings(frame) if s in present]
 
 
 def _rotate_settings(ax) -> None:
@@ -105,7 +99,7 @@ def _metric_column(fig, axes, frame: pd.DataFrame, keys: Sequence[str], settings
 
 def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     """Fig. 3 from the seed means (or the summary) and BC-RL vs BC's ``tests``."""
-    settings = _present_settings(seed_level)
+    settings = present_settings(seed_level)
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
     rows = _metric_column(fig, axes, seed_level, PANELS, settings, (BC, BC_RL), tests, 2)
@@ -213,7 +207,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     curves = load_curves(run_dirs)
     if curves.empty:
         return []
-    settings = _present_settings(curves)
+    settings = present_settings(curves)
     methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
         set(curves.method) - {BC, BC_RL})
     extra = sns.color_palette("tab10")
@@ -274,7 +268,7 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
                          tests: pd.DataFrame | None = None):
     """Fig. 5: a panel per registry metric with ``figure=True``."""
     panels = [m for m in metrics if m.figure]
-    order = _present_settings(seed_level)
+    order = present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
     sns.set_theme(style="whitegrid", context="paper")
     ncols = 2 if len(panels) > 1 else 1
@@ -325,7 +319,7 @@ def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
     """Fig. 6: a panel per metric of ``panels``, a bar per learned method and setting."""
     methods = learned_methods(seed_level)
     learned = seed_level[seed_level.method.isin(methods)]
-    settings = _present_settings(learned)
+    settings = present_settings(learned)
     sns.set_theme(style="whitegrid", context="paper")
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
     fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_methods
-from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING, table_settings
+from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING
 from igdrivsim.names import (
     BC,
     BC_RL,
@@ -34,6 +34,7 @@ from igdrivsim.report.tables import (
     latex_float,
     md_head,
     md_row,
+    present_settings,
     setting_header,
 )
 
@@ -74,11 +75,6 @@ def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
     """Every learned method but ``baseline`` against it, Holm over Table II's cells."""
     methods = [m for m in learned_methods(per_scenario) if m != baseline]
     return compare_methods(per_scenario, baseline=baseline, methods=methods)
-
-
-def _columns(summary: pd.DataFrame, methods: Sequence[str]) -> list[str]:
-    present = set(summary.loc[summary.method.isin(methods), "setting"].astype(str))
-    return [s for s in table_settings(summary) if s in present]
 
 
 def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Series | None:
@@ -122,7 +118,7 @@ def _diff_text(row: pd.Series) -> str:
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
     """Markdown Table II from ``summary`` and ``tests`` (:func:`compare_all`)."""
     methods = learned_methods(summary)
-    cols = _columns(summary, methods)
+    cols = present_settings(summary[summary.method.isin(methods)])
     out = heading("# Table II: learned methods vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
@@ -162,7 +158,7 @@ def _mean(row: pd.Series | None) -> float | None:
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """Table II as a ``table*`` float (label ``tab:methods``)."""
     methods = learned_methods(summary)
-    cols = _columns(summary, methods)
+    cols = present_settings(summary[summary.method.isin(methods)])
     holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
     caption = (
         r"\caption{\textbf{Learned methods versus BC.} Mean over seeds $\pm$ 95\% CI "

@@ -58,6 +58,12 @@ def md_head(*cells: str) -> list[str]:
     return [md_row(*cells), "|" + "---|" * len(cells)]
 
 
+def present_settings(frame: pd.DataFrame) -> list[str]:
+    """The settings ``frame`` holds, in Table I's order."""
+    present = set(frame.setting.astype(str))
+    return [s for s in table_settings(frame) if s in present]
+
+
 def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd.Series | None:
     rows = summary[(summary.metric == metric) & (summary.setting == setting)
                    & (summary.method == method)]
