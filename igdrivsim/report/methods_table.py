@@ -30,6 +30,7 @@ from igdrivsim.report.tables import (
     _reference_rows,
     _signed,
     _tex,
+    _tex_number,
     heading,
     latex_float,
     md_head,
@@ -141,10 +142,6 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
         out += _reference_rows(summary, metric, name, len(cols), references)
     out += ["", methods_caption(tests)]
     return "\n".join(out) + "\n"
-
-
-def _tex_number(text: str) -> str:
-    return text if text == MISSING else text.replace("+", "$+$").replace("-", "$-$")
 
 
 def _tex_ci(row: pd.Series | None) -> str:

@@ -25,7 +25,7 @@ from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.results_tex import _num
-from igdrivsim.report.tables import heading
+from igdrivsim.report.tables import _lookup, heading
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -80,9 +80,7 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
         for i, metric in enumerate(METRICS):
             row = dict(setting=setting, method=method, metric=metric.key)
             for cond, summary in summaries.items():
-                s = summary[(summary.setting == setting) & (summary.method == method)
-                            & (summary.metric == metric.key)]
-                s = s.iloc[0] if len(s) else None
+                s = _lookup(summary, metric.key, setting, method)
                 row[f"{cond}_mean"] = np.nan if s is None else float(s["mean"])
                 row[f"{cond}_ci_low"] = np.nan if s is None else float(s.ci_low)
                 row[f"{cond}_ci_high"] = np.nan if s is None else float(s.ci_high)

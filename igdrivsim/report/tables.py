@@ -333,6 +333,10 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     return "\n".join(out) + "\n"
 
 
+def _tex_number(text: str) -> str:
+    return text if text == MISSING else text.replace("+", "$+$").replace("-", "$-$")
+
+
 def power_latex(tests: pd.DataFrame) -> str:
     """The MDE table as a ``table*`` float (label ``tab:power``) for the report."""
     cols = table_settings(tests)
@@ -350,8 +354,8 @@ def power_latex(tests: pd.DataFrame) -> str:
     for name, unit, groups in rows:
         lines.append(r"\midrule")
         for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
-            texts = [(rf"\textbf{{{t}}}" if bold else t).replace("+", "$+$").replace(
-                "-", "$-$") if t != MISSING else t for t, bold in cells]
+            texts = [rf"\textbf{{{_tex_number(t)}}}" if bold else _tex_number(t)
+                     for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
             lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
     return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
