@@ -201,8 +201,7 @@ def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
 
 
 def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
-                           references_csv: str | Path | pd.DataFrame | None = None,
-                           stem: str = "fig4_learning_curves") -> list[Path]:
+                           references_csv: str | Path | pd.DataFrame | None = None) -> list[Path]:
     """Fig. 4 from the runs' ``curves.jsonl``, the references as lines; the paths."""
     curves = load_curves(run_dirs)
     if curves.empty:
@@ -261,12 +260,11 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
-    return save_figure(fig, out_dir, stem)
+    return save_figure(fig, out_dir, "fig4_learning_curves")
 
 
-def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
-                         tests: pd.DataFrame | None = None):
-    """Fig. 5: a panel per registry metric with ``figure=True``."""
+def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
+    """Fig. 5: a panel per registry metric with ``figure=True`` (descriptive: no tests)."""
     panels = [m for m in metrics if m.figure]
     order = present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
@@ -278,7 +276,7 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
     marked = {}
     for ax, metric in zip(axes.ravel(), panels, strict=False):
         marked[metric.key] = _bar_panel(ax, seed_level, metric.key, metric.unit, order,
-                                        learned, tests)
+                                        learned, None)
         arrow = "↑" if metric.higher_is_better else "↓"
         ax.set_title(f"{metric.label} {arrow}", fontsize=9)
         ax.set_ylabel(metric.unit)
@@ -288,11 +286,9 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
         drawn = [r for r in range(nrows) if r * ncols + col < len(panels)]
         if drawn:
             _rotate_settings(axes[drawn[-1], col])
-    tested = tests is not None and bool(set(tests.metric) & {m.key for m in panels})
     fig.marked = marked
-    rows = _legend(fig, tested, ncols=4, top=False)
-    note = CLIPPED + ("" if tested else "; no significance tests on these metrics "
-                      "(descriptive)")
+    rows = _legend(fig, False, ncols=4, top=False)
+    note = CLIPPED + "; no significance tests on these metrics (descriptive)"
     fig.text(0.01, 0.995, note, fontsize=7, color="0.35", va="top")
     fig.tight_layout(rect=(0, 0.03 * rows + 0.01, 1, 0.985))
     return fig
@@ -314,17 +310,16 @@ def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequenc
     return "; ".join(notes)
 
 
-def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
-                 tests: pd.DataFrame | None = None):
-    """Fig. 6: a panel per metric of ``panels``, a bar per learned method and setting."""
+def fig6_methods(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
+    """Fig. 6: a panel per Table I metric of :data:`PANELS`, a bar per learned method."""
     methods = learned_methods(seed_level)
     learned = seed_level[seed_level.method.isin(methods)]
     settings = present_settings(learned)
     sns.set_theme(style="whitegrid", context="paper")
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
-    fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),
+    fig, axes = plt.subplots(len(PANELS), 1, figsize=(width, 2.1 * len(PANELS) + 0.9),
                              sharex=True, squeeze=False)
-    rows = _metric_column(fig, axes[:, 0], seed_level, panels, settings, methods, tests,
+    rows = _metric_column(fig, axes[:, 0], seed_level, PANELS, settings, methods, tests,
                           4 if width >= 6.5 else 2)
     note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
     fig.text(0.01, 0.005, note, fontsize=7, color="0.35")

@@ -170,14 +170,10 @@ def reactive_figure(table: pd.DataFrame, out_dir: str | Path) -> list[Path]:
     return save_figure(fig, out_dir, FIGURE)
 
 
-def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path, header: str = "",
-          n_resamples: int = 10_000) -> list[Path]:
+def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path) -> list[Path]:
     """Read both evaluations and write the table, its numbers and the figure under ``out``."""
-    _, log = load_evaluations(log_dirs)
-    _, idm = load_evaluations(idm_dirs)
-    table = reactive_table(log, idm, n_resamples)
+    table = reactive_table(load_evaluations(log_dirs)[1], load_evaluations(idm_dirs)[1])
     out = Path(out)
     written = [atomic_write_csv(out / "tables" / "reactive.csv", table.round(6)),
-               atomic_write_text(out / "tables" / "reactive.md",
-                                 reactive_markdown(table, header))]
+               atomic_write_text(out / "tables" / "reactive.md", reactive_markdown(table))]
     return written + reactive_figure(table, out / "figures")
