@@ -1,11 +1,7 @@
-"""Pictures of the observation models (paper Fig. 1) and a rollout animation.
-
-Each panel is drawn in the ego's TRUE frame (metres, x ahead, y left): in light grey the scene
-as it is, in colour what the observation holds at the positions it reports (under position
-noise it slides off the grey truth); hidden objects stay grey (dotted), fields of view dashed.
-Fig. 1 has a block of panels per training profile (:data:`PROFILE_VIEWS`). Host-side NumPy +
-matplotlib; the observation comes from the jitted :func:`observe_with_selection` training uses.
-"""
+"""Pictures of the observation models (paper Fig. 1) and a rollout animation, in the ego's TRUE
+frame (metres, x ahead, y left): grey the scene as it is, colour what the observation holds where
+it reports it (under position noise it slides off the truth), from the training's
+:func:`observe_with_selection`."""
 
 from __future__ import annotations
 
@@ -59,9 +55,8 @@ MAP_SPACING = 0.5  # metres between a WOMD polyline's points
 
 @dataclass(frozen=True)
 class ProfileView:
-    """What a training profile's policy observes (the ``observation`` section of
-    :func:`igdrivsim.training.config.get_profile`, which this layer cannot import; a test keeps
-    them equal)."""
+    """What a training profile's policy observes (a test keeps it equal to the profile's, which
+    this layer cannot import)."""
 
     profile: str
     num_objects: int
@@ -222,8 +217,7 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
     _box(ax, (0.0, 0.0), 0.0, snap.ego_size, facecolor=EGO, edgecolor="#7a1f22", lw=0.8,
          alpha=0.8, zorder=5)
     if snap.noise_offset is not None:
-        # The observation is relative to the believed position, so the scene appears shifted
-        # by -offset: draw the believed ego (dashed) and the offset.
+        # the observation is relative to the believed position: draw it (dashed) and the offset
         off = snap.noise_offset
         _box(ax, off, 0.0, snap.ego_size, facecolor="none", edgecolor=EGO, ls="--", lw=1.0,
              zorder=5)
@@ -242,8 +236,7 @@ def panel_note(snap: Snapshot, width: int = 44) -> str:
 
 def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | None = None,
                view: float = 30.0, inset: bool = True) -> None:
-    """Draw one observation panel on ``ax``, ``[-view/2, 1.5 view] x [-0.75 view, 0.75 view]``
-    metres, with a zoomed inset around the ego under a small field of view (``inset``)."""
+    """One observation panel on ``ax``, zoomed in an inset under a small field of view."""
     draw_layers(ax, snap, setting)
     ax.set_xlim(-0.5 * view, 1.5 * view)  # more room ahead of the ego than behind
     ax.set_ylim(-0.75 * view, 0.75 * view)

@@ -1,12 +1,7 @@
-"""Every table and figure of one report from evaluation CSVs (``igdrivsim report --evals``).
-
-Under ``OUT``: Table I (``tables/table1.{tex,md}``), the power and paper comparisons
-(``power.{md,tex}``, ``vs_paper.md``), the numbers (``summary.csv``, ``tests.csv``: BC-RL vs BC,
-Holm over Table I's cells; ``seed_means.csv``), the registry's supplementary metrics, Fig. 3, 4
-and 5, ``generated/{provenance,verdicts}.tex``; with learned methods beyond BC and BC-RL, Table
-II (``table2.{md,tex}``, ``tests_all.csv``, Fig. 6; without, an earlier report's are removed).
-Every file but the provenance (which records the date) is a pure function of the inputs.
-"""
+"""Every table and figure of one report from evaluation CSVs (``igdrivsim report --evals``):
+Table I and its companions, the supplementary metrics, Fig. 3-5 and, with learned methods beyond
+BC and BC-RL, Table II and Fig. 6. Every file but the provenance (dated) is a pure function of
+the inputs."""
 
 from __future__ import annotations
 
@@ -88,8 +83,7 @@ def verdicts_tex(tests) -> str:
 
 
 def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path) -> list[Path]:
-    """``tables/speed_walk.md`` and ``generated/speed_walk.tex`` from the first
-    ``speed_walk.json`` among the evaluation folders (none: nothing written)."""
+    """``speed_walk.{md,tex}`` from the first ``speed_walk.json`` among the evaluation folders."""
     for root in map(Path, eval_dirs):
         path = root / speed_walk.RESULT_FILE
         if path.is_file():
@@ -112,9 +106,7 @@ def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
-    """Aggregate every evaluation under ``eval_dirs``, write the report under ``out`` and return
-    the paths; ``run_dirs``: where the runs' ``curves.jsonl`` are (default: ``runs/`` beside
-    each evaluation folder)."""
+    """Write the report of every evaluation under ``eval_dirs`` to ``out``; the paths."""
     out = Path(out)
     for run in run_dirs or []:  # given explicitly: each must be there (checked before any work)
         if not Path(run).is_dir():

@@ -1,11 +1,6 @@
-"""``igdrivsim report --evals DIR... --out DIR`` aggregates every evaluation found under the
-``--evals`` folders into Table I, the comparison with the paper and Fig. 3, then writes the
-run's results page (``--results``, default ``OUT/results.md``) and, with ``--readme FILE``, fills
-that file's results block, and the PDF's result macros (``OUT/generated/results.tex``,
-``OUT/generated/maze.tex``); ``--from-tables`` rewrites only those from ``OUT``'s tables.
-
-``igdrivsim report ACTION ...`` runs one of the report's side tools (:data:`ACTIONS`): each
-module is imported only when its action runs.
+"""``igdrivsim report --evals DIR... --out DIR``: the report's tables and figures, the results
+page, the README's block and the PDF's macros (``--from-tables``: only the last three, from
+``OUT``'s tables). ``igdrivsim report ACTION``: a side tool (:data:`ACTIONS`), imported when run.
 """
 
 from __future__ import annotations
@@ -87,9 +82,7 @@ def report_command(args: argparse.Namespace) -> int:
         written = build_report(args.evals, args.out, prov, run_dirs=args.runs)
         if args.work:
             written += write_run_times(args.work, Path(args.out) / "tables")
-    written += write_markdown(args.out, args.results, args.readme)
-    for path in written:
-        print(f"wrote {path}")
+    _wrote(written + write_markdown(args.out, args.results, args.readme))
     return 0
 
 
@@ -114,11 +107,6 @@ def _compare_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
                    help="the two runs' names in the table")
     p.add_argument("--out", type=Path, help="also write the markdown here")
-
-
-def _compare(args) -> None:
-    _print_or_write(_module("compare").compare_markdown(args.old, args.new, tuple(args.labels)),
-                    args.out)
 
 
 def _figures_arguments(p: argparse.ArgumentParser) -> None:
@@ -193,7 +181,8 @@ REPO = Path(__file__).resolve().parents[2]
 # igdrivsim report ACTION: (help, arguments, command)
 ACTIONS = {
     "compare": ("two runs' Table I conclusions side by side (OLD_TABLES NEW_TABLES)",
-                _compare_arguments, _compare),
+                _compare_arguments, lambda args: _print_or_write(_module(
+                    "compare").compare_markdown(args.old, args.new, tuple(args.labels)), args.out)),
     "figures": ("redraw Fig. 3, 5 and 6 from the report's tables (PAPER/tables/*.csv)",
                 _figures_arguments,
                 lambda args: _wrote(_module("figures").redraw_from_tables(args.paper))),

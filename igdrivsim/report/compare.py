@@ -1,9 +1,5 @@
-"""Two runs' Table I beside each other: what changed in the benchmark's conclusions.
-
-Per Table I metric, from two report tables folders (``summary.csv``, ``tests.csv``): constant
-velocity's level, BC's setting order, the observation gap to Full and BC-RL - BC with its
-minimum detectable effect (``igdrivsim report compare OLD NEW``).
-"""
+"""Two runs' Table I conclusions beside each other (``igdrivsim report compare OLD NEW``): per
+metric, constant velocity's level, BC's setting order, the gap to Full and BC-RL - BC."""
 
 from __future__ import annotations
 

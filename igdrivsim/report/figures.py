@@ -1,11 +1,6 @@
-"""Fig. 3 (per-step metrics of BC versus BC-RL), Fig. 4 (learning curves), Fig. 5
-(supplementary metrics) and Fig. 6 (every learned method).
-
-Fig. 3, 5 and 6 are bar panels (:mod:`igdrivsim.report.plots`); the figure's ``marked``
-attribute maps each panel's metric to its asterisked ``(setting, method)`` cells. Fig. 4 draws
-each run's ``curves.jsonl`` against the update, one column per setting, with the references as
-lines. ``igdrivsim report figures PAPER`` redraws Fig. 3, 5 and 6 from ``PAPER/tables``.
-"""
+"""Fig. 3 (BC versus BC-RL), Fig. 4 (learning curves), Fig. 5 (supplementary metrics) and
+Fig. 6 (every learned method). The bar figures' ``marked`` attribute maps each panel's metric to
+its asterisked ``(setting, method)`` cells."""
 
 from __future__ import annotations
 
@@ -24,7 +19,7 @@ import seaborn as sns  # noqa: E402
 from matplotlib.container import BarContainer  # noqa: E402
 
 from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import METRIC_BY_KEY, table_settings  # noqa: E402
+from igdrivsim.evaluation.schema import METRIC_BY_KEY  # noqa: E402
 from igdrivsim.io import atomic_savefig  # noqa: E402
 from igdrivsim.names import (  # noqa: E402
     BC,
@@ -41,16 +36,12 @@ from igdrivsim.report.methods_table import (  # noqa: E402
     method_colours,
     method_label,
 )
+from igdrivsim.report.tables import _metric_name, present_settings  # noqa: E402
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
 
 PANELS = ("log_divergence", "overlap", "offroad")
 CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
-
-
-def _metric_name(key: str) -> str:
-    """Table I's two-line label of a metric as one line, without its unit."""
-    return " ".join(METRIC_BY_KEY[key].label).replace("\\", "").replace(" (%)", "")
 
 
 def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[str],
@@ -72,12 +63,6 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
 
 
-def _present_settings(frame: pd.DataFrame) -> list[str]:
-    """The table's settings (Table I order) that ``frame`` holds."""
-    present = set(frame.setting.astype(str))
-    return [s for s in table_settings(frame) if s in present]
-
-
 def _rotate_settings(ax) -> None:
     ax.tick_params(axis="x", labelbottom=True, rotation=30)
     for label in ax.get_xticklabels():
@@ -85,8 +70,7 @@ def _rotate_settings(ax) -> None:
 
 
 def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
-    """The figure's legend (methods, references, the asterisk when a panel is tested) above
-    (``top``) or below the panels; returns its number of rows."""
+    """The legend above (``top``) or below the panels; returns its number of rows."""
     handles = plots.figure_handles(fig)  # the methods' bars first, then the lines
     handles = dict(sorted(handles.items(), key=lambda kv: not isinstance(kv[1], BarContainer)))
     if tested:
@@ -102,22 +86,20 @@ def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
 
 def _metric_column(fig, axes, frame: pd.DataFrame, keys: Sequence[str], settings: Sequence[str],
                    methods: Sequence[str], tests: pd.DataFrame | None, ncols: int) -> int:
-    """Table I's metrics ``keys``, one panel each down ``axes``; sets ``fig.marked`` and the
-    legend, returns its number of rows."""
+    """A panel per metric of ``keys`` down ``axes``, ``fig.marked`` and the legend's rows."""
     marked = {}
     for ax, key in zip(axes, keys, strict=True):
         unit = METRIC_BY_KEY[key].unit
         marked[key] = _bar_panel(ax, frame, key, unit, settings, methods, tests)
-        ax.set_ylabel(f"{_metric_name(key)} ({unit})")
+        ax.set_ylabel(f"{_metric_name(METRIC_BY_KEY[key])} ({unit})")
     _rotate_settings(axes[-1])
     fig.marked = marked
     return _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
 
 
 def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
-    """Fig. 3 from the seed-level frame (:func:`igdrivsim.evaluation.aggregate.seed_means`) or
-    the summary (``tables/summary.csv``); ``tests``: BC-RL vs BC (``tables/tests.csv``)."""
-    settings = _present_settings(seed_level)
+    """Fig. 3 from the seed means (or the summary) and BC-RL vs BC's ``tests``."""
+    settings = present_settings(seed_level)
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
     rows = _metric_column(fig, axes, seed_level, PANELS, settings, (BC, BC_RL), tests, 2)
@@ -145,8 +127,7 @@ CURVE_ROWS: tuple[tuple[str, str, float, str | None], ...] = (
 
 
 def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
-    """All ``curves.jsonl`` records as one frame, one row per (setting, method, seed, update):
-    a resumed run keeps its last record; a malformed line raises :class:`DataError`."""
+    """Every ``curves.jsonl`` record, one row per (setting, method, seed, update)."""
     found: set[Path] = set()  # each run folder, or folder of runs, searched below
     for root in map(Path, run_dirs):
         if root.is_dir():
@@ -220,15 +201,12 @@ def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
 
 
 def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
-                           references_csv: str | Path | pd.DataFrame | None = None,
-                           stem: str = "fig4_learning_curves") -> list[Path]:
-    """Fig. 4 (``stem.{pdf,png}``) from the runs' ``curves.jsonl``: rows of metrics, columns of
-    settings, per method the mean over seeds with the min-max band, the references as lines
-    (``references_csv``). Returns the written paths ([] without curves)."""
+                           references_csv: str | Path | pd.DataFrame | None = None) -> list[Path]:
+    """Fig. 4 from the runs' ``curves.jsonl``, the references as lines; the paths."""
     curves = load_curves(run_dirs)
     if curves.empty:
         return []
-    settings = _present_settings(curves)
+    settings = present_settings(curves)
     methods = [m for m in (BC, BC_RL) if m in set(curves.method)] + sorted(
         set(curves.method) - {BC, BC_RL})
     extra = sns.color_palette("tab10")
@@ -282,15 +260,13 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
-    return save_figure(fig, out_dir, stem)
+    return save_figure(fig, out_dir, "fig4_learning_curves")
 
 
-def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
-                         tests: pd.DataFrame | None = None):
-    """Fig. 5: a panel per registry metric with ``figure=True`` from :func:`seed_means` over
-    them (or their summary); ``tests``: their significance, if any (else: descriptive)."""
+def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence):
+    """Fig. 5: a panel per registry metric with ``figure=True`` (descriptive: no tests)."""
     panels = [m for m in metrics if m.figure]
-    order = _present_settings(seed_level)
+    order = present_settings(seed_level)
     learned = [m for m in METHOD_REGISTRY if m in set(seed_level.method)] or [BC, BC_RL]
     sns.set_theme(style="whitegrid", context="paper")
     ncols = 2 if len(panels) > 1 else 1
@@ -300,7 +276,7 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
     marked = {}
     for ax, metric in zip(axes.ravel(), panels, strict=False):
         marked[metric.key] = _bar_panel(ax, seed_level, metric.key, metric.unit, order,
-                                        learned, tests)
+                                        learned, None)
         arrow = "↑" if metric.higher_is_better else "↓"
         ax.set_title(f"{metric.label} {arrow}", fontsize=9)
         ax.set_ylabel(metric.unit)
@@ -310,19 +286,16 @@ def supplementary_figure(seed_level: pd.DataFrame, metrics: Sequence,
         drawn = [r for r in range(nrows) if r * ncols + col < len(panels)]
         if drawn:
             _rotate_settings(axes[drawn[-1], col])
-    tested = tests is not None and bool(set(tests.metric) & {m.key for m in panels})
     fig.marked = marked
-    rows = _legend(fig, tested, ncols=4, top=False)
-    note = CLIPPED + ("" if tested else "; no significance tests on these metrics "
-                      "(descriptive)")
+    rows = _legend(fig, False, ncols=4, top=False)
+    note = CLIPPED + "; no significance tests on these metrics (descriptive)"
     fig.text(0.01, 0.995, note, fontsize=7, color="0.35", va="top")
     fig.tight_layout(rect=(0, 0.03 * rows + 0.01, 1, 0.985))
     return fig
 
 
 def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequence[str]) -> str:
-    """Which methods a setting lacks, and why when known (a taught method has no run in the
-    setting of its privileged teacher, Full)."""
+    """Which methods each setting lacks, and why when known."""
     notes = []
     for setting in settings:
         here = set(frame[frame.setting == setting].method)
@@ -337,19 +310,16 @@ def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequenc
     return "; ".join(notes)
 
 
-def fig6_methods(seed_level: pd.DataFrame, panels: Sequence[str] = PANELS,
-                 tests: pd.DataFrame | None = None):
-    """Fig. 6: one panel per metric key in ``panels``, settings on the x axis, a bar per
-    learned method present in the setting. ``seed_level``: :func:`seed_means` (or a summary);
-    ``tests``: every method vs BC (``tables/tests_all.csv``)."""
+def fig6_methods(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
+    """Fig. 6: a panel per Table I metric of :data:`PANELS`, a bar per learned method."""
     methods = learned_methods(seed_level)
     learned = seed_level[seed_level.method.isin(methods)]
-    settings = _present_settings(learned)
+    settings = present_settings(learned)
     sns.set_theme(style="whitegrid", context="paper")
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
-    fig, axes = plt.subplots(len(panels), 1, figsize=(width, 2.1 * len(panels) + 0.9),
+    fig, axes = plt.subplots(len(PANELS), 1, figsize=(width, 2.1 * len(PANELS) + 0.9),
                              sharex=True, squeeze=False)
-    rows = _metric_column(fig, axes[:, 0], seed_level, panels, settings, methods, tests,
+    rows = _metric_column(fig, axes[:, 0], seed_level, PANELS, settings, methods, tests,
                           4 if width >= 6.5 else 2)
     note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
     fig.text(0.01, 0.005, note, fontsize=7, color="0.35")
@@ -362,8 +332,7 @@ def _read(path: Path) -> pd.DataFrame | None:
 
 
 def redraw_from_tables(paper: str | Path) -> list[Path]:
-    """Fig. 3 and 5 (and Fig. 6 when the summary holds its methods) from ``paper/tables``:
-    the seed means (or summary) and tests the report wrote. Returns the written paths."""
+    """Fig. 3, 5 (and 6) from the tables under ``paper``; the paths."""
     from igdrivsim.evaluation import registry  # the supplementary metrics
 
     tables, figures = Path(paper) / "tables", Path(paper) / "figures"

@@ -1,7 +1,5 @@
 """Table II: every learned method against BC (Markdown and LaTeX), written when the evaluations
-hold methods beyond BC and BC-RL. Rows in :func:`learned_methods` order, then the references;
-a non-BC cell adds its difference from BC (:func:`compare_all`, Holm over the table's cells).
-"""
+hold methods beyond BC and BC-RL; Holm runs over the table's cells (:func:`compare_all`)."""
 
 from __future__ import annotations
 
@@ -12,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from igdrivsim.evaluation.aggregate import ALPHA, POWER, TEST_NAME, compare_methods
-from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING, table_settings
+from igdrivsim.evaluation.schema import METRICS, REFERENCE_SETTING
 from igdrivsim.names import (
     BC,
     BC_RL,
@@ -29,10 +27,15 @@ from igdrivsim.report.tables import (
     _has_references,
     _lookup,
     _metric_name,
+    _reference_rows,
     _signed,
     _tex,
+    _tex_number,
     heading,
     latex_float,
+    md_head,
+    md_row,
+    present_settings,
     setting_header,
 )
 
@@ -40,8 +43,7 @@ PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
 
 
 def learned_methods(frame: pd.DataFrame) -> list[str]:
-    """The learned methods in ``frame`` (any frame with a ``method`` column), in Table II
-    order: BC, BC-RL, the rest in the method registry's order, then unregistered names."""
+    """The learned methods in ``frame``: BC, BC-RL, the registry's order, the rest."""
     present = set(frame["method"].astype(str)) - set(REFERENCES) if len(frame) else set()
     first = [m for m in PAPER_METHODS if m in present]
     registered = [m for m in LEARNED if m in present and m not in PAPER_METHODS]
@@ -59,8 +61,7 @@ def method_label(name: str) -> str:
 
 
 def method_colours(methods: Sequence[str]) -> dict[str, str]:
-    """Each method's registry colour; an unregistered one gets a matplotlib cycle colour
-    (``C2`` onwards, so never the default blue/orange of BC and BC-RL)."""
+    """Each method's registry colour, else a matplotlib cycle colour from ``C2``."""
     colours, spare = {}, 0
     for name in methods:
         if name in METHOD_COLOURS:
@@ -72,15 +73,9 @@ def method_colours(methods: Sequence[str]) -> dict[str, str]:
 
 
 def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
-    """Every learned method but ``baseline`` against it (:func:`compare_methods`), rows in
-    Table II order; Holm runs over all of these rows (Table II's comparison cells)."""
+    """Every learned method but ``baseline`` against it, Holm over Table II's cells."""
     methods = [m for m in learned_methods(per_scenario) if m != baseline]
     return compare_methods(per_scenario, baseline=baseline, methods=methods)
-
-
-def _columns(summary: pd.DataFrame, methods: Sequence[str]) -> list[str]:
-    present = set(summary.loc[summary.method.isin(methods), "setting"].astype(str))
-    return [s for s in table_settings(summary) if s in present]
 
 
 def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Series | None:
@@ -122,17 +117,15 @@ def _diff_text(row: pd.Series) -> str:
 
 
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Markdown Table II from ``summary`` (:func:`summarize`) and ``tests``
-    (:func:`compare_all`)."""
+    """Markdown Table II from ``summary`` and ``tests`` (:func:`compare_all`)."""
     methods = learned_methods(summary)
-    cols = _columns(summary, methods)
+    cols = present_settings(summary[summary.method.isin(methods)])
     out = heading("# Table II: learned methods vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
             f"(alpha={ALPHA}). `{MISSING}`: not evaluated in that setting.", "",
-            "| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |",
-            "|---|---|" + "---|" * len(cols)]
+            *md_head("metric", "method", *map(setting_short, cols))]
     references = _has_references(summary)
     for metric in METRICS:
         name = _metric_name(metric) + f" ({metric.unit})"
@@ -145,17 +138,10 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
                     text = f"{text} (Δ {_diff_text(row)})"
                     text = f"**{text}**" if bool(row.significant) else text
                 cells.append(text)
-            out.append(f"| {name} | {method_label(method)} | " + " | ".join(cells) + " |")
-        for method in references:
-            text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-            out.append(f"| {name} | *{method_label(method)}* | "
-                       + " | ".join([f"*{text}*"] * len(cols)) + " |")
+            out.append(md_row(name, method_label(method), *cells))
+        out += _reference_rows(summary, metric, name, len(cols), references)
     out += ["", methods_caption(tests)]
     return "\n".join(out) + "\n"
-
-
-def _tex_number(text: str) -> str:
-    return text if text == MISSING else text.replace("+", "$+$").replace("-", "$-$")
 
 
 def _tex_ci(row: pd.Series | None) -> str:
@@ -167,11 +153,9 @@ def _mean(row: pd.Series | None) -> float | None:
 
 
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
-    """Table II as a ``table*`` float (label ``tab:methods``; needs booktabs and graphicx):
-    per metric a row per method (mean ± CI half-width), under each non-BC method a row with
-    its difference from BC and bootstrap interval, bold where significant after Holm."""
+    """Table II as a ``table*`` float (label ``tab:methods``)."""
     methods = learned_methods(summary)
-    cols = _columns(summary, methods)
+    cols = present_settings(summary[summary.method.isin(methods)])
     holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
     caption = (
         r"\caption{\textbf{Learned methods versus BC.} Mean over seeds $\pm$ 95\% CI "

@@ -1,10 +1,6 @@
-"""Bar panels shared by Fig. 3, 5 and 6: one group of bars per setting, one bar per method.
-
-A bar is the mean over seeds, its error bar the 95% t-interval over seed means clipped to what
-the metric can take (:func:`feasible_range`); a group holds only the methods evaluated in its
-setting; an asterisk marks a difference from the baseline after Holm; the reference actors are
-labelled horizontal lines.
-"""
+"""Bar panels shared by Fig. 3, 5 and 6: per setting a group of bars (mean over seeds, 95%
+t-interval clipped to the metric's range), asterisks where significant after Holm, the reference
+actors as horizontal lines."""
 
 from __future__ import annotations
 
@@ -45,8 +41,7 @@ def clip_interval(low: float, high: float, unit: str) -> tuple[float, float]:
 
 
 def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
-    """``setting, method, mean, low, high`` of ``metric``, the interval clipped to the unit's
-    range, from seed-level rows (the t-interval over seeds) or a summary's."""
+    """``setting, method, mean, low, high`` of ``metric``, clipped to the unit's range."""
     part = frame[frame.metric == metric]
     rows = []
     if "value" in part.columns:
@@ -66,8 +61,7 @@ def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
 
 
 def significant_cells(tests: pd.DataFrame | None, metric: str) -> set[Cell]:
-    """``(setting, method)`` of the rows of ``tests`` (``tests.csv`` / ``tests_all.csv``) for
-    ``metric`` that are significant after the Holm correction."""
+    """``(setting, method)`` of the rows of ``tests`` significant after Holm."""
     if tests is None or len(tests) == 0:
         return set()
     rows = tests[(tests.metric == metric) & tests.significant.astype(bool)]
@@ -76,9 +70,7 @@ def significant_cells(tests: pd.DataFrame | None, metric: str) -> set[Cell]:
 
 def draw_bars(ax, cells: pd.DataFrame, settings: Sequence[str], methods: Sequence[str],
               colours: Mapping[str, str], labels: Mapping[str, str]) -> dict[Cell, tuple]:
-    """One group per setting of the methods present in it (centred, no empty slot), the error
-    bars of ``cells`` (:func:`cell_stats`). Returns ``(setting, method) -> (x, top)``, ``top``
-    the upper end of the bar or its error bar."""
+    """The bars of ``cells`` grouped by setting; ``(setting, method) -> (x, top)``."""
     width = 0.8 / max(1, len(methods))
     positions: dict[Cell, tuple] = {}
     labelled: set[str] = set()
@@ -102,8 +94,7 @@ def draw_bars(ax, cells: pd.DataFrame, settings: Sequence[str], methods: Sequenc
 
 
 def mark_significant(ax, positions: Mapping[Cell, tuple], significant: set[Cell]) -> list[Cell]:
-    """An asterisk above each drawn bar in ``significant``; returns the marked cells (sorted)
-    and raises the axis top so every asterisk fits."""
+    """An asterisk above each drawn bar in ``significant``; the marked cells."""
     marked = sorted(c for c in significant if c in positions)
     if not marked:
         return []
@@ -120,8 +111,7 @@ def mark_significant(ax, positions: Mapping[Cell, tuple], significant: set[Cell]
 
 
 def reference_lines(ax, frame: pd.DataFrame, metric: str) -> None:
-    """A labelled horizontal line (:data:`REFERENCE_STYLE`) at the mean of each reference actor
-    evaluated for ``metric`` in ``frame`` (seed level or summary)."""
+    """A labelled horizontal line at each reference actor's mean of ``metric``."""
     column = "value" if "value" in frame.columns else "mean"
     for method in (CONSTANT_VELOCITY, EXPERT):
         value = frame[(frame.method == method) & (frame.metric == metric)][column].mean()

@@ -1,12 +1,6 @@
-"""Which command wrote each report file: ``paper/provenance.json`` and one line in each table.
-
-An entry (:class:`Entry`) holds the command, the kind of run that owns the file (``default``, or
-``methods``: Table II, ``tests_all.csv`` and Fig. 6), the profile and its updates, the device,
-wall time, date, and the code of each pipeline stage its numbers came from (``stages``:
-:func:`stages_behind` -> :func:`code_state` as stamped when the stage ran). A run publishes the
-files its kind owns, and another kind's only where missing. Schema 1 entries (no ``stages``)
-stay readable. ``igdrivsim report provenance check|derived|maze``.
-"""
+"""Which command wrote each report file, and the code of each stage behind its numbers:
+``paper/provenance.json`` (:class:`Entry`) and one line in each table. A run publishes the files
+its kind owns, and another kind's only where missing. ``igdrivsim report provenance``."""
 
 from __future__ import annotations
 
@@ -144,8 +138,7 @@ def save(paper: Path, files: dict[str, dict]) -> Path:
 
 
 def outputs(folder: Path) -> list[str]:
-    """Every output file under ``folder`` (relative paths): the tables, figures and generated
-    LaTeX, and the maze's config."""
+    """Every output file under ``folder``, relative."""
     folder = Path(folder)
     found = [str(p.relative_to(folder)) for sub in OUTPUT_FOLDERS if (folder / sub).is_dir()
              for p in sorted((folder / sub).iterdir()) if p.is_file()]
@@ -173,9 +166,7 @@ def run_tex(entry: Entry) -> str:
 
 def publish(staged: Path, paper: Path, entry: Entry,
             stages_of: Callable[[str], Mapping[str, Mapping]]) -> list[str]:
-    """Copy the outputs under ``staged`` that ``entry.run`` owns into ``paper`` (the others
-    only where missing), stamp the markdown tables, write ``generated/run.tex`` and record each
-    file's entry with ``stages_of(rel)`` (its stages and their code). Returns the paths."""
+    """Publish the outputs ``entry.run`` owns (others only where missing), stamped; the paths."""
     staged, paper = Path(staged), Path(paper)
     atomic_write_text(staged / "generated" / "run.tex",
                       run_tex(entry.with_stages(stages_of("generated/run.tex"))))
@@ -198,9 +189,7 @@ def publish(staged: Path, paper: Path, entry: Entry,
 
 def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
             repo: Path) -> list[str]:
-    """Entries for ``files_rel`` that ``command`` wrote from ``source``'s numbers outside the
-    pipeline: ``source``'s entry with the command, its stages plus a ``derive`` stage at this
-    checkout's code. Returns the files given an entry."""
+    """Record ``files_rel``, written by ``command`` from ``source``'s numbers; the files."""
     files = load(paper)
     if source not in files:
         raise ConfigError(f"{FILE}: no entry for the source {source!r}")
@@ -220,8 +209,7 @@ MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, 
 
 
 def record_maze(paper: Path) -> list[str]:
-    """Entries for the maze study's outputs of ``python -m maze --out PAPER`` run alone, as its
-    ``maze_config.json`` recorded them (stage ``maze``). Returns the files given an entry."""
+    """Record the maze study's outputs, run alone, from its ``maze_config.json``."""
     paper = Path(paper)
     meta = read_json(paper / "maze_config.json")
     machine, code = meta.get("machine"), meta.get("code")
@@ -258,9 +246,7 @@ def missing(paper: Path) -> list[str]:
 
 
 def stage_check(files: Mapping[str, Mapping]) -> tuple[list[str], list[str]]:
-    """``(problems, legacy)``: the entries whose stage commits are missing (no stage, a stage
-    without its code, a wrong ``mixed_commits``), and the files of schema 1 entries (no
-    ``stages``: published before per-stage provenance, reported, not failed)."""
+    """``(problems, legacy)``: entries lacking stage commits, and schema 1 entries."""
     problems, legacy = [], []
     for rel, entry in sorted(files.items()):
         stages = entry.get("stages")
@@ -285,10 +271,7 @@ def today() -> str:
 
 
 def provenance_command(args, repo: Path) -> int:
-    """``igdrivsim report provenance``: ``check`` lists the outputs without an entry and the
-    entries without their stage commits (exit 1 when there is one; schema 1 entries are
-    counted, not failed); ``derived FILE... --from SOURCE --command CMD`` records files CMD
-    wrote from SOURCE's numbers outside the pipeline; ``maze``: :func:`record_maze`."""
+    """``igdrivsim report provenance check|derived|maze`` (``check`` exits 1 on a gap)."""
     paper = Path(args.paper).resolve()
     if args.task == "check":
         lacking = missing(paper)

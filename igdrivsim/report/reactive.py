@@ -1,11 +1,6 @@
-"""Table I's companion under reactive traffic: every driver judged with log-replay and IDM agents.
-
-Two evaluations of the same drivers on the same scenarios (``--log``: Table I's; ``--idm``:
-``igdrivsim evaluate --agents idm``): per driver (each setting's BC and BC-RL, the references)
-and metric (Table I's per-scenario rates, the registry's at-fault overlap), the mean over seeds
-with its 95% t-interval under each, and log - idm with Table I's two-level bootstrap, Holm over
-the table. ``igdrivsim report reactive`` writes ``tables/reactive.{md,csv}`` and Fig. 7.
-"""
+"""Table I's companion under reactive traffic (``igdrivsim report reactive``): every driver's
+per-scenario rates with log-replay and with IDM agents, and log - idm with Table I's two-level
+bootstrap, Holm over the table; ``tables/reactive.{md,csv}`` and Fig. 7."""
 
 from __future__ import annotations
 
@@ -30,7 +25,7 @@ from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.results_tex import _num
-from igdrivsim.report.tables import heading
+from igdrivsim.report.tables import _lookup, heading
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -58,8 +53,7 @@ def _complete(frame: pd.DataFrame) -> set:
 
 
 def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
-    """The ``(setting, method)`` pairs evaluated under both: every setting's BC-RL and BC (in
-    Table I's order), then the reference actors."""
+    """The ``(setting, method)`` pairs evaluated under both, in Table I's order."""
     both = set(zip(log.setting, log.method, strict=True)) & set(
         zip(idm.setting, idm.method, strict=True))
     out = [(s, m) for s in table_settings(log, idm) for m in (BC, BC_RL) if (s, m) in both]
@@ -68,8 +62,7 @@ def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
 
 def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_000
                    ) -> pd.DataFrame:
-    """One row per (driver, metric): means and intervals under log and idm, and the
-    difference log - idm with its bootstrap interval, p, Holm p and significance."""
+    """One row per (driver, metric): under log, under idm, and log - idm."""
     pairs = drivers(log, idm)
     if not pairs:
         raise DataError("no driver was evaluated under both log and idm agents")
@@ -87,9 +80,7 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
         for i, metric in enumerate(METRICS):
             row = dict(setting=setting, method=method, metric=metric.key)
             for cond, summary in summaries.items():
-                s = summary[(summary.setting == setting) & (summary.method == method)
-                            & (summary.metric == metric.key)]
-                s = s.iloc[0] if len(s) else None
+                s = _lookup(summary, metric.key, setting, method)
                 row[f"{cond}_mean"] = np.nan if s is None else float(s["mean"])
                 row[f"{cond}_ci_low"] = np.nan if s is None else float(s.ci_low)
                 row[f"{cond}_ci_high"] = np.nan if s is None else float(s.ci_high)
@@ -179,14 +170,10 @@ def reactive_figure(table: pd.DataFrame, out_dir: str | Path) -> list[Path]:
     return save_figure(fig, out_dir, FIGURE)
 
 
-def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path, header: str = "",
-          n_resamples: int = 10_000) -> list[Path]:
+def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path) -> list[Path]:
     """Read both evaluations and write the table, its numbers and the figure under ``out``."""
-    _, log = load_evaluations(log_dirs)
-    _, idm = load_evaluations(idm_dirs)
-    table = reactive_table(log, idm, n_resamples)
+    table = reactive_table(load_evaluations(log_dirs)[1], load_evaluations(idm_dirs)[1])
     out = Path(out)
     written = [atomic_write_csv(out / "tables" / "reactive.csv", table.round(6)),
-               atomic_write_text(out / "tables" / "reactive.md",
-                                 reactive_markdown(table, header))]
+               atomic_write_text(out / "tables" / "reactive.md", reactive_markdown(table))]
     return written + reactive_figure(table, out / "figures")

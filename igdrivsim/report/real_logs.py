@@ -1,12 +1,7 @@
-"""Synthetic-trained drivers on real logs (the pipeline's ``real_logs`` stage).
-
-Per ``(setting, method)``: each metric's mean over seeds on real logs and on validation, and
-against constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`);
-Full BC under each action read-out. ``igdrivsim report real-logs --real DIR --synthetic DIR
---out TABLES`` writes ``real_logs.{md,tex,csv}``, ``real_logs_readouts.csv`` and the abstract's
-sentence ``real_logs_summary.tex``; :func:`real_logs_section`, their section of ``results.md``
-and the README's sentence, from those tables.
-"""
+"""Synthetic-trained drivers on real logs (``igdrivsim report real-logs``): per ``(setting,
+method)`` the metrics on real logs and on validation, the comparison with the references ego by
+ego (:mod:`igdrivsim.evaluation.paired`) and Full BC under each action read-out; then their
+section of ``results.md`` and the README's sentence, from those tables."""
 
 from __future__ import annotations
 
@@ -34,7 +29,7 @@ from igdrivsim.names import (
     setting_short,
 )
 from igdrivsim.report.results_tex import read_table
-from igdrivsim.report.tables import wrap
+from igdrivsim.report.tables import md_head, md_row, wrap
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -53,14 +48,13 @@ PAIRED_HEAD = ["N egos (sources)", "closer to the log [95% CI]",
 
 
 def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -> pd.DataFrame:
-    """One row per ``(setting, method)`` evaluated on real logs: per source and metric the mean
-    over seeds of the seed means, and per source the number of scenarios and seeds."""
+    """One row per ``(setting, method)`` on real logs: means over seeds and counts."""
     metrics = [METRIC_BY_KEY[k] for k in METRIC_KEYS]
     rows: dict[tuple[str, str], dict] = {}
     for source, frame in (("real", real), ("validation", validation)):
         if frame is None or frame.empty:
             continue
-        means = seed_means(frame, metrics).groupby(["setting", "method", "metric"])["value"]
+        means = seed_means(frame, metrics).groupby(["setting", "method", "metric"])["value"].mean()
         counts = frame.assign(source=sources(frame)).groupby(["setting", "method"]).agg(
             n=("scenario_id", "nunique"), seeds=("seed", "nunique"),
             sources=("source", "nunique"))
@@ -72,10 +66,7 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
             if source == "real":
                 row["real_sources"] = int(c.sources)
             for key in METRIC_KEYS:
-                try:
-                    row[f"{source}_{key}"] = float(means.mean().loc[(setting, method, key)])
-                except KeyError:
-                    row[f"{source}_{key}"] = float("nan")
+                row[f"{source}_{key}"] = float(means.get((setting, method, key), float("nan")))
     for row in rows.values():
         row |= _ego_by_ego(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
@@ -92,9 +83,7 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
 
 
 def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
-    """A learned driver against :data:`PAIRED_REFERENCES` ego by ego on the real logs
-    (:func:`~igdrivsim.evaluation.paired.compare_on_egos`) and :data:`VS_CV`; NaN for a
-    reference."""
+    """A learned driver against each reference ego by ego; NaN for a reference."""
     out = dict.fromkeys(PAIRED + VS_CV, float("nan"))
     if method in REFERENCES:
         return out
@@ -102,12 +91,17 @@ def _ego_by_ego(real: pd.DataFrame, setting: str, method: str) -> dict:
         c = compare_on_egos(real, setting, method, reference)
         if not c["n_egos"]:
             continue
-        out |= {f"real_vs_{prefix}_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
-                for k in PAIRED_STATS}
+        out |= _paired_stats(c, f"real_vs_{prefix}_")
         if reference == CONSTANT_VELOCITY:
             out |= dict(zip(VS_CV, (c["diff"], c["diff_lo"], c["diff_hi"], c["diff_mde"]),
                             strict=True))
     return out
+
+
+def _paired_stats(c: dict, prefix: str) -> dict[str, float]:
+    """:data:`PAIRED_STATS` of a :func:`~igdrivsim.evaluation.paired.compare_on_egos` result."""
+    return {prefix + k: float(c[f"n_{k}" if k in ("egos", "sources") else k])
+            for k in PAIRED_STATS}
 
 
 def paired_cells(values: dict | pd.Series, prefix: str = "") -> list[str]:
@@ -142,13 +136,11 @@ def _paired_markdown(table: pd.DataFrame) -> list[str]:
         for prefix, reference in PAIRED_REFERENCES.items():
             cells = paired_cells(row, f"real_vs_{prefix}_")
             if cells[0] != "--":
-                lines.append("| " + " | ".join([*_label(row), METHOD_LABELS.get(
-                    reference, reference), *cells]) + " |")
+                lines.append(md_row(*_label(row), METHOD_LABELS.get(reference, reference), *cells))
     if not lines:
         return []
-    head = ["setting", "method", "against", *PAIRED_HEAD]
     return ["", "## Ego by ego on the real logs", "", PAIRED_NOTE, "",
-            "| " + " | ".join(head) + " |", "|" + "---|" * len(head), *lines]
+            *md_head("setting", "method", "against", *PAIRED_HEAD), *lines]
 
 
 # Full BC under each action read-out (policy.act.ACTION_MODES), Table I's sampled one first
@@ -159,8 +151,7 @@ READOUT_COLUMNS = ["actions", *[f"real_vs_cv_{k}" for k in PAIRED_STATS]]
 
 
 def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFrame:
-    """Full BC against constant velocity ego by ego under each action read-out: ``real``'s
-    sampled actions, then each evaluation under ``readouts`` (one row each)."""
+    """Full BC against constant velocity ego by ego under each action read-out."""
     frames = {"sample": real}
     cv = real[real.method == CONSTANT_VELOCITY]
     for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
@@ -173,9 +164,7 @@ def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFra
                           if a in READOUT_LABELS else len(READOUT_LABELS)):
         c = compare_on_egos(frames[actions], READOUT_SETTING, BC, CONSTANT_VELOCITY)
         if c["n_egos"]:
-            rows.append({"actions": actions, **{
-                f"real_vs_cv_{k}": float(c[f"n_{k}" if k in ("egos", "sources") else k])
-                for k in PAIRED_STATS}})
+            rows.append({"actions": actions, **_paired_stats(c, "real_vs_cv_")})
     return pd.DataFrame(rows, columns=READOUT_COLUMNS)
 
 
@@ -187,10 +176,10 @@ def readout_markdown(readouts: pd.DataFrame) -> list[str]:
              "Table I's protocol samples each action from the policy; beside it, the most "
              "likely action (greedy) and the expected action under the policy's distribution "
              "(mean), each against constant velocity, ego by ego (as above).", "",
-             "| actions | " + " | ".join(PAIRED_HEAD) + " |", "|---|" + "---|" * len(PAIRED_HEAD)]
+             *md_head("actions", *PAIRED_HEAD)]
     for _, row in readouts.iterrows():
-        lines.append(f"| {READOUT_LABELS.get(row.actions, row.actions)} | "
-                     + " | ".join(paired_cells(row, "real_vs_cv_")) + " |")
+        lines.append(md_row(READOUT_LABELS.get(row.actions, row.actions),
+                            *paired_cells(row, "real_vs_cv_")))
     return lines
 
 
@@ -226,8 +215,7 @@ def _egos_text(table: pd.DataFrame) -> str:
 
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
                        readouts: pd.DataFrame | None = None) -> str:
-    """The table as Markdown: per metric a validation and a real column, N beside each value;
-    then the ego-by-ego table and Full BC's action read-outs (:func:`readout_table`)."""
+    """The tables as Markdown: the metrics, ego by ego, the read-outs."""
     head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
@@ -239,12 +227,10 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
              "velocity's on the same scenarios, its 95% interval (bootstrap resampling source "
              "scenarios, then seeds) and the smallest difference these scenarios detect "
              "at 80% power (MDE); a few real scenarios cannot separate the methods.",
-             "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+             "", *md_head(*head)]
     for _, row in table.iterrows():
-        cells = [*_label(row)] + [_cell(row, s, k) for k in METRIC_KEYS
-                                  for s in SOURCES] + [_vs_cv_cell(row)]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(md_row(*_label(row), *[_cell(row, s, k) for k in METRIC_KEYS for s in SOURCES],
+                            _vs_cv_cell(row)))
     extra = [] if readouts is None else readout_markdown(readouts)
     return "\n".join(lines + _paired_markdown(table) + extra) + "\n"
 
@@ -282,8 +268,7 @@ def _span(values: pd.Series, digits: int) -> str:
 
 
 def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
-    """The abstract's sentence: the learned drivers' real log divergence against constant
-    velocity's, with N and the detectable differences; None without constant velocity."""
+    """The abstract's sentence; None without constant velocity."""
     cv = table[table.method == CONSTANT_VELOCITY]
     learned = table[~table.method.isin(REFERENCES)].dropna(subset=["real_log_divergence"])
     if cv.empty or learned.empty or pd.isna(cv.real_log_divergence.iloc[0]):
@@ -331,9 +316,7 @@ def _summary_tex(table: pd.DataFrame) -> str:
 def write_tables(real: str | Path, validation: str | Path | None, out: str | Path,
                  real_label: str, validation_label: str,
                  readouts: str | Path | None = None) -> list[Path]:
-    """Read both evaluation folders (and Full BC's read-outs, ``readouts``), write
-    ``out/real_logs.{md,tex,csv}``, ``out/real_logs_readouts.csv`` and
-    ``out/real_logs_summary.tex``; returns the paths."""
+    """Write ``out/real_logs*`` from the evaluation folders; the paths."""
     real_frame = load_evaluations([real])[1]
     validation_frame = load_evaluations([validation])[1] if validation else None
     table = real_log_table(real_frame, validation_frame)
@@ -358,8 +341,7 @@ READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, wh
 
 
 def _vs_cv(row: pd.Series) -> str:
-    """``x% [lo, hi]; r.rrx [lo, hi]``: a driver's share of egos closer to the log than constant
-    velocity and its mean log divergence over constant velocity's (real_logs.csv's columns)."""
+    """The share of egos closer to the log than constant velocity, and the ratio."""
     if pd.isna(row.get("real_vs_cv_win")):
         return "-- | --"
     return (f"{100 * row.real_vs_cv_win:.0f}% [{100 * row.real_vs_cv_win_lo:.0f}, "
@@ -368,8 +350,7 @@ def _vs_cv(row: pd.Series) -> str:
 
 
 def _full_bc_line(table: pd.DataFrame) -> str | None:
-    """The headline sentence: Full BC against constant velocity ego by ego, with N egos and N
-    source scenarios; None without that comparison."""
+    """The headline sentence on Full BC; None without that comparison."""
     full = table[(table.setting == "full") & (table.method == BC)]
     if full.empty or "real_vs_cv_win" not in full or pd.isna(full.real_vs_cv_win.iloc[0]):
         return None
@@ -399,9 +380,7 @@ def _readouts(tables: Path) -> list[str]:
 
 
 def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
-    """The section of ``results.md`` on real logs (nothing without ``tables/real_logs.csv``):
-    ego-by-ego comparisons, read-outs, the summary sentence and the log divergence per setting;
-    with ``headline`` (the link to the full results), the README's one sentence."""
+    """The real-log section of ``results.md`` (``headline``: the README's)."""
     table = read_table(tables / "real_logs.csv")
     if table is None or table.empty:
         return []
@@ -435,10 +414,7 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
         ego_table += [*_readouts(tables), ""]
 
     def cell(row: pd.DataFrame, source: str) -> str:
-        if row.empty or pd.isna(row[f"{source}_log_divergence"].iloc[0]):
-            return "--"
-        value = row[f"{source}_log_divergence"].iloc[0]
-        return f"{value:.2f} (N={int(row[f'{source}_n'].iloc[0])})"
+        return "--" if row.empty else _cell(row.iloc[0], source, "log_divergence")
 
     head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
             for m in learned]
@@ -446,12 +422,12 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
            *wrap(sentence), "",
            "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
            "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
-           "| setting | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+           *md_head("setting", *head)]
     for setting in settings:
         rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
-        out.append(f"| {setting_short(setting)} | " + " | ".join(
-            cell(r, src) for src in ("real", "validation") for r in rows) + " |")
+        out.append(md_row(setting_short(setting), *[cell(r, src) for src in ("real", "validation")
+                                                    for r in rows]))
     cv = table[table.method == CONSTANT_VELOCITY]
-    out.append("| constant velocity | " + " | ".join(
-        cell(cv, src) for src in ("real", "validation") for _ in learned) + " |")
+    out.append(md_row("constant velocity", *[cell(cv, src) for src in ("real", "validation")
+                                             for _ in learned]))
     return [*out, ""]

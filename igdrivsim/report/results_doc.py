@@ -1,8 +1,5 @@
-"""The report's markdown: ``results.md`` (the whole run) and the README's blocks, read from the
-report's own files only, so ``igdrivsim report --from-tables`` rewrites them without the
-evaluations. :func:`fill_block` replaces what lies between :data:`BEGIN` and :data:`END` (and
-:data:`RUNTIME_BEGIN` / :data:`RUNTIME_END`).
-"""
+"""The report's markdown, ``results.md`` and the README's blocks, read from the report's own
+files only (so ``igdrivsim report --from-tables`` rewrites them without the evaluations)."""
 
 from __future__ import annotations
 
@@ -22,7 +19,7 @@ from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
 from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
-from igdrivsim.report.tables import _fmt, table1_markdown, wrap
+from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 # the README's block near the top: measured run times and the choice of profile (optional)
@@ -47,8 +44,7 @@ def provenance(paper: Path) -> dict[str, str]:
 
 
 def run_line(paper: Path, commit: bool = True) -> str:
-    """How the run behind Table I was made, from ``paper/provenance.json`` (the pipeline's
-    record: command, profile, updates, device, wall time, date); empty without it."""
+    """How the run behind Table I was made (``paper/provenance.json``); empty without it."""
     files = load_provenance(Path(paper))
     entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
     if not isinstance(entry, dict):
@@ -69,13 +65,6 @@ def run_line(paper: Path, commit: bool = True) -> str:
 
 def _signed(value: float) -> str:
     return ("+0.00" if round(value, 2) == 0 else f"{value:+.2f}") if math.isfinite(value) else "--"
-
-
-def _test(tests: pd.DataFrame | None, metric: str, setting: str) -> pd.Series | None:
-    if tests is None:
-        return None
-    row = tests[(tests.method == BC_RL) & (tests.metric == metric) & (tests.setting == setting)]
-    return row.iloc[0] if len(row) else None
 
 
 def _interval(row: pd.Series | None) -> str:
@@ -114,15 +103,14 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
                  "points of steps offroad, **bold** if significant after Holm."), "",
-           "| setting | " + " | ".join(f"BC {label}" for _, label in _HEADLINE)
-           + " | BC-RL − BC offroad | paper's BC-RL − BC offroad |",
-           "|---|" + "---|" * (len(_HEADLINE) + 2)]
+           *md_head("setting", *[f"BC {label}" for _, label in _HEADLINE],
+                    "BC-RL − BC offroad", "paper's BC-RL − BC offroad")]
     for setting in settings:
         cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
-        out.append(f"| {setting_short(setting)} | " + " | ".join(cells)
-                   + f" | {_interval(_test(tests, 'offroad', setting))} | {paper_text} |")
+        out.append(md_row(setting_short(setting), *cells,
+                          _interval(_test_row(tests, "offroad", setting)), paper_text))
     out.append("| constant velocity | " + " | ".join(_fmt(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
     k, n = _significant(tests)
@@ -149,9 +137,8 @@ def _competence(summary: pd.DataFrame) -> list[str]:
                      for ratio, label, _ in COMPETENCE.values())
     out = [f"Targets (this project's, not the paper's): {bars}. Each cell: the value, its ratio "
            "to constant velocity, and whether the target is met.", "",
-           "| setting | method | " + " | ".join(f"{label} ({unit})" for _, label, unit in
-                                               COMPETENCE.values()) + " | targets met |",
-           "|---|---|" + "---|" * (len(COMPETENCE) + 1),
+           *md_head("setting", "method", *[f"{label} ({unit})" for _, label, unit in
+                                           COMPETENCE.values()], "targets met"),
            "| target | | " + " | ".join(f"<= {_fmt(ratio * cv[m])}" for m, (ratio, _, _) in
                                        COMPETENCE.items()) + " | |"]
     for setting in settings:
@@ -163,8 +150,8 @@ def _competence(summary: pd.DataFrame) -> list[str]:
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
                 cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
-            out.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(method, method)} | "
-                       + " | ".join(cells) + f" | {met} of {len(COMPETENCE)} |")
+            out.append(md_row(setting_short(setting), METHOD_LABELS.get(method, method), *cells,
+                              f"{met} of {len(COMPETENCE)}"))
     expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
@@ -172,8 +159,7 @@ def _competence(summary: pd.DataFrame) -> list[str]:
 
 
 def curves_summary(curves: pd.DataFrame) -> pd.DataFrame:
-    """Per (setting, method): the last two validation updates of the learning curves, mean
-    over seeds (what ``results.md`` says about convergence)."""
+    """Per (setting, method): the last two validation updates, mean over seeds."""
     cols = ["val_bc_loss", "log_divergence", "offroad", "overlap"]
     val = curves.dropna(subset=["val_bc_loss"]) if len(curves) else curves
     rows = []
@@ -252,8 +238,7 @@ def _demote(markdown: str) -> list[str]:
 
 
 def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
-    """Table II of the run that owns it (``tables/table2.md``), else rebuilt from
-    ``tests_all.csv`` (means from ``summary`` where it has them); nothing without it."""
+    """Table II of the run that owns it, else rebuilt from ``tests_all.csv``."""
     tests_all = read_table(tables / "tests_all.csv")
     if tests_all is None:
         return []
@@ -269,8 +254,7 @@ def _table2(tables: Path, summary: pd.DataFrame, header: str) -> list[str]:
 
 
 def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
-    """The whole run as one markdown page; ``paper_link``: the paper folder relative to the
-    page (for its links)."""
+    """The whole run as one markdown page (``paper_link``: the paper folder)."""
     paper = Path(paper)
     tables = paper / "tables"
     summary = read_table(tables / "summary.csv")
@@ -315,8 +299,7 @@ COMPETENCE_ANCHOR = "#competence-against-the-reference-actors"
 
 
 def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
-    """Each published run's measured wall time and machine (``paper/provenance.json``), then
-    what each profile is for; ``results_link``: ``results.md`` relative to the README."""
+    """Each published run's wall time and machine, then the profiles."""
     # lazy: the training profiles pull in JAX; the rest of this module does not need it
     from igdrivsim.training.config import get_profile
 
@@ -377,8 +360,7 @@ def write_run_times(work: str | Path, tables: Path) -> list[Path]:
 
 def write_markdown(paper: str | Path, results: str | Path | None,
                    readme: str | Path | None = None) -> list[Path]:
-    """Write ``results`` (default ``PAPER/results.md``), fill ``readme``'s block and rewrite
-    the PDF's result macros (:func:`igdrivsim.report.results_tex.write_macros`)."""
+    """Write ``results``, fill ``readme``'s blocks and rewrite the PDF's macros."""
 
     paper = Path(paper)
     results = Path(results) if results else paper / "results.md"

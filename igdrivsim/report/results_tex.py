@@ -1,14 +1,6 @@
-"""The report's result macros, ``generated/results.tex`` and ``generated/maze.tex``, read from
-the report's own tables (so ``igdrivsim report --from-tables`` rewrites them): the prose of
-``paper/main.tex`` quotes the committed run only through them.
-
-``results.tex``: ``\\Res<Method><Setting><Metric>`` per Table I cell (codes: :data:`METHOD_CODES`,
-:data:`SETTING_CODES`, :data:`METRIC_CODES`), the references (``\\ResCV<Metric>``), Table II's
-own-run means (``\\ResMethodsBC...``), the supplementary metrics under Full and counts over
-Table I (:func:`results_tex`). ``maze.tex``: ``\\Maze<Curve>`` and ``CI`` per curve, the
-reference policies and the plateau test. With a ``provenance.json``, each file gets the entry
-of the table it is read from.
-"""
+"""The result macros the prose of ``paper/main.tex`` quotes the run through, read from the
+report's own tables: ``generated/results.tex`` (``\\Res<Method><Setting><Metric>`` per cell,
+counts over Table I, Table II's means) and ``generated/maze.tex`` (``\\Maze<Curve>``)."""
 
 from __future__ import annotations
 
@@ -85,10 +77,7 @@ def _means(summary: pd.DataFrame, metric_codes: dict[str, str], settings) -> lis
 
 
 def _methods_means(tests_all: pd.DataFrame) -> list[str]:
-    """Table II's means from its own run (``tests_all.csv``): each method's cell
-    (``\\ResDAggerCircFourOffroad``) and the BC it is compared with there
-    (``\\ResMethodsBCCircFourOffroad``), so the prose never sets a method of one run beside
-    the BC of another."""
+    """Table II's method means and the BC they were compared with, from ``tests_all.csv``."""
     lines, seen = [], set()
     for row in tests_all.itertuples():
         if row.setting not in SETTING_CODES:
@@ -189,8 +178,7 @@ def results_tex(paper: str | Path) -> str | None:
 
 
 def maze_tex(paper: str | Path) -> str | None:
-    """``generated/maze.tex`` from ``maze_summary.csv`` and ``maze_config.json`` (None without
-    the summary)."""
+    """``generated/maze.tex`` (None without ``maze_summary.csv``)."""
     paper = Path(paper)
     maze = read_table(paper / "tables" / "maze_summary.csv")
     if maze is None:
@@ -222,8 +210,7 @@ def maze_tex(paper: str | Path) -> str | None:
 
 
 def write_macros(paper: str | Path) -> list[Path]:
-    """Write ``generated/results.tex`` and ``generated/maze.tex`` (each only when its tables
-    are there) and, with a ``provenance.json``, give each the entry of its source table."""
+    """Write the macro files whose tables are there, with their provenance."""
     paper = Path(paper)
     written = []
     files = provenance.load(paper) if (paper / provenance.FILE).is_file() else None

@@ -1,8 +1,5 @@
-"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``:
-``runs/NAME``, ``evals/NAME``): per variant its overrides of the profile, the updates evaluated,
-its compute relative to the profile's budget (updates x batch x passes) and the closed-loop
-metrics, with the ratio to constant velocity's (``--references``).
-"""
+"""A sweep of one setting's training variants in one table (``scripts/competence_sweep.sh``):
+per variant its overrides, updates, compute relative to the profile's budget and metrics."""
 
 from __future__ import annotations
 
@@ -13,14 +10,14 @@ import pandas as pd
 from igdrivsim.errors import ConfigError
 from igdrivsim.evaluation.schema import PER_SCENARIO_FILE
 from igdrivsim.names import CONSTANT_VELOCITY
+from igdrivsim.report.tables import md_head, md_row
 
 # the fields a variant's compute per update scales with (and the updates it trained)
 _PER_UPDATE = (("data", "batch_size"), ("training", "ppo_epochs"))
 
 
 def _overrides(config: dict, base: dict) -> list[str]:
-    """``section.field=value`` of every field where ``config`` differs from ``base``, leaving
-    out bookkeeping (logging, validation, checkpoints)."""
+    """``section.field=value`` where ``config`` differs from ``base`` (no bookkeeping)."""
     skip = {"log_every", "eval_every", "val_scenarios", "checkpoint_every", "max_checkpoints"}
     return [f"{section}.{key}={value}" for section, fields in config.items()
             if isinstance(fields, dict) for key, value in fields.items()
@@ -28,9 +25,7 @@ def _overrides(config: dict, base: dict) -> list[str]:
 
 
 def _evaluated_update(run, planned: int) -> int:
-    """The update a run's evaluation saw (``run``: a
-    :class:`~igdrivsim.training.run.SavedRun`): its last closed-loop validation (a run
-    validates at each of its checkpoints), or the planned updates when the run finished."""
+    """The update a run's evaluation saw: its last validation, or all if done."""
     if run.complete:
         return planned
     return max((c.get("update", 0) for c in run.curves() if "log_divergence" in c), default=0)
@@ -85,7 +80,6 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
     head = ("Log divergence (m): mean over seeds, and the range of the seed means; offroad and "
             "overlap: % of steps. compute: scenario-episodes trained, relative to the "
             "profile's budget.\n\n")
-    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    lines += ["| " + " | ".join(str(v) for v in row) + " |"
-              for row in table.itertuples(index=False)]
+    lines = md_head(*table.columns) + [md_row(*map(str, row))
+                                       for row in table.itertuples(index=False)]
     return head + "\n".join(lines) + "\n"

@@ -1,7 +1,6 @@
-"""Table I (LaTeX and Markdown), its effects, power and safety verdicts, the comparison with
-the paper's numbers and the supplementary metrics' table, from the ``summary`` and ``tests``
-frames of :mod:`igdrivsim.evaluation.aggregate`, laid out as the paper's Table I.
-"""
+"""Table I (LaTeX and Markdown) with its effects, power and safety verdicts, the comparison with
+the paper's numbers and the supplementary metrics, from :mod:`igdrivsim.evaluation.aggregate`'s
+``summary`` and ``tests``; the Markdown and LaTeX writers the other tables share."""
 
 from __future__ import annotations
 
@@ -47,6 +46,22 @@ def wrap(text: str, width: int = WIDTH, indent: str = "") -> list[str]:
 def heading(title: str, header: str = "") -> list[str]:
     """A markdown page's first lines: its title, then ``header`` (the run's scope) if any."""
     return [title, "", *([header, ""] if header else [])]
+
+
+def md_row(*cells: str) -> str:
+    """A Markdown table row."""
+    return "| " + " | ".join(cells) + " |"
+
+
+def md_head(*cells: str) -> list[str]:
+    """A Markdown table's header row and rule."""
+    return [md_row(*cells), "|" + "---|" * len(cells)]
+
+
+def present_settings(frame: pd.DataFrame) -> list[str]:
+    """The settings ``frame`` holds, in Table I's order."""
+    present = set(frame.setting.astype(str))
+    return [s for s in table_settings(frame) if s in present]
 
 
 def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd.Series | None:
@@ -99,8 +114,7 @@ def latex_float(caption: str, label: str, spec: str, rows: list[str]) -> str:
 
 
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
-    """The ``table*`` float for the report (needs booktabs, colortbl and the colours
-    ``bcrlcolor`` / ``bccolor`` defined by the report preamble)."""
+    """Table I as a ``table*`` float (colours ``bcrlcolor`` / ``bccolor``)."""
     cols = table_settings(summary, tests)
     colours = {BC_RL: "bcrlcolor", BC: "bccolor"}
     caption = (
@@ -141,8 +155,7 @@ def _ci_text(row: pd.Series | None) -> str:
 
 
 def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
-    """Per setting, a one-line answer to "is BC-RL safer than BC?" from the safety metrics
-    (overlap %, overlap rate, offroad %, offroad rate) and their significance."""
+    """Per setting, a one-line answer to "is BC-RL safer than BC?"."""
     cols = table_settings(tests)
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
     verdicts = {}
@@ -169,18 +182,16 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
 
 
 def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Markdown version of Table I with 95% CI half-widths, the BC-RL − BC effects with their
-    bootstrap intervals, the minimum detectable effects and the safety verdict per setting."""
+    """Markdown Table I with CIs, effects, detectable effects and safety verdicts."""
     cols = table_settings(summary, tests)
     out = heading("# Table I: BC-RL vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means). **Bold**: the "
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
-    out.append("| metric | method | " + " | ".join(setting_short(s) for s in cols) + " |")
-    out.append("|---|---|" + "---|" * len(cols))
+    out += md_head("metric", "method", *map(setting_short, cols))
     references = _has_references(summary)
     for metric in METRICS:
-        name = f"{' '.join(metric.label).replace(chr(92), '')}"
+        name = " ".join(metric.label).replace("\\", "")
         for method in (BC_RL, BC):
             cells = []
             for setting in cols:
@@ -188,11 +199,8 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
                 if _better(tests, metric.key, setting) == method:
                     text = f"**{text}**"
                 cells.append(text)
-            out.append(f"| {name} | {METHOD_LABELS[method]} | " + " | ".join(cells) + " |")
-        for method in references:
-            text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-            out.append(f"| {name} | *{METHOD_LABELS[method]}* | " + " | ".join(
-                [f"*{text}*"] * len(cols)) + " |")
+            out.append(md_row(name, METHOD_LABELS[method], *cells))
+        out += _reference_rows(summary, metric, name, len(cols), references)
     if len(_cells(tests)):
         out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
     out += ["", "## Is BC-RL safer than BC?", ""]
@@ -201,22 +209,31 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     return "\n".join(out) + "\n"
 
 
-def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
-    """Our BC-RL / BC means next to the paper's published Table I, cell by cell.
+def _metric_name(metric) -> str:
+    return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
 
-    ``same direction`` says whether the sign of BC-RL minus BC agrees with the paper's.
-    """
+
+def _reference_rows(summary: pd.DataFrame, metric, name: str, ncols: int,
+                    references: list[str]) -> list[str]:
+    """Markdown rows repeating each reference's one value (italic) in every setting column."""
+    rows = []
+    for method in references:
+        text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
+        rows.append(md_row(name, f"*{METHOD_LABELS[method]}*", *[f"*{text}*"] * ncols))
+    return rows
+
+
+def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
+    """Our BC-RL / BC means next to the paper's Table I, cell by cell."""
     out = heading("# Our Table I next to the paper's", header)
     out += ["Paper: Grislain et al., Table I (WOMD validation, mean of 3 seeds). Absolute values "
             "are comparable only when both were computed on WOMD; on synthetic data compare the "
             "direction of the BC-RL minus BC difference.", ""]
     agree = total = 0
     for metric in METRICS:
-        unit = f" ({metric.unit})"
-        out += [f"## {' '.join(metric.label).replace(chr(92), '').replace(' (%)', '')}{unit}", "",
-                "| setting | ours BC-RL | ours BC | ours diff | significant (95% CI) | "
-                "paper BC-RL | paper BC | paper diff | same direction |",
-                "|---|---|---|---|---|---|---|---|---|"]
+        out += [f"## {_metric_name(metric)} ({metric.unit})", "",
+                *md_head("setting", "ours BC-RL", "ours BC", "ours diff", "significant (95% CI)",
+                         "paper BC-RL", "paper BC", "paper diff", "same direction")]
         for setting in SETTINGS:
             ra = _lookup(summary, metric.key, setting, BC_RL)
             rb = _lookup(summary, metric.key, setting, BC)
@@ -244,10 +261,6 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
     return "\n".join(out) + "\n"
 
 
-def _metric_name(metric) -> str:
-    return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
-
-
 def _signed(value: float) -> str:
     """``+1.23`` / ``-1.23``; a value that rounds to zero prints as ``+0.00`` (never ``-0.00``)."""
     return f"{value:+.2f}" if round(value, 2) != 0 else "+0.00"
@@ -262,24 +275,20 @@ def _interval_text(row: pd.Series | None) -> str:
 
 
 def effects_markdown(tests: pd.DataFrame) -> str:
-    """BC-RL minus BC per metric and setting with the 95% two-level bootstrap interval;
-    bold where significant after the Holm correction."""
+    """BC-RL minus BC per cell with its bootstrap interval; bold if significant."""
     cols = table_settings(tests)
     out = ["## BC-RL − BC (95% bootstrap interval over seeds and scenarios)", "",
            f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
            f"{len(_cells(tests))} cells ({TEST_NAME}).", "",
-           "| metric (unit) | " + " | ".join(setting_short(s) for s in cols) + " |",
-           "|---|" + "---|" * len(cols)]
+           *md_head("metric (unit)", *map(setting_short, cols))]
     for metric in METRICS:
         cells = [_interval_text(_test_row(tests, metric.key, s)) for s in cols]
-        out.append(f"| {_metric_name(metric)} ({metric.unit}) | " + " | ".join(cells) + " |")
+        out.append(md_row(f"{_metric_name(metric)} ({metric.unit})", *cells))
     return "\n".join(out) + "\n"
 
 
 def _power_rows(tests: pd.DataFrame) -> tuple[list[tuple], tuple[int, int, int]]:
-    """Per metric: (name, unit, [(cell text, detectable)]) rows for the paper effect, MDE and
-    Holm MDE, a paper effect "detectable" when its size is at least the MDE; and the counts
-    (paper effects >= MDE, >= Holm MDE, cells with an MDE)."""
+    """Per metric (name, unit, [paper, MDE, Holm MDE cells]); the counts (>= MDE, >= Holm, n)."""
     cols = table_settings(tests)
     rows, n, k, kh = [], 0, 0, 0
     for metric in METRICS:
@@ -315,14 +324,17 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
             f"(the first Holm step). Paper effect: BC-RL − BC in the paper's Table I, **bold** "
             f"where its size reaches the uncorrected MDE. Paper effects at least the MDE: {k} of "
             f"{n} cells (uncorrected), {kh} of {n} (Holm).", "",
-            "| metric (unit) | row | " + " | ".join(setting_short(s) for s in cols) + " |",
-            "|---|---|" + "---|" * len(cols)]
+            *md_head("metric (unit)", "row", *map(setting_short, cols))]
     labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
     for name, unit, groups in rows:
         for label, cells in zip(labels, groups, strict=True):
             texts = [f"**{t}**" if bold else t for t, bold in cells]
-            out.append(f"| {name} ({unit}) | {label} | " + " | ".join(texts) + " |")
+            out.append(md_row(f"{name} ({unit})", label, *texts))
     return "\n".join(out) + "\n"
+
+
+def _tex_number(text: str) -> str:
+    return text if text == MISSING else text.replace("+", "$+$").replace("-", "$-$")
 
 
 def power_latex(tests: pd.DataFrame) -> str:
@@ -342,8 +354,8 @@ def power_latex(tests: pd.DataFrame) -> str:
     for name, unit, groups in rows:
         lines.append(r"\midrule")
         for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
-            texts = [(rf"\textbf{{{t}}}" if bold else t).replace("+", "$+$").replace(
-                "-", "$-$") if t != MISSING else t for t, bold in cells]
+            texts = [rf"\textbf{{{_tex_number(t)}}}" if bold else _tex_number(t)
+                     for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
             lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
     return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
@@ -351,8 +363,7 @@ def power_latex(tests: pd.DataFrame) -> str:
 
 # ------------------------------------------------------------------ supplementary metrics
 def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
-    """Per registry metric: (metric, [(method, italic, [cell per setting])]) for the methods
-    present; a reference row repeats its one value in every setting column."""
+    """Per metric: (metric, [(method, italic, [cell per setting])])."""
     cols = table_settings(summary)
     rows = []
     references = _has_references(summary)
@@ -381,25 +392,23 @@ def _md(text: str) -> str:
 
 
 def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> str:
-    """The registry's metrics (``metrics``) per setting and method: mean over seeds ± 95% CI
-    half-width, with each metric's unit, direction and source (no significance tests)."""
+    """The registry's metrics per setting and method, with their sources."""
     cols = table_settings(summary)
     out = heading("# Supplementary metrics (beyond Table I)", header)
     out += ["Per-scenario metrics of closed-loop driving benchmarks (definitions and sources: "
             "docs/metrics.md), mean over seeds ± 95% CI half-width (t-distribution over seed "
             "means); rates in %. `--`: not evaluated (e.g. CSVs written before the metric "
             "existed).", "",
-            "| metric (unit) | method | " + " | ".join(setting_short(s) for s in cols)
-            + " |", "|---|---|" + "---|" * len(cols)]
+            *md_head("metric (unit)", "method", *map(setting_short, cols))]
     for metric, groups in _supplementary_rows(summary, metrics):
         name = _md(f"{metric.label} ({metric.unit}; {_direction(metric)})")
         for method, italic, cells in groups:
             label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
             texts = [_ci_text(c) for c in cells]
             texts = [f"*{t}*" for t in texts] if italic else texts
-            out.append(f"| {name} | {label} | " + " | ".join(texts) + " |")
-    out += ["", "| metric | source |", "|---|---|"]
-    out += [f"| {_md(m.label)} | {_md(m.source)} |" for m in metrics]
+            out.append(md_row(name, label, *texts))
+    out += ["", *md_head("metric", "source")]
+    out += [md_row(_md(m.label), _md(m.source)) for m in metrics]
     return "\n".join(out) + "\n"
 
 

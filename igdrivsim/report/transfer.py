@@ -1,12 +1,7 @@
 """Do drivers trained on a synthetic motion model hold up on real logs? The table of
-``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``).
-
-``WORK/<motion>/evals_<data set>/{bc,references,...}``: per (data set, motion) Full BC against
-constant velocity (hierarchical bootstrap over seeds, then paired scenarios:
-:func:`igdrivsim.evaluation.aggregate.paired_difference`), the motion models' BC against each
-other on the real sets (also pooled: ``real, pooled``), and every learned driver against
-constant velocity and the expert ego by ego (:mod:`igdrivsim.evaluation.paired`).
-"""
+``scripts/transfer_check.sh`` (``igdrivsim report transfer WORK``, evaluations under
+``WORK/<motion>/evals_<data set>/``): Full BC against constant velocity, the motion models'
+BC against each other, and every driver against the references ego by ego."""
 
 from __future__ import annotations
 
@@ -27,6 +22,7 @@ from igdrivsim.io import read_json
 from igdrivsim.machine import code_label, code_state
 from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
+from igdrivsim.report.tables import md_head, md_row
 
 METRICS = ("log_divergence", "offroad", "overlap")
 FULL = "full"  # the observation setting of the first table's BC
@@ -35,8 +31,7 @@ POOLED = "real, pooled"  # every real set of a motion model together
 
 
 def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
-    """``{(data set, motion): per-scenario rows of BC, the references and any other evaluated
-    run beside them (e.g. ``bc_rl``)}``."""
+    """``{(data set, motion): per-scenario rows}`` under ``work``."""
     found = {}
     for folder in sorted(work.glob("*/evals_*")):
         if (folder / BC / PER_SCENARIO_FILE).is_file() and \
@@ -52,9 +47,7 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
 
 
 def pooled(found: dict[tuple[str, str], pd.DataFrame]) -> dict[tuple[str, str], pd.DataFrame]:
-    """``{(POOLED, motion): every real set of that motion}`` where a motion has several real
-    sets (each scenario and source scenario named by its set, ``set/id``): the comparison with
-    the most power."""
+    """``{(POOLED, motion): every real set of that motion}`` where it has several."""
     out = {}
     for motion in sorted({m for _, m in found}):
         real = [f.assign(scenario_id=d + "/" + f.scenario_id, **(
@@ -97,9 +90,7 @@ def against_constant_velocity(found: dict) -> pd.DataFrame:
 
 
 def ego_by_ego(found: dict) -> pd.DataFrame:
-    """One row per (data set, motion, setting, learned method, reference): the driver against
-    constant velocity and the expert, ego by ego on log divergence
-    (:func:`igdrivsim.evaluation.paired.compare_on_egos`)."""
+    """Every learned driver against each reference, ego by ego."""
     rows = []
     for (data, motion), frame in _in_order(found):
         learned = frame.loc[~frame.method.isin(REFERENCES), ["setting", "method"]]
@@ -116,8 +107,7 @@ def ego_by_ego(found: dict) -> pd.DataFrame:
 
 
 def between_motions(found: dict) -> pd.DataFrame:
-    """On each data set every motion was evaluated on (the real sets): BC of each motion
-    against BC of the first (alphabetical), paired scenarios."""
+    """On each real set, BC of each motion against BC of the first."""
     rows = []
     for data in sorted({d for d, _ in found} - {VALIDATION, POOLED}) + [POOLED]:
         motions = sorted(m for d, m in found if d == data)
@@ -139,9 +129,7 @@ def _diff(row: pd.Series, key: str) -> str:
 
 
 def code_lines(work: Path) -> list[str]:
-    """Per motion folder, the code that trained its BC run and the code of its evaluations
-    (:func:`igdrivsim.machine.code_state`, as the evaluation records ``eval_config.json``
-    hold them: ``code`` and the run's ``trained``; ``unknown`` where they do not)."""
+    """Per motion folder, the code behind its BC run and its evaluations."""
 
     def label(code) -> str:
         return code_label(code) if isinstance(code, dict) else "unknown"
@@ -197,12 +185,11 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
                   "log divergence over the reference's, with the smallest departure from 1 "
                   "detectable at 80% power (MDE). 95% intervals: bootstrap resampling source "
                   "scenarios, then seeds.", "",
-                  "| data | motion | setting | method | against | " + " | ".join(PAIRED_HEAD)
-                  + " |", "|---|---|---|---|---|" + "---|" * len(PAIRED_HEAD)]
+                  *md_head("data", "motion", "setting", "method", "against", *PAIRED_HEAD)]
         for _, r in egos.iterrows():
             names = [r.data, r.motion, setting_short(r.setting), METHOD_LABELS.get(
                 r.method, r.method), METHOD_LABELS.get(r.reference, r.reference)]
-            lines.append("| " + " | ".join([*names, *paired_cells(r)]) + " |")
+            lines.append(md_row(*names, *paired_cells(r)))
     if code:
         lines += ["", "Each motion model's training set and the code (commit) behind its numbers:",
                   "", *code,
