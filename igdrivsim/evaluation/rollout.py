@@ -1,16 +1,6 @@
-"""Closed-loop evaluation rollouts -> tidy per-step and per-scenario metrics.
-
-A learned policy drives the SDC for 80 steps after the 10 logged warm-up steps (its GRU sees
-their observations), under its own setting, sampling its action (or ``greedy`` / ``mean``,
-:data:`igdrivsim.policy.act.ACTION_MODES`); the engine, ``vmap``-ped over scenarios and seeds,
-is :mod:`igdrivsim.policy.closed_loop`. The references need no training: the discretised
-expert (the floor of the metrics) and constant velocity.
-
-Per step, after each action: ``overlap`` / ``offroad`` 0/1 and ``log_divergence``, masked where
-the logged SDC is invalid. Per scenario: ``max_log_divergence``, ``overlap`` / ``offroad`` (any
-step), the per-step means ``log_divergence``, ``overlap_steps``, ``offroad_steps``, then the
-registry's columns (:mod:`igdrivsim.evaluation.registry`).
-"""
+"""Closed-loop evaluation rollouts (:mod:`igdrivsim.policy.closed_loop`, with the registry's
+episode metrics) -> tidy per-step and per-scenario frames in the columns of
+:mod:`igdrivsim.evaluation.schema` and :mod:`igdrivsim.evaluation.registry`."""
 
 from __future__ import annotations
 
@@ -30,12 +20,7 @@ from igdrivsim.evaluation.schema import (
     SOURCE_COLUMN,
 )
 from igdrivsim.policy import closed_loop
-from igdrivsim.policy.closed_loop import (
-    DEFAULT_SIM_PARAMS,
-    EVAL_SEED,
-    REFERENCE_ACTORS,
-    StepOutputs,
-)
+from igdrivsim.policy.closed_loop import DEFAULT_SIM_PARAMS, REFERENCE_ACTORS, StepOutputs
 from igdrivsim.simulator import SimParams
 
 
@@ -135,10 +120,3 @@ def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_si
         steps.append(a)
         scens.append(b)
     return pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True)
-
-
-__all__ = [
-    "EVAL_SEED", "REFERENCE_ACTORS", "StepOutputs", "evaluate_policy", "evaluate_reference",
-    "reference_frames",
-    "scenario_ids_of", "tidy_frames", "with_origins",
-]
