@@ -61,8 +61,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
         evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
-                     args.seed, progress, egos=args.egos,
-                     agents=args.agents)
+                     args.seed, progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:
         sim = caps = None
@@ -72,9 +71,6 @@ def evaluate_command(args: argparse.Namespace) -> int:
             caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
-                            progress, egos=args.egos,
-                            agents=args.agents)
+                            progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     return 0
-
-

@@ -24,17 +24,6 @@ from igdrivsim.policy.closed_loop import DEFAULT_SIM_PARAMS, REFERENCE_ACTORS, S
 from igdrivsim.simulator import SimParams
 
 
-def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
-                       batch_size: int = 32, metrics_fn: Callable | None = None,
-                       progress: Callable[[int], Any] | None = None,
-                       episode_metrics: bool = True) -> StepOutputs:
-    """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
-    registry's episode metrics ``[N]`` unless ``episode_metrics=False``)."""
-    return closed_loop.evaluate_reference(
-        scenarios, actor_name, params, batch_size, metrics_fn, progress,
-        episode_metrics=registry.episode_values if episode_metrics else None)
-
-
 def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
                     **options: Any) -> StepOutputs:
     """:func:`igdrivsim.policy.closed_loop.evaluate_policy` (``options``: its keywords), with the
@@ -69,11 +58,9 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
     for si, seed in enumerate(seeds):
         v = valid[si]
         ld, ov, off = (arrays[k][si] for k in ("log_divergence", "overlap", "offroad"))
-        per_step = {k: _masked_mean(a, v, axis=0) for k, a in
-                    (("log_divergence", ld), ("overlap", ov), ("offroad", off))}
-        for k in range(num_steps):
-            step_rows.append((setting, method, seed, k + 1, per_step["log_divergence"][k],
-                              per_step["overlap"][k], per_step["offroad"][k]))
+        step_ld, step_ov, step_off = (_masked_mean(a, v, axis=0) for a in (ld, ov, off))
+        step_rows += [(setting, method, seed, k + 1, step_ld[k], step_ov[k], step_off[k])
+                      for k in range(num_steps)]
         max_ld = np.where(v, ld, -np.inf).max(axis=1)
         any_ov = (np.where(v, ov, 0.0) > 0).any(axis=1)
         any_off = (np.where(v, off, 0.0) > 0).any(axis=1)
@@ -115,7 +102,8 @@ def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_si
     ids = scenario_ids_of(scenarios)
     steps, scens = [], []
     for name in REFERENCE_ACTORS:
-        outs = evaluate_reference(scenarios, name, params, batch_size, metrics_fn, progress)
+        outs = closed_loop.evaluate_reference(scenarios, name, params, batch_size, metrics_fn,
+                                              progress, episode_metrics=registry.episode_values)
         a, b = tidy_frames(outs, ids, REFERENCE_SETTING, name, [0])
         steps.append(a)
         scens.append(b)

@@ -177,4 +177,3 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 run.checkpoint(done, state, data_state)
     complete = run.finish(end, num_updates)
     return TrainResult(state[0], end, num_updates, complete, time.perf_counter() - start_time)
-
