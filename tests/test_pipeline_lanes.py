@@ -41,10 +41,8 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
     monkeypatch.setattr(pipe, "run_train", lambda m, a, b, echo=True, part=None: fake(
         f"train_{part.name if part else m}", echo, 1.5))
     suffix = {"log": "", "idm": "_idm"}  # the sim agents' stage-name suffix
-    monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True, agents="log": fake(
-        f"evaluate_{m}{suffix[agents]}", echo))
-    monkeypatch.setattr(pipe, "run_references", lambda m, v, echo=True, agents="log": fake(
-        f"evaluate_references{suffix[agents]}", echo))
+    monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True, agents="log", like=None:
+                        fake(f"evaluate_{m}{suffix[agents]}", echo))
     monkeypatch.setattr(pipe, "run_reactive", lambda parts: fake("reactive", True, 0.1))
     monkeypatch.setattr(pipe, "run_speed_walk", lambda v, echo=True: fake("speed_walk", echo))
     monkeypatch.setattr(pipe, "run_maze", lambda echo=True: fake("maze", echo, 3.0))
@@ -231,11 +229,10 @@ def test_stamps_say_where_each_training_part_ran(tmp_path, monkeypatch):
 
 
 def test_the_default_and_the_methods_run_keep_their_own_wall_time(tmp_path):
-    """Both runs share a work folder; each one's provenance states its own invocations' time
-    (a single-run wall.json from before counts as the default run's)."""
+    """Both runs share a work folder; each one's provenance states its own invocations' time."""
     work = tmp_path / "work"
     work.mkdir()
-    (work / "wall.json").write_text(json.dumps({"seconds": 100.0}))
+    (work / "wall.json").write_text(json.dumps({"default": 100.0}))
     methods = Pipeline(PROFILES["smoke"], work, tmp_path / "paper",
                        methods=("bc", "bc_rl", "dagger"))
     methods.started -= 40.0

@@ -168,10 +168,10 @@ def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     import io
 
     from igdrivsim.training import cost
-    from igdrivsim.training.cost import PAPER_SCENARIOS, num_updates, warn_if_cpu
+    from igdrivsim.training.cost import PAPER_SCENARIOS, warn_if_cpu
 
     paper = with_overrides(get_profile("paper"), ["observation.setting=full"])
-    assert num_updates(paper, PAPER_SCENARIOS) == 119_382  # 200 epochs of 256 scenarios
+    assert paper.total_updates(PAPER_SCENARIOS) == 119_382  # 200 epochs of 256 scenarios
     out = io.StringIO()
     msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1, out)
     assert msg and out.getvalue().count("\n") == 1

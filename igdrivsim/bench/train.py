@@ -249,10 +249,7 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
         traced["parts_s"] = time_parts(spec, params, with_states.host_batch(0)[1], keys,
                                        teacher_params)
     t = config.training
-    epochs, minibatches = config.sgd_passes
-    runs = len(config.settings) * t.seeds
-    steps = runs * config.data.batch_size * 80 * epochs
-    grads = runs * epochs * minibatches
+    steps, grads = config.steps_per_update()
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params,
             "forward_matmul_flops_per_step": step_flops, "seeds": t.seeds,

@@ -177,10 +177,6 @@ def resample_counts(rng: np.random.Generator, n_resamples: int, n: int) -> np.nd
     return np.bincount(idx.ravel(), minlength=n_resamples * n).reshape(n_resamples, n)
 
 
-def _resample_weights(rng: np.random.Generator, n_resamples: int, n: int) -> np.ndarray:
-    return resample_counts(rng, n_resamples, n) / n
-
-
 def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_RESAMPLES,
                            seed: int | Sequence[int] = TEST_SEED,
                            clusters: Sequence | None = None) -> np.ndarray:
@@ -206,11 +202,11 @@ def hierarchical_bootstrap(xa: np.ndarray, xb: np.ndarray, n_resamples: int = N_
     out = np.empty((n_resamples, k))
     for start in range(0, n_resamples, _CHUNK):
         m = min(_CHUNK, n_resamples - start)
-        w_scen = _resample_weights(rng, m, n_clusters)
+        w_scen = resample_counts(rng, m, n_clusters) / n_clusters
         if codes is not None:  # every scenario of a drawn cluster, weights summing to one
             w_scen = w_scen[:, codes]
             w_scen /= w_scen.sum(axis=1, keepdims=True)
-        w_a, w_b = _resample_weights(rng, m, sa), _resample_weights(rng, m, sb)
+        w_a, w_b = resample_counts(rng, m, sa) / sa, resample_counts(rng, m, sb) / sb
         ya = (w_scen @ flat_a).reshape(m, sa, k)  # each seed's mean over resampled scenarios
         yb = (w_scen @ flat_b).reshape(m, sb, k)
         out[start:start + m] = (np.einsum("ms,msk->mk", w_a, ya)

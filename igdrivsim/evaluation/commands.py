@@ -1,12 +1,5 @@
-"""``igdrivsim evaluate RUN_DIR --data DIR --out DIR [--actions sample|greedy|mean]
-[--references] [--agents log|idm]`` evaluates every seed of a trained run on the validation
-scenarios of ``DIR`` under the run's own observation setting
-(:mod:`igdrivsim.evaluation.evaluate`), with the other objects replaying their log or driven
-by IDM sim agents (``--agents``).
-``--references`` also (or, without RUN_DIR, only) evaluates the discretised expert replay and the
-constant-velocity baseline (into ``OUT/references/`` when a run is evaluated too).
-"""
-
+"""``igdrivsim evaluate``: every seed of trained runs and (``--references``) the discretised
+expert and constant velocity on validation scenarios (:mod:`igdrivsim.evaluation.evaluate`)."""
 
 from __future__ import annotations
 
@@ -38,8 +31,6 @@ def evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how the policy picks its action level: sample (the paper's "
                              "protocol), greedy (most likely), mean (expected level, a "
                              "diagnostic without the sampling noise)")
-    parser.add_argument("--greedy", dest="actions", action="store_const", const="greedy",
-                        help="same as --actions greedy")
     parser.add_argument("--references", action="store_true",
                         help="also evaluate the discretised expert and constant velocity")
     parser.add_argument("--like", default=None, metavar="RUN_DIR",
@@ -70,8 +61,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
         evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
-                     args.seed, progress, egos=args.egos,
-                     agents=args.agents)
+                     args.seed, progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:
         sim = caps = None
@@ -81,9 +71,6 @@ def evaluate_command(args: argparse.Namespace) -> int:
             caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
         evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
-                            progress, egos=args.egos,
-                            agents=args.agents)
+                            progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     return 0
-
-

@@ -118,5 +118,3 @@ def _write(out, per_step, per_scenario, info: dict) -> Path:
     atomic_write_json(out / EVAL_CONFIG, {**info, "code": code_state()}, indent=2,
                       sort_keys=True)
     return out
-
-

@@ -1,16 +1,6 @@
-"""Closed-loop evaluation rollouts -> tidy per-step and per-scenario metrics.
-
-A learned policy drives the SDC for 80 steps after the 10 logged warm-up steps (its GRU sees
-their observations), under its own setting, sampling its action (or ``greedy`` / ``mean``,
-:data:`igdrivsim.policy.act.ACTION_MODES`); the engine, ``vmap``-ped over scenarios and seeds,
-is :mod:`igdrivsim.policy.closed_loop`. The references need no training: the discretised
-expert (the floor of the metrics) and constant velocity.
-
-Per step, after each action: ``overlap`` / ``offroad`` 0/1 and ``log_divergence``, masked where
-the logged SDC is invalid. Per scenario: ``max_log_divergence``, ``overlap`` / ``offroad`` (any
-step), the per-step means ``log_divergence``, ``overlap_steps``, ``offroad_steps``, then the
-registry's columns (:mod:`igdrivsim.evaluation.registry`).
-"""
+"""Closed-loop evaluation rollouts (:mod:`igdrivsim.policy.closed_loop`, with the registry's
+episode metrics) -> tidy per-step and per-scenario frames in the columns of
+:mod:`igdrivsim.evaluation.schema` and :mod:`igdrivsim.evaluation.registry`."""
 
 from __future__ import annotations
 
@@ -30,24 +20,8 @@ from igdrivsim.evaluation.schema import (
     SOURCE_COLUMN,
 )
 from igdrivsim.policy import closed_loop
-from igdrivsim.policy.closed_loop import (
-    DEFAULT_SIM_PARAMS,
-    EVAL_SEED,
-    REFERENCE_ACTORS,
-    StepOutputs,
-)
+from igdrivsim.policy.closed_loop import DEFAULT_SIM_PARAMS, REFERENCE_ACTORS, StepOutputs
 from igdrivsim.simulator import SimParams
-
-
-def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
-                       batch_size: int = 32, metrics_fn: Callable | None = None,
-                       progress: Callable[[int], Any] | None = None,
-                       episode_metrics: bool = True) -> StepOutputs:
-    """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
-    registry's episode metrics ``[N]`` unless ``episode_metrics=False``)."""
-    return closed_loop.evaluate_reference(
-        scenarios, actor_name, params, batch_size, metrics_fn, progress,
-        episode_metrics=registry.episode_values if episode_metrics else None)
 
 
 def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
@@ -84,11 +58,9 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
     for si, seed in enumerate(seeds):
         v = valid[si]
         ld, ov, off = (arrays[k][si] for k in ("log_divergence", "overlap", "offroad"))
-        per_step = {k: _masked_mean(a, v, axis=0) for k, a in
-                    (("log_divergence", ld), ("overlap", ov), ("offroad", off))}
-        for k in range(num_steps):
-            step_rows.append((setting, method, seed, k + 1, per_step["log_divergence"][k],
-                              per_step["overlap"][k], per_step["offroad"][k]))
+        step_ld, step_ov, step_off = (_masked_mean(a, v, axis=0) for a in (ld, ov, off))
+        step_rows += [(setting, method, seed, k + 1, step_ld[k], step_ov[k], step_off[k])
+                      for k in range(num_steps)]
         max_ld = np.where(v, ld, -np.inf).max(axis=1)
         any_ov = (np.where(v, ov, 0.0) > 0).any(axis=1)
         any_off = (np.where(v, off, 0.0) > 0).any(axis=1)
@@ -130,15 +102,9 @@ def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_si
     ids = scenario_ids_of(scenarios)
     steps, scens = [], []
     for name in REFERENCE_ACTORS:
-        outs = evaluate_reference(scenarios, name, params, batch_size, metrics_fn, progress)
+        outs = closed_loop.evaluate_reference(scenarios, name, params, batch_size, metrics_fn,
+                                              progress, episode_metrics=registry.episode_values)
         a, b = tidy_frames(outs, ids, REFERENCE_SETTING, name, [0])
         steps.append(a)
         scens.append(b)
     return pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True)
-
-
-__all__ = [
-    "EVAL_SEED", "REFERENCE_ACTORS", "StepOutputs", "evaluate_policy", "evaluate_reference",
-    "reference_frames",
-    "scenario_ids_of", "tidy_frames", "with_origins",
-]

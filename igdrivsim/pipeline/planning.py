@@ -51,16 +51,19 @@ class Machine:
         return f"{base}, {self.accelerator}" if self.accelerator else base
 
 
+def _proc_value(path: str, key: str) -> str | None:
+    """The value after ``key:`` on the first line of ``path`` that starts with ``key``."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith(key)), None)
+    except OSError:
+        return None
+
+
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo``; the platform's name elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
+    return (_proc_value("/proc/cpuinfo", "model name") or platform.processor()
+            or platform.machine() or "unknown CPU")
 
 
 def accelerator_name() -> str | None:
@@ -89,13 +92,9 @@ def detect_machine() -> Machine:
 def available_memory_gb() -> float | None:
     """``MemAvailable`` of ``/proc/meminfo`` in GB (None elsewhere)."""
     try:
-        with open("/proc/meminfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) / 1e6
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
+        return int(_proc_value("/proc/meminfo", "MemAvailable:").split()[0]) / 1e6
+    except (AttributeError, ValueError, IndexError):
+        return None
 
 
 def default_workers(machine: Machine) -> int:

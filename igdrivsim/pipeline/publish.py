@@ -1,13 +1,7 @@
 """Publishing a pipeline run: the report copied into ``PAPER`` with the provenance of the
 stages behind each file, the run's wall time kept across interrupted invocations, the results
-page and the PDF.
-
-:class:`Publisher` is the part of :class:`igdrivsim.pipeline.stages.Pipeline` that runs after
-the stages (and the wall-time bookkeeping that runs beside them). The class that inherits it
-provides ``work``, ``paper``, ``profile``, ``methods``, ``settings``, ``train_data``,
-``val_data``, ``overrides``, ``samples``, ``samples_given``, ``ran``, ``started``,
-``_walls_before``, ``device_text``, ``training_config()`` and :class:`StageRunner`'s stage
-methods.
+page and the PDF. :class:`Publisher` is the part of :class:`igdrivsim.pipeline.stages.Pipeline`
+that runs after the stages; the pipeline provides its fields.
 """
 
 from __future__ import annotations
@@ -99,8 +93,6 @@ class Publisher:
     def _walls(self) -> dict[str, float]:
         record = read_json(self.work / "wall.json", {})
         try:
-            if "seconds" in record:  # the older single-run form
-                record = {"default": record.pop("seconds"), **record}
             return {str(k): float(v) for k, v in record.items()}
         except (ValueError, TypeError):
             return {}

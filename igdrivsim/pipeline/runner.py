@@ -30,9 +30,8 @@ class StageError(IGDrivSimError):
 
 
 class StageRunner:
-    """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps). The dataclass that
-    inherits it provides ``work``, ``quiet``, ``in_process``, ``one_thread``, ``ran``,
-    ``running``, ``stopping``, ``children`` and ``device_text`` (recorded in each stamp)."""
+    """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps); the pipeline dataclass
+    that inherits it provides the fields."""
 
     def log_path(self, stage: str) -> Path:
         return self.work / "logs" / f"{stage}.log"
@@ -54,8 +53,7 @@ class StageRunner:
         return self.work / "stages" / f"{stage}.spent"
 
     def spent(self, stage: str) -> float:
-        """Seconds of a stage: the earlier (interrupted) invocations' and, while it runs, this
-        one's."""
+        """Seconds of a stage over its invocations (while it runs, this one's included)."""
         if stage in self.running:
             return time.time() - self.running[stage]
         try:
@@ -64,8 +62,7 @@ class StageRunner:
             return 0.0
 
     def record_spent(self, stages: Sequence[str] | None = None) -> None:
-        """Write the seconds of ``stages`` (default: every running stage), so a killed run keeps
-        them."""
+        """Write the seconds of ``stages`` (default: every running one): a killed run keeps them."""
         for stage in list(self.running if stages is None else stages):
             if stage not in self.running:  # finished meanwhile (another lane)
                 continue
@@ -145,11 +142,9 @@ class StageRunner:
             f" ({seconds:.0f} s with the invocations before)" if seconds > elapsed + 1 else ""))
         return True
 
-    def _run(self, argv: list[str], fh, beat: str | None = None,
-             cpu: list[float] | None = None) -> int:
-        """Run one command; append its CPU seconds (its process and the workers it waited for;
-        this process's, in process) to ``cpu``."""
-        cpu = [] if cpu is None else cpu
+    def _run(self, argv: list[str], fh, beat: str | None, cpu: list[float]) -> int:
+        """Run one command (``beat``: the stage whose progress line to report every minute);
+        append its CPU seconds (its process and the workers it waited for) to ``cpu``."""
         if self.in_process and argv[0] in ("igdrivsim", "python"):
             before = time.process_time()
             try:

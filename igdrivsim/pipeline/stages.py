@@ -7,12 +7,9 @@ grid split into parts over one worker process per core, :mod:`igdrivsim.pipeline
 scenario at hand, every vehicle as the ego; skipped without them) and ``pdf``. Methods with a
 privileged teacher come after a ``teacher`` stage that picks the full-setting run to learn from.
 
-A completed stage writes ``WORK/stages/<stage>.json`` and is skipped while it exists and
-nothing it depends on ran again; training resumes from its checkpoints. Every stage logs to
-``WORK/logs/<stage>.log``; a failing one stops the pipeline naming its log. The run first
-prints its plan (machine, parts, estimated wall time). Work files live under ``WORK``, the
-report is published under ``PAPER`` with its provenance (:mod:`igdrivsim.pipeline.publish`),
-never overwriting another kind of run's files.
+Stages are resumable (:mod:`igdrivsim.pipeline.runner`); the run first prints its plan. Work
+files live under ``WORK``, the report is published under ``PAPER``
+(:mod:`igdrivsim.pipeline.publish`).
 """
 
 from __future__ import annotations
@@ -159,30 +156,20 @@ class Pipeline(Publisher, StageRunner):
                                 "--out", self.teacher_choice]],
                    depends=[f"train_{m}" for m in candidates], outputs=[self.teacher_choice])
 
-    def _eval_common(self, val_manifest: Path) -> list:
-        return ["--data", val_manifest, "--batch-size", self.profile.eval_batch,
-                "--limit", self.profile.eval_max_scenarios]
-
     def run_evaluate(self, name: str, val_manifest: Path, echo: bool = True,
-                     agents: str = "log") -> None:
-        """Evaluate run ``name`` (``agents``: the sim agents; ``idm`` into ``evals_idm``)."""
+                     agents: str = "log", like: str | None = None) -> None:
+        """Evaluate run ``name`` (``agents``: the sim agents; ``idm`` into ``evals_idm``); with
+        ``like``, the reference actors (``name`` "references") with that run's capacities and
+        simulator settings."""
         folder, suffix, extra = EVAL_FOLDERS[agents]
         out = self.work / folder / name
+        what = ([self.work / "runs" / name] if like is None
+                else ["--references", "--like", self.work / "runs" / like])
         self.stage(f"evaluate_{name}{suffix}", [[
-            "igdrivsim", "evaluate", self.work / "runs" / name, "--out", out,
-            *self._eval_common(val_manifest), *extra]],
-            depends=[f"train_{name}", "filter_validation"],
-            outputs=[out / PER_SCENARIO_FILE], echo=echo)
-
-    def run_references(self, like: str, val_manifest: Path, echo: bool = True,
-                       agents: str = "log") -> None:
-        """The reference actors, with the capacities and simulator settings of run ``like``."""
-        folder, suffix, extra = EVAL_FOLDERS[agents]
-        out = self.work / folder / "references"
-        self.stage(f"evaluate_references{suffix}", [[
-            "igdrivsim", "evaluate", "--references", "--like", self.work / "runs" / like,
-            "--out", out, *self._eval_common(val_manifest), *extra]],
-            depends=["filter_validation", f"train_{like}"],
+            "igdrivsim", "evaluate", *what, "--out", out, "--data", val_manifest,
+            "--batch-size", self.profile.eval_batch, "--limit", self.profile.eval_max_scenarios,
+            *extra]],
+            depends=[f"train_{like or name}", "filter_validation"],
             outputs=[out / PER_SCENARIO_FILE], echo=echo)
 
     def run_reactive(self, parts: Sequence[str]) -> None:
@@ -339,10 +326,14 @@ class Pipeline(Publisher, StageRunner):
                                       f"({old[key]!r}); use another --out or the same options")
         atomic_write_json(path, record, indent=2)
 
+    def method_groups(self) -> tuple[list[str], list[str]]:
+        """``(plain, taught)``: the methods without a privileged teacher, then those with one."""
+        taught = [m for m in self.methods if get_method(m).teacher]
+        return [m for m in self.methods if m not in taught], taught
+
     def parts(self) -> tuple[list[planning.Part], list[planning.Part]]:
         """The grid's parts: the untaught methods on every setting, then the taught ones."""
-        taught = [m for m in self.methods if get_method(m).teacher]
-        plain = [m for m in self.methods if m not in taught]
+        plain, taught = self.method_groups()
         updates = self.training_config().training.num_updates
         seconds = planning.part_seconds(self.profile.name, self.profile.seeds, updates,
                                         self.machine.accelerator is not None)
@@ -371,11 +362,11 @@ class Pipeline(Publisher, StageRunner):
         """What this run will do and how long it should take (printed before any stage)."""
         first, second = self.parts()
         t = self.training_config().training
-        taught = [m for m in self.methods if get_method(m).teacher]
-        wall = planning.estimate_seconds(
-            self.profile.name, [m for m in self.methods if m not in taught], taught,
-            self.settings, self.profile.seeds, t.num_updates, self.lanes,
-            self.machine.accelerator is not None, left=self.left)
+        plain, taught = self.method_groups()
+        gpu = self.machine.accelerator is not None
+        wall = planning.estimate_seconds(self.profile.name, plain, taught, self.settings,
+                                         self.profile.seeds, t.num_updates, self.lanes, gpu,
+                                         left=self.left)
         grid = ", ".join(f"{p.name} ({len(p.settings)} setting{'s' * (len(p.settings) > 1)})"
                          for p in (*first, *second))
         lines = [
@@ -395,7 +386,7 @@ class Pipeline(Publisher, StageRunner):
             lines.append(f"plan: no measured per-update cost for profile {self.profile.name}; "
                          "no time estimate")
             if self.profile.name == "paper":
-                lines.append("plan: " + cost.table1_text(self.machine.accelerator is not None))
+                lines.append("plan: " + cost.table1_text(gpu))
         else:
             where = ("training at the measured H200 rates, the other stages at their measured "
                      "CPU costs" if self.machine.accelerator else "measured per-update costs")
@@ -407,9 +398,8 @@ class Pipeline(Publisher, StageRunner):
             lines.append(f"plan: {note}")
         elif (self.profile.name == "laptop" and wall is not None and not self.machine.accelerator
               and not self.stamped_stages()):  # a first look is for a run not yet begun
-            quick = planning.estimate_seconds(
-                "quick", [m for m in self.methods if m not in taught], taught, self.settings,
-                self.profile.seeds, QUICK_UPDATES, self.lanes, self.machine.accelerator is not None)
+            quick = planning.estimate_seconds("quick", plain, taught, self.settings,
+                                              self.profile.seeds, QUICK_UPDATES, self.lanes, gpu)
             lines.append(f"plan: for a first look in ~{planning.hours_text(quick or 0.0)} "
                          "(300 updates, below the competence targets): bash scripts/reproduce.sh "
                          "--profile quick")
@@ -459,13 +449,10 @@ class Pipeline(Publisher, StageRunner):
         jobs += [lanes.Job(f"evaluate_{p.name}_idm",
                            lambda e, p=p: self.run_evaluate(p.name, vm, e, agents="idm"),
                            after=(f"train_{p.name}",)) for p in (*first, *second)]
-        jobs += [lanes.Job("evaluate_references",
-                           lambda e: self.run_references(like.name, vm, e),
-                           after=(f"train_{like.name}",)),
-                 lanes.Job("evaluate_references_idm",
-                           lambda e: self.run_references(like.name, vm, e, agents="idm"),
-                           after=(f"train_{like.name}",)),
-                 lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
+        jobs += [lanes.Job(f"evaluate_references{suffix}", lambda e, a=agents: self.run_evaluate(
+                     "references", vm, e, a, like.name), after=(f"train_{like.name}",))
+                 for agents, (_, suffix, _) in EVAL_FOLDERS.items()]
+        jobs += [lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
                  lanes.Job("render", lambda e: self.run_render(val, e))]
         lanes.run_jobs(jobs, self.lanes, self.stopping, echo_alone=self.in_process)
         upstream = ["maze", "render", "evaluate_references", "speed_walk",

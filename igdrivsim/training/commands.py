@@ -1,11 +1,7 @@
-"""``igdrivsim train``: train BC / BC-RL policies (settings and seeds in one program).
-
-Example: ``igdrivsim train --profile laptop --obs circular_r4 --method bc_rl --seeds 3
---data DATA/train --out runs/circular_r4-bc_rl [--resume] [--set training.lr=3e-4]``;
-``--obs full,circular_r4,...`` trains several settings together into one run folder.
-A complete run is recognised and left alone (exit 0), so pipelines can re-run the command.
-Several hosts: set ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``
-on each and run the same command; the batch is split over all hosts' devices.
+"""``igdrivsim train``: train policies (settings and seeds in one program; usage:
+docs/training.md). A complete run is left alone (exit 0), so pipelines can re-run the command;
+several hosts run the same command with ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and
+``JAX_PROCESS_ID`` set.
 """
 
 from __future__ import annotations

@@ -135,6 +135,19 @@ class RunConfig:
             return (t.rollout_epochs or t.ppo_epochs, t.rollout_minibatches or t.ppo_minibatches)
         return t.ppo_epochs, t.ppo_minibatches
 
+    def total_updates(self, num_scenarios: int) -> int:
+        """Updates of a run over ``num_scenarios``: ``num_updates``, else ``epochs`` passes."""
+        t = self.training
+        if t.num_updates > 0:
+            return t.num_updates
+        return max(1, math.ceil(t.epochs * num_scenarios / self.data.batch_size))
+
+    def steps_per_update(self) -> tuple[int, int]:
+        """``(scenario-steps, gradient steps)`` of one update over every setting and seed."""
+        runs = len(self.settings) * self.training.seeds
+        epochs, minibatches = self.sgd_passes
+        return runs * self.data.batch_size * 80 * epochs, runs * epochs * minibatches
+
     @property
     def settings(self) -> tuple[str, ...]:
         """The observation settings this run trains (``observation.setting``, a comma list)."""

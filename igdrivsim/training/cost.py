@@ -10,7 +10,6 @@ quick, gpu) is priced per (setting x update) of one training process from whole 
 
 from __future__ import annotations
 
-import math
 import sys
 
 from igdrivsim.names import GPU_SEEDS
@@ -67,13 +66,6 @@ def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
     return updates * settings * per * seeds / LAPTOP_SEEDS
 
 
-def num_updates(config: RunConfig, num_scenarios: int = PAPER_SCENARIOS) -> int:
-    t = config.training
-    if t.num_updates > 0:
-        return t.num_updates
-    return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
-
-
 def table1_hours(bc_seconds: float, rollout_seconds: float,
                  num_scenarios: int = PAPER_SCENARIOS) -> dict[str, float]:
     """Device-hours of the paper's Table I at paper scale (6 settings x 3 seeds of BC and of
@@ -82,7 +74,7 @@ def table1_hours(bc_seconds: float, rollout_seconds: float,
     "total"}`` (BC's runs, BC-RL's runs, both)."""
     config = get_profile("paper")
     t = config.training
-    episodes = num_updates(config, num_scenarios) * 6 * t.seeds * config.data.batch_size
+    episodes = config.total_updates(num_scenarios) * 6 * t.seeds * config.data.batch_size
     out = {"teacher_forced": episodes * bc_seconds / 3600,
            "rollout": episodes * rollout_seconds / 3600}
     return out | {"total": out["teacher_forced"] + out["rollout"]}
@@ -93,7 +85,7 @@ def table1_text(gpu: bool) -> str:
     network has not been timed on a GPU yet (``bash scripts/bench_gpu.sh docs/bench`` on a
     machine with one writes train_paper_bc_<gpu>.json): ``gpu`` says so."""
     config = get_profile("paper")
-    updates = num_updates(config)
+    updates = config.total_updates(PAPER_SCENARIOS)
     head = (f"Table I at paper scale (6 settings x {{BC, BC-RL}} x {config.training.seeds} "
             f"seeds, {updates:,} updates of {config.data.batch_size} scenarios each, "
             f"{PAPER_SCENARIOS:,} scenarios x {config.training.epochs:g} epochs)")
@@ -105,22 +97,12 @@ def table1_text(gpu: bool) -> str:
                    if gpu else "")
 
 
-def run_hours(config: RunConfig, seconds_per_episode: float, num_scenarios: int,
-              devices: int = 1) -> float:
-    """Hours of a run of ``config`` on ``devices`` devices at ``seconds_per_episode``."""
-    episodes = len(config.settings) * config.training.seeds * config.data.batch_size
-    return num_updates(config, num_scenarios) * episodes * seconds_per_episode / devices / 3600
-
-
 def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: int,
                 stream=None) -> str | None:
     """Warn once (stderr) when the paper or gpu profile runs without an accelerator; returns
     the message (None when there is nothing to warn about)."""
-    if backend != "cpu":
-        return None
-    messages = {"paper": _paper_on_cpu, "gpu": _gpu_profile_on_cpu}
-    msg = messages[config.profile](config, num_scenarios, devices) if (
-        config.profile in messages) else None
+    warn = {"paper": _paper_on_cpu, "gpu": _gpu_profile_on_cpu}.get(config.profile)
+    msg = warn(config, num_scenarios, devices) if backend == "cpu" and warn else None
     if msg:
         print(msg, file=stream or sys.stderr, flush=True)
     return msg
@@ -129,9 +111,11 @@ def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: in
 def _paper_on_cpu(config: RunConfig, num_scenarios: int, devices: int) -> str:
     rollout = config.collects_rollout
     per = CPU_SECONDS_PER_ROLLOUT_EPISODE if rollout else CPU_SECONDS_PER_EPISODE
-    hours = run_hours(config, per, num_scenarios, devices)
+    updates = config.total_updates(num_scenarios)
+    episodes = len(config.settings) * config.training.seeds * config.data.batch_size
+    hours = updates * episodes * per / devices / 3600
     return (f"igdrivsim train: warning: --profile paper on CPU ({devices} device(s)): "
-            f"{num_updates(config, num_scenarios):,} updates of {config.data.batch_size} "
+            f"{updates:,} updates of {config.data.batch_size} "
             f"scenarios x {config.training.seeds} seed(s) x {len(config.settings)} setting(s) "
             f"at ~{per} s per episode (paper network, bench train) is ~{hours:,.0f} hours; "
             "use GPUs (docs/scaling.md) or --profile laptop")

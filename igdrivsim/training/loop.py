@@ -1,15 +1,10 @@
 """The training driver: data, I/O, checkpoints, logging and hooks around a run's pure
-functions (:func:`igdrivsim.training.update.make_train`), batch by batch.
-
-``train(config, data, out_dir)`` runs (or resumes, or recognises as complete) one run: every
-setting of ``config.observation.setting`` (a comma list; settings as data, one compiled
-program) x ``config.training.seeds`` seeds, into the run folder ``out_dir`` (its files:
-:mod:`igdrivsim.training.run`, which also reads a run back: ``Run.open(out_dir)``).
-"""
+functions (:func:`igdrivsim.training.update.make_train`), batch by batch. ``train(config, data,
+out_dir)`` runs (or resumes) every setting x seed of ``config`` in one compiled program, into
+the run folder ``out_dir`` (:mod:`igdrivsim.training.run`)."""
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from dataclasses import dataclass
@@ -48,13 +43,6 @@ class TrainResult:
     num_updates: int
     complete: bool
     seconds: float
-
-
-def total_updates(config: RunConfig, num_scenarios: int) -> int:
-    t = config.training
-    if t.num_updates > 0:
-        return t.num_updates
-    return max(1, math.ceil(t.epochs * num_scenarios / config.data.batch_size))
 
 
 class Validation:
@@ -125,7 +113,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         dataset = inputs.Dataset.from_config(config, data, spec.sim, progress and run.main,
                                              cache_dir=cache_dir,
                                              need_states=config.collects_rollout)
-    num_updates = total_updates(config, dataset.num)
+    num_updates = config.total_updates(dataset.num)
     if run.main:  # the paper profile without an accelerator: say how long it would take
         warn_if_cpu(config, dataset.num, jax.default_backend(), mesh.size)
     run.write_config(num_updates=num_updates, num_scenarios=dataset.num,
@@ -154,10 +142,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
         data_state = load_state(run.data_states, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
-    runs = len(config.settings) * t.seeds
-    epochs, minibatches = config.sgd_passes
-    steps_per_update = runs * config.data.batch_size * 80 * epochs
-    grads_per_update = runs * epochs * minibatches
+    steps_per_update, grads_per_update = config.steps_per_update()
     if progress:
         run.progress(start, num_updates)
     batches = inputs.prefetch(dataset, range(start, end), batch_sharding(mesh),
@@ -192,4 +177,3 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                 run.checkpoint(done, state, data_state)
     complete = run.finish(end, num_updates)
     return TrainResult(state[0], end, num_updates, complete, time.perf_counter() - start_time)
-

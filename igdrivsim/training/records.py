@@ -110,5 +110,3 @@ def load_or_compute(cache_dir: str | None, key: str, compute) -> ObservationReco
             with atomic_path(path, "wb") as f:
                 np.savez(f, **{k: np.asarray(v) for k, v in asdict(records).items()})
         return records
-
-

@@ -1,21 +1,16 @@
 """A training run's folder: what a run writes (:class:`Run`) and reads back
 (:meth:`Run.open`, a :class:`SavedRun`); every file name of the folder is spelled here, once.
 
-- ``config.json`` (:data:`CONFIG`): the resolved :class:`RunConfig` under ``"config"``, the
-  run's facts (``num_updates``, ``num_scenarios``, ``settings``, ``devices``, ``processes``)
-  and the code that trained (``code``; ``code_resumed``: other code that continued the run);
-- ``metrics.jsonl`` (:data:`METRICS`): one line per logged update (``update`` = updates done,
-  ``lr``, the rates and the method's losses), each metric the mean over settings and seeds
+- ``config.json``: the resolved :class:`RunConfig` under ``"config"``, the run's facts and the
+  code that trained (``code``; ``code_resumed``: other code that continued the run);
+- ``metrics.jsonl``: one line per logged update, each metric's mean over settings and seeds
   and ``<metric>_seeds`` its per-seed means;
-- ``curves.jsonl`` (:data:`CURVES`): one line per (update, setting, seed): the reported
-  training loss, and what the hooks (:class:`Hook`, e.g. the learning-curve validation of
-  :mod:`igdrivsim.training.loop`) return every ``every`` updates;
-- ``checkpoints/<updates done>/`` (:data:`CHECKPOINTS`, :class:`Checkpoints`): params +
-  optimiser (+ DAgger's buffer), written by Orbax into a temporary folder renamed when
-  complete; with ``data.stream``, ``checkpoints/data/`` (:data:`DATA_STATES`) holds each
-  process's input iterator state. Data order, keys and learning rate are functions of the
-  update, so restoring step ``k`` resumes the run exactly;
-- ``DONE`` (:data:`DONE`): written when the last checkpoint is saved.
+- ``curves.jsonl``: one line per (update, setting, seed): the reported training loss and
+  what the hooks (:class:`Hook`) return;
+- ``checkpoints/<updates done>/`` (:class:`Checkpoints`, Orbax; with ``data.stream`` also
+  each process's input iterator state). Data order, keys and learning rate are functions of
+  the update, so restoring step ``k`` resumes the run exactly;
+- ``DONE``: written when the last checkpoint is saved.
 """
 
 from __future__ import annotations

@@ -175,10 +175,8 @@ def save_state(folder: str, step: int, state: dict, keep: Sequence[int]) -> None
     """Save this process's iterator state for checkpoint ``step`` (atomic) in ``folder``; prune
     the states of checkpoints no longer kept."""
     process = jax.process_index()
-    path = state_path(folder, step, process)
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    atomic_write_json(path, {"step": step, "iterator": state})
-    folder = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    atomic_write_json(state_path(folder, step, process), {"step": step, "iterator": state})
     for name in os.listdir(folder):
         head, _, tail = name.partition(".p")
         if tail == f"{process}.json" and head.isdigit() and int(head) not in set(keep) | {step}:
