@@ -20,9 +20,6 @@ from typing import IO, Any
 
 from igdrivsim.errors import ConfigError, DataError
 
-__all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes",
-           "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode", "read_json"]
-
 _REQUIRED = object()
 
 

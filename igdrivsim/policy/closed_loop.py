@@ -246,9 +246,3 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     if single:
         out = out.map(lambda a: a[0])
     return out
-
-
-__all__ = [
-    "DEFAULT_OBS_CONFIG", "DEFAULT_SIM_PARAMS", "EVAL_SEED", "REFERENCE_ACTORS", "EpisodeFn",
-    "StepOutputs", "evaluate_policy", "evaluate_reference",
-]

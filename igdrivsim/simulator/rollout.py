@@ -156,13 +156,9 @@ def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetr
     return _time_last(metrics, jnp.ndim(start))
 
 
+@functools.cache
 def jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams = DEFAULT_PARAMS):
     """A jitted ``f(state, key, carry=None)`` for a fixed actor and params (cached per pair)."""
-    return _jit_rollout(policy_fn, params)
-
-
-@functools.cache
-def _jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams):
     return jax.jit(lambda state, key, carry=None: rollout(state, policy_fn, key, params, carry))
 
 

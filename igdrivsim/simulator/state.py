@@ -287,19 +287,9 @@ def current_objects(state: SimState) -> ObjectState:
     )
 
 
-def simulated_trajectory(state: SimState) -> Trajectory:
-    """The full ``[..., O, T]`` trajectory with the SDC row replaced by its simulation."""
-    lg = object_trajectory(state)
-    is_sdc = (jnp.arange(lg.x.shape[-2]) == state.sdc_index[..., None])[..., None]
-    s = state.sdc
-    sub = {"x": s.x, "y": s.y, "yaw": s.yaw, "vel_x": s.vel_x, "vel_y": s.vel_y, "valid": s.valid}
-    return lg.replace(**{k: jnp.where(is_sdc, v[..., None, :], getattr(lg, k))
-                         for k, v in sub.items()})
-
-
 def object_trajectory(state: SimState) -> Trajectory:
     """Every object's ``[..., O, T]`` trajectory as simulated by the sim agents (the log under
-    ``"log"`` agents); the SDC row is its log (see :func:`simulated_trajectory`)."""
+    ``"log"`` agents); the SDC row is its log."""
     a = getattr(state, "agents", None)
     if a is None:
         return state.log
