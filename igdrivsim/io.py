@@ -67,11 +67,6 @@ def _umask() -> int:
     return mask
 
 
-def file_mode() -> int:
-    """Permissions for new files: ``0o666`` minus the umask."""
-    return 0o666 & ~_umask()
-
-
 def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
@@ -79,7 +74,7 @@ def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
 
 
 def _publish(tmp: Path, path: Path) -> None:
-    os.chmod(tmp, file_mode())
+    os.chmod(tmp, 0o666 & ~_umask())  # what a plain open() would give
     os.replace(tmp, path)
 
 

@@ -114,8 +114,8 @@ class SimState:
     agents: sim_agents.AgentState | None = None  # every object simulated, under "idm" agents
 
 
-def _at_time(a, t):
-    """``a[..., t]`` for a per-batch timestep ``t [...]`` (a: ``[..., T]`` or ``[..., O, T]``)."""
+def _take(a, t):
+    """``a[..., t]`` for a per-batch index ``t [...]`` (a: ``[..., T]`` or ``[..., O, T]``)."""
     t = jnp.asarray(t)
     idx = t.reshape(t.shape + (1,) * (a.ndim - t.ndim))
     return jnp.take_along_axis(a, idx, axis=-1)[..., 0]
@@ -211,7 +211,7 @@ def sdc_pose(state: SimState):
     """The simulated SDC at the current step: ``(x, y, yaw, valid)``, each ``[...]``."""
     t = state.timestep
     s = state.sdc
-    return _at_time(s.x, t), _at_time(s.y, t), _at_time(s.yaw, t), _at_time(s.valid, t)
+    return _take(s.x, t), _take(s.y, t), _take(s.yaw, t), _take(s.valid, t)
 
 
 def sdc_yaw_rate(state: SimState):
@@ -219,8 +219,8 @@ def sdc_yaw_rate(state: SimState):
     t = state.timestep
     s = state.sdc
     prev = jnp.maximum(t - 1, 0)
-    ok = (t > 0) & _at_time(s.valid, t) & _at_time(s.valid, prev)
-    turn = dynamics.wrap_angle(_at_time(s.yaw, t) - _at_time(s.yaw, prev))
+    ok = (t > 0) & _take(s.valid, t) & _take(s.valid, prev)
+    turn = dynamics.wrap_angle(_take(s.yaw, t) - _take(s.yaw, prev))
     return jnp.where(ok, turn / DT, 0.0).astype(jnp.float32)
 
 
@@ -228,7 +228,7 @@ def log_sdc_at(state: SimState, t):
     """The logged SDC at step ``t [...]``: ``(x, y, yaw, valid)``."""
     i = state.sdc_index
     lg = state.log
-    return tuple(_at_time(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
+    return tuple(_take(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
 
 
 def log_sdc_row(state: SimState) -> Trajectory:
@@ -276,8 +276,8 @@ def current_objects(state: SimState) -> ObjectState:
     s = state.sdc
 
     def pick(log_a, sim_a):
-        cur = _at_time(log_a, t)
-        return cur if sim_a is None else jnp.where(is_sdc, _at_time(sim_a, t)[..., None], cur)
+        cur = _take(log_a, t)
+        return cur if sim_a is None else jnp.where(is_sdc, _take(sim_a, t)[..., None], cur)
 
     return ObjectState(
         x=pick(lg.x, s.x), y=pick(lg.y, s.y), yaw=pick(lg.yaw, s.yaw),
