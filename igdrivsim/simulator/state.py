@@ -53,7 +53,9 @@ class SimParams:
     idm: sim_agents.IdmParams = sim_agents.IdmParams()
 
     def __post_init__(self):
-        sim_agents.check_agents(self.agents)
+        if self.agents not in sim_agents.AGENTS:
+            raise ConfigError(f"sim agents must be one of {', '.join(sim_agents.AGENTS)}, "
+                              f"got {self.agents!r}")
         if self.dynamics not in dynamics.DYNAMICS:
             raise ConfigError(f"SimParams.dynamics must be one of {sorted(dynamics.DYNAMICS)}, "
                               f"got {self.dynamics!r}")
