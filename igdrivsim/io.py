@@ -20,9 +20,6 @@ from typing import IO, Any
 
 from igdrivsim.errors import ConfigError, DataError
 
-__all__ = ["atomic_path", "atomic_savefig", "atomic_write", "atomic_write_bytes",
-           "atomic_write_csv", "atomic_write_json", "atomic_write_text", "file_mode", "read_json"]
-
 _REQUIRED = object()
 
 
@@ -70,11 +67,6 @@ def _umask() -> int:
     return mask
 
 
-def file_mode() -> int:
-    """Permissions for new files: ``0o666`` minus the umask."""
-    return 0o666 & ~_umask()
-
-
 def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
@@ -82,7 +74,7 @@ def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
 
 
 def _publish(tmp: Path, path: Path) -> None:
-    os.chmod(tmp, file_mode())
+    os.chmod(tmp, 0o666 & ~_umask())  # what a plain open() would give
     os.replace(tmp, path)
 
 

@@ -1,32 +1,24 @@
 """The policy acting: its action distribution, the actor, and its own training episodes.
 
 **The action distribution** is three independent categoricals (dx, dy, dyaw levels): logits
-``[..., 3, bins]`` and actions ``[..., 3]`` (level indices). :func:`action_log_prob` is the
-core's categorical log-probability summed over the three dimensions; the learning methods sum
-the core's other categorical terms (:mod:`igdrivsim.core.learn`: entropy, cross-entropy, KL)
-the same way.
+``[..., 3, bins]`` and actions ``[..., 3]`` (level indices); :func:`action_log_prob` sums the
+core's categorical log-probability over the three, as the learning methods do with the core's
+other terms (:mod:`igdrivsim.core.learn`: entropy, cross-entropy, KL).
 
 **Acting.** The training episode (and therefore evaluation) is: observe the logged warm-up steps
 ``t = 0..9`` (GRU state zeroed at ``t = 0``), then at every controlled step ``t = 10..89``
-observe, step the GRU, pick one of 257 levels per dimension and convert it to the continuous
-delta-local action ``(dx, dy, dyaw)``. How the level is picked is the *action mode*
-(:data:`ACTION_MODES`): ``sample`` (the paper's protocol), ``greedy`` (the most likely level)
-or ``mean`` (the expected level, a continuous action between levels: the policy's average
-intent without the sampling noise, a diagnostic).
-
-Every closed-loop episode of a learned policy goes through the simulator's runner with
+observe, step the GRU, pick one of 257 levels per dimension by the *action mode*
+(:data:`ACTION_MODES`: ``sample``, the paper's protocol; ``greedy``, the most likely level;
+``mean``, the expected level: the policy's average intent without the sampling noise, a
+diagnostic) and convert it to the continuous delta-local action ``(dx, dy, dyaw)``. Every
+closed-loop episode of a learned policy goes through the simulator's runner with
 :func:`policy_actor`::
 
     actor = policy_actor(cfg, params, setting, obs_config, mode="sample")
     final, transitions = run_episode(state_at_reset, actor, episode_key, sim_params)
 
-:func:`warmup_carry` is the actor's GRU warm-up for one scenario; :func:`policy_step` is one
-step by hand from a given observation (tests, interactive use).
-
-**The policy's own episodes.** :func:`policy_rollout` is BC-RL's training rollout: the 80
-controlled steps of a batch of scenarios (the update warms the GRU on the logged steps), with
-observations, sampled levels, log-probabilities, values and the simulator's rewards
-(``-1[overlap] - 1[offroad]``, zero where the logged SDC has no next pose), time-major.
+:func:`policy_step` is one step by hand from a given observation (tests, interactive use).
+**The policy's own episodes**: :func:`policy_rollout`, BC-RL's training rollout.
 """
 
 from __future__ import annotations
@@ -175,7 +167,8 @@ class PolicyRollout(NamedTuple):
     actions: jax.Array  # int32 [80, B, 3], sampled bin indices
     log_probs: jax.Array  # [80, B]
     values: jax.Array  # [80, B]
-    rewards: jax.Array  # [80, B], reward of the state reached by the action
+    rewards: jax.Array  # [80, B], -1[overlap] - 1[offroad] of the state reached (0 without a
+    # next logged pose)
     valid: jax.Array  # bool [80, B]
     privileged_obs: Observation | None = None  # [80, B, ...] the same states, fully observed
 

@@ -138,12 +138,6 @@ def _spread(tree, axis: int | None):
     return place(tree, NamedSharding(make_mesh(), spec))
 
 
-def _device_multiple(size: int) -> int:
-    """``size`` rounded up to a multiple of the global device count."""
-    count = jax.device_count()
-    return -(-size // count) * count
-
-
 def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> StepOutputs:
     """``parts`` concatenated (or stacked: ``join=np.stack``) field by field."""
     scenario = None if parts[0].scenario is None else {
@@ -164,10 +158,11 @@ def _batches(scenarios, batch_size: int):
     """``(start, stop, batch)``: fixed-size batches (padded; a multiple of the device count),
     the scenario axis spread over all devices."""
     n = jax.tree.leaves(scenarios)[0].shape[0]
+    size = -(-min(batch_size, n) // jax.device_count()) * jax.device_count()
     for start in range(0, n, batch_size):
         stop = min(start + batch_size, n)
         part = jax.tree.map(lambda x, a=start, b=stop: np.asarray(x)[a:b], scenarios)
-        yield start, stop, _spread(_pad_batch(part, _device_multiple(min(batch_size, n))), 0)
+        yield start, stop, _spread(_pad_batch(part, size), 0)
 
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
@@ -246,9 +241,3 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     if single:
         out = out.map(lambda a: a[0])
     return out
-
-
-__all__ = [
-    "DEFAULT_OBS_CONFIG", "DEFAULT_SIM_PARAMS", "EVAL_SEED", "REFERENCE_ACTORS", "EpisodeFn",
-    "StepOutputs", "evaluate_policy", "evaluate_reference",
-]

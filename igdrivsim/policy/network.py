@@ -372,9 +372,6 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
             lambda p, xs: step_history(config, xs[0], xs[1], p, xs[2])[::-1], past,
             (obs_seq.sdc_speed, obs_seq.sdc_yaw_rate, resets))
 
-    def heads(ys, speed):
-        return model.apply(params, ys, speed, method=DrivingPolicy.heads)
-
     def encode(obs, ch):
         return model.apply(params, obs, ch, method=DrivingPolicy.encode)
 
@@ -385,7 +382,8 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
     w_i, b_i, w_h, b_hn = fused_gru_cell(params["params"]["gru"])
     x_proj = (x.reshape(-1, x.shape[-1]) @ w_i + b_i).reshape(*x.shape[:-1], -1)
     h, ys = gru_scan(x_proj, resets, h, w_h, b_hn)
-    logits, values, aux = heads(head_inputs(config, ys, x), obs_seq.sdc_speed)
+    logits, values, aux = model.apply(params, head_inputs(config, ys, x), obs_seq.sdc_speed,
+                                      method=DrivingPolicy.heads)
     carry = jnp.concatenate([h, past], -1)
     return (carry, logits, values, aux) if with_aux else (carry, logits, values)
 

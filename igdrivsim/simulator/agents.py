@@ -50,11 +50,6 @@ class IdmParams:
             raise ConfigError(f"IdmParams.path_samples must be >= 1, got {self.path_samples}")
 
 
-def check_agents(name: str) -> None:
-    if name not in AGENTS:
-        raise ConfigError(f"sim agents must be one of {', '.join(AGENTS)}, got {name!r}")
-
-
 @struct.dataclass
 class AgentState:
     """Every object's simulated trajectory ``[O, T]`` (``x`` .. ``valid``), which objects the

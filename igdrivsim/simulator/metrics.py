@@ -33,17 +33,13 @@ from igdrivsim.simulator.state import (
     SimParams,
     SimState,
     _row,
+    _take,
     current_objects,
     log_sdc_at,
     sdc_pose,
 )
 
 DEFAULT_PARAMS = SimParams()
-
-
-def _take(a, i):
-    """``a[..., i]`` for a per-batch index ``i [...]``."""
-    return jnp.take_along_axis(a, jnp.asarray(i)[..., None], axis=-1)[..., 0]
 
 
 def overlap(state: SimState):

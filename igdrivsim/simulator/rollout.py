@@ -5,12 +5,10 @@ logged pose, so the discretised expert corrects its quantisation error at every 
 within centimetres of the log; where the next logged pose is invalid it waits (zero action).
 
 Every closed-loop episode (evaluation, BC-RL's rollout, replay) is :func:`run_episode`: the
-shared runner of :mod:`igdrivsim.core.episode` with the simulator's step, one
-:class:`Transition` per step. An :class:`~igdrivsim.core.episode.Actor` is ``init(state, key)
--> carry`` and ``step(state, carry, key) -> (action, carry, extras)`` (``extras`` a
-:class:`~igdrivsim.core.episode.StepInfo` when it also observes); a bare ``step`` function is
-accepted wherever an actor is. :func:`rollout` puts time after the batch dims; the metrics of
-step ``k`` are those of the state after the ``k``-th action (timesteps 11..90), as in Waymax.
+shared runner of :mod:`igdrivsim.core.episode` (its ``Actor``; a bare ``step`` function is
+accepted wherever an actor is) with the simulator's step, one :class:`Transition` per step.
+:func:`rollout` puts time after the batch dims; the metrics of step ``k`` are those of the
+state after the ``k``-th action (timesteps 11..90), as in Waymax.
 """
 
 from __future__ import annotations
@@ -31,6 +29,7 @@ from igdrivsim.simulator.state import (
     SdcTrajectory,
     SimParams,
     SimState,
+    _take,
     log_sdc_at,
     log_sdc_row,
     sdc_pose,
@@ -156,13 +155,9 @@ def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetr
     return _time_last(metrics, jnp.ndim(start))
 
 
+@functools.cache
 def jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams = DEFAULT_PARAMS):
     """A jitted ``f(state, key, carry=None)`` for a fixed actor and params (cached per pair)."""
-    return _jit_rollout(policy_fn, params)
-
-
-@functools.cache
-def _jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams):
     return jax.jit(lambda state, key, carry=None: rollout(state, policy_fn, key, params, carry))
 
 
@@ -197,9 +192,7 @@ def _constant_velocity_actor(params: SimParams) -> Actor:
     def policy(state, carry, key):
         del key
         x, y, yaw, valid = sdc_pose(state)
-        t = state.timestep[..., None]
-        vx = jnp.take_along_axis(state.sdc.vel_x, t, axis=-1)[..., 0]
-        vy = jnp.take_along_axis(state.sdc.vel_y, t, axis=-1)[..., 0]
+        vx, vy = _take(state.sdc.vel_x, state.timestep), _take(state.sdc.vel_y, state.timestep)
         action = inverse(x, y, yaw, x + vx * DT, y + vy * DT, yaw)
         action = jnp.where(valid[..., None], action, 0.0)
         return action, carry, action

@@ -53,7 +53,9 @@ class SimParams:
     idm: sim_agents.IdmParams = sim_agents.IdmParams()
 
     def __post_init__(self):
-        sim_agents.check_agents(self.agents)
+        if self.agents not in sim_agents.AGENTS:
+            raise ConfigError(f"sim agents must be one of {', '.join(sim_agents.AGENTS)}, "
+                              f"got {self.agents!r}")
         if self.dynamics not in dynamics.DYNAMICS:
             raise ConfigError(f"SimParams.dynamics must be one of {sorted(dynamics.DYNAMICS)}, "
                               f"got {self.dynamics!r}")
@@ -114,8 +116,8 @@ class SimState:
     agents: sim_agents.AgentState | None = None  # every object simulated, under "idm" agents
 
 
-def _at_time(a, t):
-    """``a[..., t]`` for a per-batch timestep ``t [...]`` (a: ``[..., T]`` or ``[..., O, T]``)."""
+def _take(a, t):
+    """``a[..., t]`` for a per-batch index ``t [...]`` (a: ``[..., T]`` or ``[..., O, T]``)."""
     t = jnp.asarray(t)
     idx = t.reshape(t.shape + (1,) * (a.ndim - t.ndim))
     return jnp.take_along_axis(a, idx, axis=-1)[..., 0]
@@ -211,7 +213,7 @@ def sdc_pose(state: SimState):
     """The simulated SDC at the current step: ``(x, y, yaw, valid)``, each ``[...]``."""
     t = state.timestep
     s = state.sdc
-    return _at_time(s.x, t), _at_time(s.y, t), _at_time(s.yaw, t), _at_time(s.valid, t)
+    return _take(s.x, t), _take(s.y, t), _take(s.yaw, t), _take(s.valid, t)
 
 
 def sdc_yaw_rate(state: SimState):
@@ -219,8 +221,8 @@ def sdc_yaw_rate(state: SimState):
     t = state.timestep
     s = state.sdc
     prev = jnp.maximum(t - 1, 0)
-    ok = (t > 0) & _at_time(s.valid, t) & _at_time(s.valid, prev)
-    turn = dynamics.wrap_angle(_at_time(s.yaw, t) - _at_time(s.yaw, prev))
+    ok = (t > 0) & _take(s.valid, t) & _take(s.valid, prev)
+    turn = dynamics.wrap_angle(_take(s.yaw, t) - _take(s.yaw, prev))
     return jnp.where(ok, turn / DT, 0.0).astype(jnp.float32)
 
 
@@ -228,7 +230,7 @@ def log_sdc_at(state: SimState, t):
     """The logged SDC at step ``t [...]``: ``(x, y, yaw, valid)``."""
     i = state.sdc_index
     lg = state.log
-    return tuple(_at_time(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
+    return tuple(_take(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
 
 
 def log_sdc_row(state: SimState) -> Trajectory:
@@ -276,8 +278,8 @@ def current_objects(state: SimState) -> ObjectState:
     s = state.sdc
 
     def pick(log_a, sim_a):
-        cur = _at_time(log_a, t)
-        return cur if sim_a is None else jnp.where(is_sdc, _at_time(sim_a, t)[..., None], cur)
+        cur = _take(log_a, t)
+        return cur if sim_a is None else jnp.where(is_sdc, _take(sim_a, t)[..., None], cur)
 
     return ObjectState(
         x=pick(lg.x, s.x), y=pick(lg.y, s.y), yaw=pick(lg.yaw, s.yaw),
@@ -287,19 +289,9 @@ def current_objects(state: SimState) -> ObjectState:
     )
 
 
-def simulated_trajectory(state: SimState) -> Trajectory:
-    """The full ``[..., O, T]`` trajectory with the SDC row replaced by its simulation."""
-    lg = object_trajectory(state)
-    is_sdc = (jnp.arange(lg.x.shape[-2]) == state.sdc_index[..., None])[..., None]
-    s = state.sdc
-    sub = {"x": s.x, "y": s.y, "yaw": s.yaw, "vel_x": s.vel_x, "vel_y": s.vel_y, "valid": s.valid}
-    return lg.replace(**{k: jnp.where(is_sdc, v[..., None, :], getattr(lg, k))
-                         for k, v in sub.items()})
-
-
 def object_trajectory(state: SimState) -> Trajectory:
     """Every object's ``[..., O, T]`` trajectory as simulated by the sim agents (the log under
-    ``"log"`` agents); the SDC row is its log (see :func:`simulated_trajectory`)."""
+    ``"log"`` agents); the SDC row is its log."""
     a = getattr(state, "agents", None)
     if a is None:
         return state.log
