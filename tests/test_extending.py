@@ -40,10 +40,10 @@ def test_the_observation_model_recipe_trains_beside_the_paper_six():
     from flax import struct
 
     from igdrivsim.observation import models as obs_models
+    from igdrivsim.observation import stack_settings
     from igdrivsim.observation.models import PAPER_SETTINGS, apply_setting
     from igdrivsim.policy.act import example_observation
     from igdrivsim.training.config import get_profile, with_overrides
-    from igdrivsim.training.update import settings_as_data
 
     namespace = {**vars(obs_models), **vars(features), "struct": struct}
     try:
@@ -51,7 +51,7 @@ def test_the_observation_model_recipe_trains_beside_the_paper_six():
         names = [*PAPER_SETTINGS, "rear_blind_5"]
         config = with_overrides(get_profile("smoke"),
                                 [f"observation.setting={','.join(names)}"]).validate()
-        stacked = settings_as_data(config)
+        stacked = stack_settings(config.settings)
         assert jax.tree.leaves(stacked)[0].shape == (len(names),)
         obs = example_observation()
         rng = np.random.default_rng(0)

@@ -172,7 +172,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     """One collection: the student's rollout is observed under its setting (circular r=4
     hides far road points), the same states fully observed for the teacher; the teacher's
     labels are its network on those full observations."""
-    from igdrivsim.observation import get_setting
+    from igdrivsim.observation import get_setting, stack_settings
     from igdrivsim.policy.act import WARMUP_STEPS, example_observation, policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
     from igdrivsim.training.loop import load_teacher
@@ -180,7 +180,6 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
         collect,
         expert_sequences,
         init_buffer,
-        settings_as_data,
         teacher_labels,
         update_spec,
     )
@@ -196,7 +195,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     params = jax.tree.map(lambda x: x[0], init_params_per_seed(
         config.policy, [jax.random.key(0)], example_observation(spec.obs)))
     buffer = jax.tree.map(lambda x: x[0, 0], init_buffer(config, spec))
-    setting = jax.tree.map(lambda x: x[0], settings_as_data(config))
+    setting = jax.tree.map(lambda x: x[0], stack_settings(config.settings))
     key = jax.random.key(1)
     data, buffer, metrics = collect(spec, params, buffer, rec, states, setting, teacher, key)
 

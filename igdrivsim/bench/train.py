@@ -29,7 +29,7 @@ from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_file_target
 from igdrivsim.machine import machine_record
-from igdrivsim.observation.models import PAPER_SETTINGS
+from igdrivsim.observation.models import PAPER_SETTINGS, stack_settings
 from igdrivsim.policy.act import example_observation
 from igdrivsim.policy.network import apply_step, init_params_per_seed, initial_carry
 from igdrivsim.simulator import toy
@@ -38,11 +38,10 @@ from igdrivsim.training.commands import refuse_contradictions
 from igdrivsim.training.config import get_profile, with_overrides
 from igdrivsim.training.methods import METHODS
 from igdrivsim.training.update import (
-    get_update,
     init_buffer,
     init_state,
+    make_update,
     seed_keys,
-    settings_as_data,
     update_spec,
 )
 
@@ -221,13 +220,13 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
         teacher_params = init_params_per_seed(
             teacher_policy, list(seed_keys(config)), example_observation(spec.obs))
     keys = place(seed_keys(config), rep)
-    settings = settings_as_data(config)
+    settings = stack_settings(config.settings)
     teacher, states = place(dataset.host_batch(0), batch_sharding(mesh))
     args = (teacher, states, settings, teacher_params, keys)
     t0 = time.perf_counter()
-    update = get_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
+    update = make_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
     compile_s = time.perf_counter() - t0
-    flops = matmul_flops(get_update(spec), params, opt_state, buffer, *args, 0, 1e-3)
+    flops = matmul_flops(make_update(spec), params, opt_state, buffer, *args, 0, 1e-3)
     t0 = time.perf_counter()
     params, opt_state, buffer, m = update(params, opt_state, buffer, *args, 0, 1e-3)
     jax.block_until_ready(params)

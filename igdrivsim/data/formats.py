@@ -34,6 +34,7 @@ class Format:
     cheap_count: bool = True  # False: counting decodes the whole file
     lists: Callable[[str], bool] = lambda path: True  # whether a folder listing takes the file
     folder: Callable[[str], list[str] | None] = lambda folder: None  # a dataset folder's files
+    dataset: Callable[[str], str | None] = lambda path: "WOMD"  # where a file's scenarios come from
 
 
 def decode_record(data: bytes) -> tuple[str, Scenario]:
@@ -85,7 +86,7 @@ FORMATS: dict[str, Format] = {
     "scenarionet": Format("scenarionet", lambda path: path.endswith(scenarionet.PICKLE_SUFFIXES),
                           _decode_scenarionet, lambda path: len(scenarionet.read_file(path)),
                           cheap_count=False, lists=scenarionet.is_scenarionet_file,
-                          folder=scenarionet.dataset_files),
+                          folder=scenarionet.dataset_files, dataset=scenarionet.source_dataset),
     "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive, lambda path: 1),
     # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
     # every file no other format detects is tried as one; a folder listing takes names

@@ -5,12 +5,9 @@ the partial-observability settings (:mod:`.models`, :mod:`.occlusion`), and thei
 
 from igdrivsim.observation.features import (
     OBJECT_FEATURES,
-    POSITION_SCALE,
     ROADGRAPH_FEATURES,
-    SPEED_SCALE,
     Observation,
     ObservationConfig,
-    Selection,
     hide_objects,
     hide_roadgraph,
     object_positions,
@@ -19,12 +16,10 @@ from igdrivsim.observation.features import (
 )
 from igdrivsim.observation.models import (
     PAPER_SETTINGS,
-    PRESET_SHORT,
     PRESET_TITLES,
     PRESETS,
     CircularFieldOfView,
     ConicFieldOfView,
-    FullObservability,
     FunctionModel,
     GaussianPositionNoise,
     ObservationModel,
@@ -42,21 +37,17 @@ from igdrivsim.observation.observe import (
     observe,
     observe_setting_arrays,
     observe_with_selection,
-    sdc_pose,
     superset_config,
 )
 from igdrivsim.observation.occlusion import LineOfSightOcclusion, line_of_sight  # registers
 
 __all__ = [
-    "OBJECT_FEATURES", "POSITION_SCALE", "ROADGRAPH_FEATURES", "SPEED_SCALE",
-    "Observation", "ObservationConfig", "Selection", "hide_objects", "hide_roadgraph",
-    "object_positions", "observe_arrays", "roadgraph_positions",
-    "PRESET_TITLES", "PRESETS", "CircularFieldOfView", "ConicFieldOfView", "FullObservability",
-    "FunctionModel", "GaussianPositionNoise", "ObservationModel", "ObservationSetting",
-    "RandomMasking", "apply_setting", "get_setting", "perceive_pose",
-    "stack_settings", "register_setting", "PRESET_SHORT",
-    "PAPER_SETTINGS",
-    "LineOfSightOcclusion", "line_of_sight",
-    "observe", "observe_setting_arrays", "observe_with_selection", "sdc_pose",
+    "OBJECT_FEATURES", "ROADGRAPH_FEATURES", "Observation", "ObservationConfig", "hide_objects",
+    "hide_roadgraph", "object_positions", "observe_arrays", "roadgraph_positions",
+    "PRESET_TITLES", "PRESETS", "CircularFieldOfView", "ConicFieldOfView", "FunctionModel",
+    "GaussianPositionNoise", "ObservationModel", "ObservationSetting", "RandomMasking",
+    "apply_setting", "get_setting", "perceive_pose", "stack_settings", "register_setting",
+    "PAPER_SETTINGS", "LineOfSightOcclusion", "line_of_sight",
+    "observe", "observe_setting_arrays", "observe_with_selection",
     "ObservationRecord", "episode_observations", "superset_config",
 ]

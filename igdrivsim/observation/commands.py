@@ -12,7 +12,7 @@ import jax
 
 import igdrivsim.simulator as sim
 from igdrivsim.data import decode_scenario_id, load_scenario
-from igdrivsim.data import scenarionet as sn
+from igdrivsim.data.formats import format_of
 from igdrivsim.data.samples import find_samples
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import require_folder
@@ -69,7 +69,7 @@ def scene_source(path: str, scenario) -> str:
     sid = decode_scenario_id(scenario.scenario_id)
     if SYNTHETIC_ID.fullmatch(sid):
         return f"synthetic scenario {sid} (igdrivsim's generator, not a real log)"
-    dataset = sn.source_dataset(path) if sn.is_scenarionet_file(path) else "WOMD"
+    dataset = format_of(path).dataset(path)
     return f"real {dataset or 'logged'} scenario {sid} ({os.path.basename(path)})"
 
 

@@ -14,7 +14,6 @@ model: docs/EXTENDING.md.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -183,16 +182,6 @@ class ObservationSetting:
 
     def key_index(self, i: int) -> Any:
         return i if self.keys is None else self.keys[i]
-
-    def describe(self) -> dict[str, Any]:
-        """A JSON-ready description (for ``config.json``)."""
-        def one(m: ObservationModel) -> dict[str, Any]:
-            fields = {f.name: getattr(m, f.name) for f in dataclasses.fields(m)}
-            fields = {k: (getattr(v, "__qualname__", repr(v)) if callable(v) else v)
-                      for k, v in fields.items()}
-            return {"model": type(m).__name__, **fields}
-
-        return {"name": self.name, "models": [one(m) for m in self.models]}
 
 
 def _is_pytree(model: ObservationModel) -> bool:

@@ -9,7 +9,6 @@ import math
 import os
 import sys
 import textwrap
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,13 +19,8 @@ from tqdm import tqdm
 
 import igdrivsim.simulator as sim
 from igdrivsim.data.scenario import CURRENT_INDEX
-from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_savefig, atomic_write
-from igdrivsim.observation.features import (
-    DEFAULT_CONFIG,
-    POSITION_SCALE,
-    ObservationConfig,
-)
+from igdrivsim.observation.features import DEFAULT_CONFIG, POSITION_SCALE, ObservationConfig
 from igdrivsim.observation.models import (
     PRESET_TITLES,
     CircularFieldOfView,
@@ -80,7 +74,6 @@ PROFILE_VIEWS: dict[str, ProfileView] = {
     "laptop": ProfileView("laptop", 16, 64, 8),  # the default run's drivers
     "paper": ProfileView("paper", 32, 1500, 1),  # the paper's observation
 }
-DEFAULT_PROFILES: tuple[str, ...] = ("laptop", "paper")
 
 
 @dataclass
@@ -235,7 +228,7 @@ def panel_note(snap: Snapshot, width: int = 44) -> str:
 
 
 def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | None = None,
-               view: float = 30.0, inset: bool = True) -> None:
+               view: float = 30.0) -> None:
     """One observation panel on ``ax``, zoomed in an inset under a small field of view."""
     draw_layers(ax, snap, setting)
     ax.set_xlim(-0.5 * view, 1.5 * view)  # more room ahead of the ego than behind
@@ -246,7 +239,7 @@ def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | Non
     ax.text(0.01, 0.01, panel_note(snap), transform=ax.transAxes, fontsize=6, va="bottom",
             color="#333333", bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1.5), zorder=7)
     r = fov_radius(setting)
-    if inset and r is not None and r < view / 3:
+    if r is not None and r < view / 3:
         sub = ax.inset_axes([0.58, 0.52, 0.41, 0.46])
         draw_layers(sub, snap, setting, marker=4.0)
         half = r + 3.0
@@ -280,26 +273,16 @@ def legend_handles() -> list:
 X_LABEL, Y_LABEL = "x, ahead of the ego (m)", "y, left of the ego (m)"
 
 
-def profile_views(profiles: Sequence[str]) -> list[ProfileView]:
-    """The :data:`PROFILE_VIEWS` of ``profiles`` (ConfigError naming the known ones)."""
-    unknown = [p for p in profiles if p not in PROFILE_VIEWS]
-    if unknown or not profiles:
-        raise ConfigError(f"Fig. 1 profiles must be among {', '.join(PROFILE_VIEWS)}, got "
-                          f"{', '.join(unknown) or 'none'}")
-    return [PROFILE_VIEWS[p] for p in profiles]
-
-
 def observation_figure(state: Any, settings: list[str], key: jax.Array, view: float = 30.0,
-                       source: str | None = None,
-                       profiles: Sequence[str] = DEFAULT_PROFILES):
-    """Fig. 1: per profile a block of one panel per setting on the same (unbatched, full-map)
-    state; ``source`` is said under the title."""
+                       source: str | None = None):
+    """Fig. 1: per profile of :data:`PROFILE_VIEWS` a block of one panel per setting on the same
+    (unbatched, full-map) state; ``source`` is said under the title."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy: only when drawing
 
-    views = profile_views(profiles)
+    views = list(PROFILE_VIEWS.values())
     ncols = 3 if len(settings) > 2 else len(settings)
     nrows = math.ceil(len(settings) / ncols)
     fig = plt.figure(figsize=(3.3 * ncols, (2.75 * nrows + 0.35) * len(views) + 1.3),
@@ -323,19 +306,18 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
     title = ("What each profile's policy observes, in the ego's frame (colour: in the "
              "observation; grey: the true scene)")
     fig.suptitle(f"{title}\n{source}" if source else title, fontsize=11)
-    handles = legend_handles()
-    fig.legend(handles=handles, loc="outside lower center", ncol=5 if ncols >= 3 else 2 * ncols,
-               fontsize=7, frameon=False)
+    fig.legend(handles=legend_handles(), loc="outside lower center",
+               ncol=5 if ncols >= 3 else 2 * ncols, fontsize=7, frameon=False)
     return fig
 
 
 def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: list[str],
-                             key: jax.Array, view: float = 30.0, source: str | None = None,
-                             profiles: Sequence[str] = DEFAULT_PROFILES) -> list[str]:
+                             key: jax.Array, view: float = 30.0, source: str | None = None
+                             ) -> list[str]:
     """Write ``out_dir/fig1_observations.{pdf,png}``; returns the paths."""
     import matplotlib.pyplot as plt  # heavy: only when drawing
 
-    fig = observation_figure(state, settings, key, view, source=source, profiles=profiles)
+    fig = observation_figure(state, settings, key, view, source=source)
     try:
         return [os.fspath(atomic_savefig(fig, os.path.join(out_dir, f"fig1_observations.{ext}"),
                                          dpi=200)) for ext in ("pdf", "png")]
@@ -343,9 +325,9 @@ def write_observation_figure(state: Any, out_dir: str | os.PathLike, settings: l
         plt.close(fig)
 
 
-def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[Any]:
+def expert_states(state: Any, num_steps: int = 80) -> list[Any]:
     """The states of a discretised-expert rollout from an (unbatched) reset state, step by step."""
-    params = sim.SimParams() if params is None else params
+    params = sim.SimParams()
 
     @jax.jit
     def advance(s):
@@ -360,7 +342,7 @@ def expert_states(state: Any, num_steps: int = 80, params: Any = None) -> list[A
 
 def write_rollout_animation(states: list[Any], setting: ObservationSetting | str,
                             path: str | os.PathLike, key: jax.Array, view: float = 30.0,
-                            fps: int = 10, every: int = 1, progress: bool = True) -> str:
+                            every: int = 1, progress: bool = True) -> str:
     """A GIF of ``states`` with what ``setting`` observes highlighted; written atomically."""
     import matplotlib  # heavy: only when drawing
 
@@ -371,7 +353,7 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
     episode_key, step_root = jax.random.split(key)
     title = PRESET_TITLES.get(setting.name, setting.name)
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
-    writer = PillowWriter(fps=fps)
+    writer = PillowWriter(fps=10)
 
     def write(tmp: os.PathLike) -> None:
         with writer.saving(fig, tmp, dpi=110):

@@ -35,14 +35,10 @@ from igdrivsim.simulator.state import SimParams, SimState, check_scenario, reset
 DEFAULT_PARAMS = SimParams()
 
 
+@functools.cache
 def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
     """Jitted ``f(scenario, key) -> (final_state, replay_metrics [80], log_metrics [80])`` for one
     scenario, cached per ``(actor, params)``."""
-    return _replay_fn(actor, params)
-
-
-@functools.cache
-def _replay_fn(actor: str, params: SimParams):
     policy = ACTORS[actor](params)
 
     @jax.jit

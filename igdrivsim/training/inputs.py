@@ -25,25 +25,13 @@ from jax.sharding import Mesh, NamedSharding
 from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import place
-from igdrivsim.data.scenario import Capacities, Scenario, stack_scenarios
+from igdrivsim.data.scenario import Scenario, stack_scenarios
 from igdrivsim.data.source import check_data, count_scenarios, data_identity, open_scenarios
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.observation import ObservationRecord
 from igdrivsim.simulator import SimParams, SimState, reset
 from igdrivsim.training.config import RunConfig
-from igdrivsim.training.records import (
-    cache_key,
-    compute_records,
-    load_or_compute,
-)
-
-
-def iter_scenarios(data: str | os.PathLike, caps: Capacities, max_scenarios: int = 0,
-                   chunk: int = 64, egos: str = "sdc") -> Iterator[list[Scenario]]:
-    """Chunks of the training scenarios of ``data`` (:func:`open_scenarios`)."""
-    check_data(data, "training")
-    records = open_scenarios(data, caps, egos=egos, limit=max_scenarios)
-    return iter(lambda: [rec.scenario for rec in islice(records, chunk)], [])
+from igdrivsim.training.records import cache_key, compute_records, load_or_compute
 
 
 @functools.lru_cache(maxsize=8)
@@ -111,7 +99,9 @@ class Dataset:
         def load() -> SimState:  # the bar's total: the manifest's kept rows, the records, the list
             if on_disk:
                 total = count_scenarios(data, limit, d.egos) if progress else None
-                chunks = iter_scenarios(data, config.capacities, limit, chunk, d.egos)
+                check_data(data, "training")
+                records = open_scenarios(data, config.capacities, egos=d.egos, limit=limit)
+                chunks = iter(lambda: [r.scenario for r in islice(records, chunk)], [])
             else:
                 scenarios = list(data)[: limit or None]
                 total = len(scenarios)

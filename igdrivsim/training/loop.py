@@ -16,6 +16,7 @@ import numpy as np
 from igdrivsim.core.devices import barrier, batch_sharding, make_mesh, place, replicated
 from igdrivsim.data.validation import load_validation
 from igdrivsim.errors import ConfigError
+from igdrivsim.observation import stack_settings
 from igdrivsim.policy.closed_loop import evaluate_policy
 from igdrivsim.policy.network import PolicyConfig, count_params
 from igdrivsim.training import inputs
@@ -27,11 +28,10 @@ from igdrivsim.training.run import Hook, Run
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
-    get_update,
     make_train,
+    make_update,
     make_validation_loss,
     seed_keys,
-    settings_as_data,
     update_spec,
 )
 
@@ -56,7 +56,7 @@ class Validation:
             config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
         self.scenarios = load_validation(data, config.capacities, n, egos=config.data.egos)
         self.loss = make_validation_loss(spec)
-        self.settings = settings_as_data(config)
+        self.settings = stack_settings(config.settings)
 
     def __call__(self, params) -> dict:
         c = self.config
@@ -124,7 +124,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
     rep = replicated(mesh)
     teacher_params = place(teacher_params, rep)
-    settings = settings_as_data(config)
+    settings = stack_settings(config.settings)
     settings = None if settings is None else place(settings, rep)
     keys = place(seed_keys(config), rep)
     fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
@@ -154,7 +154,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         for u, (batch, data_state) in zip(range(start, end), batches, strict=True):
             if u == start and jax.process_count() > 1:  # compile everywhere, then meet
                 lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
-                step = get_update(spec).lower(*state, *batch, settings, teacher_params, keys,
+                step = make_update(spec).lower(*state, *batch, settings, teacher_params, keys,
                                               u, lr).compile()
                 fns = make_train(config, spec, num_updates, settings, teacher_params, keys,
                                  step)

@@ -28,7 +28,6 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from igdrivsim.core.learn import clipped_adam, gae, normalize, sgd_epochs, take_rows
 from igdrivsim.observation import (
@@ -78,13 +77,6 @@ class UpdateSpec:
         return get_method(self.method)
 
 
-def settings_as_data(config: RunConfig) -> ObservationSetting | None:
-    """The run's settings stacked ``[G]`` (:func:`~igdrivsim.observation.stack_settings`), or
-    ``None`` when they cannot share a program (then the run has exactly one setting, compiled
-    static)."""
-    return stack_settings(config.settings)
-
-
 def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
     """The static part of a run's update; ``teacher_policy``: the privileged teacher's network
     (required by a method with a teacher; the driver reads it from the teacher run)."""
@@ -93,19 +85,15 @@ def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -
     if method.teacher and teacher_policy is None:
         raise ValueError(f"update_spec: method {t.method!r} needs its teacher's network")
     epochs, minibatches = config.sgd_passes
-    static = None if settings_as_data(config) is not None else get_setting(config.settings[0])
+    static = None  # settings that cannot share a program: the run has one, compiled static
+    if stack_settings(config.settings) is None:
+        static = get_setting(config.settings[0])
     return UpdateSpec(
         policy=config.policy, setting=static, obs=config.obs_config, sim=config.sim_params,
         method=t.method, loss=config.loss, epochs=epochs, minibatches=minibatches,
         grad_clip=t.grad_clip, record=config.record_config,
         teacher_policy=teacher_policy if method.teacher else None,
         params=method.with_params(dict(t.method_params)))
-
-
-def optimizer(spec: UpdateSpec) -> optax.GradientTransformation:
-    """Global-norm clipping + Adam moments; the (scheduled) learning rate is applied in the
-    update, so the compiled program does not depend on the run length."""
-    return clipped_adam(spec.grad_clip)
 
 
 def cosine_lr(update: int, num_updates: int, lr: float, lr_end: float) -> float:
@@ -126,7 +114,7 @@ def init_state(config: RunConfig, spec: UpdateSpec):
     params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
     groups = len(config.settings)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x[None], (groups, *x.shape)), params)
-    opt_state = jax.vmap(jax.vmap(optimizer(spec).init))(params)
+    opt_state = jax.vmap(jax.vmap(clipped_adam(spec.grad_clip).init))(params)
     return params, opt_state
 
 
@@ -245,20 +233,22 @@ def update_one(spec: UpdateSpec, params, opt_state, buffer, rec: ObservationReco
     data, buffer, metrics = collect(spec, params, buffer, rec, states, setting, teacher_params,
                                     k_collect)
     params, opt_state, aux = sgd_epochs(
-        params, opt_state, data, partial(_loss, spec), optimizer(spec),
+        params, opt_state, data, partial(_loss, spec), clipped_adam(spec.grad_clip),
         jax.random.split(k_perm, spec.epochs), spec.minibatches, lr, size=b, select=take_rows,
         grad_norm=True)
     metrics |= jax.tree.map(jnp.mean, aux)
     return params, opt_state, buffer, metrics
 
 
-def make_update(spec: UpdateSpec, donate: bool = True):
-    """The jitted update over all settings and seeds: ``(params[G, S], opt_state[G, S],
-    buffer[G, S] | None, teacher[S, B] | None, states[S, B] | None, settings[G] | None,
-    teacher_params[S] | None, seed_keys[S], update_index, lr) -> (params, opt_state, buffer,
-    metrics[G, S])``; without ``teacher`` records the batch is recorded from ``states`` inside
-    the update. Every setting sees the same scenarios and draws of a seed (the comparison
-    between settings is paired); seed ``s`` is labelled by the teacher's seed ``s``."""
+@functools.cache
+def make_update(spec: UpdateSpec):
+    """The jitted update over all settings and seeds (one per ``spec`` in this process):
+    ``(params[G, S], opt_state[G, S], buffer[G, S] | None, teacher[S, B] | None, states[S, B]
+    | None, settings[G] | None, teacher_params[S] | None, seed_keys[S], update_index, lr) ->
+    (params, opt_state, buffer, metrics[G, S])``; without ``teacher`` records the batch is
+    recorded from ``states`` inside the update. Every setting sees the same scenarios and draws
+    of a seed (the comparison between settings is paired); seed ``s`` is labelled by the
+    teacher's seed ``s``."""
 
     def update(params, opt_state, buffer, teacher, states, settings, teacher_params,
                seed_keys, update_index, lr):
@@ -280,13 +270,7 @@ def make_update(spec: UpdateSpec, donate: bool = True):
             return jax.tree.map(lambda x: x[None], out)
         return jax.vmap(one_setting)(settings, params, opt_state, buffer)
 
-    return jax.jit(update, donate_argnums=(0, 1, 2) if donate else ())
-
-
-@functools.cache
-def get_update(spec: UpdateSpec):
-    """The compiled update for ``spec`` (shared by every run in this process)."""
-    return make_update(spec)
+    return jax.jit(update, donate_argnums=(0, 1, 2))
 
 
 # -------------------------------------------------------------------------------- the run
@@ -306,7 +290,7 @@ def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=N
     setting), ``teacher_params`` and ``keys`` (default: :func:`seed_keys`) are the run's
     constants."""
     t = config.training
-    step = step or get_update(spec)
+    step = step or make_update(spec)
     keys = seed_keys(config) if keys is None else keys
 
     def init() -> tuple:
