@@ -52,16 +52,16 @@ class Validation:
     def __init__(self, config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None):
         n = config.training.val_scenarios
         self.config, self.spec = config, spec
-        self.teacher = inputs.Dataset.from_config(
+        teacher = inputs.Dataset.from_config(
             config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
+        self.teacher = jax.tree.map(jnp.asarray, teacher)  # on the device once, not per hook
         self.scenarios = load_validation(data, config.capacities, n, egos=config.data.egos)
         self.loss = make_validation_loss(spec)
         self.settings = stack_settings(config.settings)
 
     def __call__(self, params) -> dict:
         c = self.config
-        val_bc = self.loss(params, jax.tree.map(jnp.asarray, self.teacher), self.settings,
-                           jax.random.key(0))
+        val_bc = self.loss(params, self.teacher, self.settings, jax.random.key(0))
         out = evaluate_policy(params, self.scenarios, policy_config=c.policy,
                               setting=c.settings, obs_config=self.spec.obs,
                               params=self.spec.sim, batch_size=c.training.val_scenarios)

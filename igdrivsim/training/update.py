@@ -315,10 +315,9 @@ def make_validation_loss(spec: UpdateSpec):
     def per_setting(setting, params, teacher, key):
         setting = spec.setting if setting is None else setting  # a static one, or data
         v = teacher.sdc_yaw.shape[0]
-        keys = jax.random.split(key, v)
+        obs = expert_sequences(spec, teacher, setting, jax.random.split(key, v))  # seed-free
 
         def one(p):
-            obs = expert_sequences(spec, teacher, setting, keys)
             _, logits, _ = unroll_sequence(spec.policy, p, initial_carry(spec.policy, (v,)),
                                            obs, True)
             return bc_loss(logits[WARMUP_STEPS:], _time_major(teacher.actions),
