@@ -5,6 +5,7 @@ split over the workers and the plan printed before any stage."""
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -122,6 +123,37 @@ def test_stage_processes_take_gpu_memory_as_needed(tmp_path, monkeypatch):
             "os.environ.get('XLA_PYTHON_CLIENT_PREALLOCATE', 'unset'))")
     pipe.stage("probe", [["python", "-c", code]])
     assert seen.read_text() == "false"
+
+
+@pytest.mark.skipif(len(getattr(os, "sched_getaffinity", lambda _: ())(0)) < 2,
+                    reason="needs the CPU affinity API and 2 cores")
+def test_side_by_side_workers_on_a_cpu_get_a_core_each(tmp_path, monkeypatch):
+    """Two lanes at once on a 2-core CPU: each worker runs on its own core (XLA's thread pool
+    would otherwise compete with the other's), a stage run alone is not pinned, and the cores
+    come back when the workers end."""
+    cores = sorted(os.sched_getaffinity(0))
+    pipe = Pipeline(PROFILES["smoke"], tmp_path / "work", tmp_path / "paper", quiet=True,
+                    workers=2)
+    monkeypatch.setattr(pipe, "_machine", planning.Machine(2, "test CPU"))
+    monkeypatch.setattr(pipe, "free_cores", cores[:2])
+    seen = tmp_path / "cores"
+    seen.mkdir()
+
+    def probe(name: str, echo: bool) -> None:
+        code = (f"import os, time; time.sleep(1.0); open({str(seen / name)!r}, 'w').write("
+                "' '.join(map(str, sorted(os.sched_getaffinity(0)))))")
+        pipe.stage(name, [["python", "-c", code]], echo=echo)
+
+    lanes = [threading.Thread(target=probe, args=(f"lane{i}", False)) for i in range(2)]
+    for lane in lanes:
+        lane.start()
+    for lane in lanes:
+        lane.join(timeout=60)
+    pinned = [(seen / f"lane{i}").read_text().split() for i in range(2)]
+    assert all(len(p) == 1 for p in pinned) and pinned[0] != pinned[1]
+    assert sorted(pipe.free_cores) == cores[:2]
+    probe("alone", True)
+    assert len((seen / "alone").read_text().split()) == len(cores)
 
 
 def test_gpu_profile_trains_the_laptop_updates_with_more_seeds():

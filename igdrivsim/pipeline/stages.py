@@ -15,6 +15,7 @@ files live under ``WORK``, the report is published under ``PAPER``
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import threading
 import time
@@ -91,6 +92,9 @@ class Pipeline(Publisher, StageRunner):
         self.children: set[subprocess.Popen] = set()  # stage processes now running
         # stages now running -> when they began, moved back by their earlier invocations' seconds
         self.running: dict[str, float] = {}
+        # cores a side-by-side worker may be pinned to (StageRunner._pin; none off Linux)
+        self.free_cores = sorted(getattr(os, "sched_getaffinity", lambda _: ())(0))
+        self.core_lock = threading.Lock()
 
     @property
     def data_label(self) -> str:
