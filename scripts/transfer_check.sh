@@ -3,7 +3,8 @@
 # profile's synthetic data (3,072 training / 512 validation scenarios, seed 0) with MOTION,
 # filters it, trains Full BC (laptop profile, 3 seeds, 1,000 updates) and evaluates it and the
 # reference actors on the synthetic validation set and on each real set (every vehicle that
-# passes the scenario filter as the ego in turn); then
+# passes the scenario filter as the ego in turn), and under the greedy and mean action read-outs
+# on every real set at once (WORK/MOTION/real_logs/tables/real_logs.md); then
 # igdrivsim report transfer compares every WORK/MOTION folder in WORK/transfer.md.
 #
 #   bash scripts/transfer_check.sh WORK MOTION [NAME=LOCATION ...]
@@ -72,4 +73,20 @@ for set in "validation=filtered/validation" "${REAL[@]}"; do
     done
 done
 echo "$MOTION: evaluated on validation and ${#REAL[@]} real set(s)"
+if [ ${#REAL[@]} -gt 0 ]; then  # every real set at once, Full BC under each action read-out
+    WHERE=(); for set in "${REAL[@]}"; do WHERE+=("${set#*=}"); done
+    ALL=(--data "${WHERE[@]}" --egos all --batch-size 32 --limit 0 --no-progress)
+    for who in bc references greedy mean; do
+        case $who in
+            bc) out=real_logs/runs/bc; args=(runs/bc) ;;
+            references) out=real_logs/runs/references; args=(--references --like runs/bc) ;;
+            *) out="real_logs/readouts/$who"; args=(runs/bc --actions "$who") ;;
+        esac
+        [ -f "$out/per_scenario.csv" ] || "${I[@]}" evaluate "${args[@]}" --out "$out" \
+            "${ALL[@]}" >> logs/evaluate.log
+    done
+    "${I[@]}" report real-logs --real real_logs/runs --readouts real_logs/readouts \
+        --out real_logs/tables --real-label "every real set above" >> logs/evaluate.log
+    echo "$MOTION: Full BC's action read-outs on every real set: $W/real_logs/tables/real_logs.md"
+fi
 "${I[@]}" report transfer "$WORK" --out "$WORK/transfer.md"
