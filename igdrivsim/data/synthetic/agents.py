@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
+from math import sqrt
 
 import numpy as np
 
@@ -61,6 +62,9 @@ class Agent:
     lo: np.ndarray | None = None  # bounding box of the valid centre positions
     hi: np.ndarray | None = None
     reach: float = 0.0  # half the box diagonal
+    standing: bool = False  # static and valid at every step (planned once, never moves)
+    bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # lo and hi as floats
+    track: np.ndarray | None = None  # moving agents: [7, T] x, y, yaw, cos, sin, speed, valid
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
@@ -83,34 +87,34 @@ def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
     aligned, i.e. it is cross traffic). A point is near an other's path when it lies in the
     bounding box of its valid centres grown by its reach and ``agent``'s half width + 1 m;
     rows where the other never covers the point are left out."""
-    pts = agent.route.points
     lo, hi = agent.route.bounds
     none = (np.zeros(0, int), np.zeros((0, T), bool), np.zeros((0, T)))
     if not others:
         return none
     reach = np.array([o.reach for o in others]) + agent.width / 2 + 1.0
-    olo, ohi = np.array([o.lo for o in others]), np.array([o.hi for o in others])
+    box = np.array([o.bbox for o in others])
+    olo, ohi = box[:, :2], box[:, 2:]
     meets = ((olo - reach[:, None] <= hi) & (ohi + reach[:, None] >= lo)).all(1)
     if not meets.any():
         return none
     others = [o for o, m in zip(others, meets, strict=True) if m]
     olo, ohi = olo[meets] - reach[meets, None], ohi[meets] + reach[meets, None]
-    j, k = np.nonzero(((pts >= olo[:, None]) & (pts <= ohi[:, None])).all(2))
+    px, py = agent.route.columns
+    j, k = np.nonzero((px >= olo[:, :1]) & (px <= ohi[:, :1]) & (py >= olo[:, 1:])
+                      & (py <= ohi[:, 1:]))
     if len(k) == 0:
         return none
-    xy = np.stack([o.xy for o in others])  # [O, T, 2]
-    yaw = np.stack([o.yaw for o in others])
-    size = np.array([(o.length, o.width) for o in others])
-    c, s = np.cos(yaw), np.sin(yaw)
-    d = pts[k, None, :] - xy[j]  # [P, T, 2]
-    dx = np.abs(d[..., 0] * c[j] + d[..., 1] * s[j]) - size[j, :1] / 2
-    dy = np.abs(-d[..., 0] * s[j] + d[..., 1] * c[j]) - size[j, 1:] / 2
-    occ = (np.maximum(dx, dy) < agent.width / 2 + 0.4) & np.stack([o.valid for o in others])[j]
+    track = np.stack([o.track for o in others])  # [O, 7, T], see Agent.track
+    size = np.array([(o.length, o.width) for o in others])[j]
+    c, s = track[j, 3], track[j, 4]
+    d0, d1 = px[k, None] - track[j, 0], py[k, None] - track[j, 1]  # [P, T]
+    dx = np.abs(d0 * c + d1 * s) - size[:, :1] / 2
+    dy = np.abs(-d0 * s + d1 * c) - size[:, 1:] / 2
+    occ = (np.maximum(dx, dy) < agent.width / 2 + 0.4) & (track[j, 6] > 0.5)
     keep = occ.any(1)
     j, k, occ = j[keep], k[keep], occ[keep]
-    cosang = np.cos(yaw[j] - yaw_route[k, None])
-    speed = np.stack([o.speed for o in others])
-    along = np.where(cosang > 0.75, speed[j] * cosang, np.nan)
+    cosang = np.cos(track[j, 2] - yaw_route[k, None])
+    along = np.where(cosang > 0.75, track[j, 5] * cosang, np.nan)
     return k, occ, along
 
 
@@ -164,6 +168,8 @@ def plan(agent: Agent, planned: list[Agent]) -> None:
     else:
         s[:] = _simulate(agent, s_route, planned)
     _pose(agent, s, s_route)
+    agent.standing = agent.static and bool(agent.valid.all())
+    agent.bbox = (*agent.lo.tolist(), *agent.hi.tolist())
 
 
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
@@ -171,7 +177,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     v_prof = speed_profile(agent.route, agent.v_des, agent.brake).tolist()
     follow_rows, follow_t, follow_v = [], [], []
     cross_rows, cross_occ = [], []
-    fixed = [o for o in planned if o.static and o.valid.all()]
+    fixed = [o for o in planned if o.standing]
     if fixed:  # standing objects, all at once: aligned ones are followed, others crossed
         rows, aligned = _standing_hits(agent, yaw_route, fixed)
         k = rows[aligned]
@@ -214,7 +220,8 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
         c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
         c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
-    half = agent.length / 2
+        occ_lists = next_occ.tolist()  # the window ahead is short (median 7): Python floats
+    half, accel = agent.length / 2, agent.accel
     sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
     pos, v = agent.s0, agent.v0
     stop_at = 0.0
@@ -241,13 +248,16 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             commit = v * v / (2 * B_MAX * 0.6)
             i0 = bisect_right(c_list, front + commit)
             i1 = bisect_left(c_list, front + LOOKAHEAD)
-            if i1 > i0:
-                d = c_s[i0:i1] - front
-                eta = d / np.maximum(v, np.sqrt(agent.accel * d))
+            if i1 > i0:  # the nearest point ahead that is occupied before we could clear it
                 clear = (agent.length + 4.0) / max(v, 3.0) + 1.0
-                hit = next_occ[t, i0:i1] <= t + (eta + clear) / DT
-                if hit.any():
-                    g = d[hit].min() - 1.5
+                occ_t, nearest = occ_lists[t], None
+                for i in range(i0, i1):
+                    d = c_list[i] - front
+                    if occ_t[i] <= t + (d / max(v, sqrt(accel * d)) + clear) / DT:
+                        nearest = d  # ascending arc lengths: the first hit is the nearest
+                        break
+                if nearest is not None:
+                    g = nearest - 1.5
                     if g < gap:
                         gap, v_lead = g, 0.0
         if stop_line is not None:  # stop sign: come to a full stop, wait, then go
@@ -345,6 +355,8 @@ def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
     agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
     where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
     agent.lo, agent.hi = where.min(0), where.max(0)
+    agent.track = np.stack([*agent.xy.T, agent.yaw, np.cos(agent.yaw), np.sin(agent.yaw),
+                            agent.speed, agent.valid])
 
 
 def _pose_at(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:

@@ -64,6 +64,11 @@ class Route:
         return self.points.min(0), self.points.max(0)
 
     @cached_property
+    def columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """The points' x and y as contiguous arrays."""
+        return self.points[:, 0].copy(), self.points[:, 1].copy()
+
+    @cached_property
     def yaw(self) -> np.ndarray:
         """Unwrapped heading at each point."""
         return geo.unwrapped_yaw(self.points)
@@ -71,7 +76,9 @@ class Route:
     @cached_property
     def smooth_curvature(self) -> np.ndarray:
         """|curvature| averaged over 7 points (the planner's curve speed limit)."""
-        kappa = np.abs(geo.curvature(self.points))
+        # geo.curvature(points) from the cached heading and arc length (the same arithmetic)
+        kappa = np.abs(np.gradient(self.yaw, self.s) if len(self.points) >= 3
+                       else np.zeros(len(self.points)))
         return np.convolve(np.pad(kappa, 3, mode="edge"), np.ones(7) / 7, "valid")
 
     @cached_property
