@@ -221,22 +221,29 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
         c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
         occ_lists = next_occ.tolist()  # the window ahead is short (median 7): Python floats
-    half, accel = agent.length / 2, agent.accel
-    sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
-    pos, v = agent.s0, agent.v0
+    # The step loop runs on Python floats (numpy scalars are several times slower; the same
+    # IEEE arithmetic, and ``**`` is C ``pow`` in both).
+    half, length = agent.length / 2, float(agent.length)
+    accel, brake = float(agent.accel), float(agent.brake)
+    headway, min_gap = float(agent.headway), float(agent.min_gap)
+    sqrt_ab = float(2 * np.sqrt(agent.accel * agent.brake))
+    pos, v = float(agent.s0), float(agent.v0)
     stop_at = 0.0
     stop_line, waited = agent.route.stop_at, 0
     if stop_line is not None and agent.s0 + half > stop_line - 0.5:
         stop_line = None  # already past it
+    stop_line = None if stop_line is None else float(stop_line)
     signal, signal_at, on_yellow = agent.route.signal, agent.route.signal_at, False
     if signal is not None and agent.s0 + half > signal_at - 0.5:
         signal = None
-    signal = signal.tolist() if signal is not None else None
-    inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
+    if signal is not None:
+        signal, signal_at = signal.tolist(), float(signal_at)
+    inv_ds, last = float((len(s_route) - 1) / s_route[-1]), len(s_route) - 1
     wave = agent.speed_wave
-    out = np.empty(T)
+    window = agent.stop_window if agent.stop_window is not None else (0, 0)
+    out = []
     for t in range(T):
-        out[t] = pos
+        out.append(pos)
         front = pos + half
         gap, v_lead = LOOKAHEAD, v
         ks, vs = follow[t]
@@ -249,7 +256,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             i0 = bisect_right(c_list, front + commit)
             i1 = bisect_left(c_list, front + LOOKAHEAD)
             if i1 > i0:  # the nearest point ahead that is occupied before we could clear it
-                clear = (agent.length + 4.0) / max(v, 3.0) + 1.0
+                clear = (length + 4.0) / max(v, 3.0) + 1.0
                 occ_t, nearest = occ_lists[t], None
                 for i in range(i0, i1):
                     d = c_list[i] - front
@@ -266,7 +273,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                 stop_line = None
             else:
                 waited += v < 0.3 and g < 2.0
-                g += agent.min_gap - 0.5  # stand just behind the line, not min_gap before it
+                g += min_gap - 0.5  # stand just behind the line, not min_gap before it
                 if g < gap:
                     gap, v_lead = max(g, 0.05), 0.0
         if signal is not None:  # traffic light: stop at red, and at yellow when comfortable
@@ -274,35 +281,44 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             if g < -1.0:
                 signal = None
             elif signal[t] != LIGHT_GO and not on_yellow:
-                if signal[t] == LIGHT_CAUTION and v * v > 2 * 1.3 * agent.brake * max(g, 0.1):
+                if signal[t] == LIGHT_CAUTION and v * v > 2 * 1.3 * brake * max(g, 0.1):
                     on_yellow = True  # too close to stop comfortably: it clears on yellow
                 else:
-                    g += agent.min_gap - 0.5
+                    g += min_gap - 0.5
                     if g < gap:
                         gap, v_lead = max(g, 0.05), 0.0
-        if agent.stop_window is not None and agent.stop_window[0] <= t < agent.stop_window[1]:
-            if t == agent.stop_window[0]:
-                stop_at = pos + max(v * v / (2 * agent.brake * 1.3), 3.0) + half
+        if window[0] <= t < window[1]:  # a braking leader's stop
+            if t == window[0]:
+                stop_at = pos + max(v * v / (2 * brake * 1.3), 3.0) + half
             g = stop_at - front
             if g < gap:
                 gap, v_lead = g, 0.0
         if t == 0:  # start at a speed the situation allows (no brake slam at step 0)
-            v = min(v, _entry_speed(agent, gap, v_lead, sqrt_ab))
+            v = min(v, float(_entry_speed(agent, gap, v_lead, sqrt_ab)))
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
         if wave is not None:  # a driver who does not hold the speed exactly
-            v_d *= 1.0 + wave[0] * np.sin(2 * np.pi * t * DT / wave[1] + wave[2])
-        free = agent.accel * (1 - (v / v_d) ** 4)
+            v_d *= 1.0 + wave[0] * float(np.sin(2 * np.pi * t * DT / wave[1] + wave[2]))
+        free = accel * (1 - (v / v_d) ** 4)
         if v_lead < 0.3 and gap < LOOKAHEAD:
-            acc = min(free, _stopping(agent, gap - agent.min_gap, v))
+            # stop ``room`` ahead like a driver: roll on while the needed deceleration is
+            # below 0.8 of the comfortable one, then brake at the needed constant rate
+            room = gap - min_gap
+            if room <= 0.2:
+                stopping = -min(v / DT, B_MAX)
+            else:
+                need = v * v / (2 * room)
+                start = 0.8 * brake
+                stopping = accel * (1 - need / start) if need < start else -need
+            acc = min(free, stopping)
         else:
-            s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
-            acc = free - agent.accel * (s_star / max(gap, 0.1)) ** 2
-        acc = min(max(acc, -B_MAX), agent.accel)
+            s_star = min_gap + max(0.0, v * headway + v * (v - v_lead) / sqrt_ab)
+            acc = free - accel * (s_star / max(gap, 0.1)) ** 2
+        acc = min(max(acc, -B_MAX), accel)
         v_new = max(v + acc * DT, 0.0)
         pos += 0.5 * (v + v_new) * DT
         v = v_new
-    return out
+    return np.array(out)
 
 
 def stop_cap(agent: Agent) -> float:
@@ -317,19 +333,6 @@ def stop_cap(agent: Agent) -> float:
             room = max(line - agent.s0 - agent.length / 2 - 1.0, 0.0)
             cap = min(cap, float(np.sqrt(2 * 1.5 * room)))
     return cap
-
-
-def _stopping(agent: Agent, room: float, v: float) -> float:
-    """Acceleration to stop ``room`` metres ahead like a driver: roll on while the needed
-    deceleration is below 0.8 of the comfortable one, then brake at the needed constant rate
-    (no IDM creeping towards a standing obstacle or a stop line)."""
-    if room <= 0.2:
-        return -min(v / DT, B_MAX)
-    need = v * v / (2 * room)
-    start = 0.8 * agent.brake
-    if need < start:
-        return agent.accel * (1 - need / start)  # ease off as it approaches
-    return -need
 
 
 def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> float:
