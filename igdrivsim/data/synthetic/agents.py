@@ -65,6 +65,7 @@ class Agent:
     standing: bool = False  # static and valid at every step (planned once, never moves)
     bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # lo and hi as floats
     track: np.ndarray | None = None  # moving agents: [7, T] x, y, yaw, cos, sin, speed, valid
+    stand: tuple[float, ...] = ()  # standing agents: x, y, yaw, length, width, reach
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
@@ -138,10 +139,9 @@ def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
     """Route points covered by standing objects: ``(rows, aligned)`` per (point, object) hit."""
     pts = agent.route.points
     lo, hi = agent.route.bounds
-    xy = np.array([o.xy[0] for o in fixed])
-    yaw = np.array([o.yaw[0] for o in fixed])
-    size = np.array([(o.length, o.width) for o in fixed])
-    reach = np.array([o.reach for o in fixed]) + agent.width / 2 + 1.0
+    stand = np.array([o.stand for o in fixed])  # [F, 6], see Agent.stand
+    xy, yaw, size = stand[:, :2], stand[:, 2], stand[:, 3:5]
+    reach = stand[:, 5] + agent.width / 2 + 1.0
     near = ((xy >= lo - reach[:, None]) & (xy <= hi + reach[:, None])).all(1)
     if near.any():
         near[near] = _may_cover(agent, xy[near], yaw[near], size[near, 0], size[near, 1])
@@ -158,18 +158,43 @@ def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
 
 def plan(agent: Agent, planned: list[Agent]) -> None:
     """Fill ``agent.s/valid/xy/yaw`` by simulating IDM against the already ``planned`` agents."""
-    route = agent.route
-    s_route = route.s
-    s = np.empty(T)
-    if agent.static or agent.walker:
-        speed = 0.0 if agent.static else agent.v0
+    if agent.static:
+        if agent.s is None:  # not yet posed with the other standing agents (pose_standing)
+            pose_standing([agent])
+        return
+    if agent.walker:
         moving = np.clip(np.arange(T) - agent.start_step, 0, None) * DT
-        s[:] = agent.s0 + speed * moving
+        s = agent.s0 + agent.v0 * moving
     else:
-        s[:] = _simulate(agent, s_route, planned)
-    _pose(agent, s, s_route)
-    agent.standing = agent.static and bool(agent.valid.all())
+        s = _simulate(agent, agent.route.s, planned)
+    valid, xy, yaw = _pose_at([agent], s[None])
+    agent.s, agent.valid, agent.xy, agent.yaw = s, valid[0], xy[0], yaw[0]
+    agent.reach = float(np.hypot(agent.length, agent.width) / 2)
+    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
+    where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
+    agent.lo, agent.hi = where.min(0), where.max(0)
     agent.bbox = (*agent.lo.tolist(), *agent.hi.tolist())
+    agent.track = np.stack([*agent.xy.T, agent.yaw, np.cos(agent.yaw), np.sin(agent.yaw),
+                            agent.speed, agent.valid])
+
+
+def pose_standing(agents: list[Agent]) -> None:
+    """Plan static agents (one pose, repeated; they ignore the others), all at once: one batch
+    of :func:`_pose_at`'s elementwise arithmetic per route (the same values as one by one)."""
+    by_route: dict[int, list[Agent]] = {}
+    for a in agents:
+        by_route.setdefault(id(a.route), []).append(a)
+    for group in by_route.values():
+        s = np.array([a.s0 for a in group], float)[:, None] + 0.0  # [N, 1]
+        valid, xy, yaw = _pose_at(group, s)
+        for i, a in enumerate(group):
+            a.s, a.valid, a.speed = np.full(T, s[i, 0]), np.full(T, valid[i, 0]), np.zeros(T)
+            a.xy, a.yaw = np.repeat(xy[i], T, 0), np.full(T, yaw[i, 0])
+            a.lo = a.hi = xy[i, 0]
+            a.reach = float(np.hypot(a.length, a.width) / 2)
+            a.standing = bool(valid[i, 0])
+            a.bbox = (*a.lo.tolist(), *a.hi.tolist())
+            a.stand = (*a.bbox[:2], float(yaw[i, 0]), a.length, a.width, a.reach)
 
 
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
@@ -346,41 +371,24 @@ def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> flo
     return max((-b + disc**0.5) / (2 * a), 0.0)
 
 
-def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
-    """Positions and headings along the route, with a smooth lateral wander (human-like)."""
-    if agent.static:  # one pose, repeated
-        _pose_at(agent, s[:1], s_route)
-        agent.s, agent.valid = s, np.repeat(agent.valid, T)
-        agent.xy, agent.yaw = np.repeat(agent.xy, T, 0), np.repeat(agent.yaw, T)
-        agent.speed = np.zeros(T)
-        return
-    _pose_at(agent, s, s_route)
-    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
-    where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
-    agent.lo, agent.hi = where.min(0), where.max(0)
-    agent.track = np.stack([*agent.xy.T, agent.yaw, np.cos(agent.yaw), np.sin(agent.yaw),
-                            agent.speed, agent.valid])
-
-
-def _pose_at(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
-    """Fill ``s, valid, xy, yaw, reach`` at arc lengths ``s``."""
-    pts = agent.route.points
+def _pose_at(agents: list[Agent], s: np.ndarray):
+    """Poses ``(valid, xy, yaw)`` of ``agents`` (all on one route) at arc lengths ``s [N, S]``:
+    along the route, with a smooth lateral wander (human-like)."""
+    route = agents[0].route
+    s_route, pts = route.s, route.points
     valid = (s >= 0) & (s <= s_route[-1] - 0.5)
     sc = np.clip(s, 0, s_route[-1])
     x, y = np.interp(sc, s_route, pts[:, 0]), np.interp(sc, s_route, pts[:, 1])
-    yaw_r = np.interp(sc, s_route, agent.route.yaw)
-    amp, wave, phase = agent.lateral
+    yaw_r = np.interp(sc, s_route, route.yaw)
+    amp, wave, phase = np.array([a.lateral for a in agents], float).T[..., None]  # [N, 1]
     k = 2 * np.pi / wave
     off = amp * np.sin(k * sc + phase)
-    if agent.offset:  # (0: the default's arithmetic, bit for bit)
-        off = off + agent.offset
+    offset = np.array([a.offset for a in agents], float)[:, None]
+    if offset.any():  # (0: the default's arithmetic, bit for bit)
+        off = np.where(offset != 0, off + offset, off)
     slope = amp * k * np.cos(k * sc + phase)
     nx, ny = -np.sin(yaw_r), np.cos(yaw_r)
-    agent.s, agent.valid = s, valid
-    agent.xy = np.stack([x + off * nx, y + off * ny], 1)
-    agent.yaw = yaw_r + np.arctan(slope)
-    agent.lo = agent.hi = agent.xy[0]
-    agent.reach = float(np.hypot(agent.length, agent.width) / 2)
+    return valid, np.stack([x + off * nx, y + off * ny], -1), yaw_r + np.arctan(slope)
 
 
 def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:

@@ -30,7 +30,14 @@ from igdrivsim.data.scenario import (
     fit_to_capacities,
 )
 from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.agents import Agent, box_corners, collides_any, plan, stop_cap
+from igdrivsim.data.synthetic.agents import (
+    Agent,
+    box_corners,
+    collides_any,
+    plan,
+    pose_standing,
+    stop_cap,
+)
 from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
@@ -343,6 +350,7 @@ def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray
 def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
     planned: list[Agent] = []
     boxes = np.empty((len(cast), 4))  # planned agents' path boxes grown by their reach
+    pose_standing([a for a in cast if a.static])  # they ignore the others: all at once
     for agent in _priority(rng, cast):
         plan(agent, planned)
         if not agent.valid.any():
