@@ -113,6 +113,7 @@ class MapData:
     lights: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     # road maps with a signalised crosswalk: (ref index, vehicle states [T], pedestrian steps)
     crossing: tuple[int, np.ndarray, np.ndarray] | None = None
+    cache: dict = field(default_factory=dict, repr=False)  # the generator's per-map results
 
     def add(self, points: np.ndarray, rg_type: int) -> int:
         """Append a feature; its index (the roadgraph polyline id is derived from it)."""
