@@ -109,9 +109,20 @@ def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
     size = np.array([(o.length, o.width) for o in others])[j]
     c, s = track[j, 3], track[j, 4]
     d0, d1 = px[k, None] - track[j, 0], py[k, None] - track[j, 1]  # [P, T]
-    dx = np.abs(d0 * c + d1 * s) - size[:, :1] / 2
-    dy = np.abs(-d0 * s + d1 * c) - size[:, 1:] / 2
-    occ = (np.maximum(dx, dy) < agent.width / 2 + 0.4) & (track[j, 6] > 0.5)
+    # |d0 c + d1 s| - length / 2 and |-d0 s + d1 c| - width / 2 both below the grown half
+    # width (in place: the same operations; -a + b is b - a exactly)
+    grow = agent.width / 2 + 0.4
+    dx = d0 * c
+    dx += d1 * s
+    np.abs(dx, out=dx)
+    dx -= size[:, :1] / 2
+    dy = d1 * c
+    dy -= d0 * s
+    np.abs(dy, out=dy)
+    dy -= size[:, 1:] / 2
+    occ = dx < grow
+    occ &= dy < grow
+    occ &= track[j, 6] > 0.5
     keep = occ.any(1)
     j, k, occ = j[keep], k[keep], occ[keep]
     cosang = np.cos(track[j, 2] - yaw_route[k, None])
