@@ -413,17 +413,11 @@ def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Separating-axis test for convex quads given as corners ``[..., 4, 2]`` (the normals of
     each quad's first two edges; a projection is ``x * nx + y * ny``)."""
-    hit = np.ones(a.shape[:-2], bool)
-    for poly in (a, b):
-        for i in range(2):
-            edge = poly[..., i + 1, :] - poly[..., i, :]
-            nx, ny = -edge[..., 1:], edge[..., :1]
-            pa = a[..., 0] * nx + a[..., 1] * ny
-            pb = b[..., 0] * nx + b[..., 1] * ny
-            hit &= (pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))
-            if not hit.any():
-                return hit
-    return hit
+    edges = np.concatenate([a[..., 1:3, :] - a[..., :2, :], b[..., 1:3, :] - b[..., :2, :]], -2)
+    nx, ny = -edges[..., 1:], edges[..., :1]  # [..., 4 axes, 1]
+    pa = a[..., None, :, 0] * nx + a[..., None, :, 1] * ny  # [..., 4 axes, 4 corners]
+    pb = b[..., None, :, 0] * nx + b[..., None, :, 1] * ny
+    return ((pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))).all(-1)
 
 
 def collides_any(a: Agent, others: list[Agent]) -> bool:
@@ -434,15 +428,18 @@ def collides_any(a: Agent, others: list[Agent]) -> bool:
                   if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]
     if not others:
         return False
-    valid = np.stack([b.valid for b in others]) & a.valid  # [N, T]
     reach = a.reach + np.array([b.reach for b in others])
-    blo, bhi = np.array([b.lo for b in others]), np.array([b.hi for b in others])
-    meet = valid.any(1) & ~((a.lo[0] - reach > bhi[:, 0]) | (a.hi[0] + reach < blo[:, 0])
-                            | (a.lo[1] - reach > bhi[:, 1]) | (a.hi[1] + reach < blo[:, 1]))
+    box = np.array([b.bbox for b in others])  # lo x, lo y, hi x, hi y
+    meet = ~((a.lo[0] - reach > box[:, 2]) | (a.hi[0] + reach < box[:, 0])
+             | (a.lo[1] - reach > box[:, 3]) | (a.hi[1] + reach < box[:, 1]))
     if not meet.any():
         return False
     keep = np.flatnonzero(meet)
-    reach, valid = reach[keep], valid[keep]
+    valid = np.stack([others[k].valid for k in keep]) & a.valid  # [N, T]
+    live = valid.any(1)  # some step where both are valid
+    if not live.any():
+        return False
+    keep, reach, valid = keep[live], reach[keep][live], valid[live]
     xy = np.stack([others[k].xy for k in keep])  # [N, T, 2]
     d = (a.xy[None] - xy).reshape(-1, 2)
     near = valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)
