@@ -420,7 +420,8 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     # Like a perception log, objects are valid only within sensor range of the SDC.
     sdc_xy = next(a.xy for a in agents if a.is_sdc)
     sensor = rng.uniform(90, 130)
-    seen = [a.valid & (np.linalg.norm(a.xy - sdc_xy, axis=1) <= sensor) for a in agents]
+    dist = np.linalg.norm(np.stack([a.xy for a in agents]) - sdc_xy, axis=-1)  # [N, T]
+    seen = [a.valid & (d <= sensor) for a, d in zip(agents, dist, strict=True)]
     keep = [k for k, a in enumerate(agents) if seen[k].any() or a.is_sdc]
     agents, seen = [agents[k] for k in keep], [seen[k] for k in keep]
     if len(agents) > caps.max_objects:  # keep the SDC and the objects nearest to it
