@@ -238,15 +238,15 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         keep = cross.any(1)
         if keep.any():
             cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
-    # Follow obstacles per step: sorted route distances and leader speeds.
-    follow = [([], [])] * T
+    # Follow obstacles per step: sorted route distances and leader speeds, step t's in
+    # f_s[f_at[t]:f_at[t + 1]] (bisect within those bounds: no slices)
+    f_s, f_v, f_at = [], [], [0] * (T + 1)
     if follow_rows:
         k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
         order = np.lexsort((k, t))
         k, t, v = k[order], t[order], v[order]
         bounds = np.searchsorted(t, np.arange(T + 1))
-        ks, v = s_route[k].tolist(), v.tolist()
-        follow = [(ks[bounds[i]:bounds[i + 1]], v[bounds[i]:bounds[i + 1]]) for i in range(T)]
+        f_s, f_v, f_at = s_route[k].tolist(), v.tolist(), bounds.tolist()
     if cross_rows:
         c_rows = np.concatenate(cross_rows)
         occ = np.concatenate(cross_occ, 0)
@@ -282,11 +282,11 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         out.append(pos)
         front = pos + half
         gap, v_lead = LOOKAHEAD, v
-        ks, vs = follow[t]
-        if ks:  # sorted: the first occupied point ahead of our front bumper
-            i = bisect_right(ks, front - 0.5)
-            if i < len(ks) and ks[i] < front + LOOKAHEAD:
-                gap, v_lead = ks[i] - front, max(vs[i], 0.0)
+        lo, hi = f_at[t], f_at[t + 1]
+        if hi > lo:  # sorted: the first occupied point ahead of our front bumper
+            i = bisect_right(f_s, front - 0.5, lo, hi)
+            if i < hi and f_s[i] < front + LOOKAHEAD:
+                gap, v_lead = f_s[i] - front, max(f_v[i], 0.0)
         if cross_rows:
             commit = v * v / (2 * B_MAX * 0.6)
             i0 = bisect_right(c_list, front + commit)
