@@ -29,15 +29,9 @@ from igdrivsim.data.scenario import (
     encode_scenario_id,
     fit_to_capacities,
 )
+from igdrivsim.data.synthetic import agents as ag
 from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.agents import (
-    Agent,
-    box_corners,
-    collides_any,
-    plan,
-    pose_standing,
-    stop_cap,
-)
+from igdrivsim.data.synthetic.agents import Agent, collides_any, plan, stop_cap
 from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
@@ -105,8 +99,7 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
 def _parked(rng, strips: list[Route], walks: list[np.ndarray], fill: float = 0.8) -> list[Agent]:
     """Cars parked along kerbside strips (about one per 6-9 m), clear of the crosswalks."""
     out = []
-    # the segments' bounding boxes: a spot more than 6 m (+ 1 um) from a box is clear of that
-    # segment without the exact distance (which is within 1e-9 m of the true one)
+    # a spot over 6 m (+ 1 um) from a segment's box is clear of it without the exact distance
     boxes = [(*np.minimum(w[0], w[1]).tolist(), *np.maximum(w[0], w[1]).tolist()) for w in walks]
     far = (6.0 + 1e-6) ** 2
     for strip in strips:
@@ -152,7 +145,7 @@ def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, i
     out = []
     for walk, steps in zip(m.walk_paths, m.walk_steps, strict=True):
         for _ in range(int(rng.integers(*crossing))):
-            p = _walker(rng, walk, routes=m.cache)
+            p = _walker(rng, walk, m.cache)
             if steps is not None:
                 if not len(steps):
                     continue
@@ -160,7 +153,7 @@ def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, i
             out.append(p)
     for walk in m.sidewalks:
         for _ in range(int(rng.integers(*strolling))):
-            stroll = _walker(rng, walk, static=rng.random() < 0.4, routes=m.cache)
+            stroll = _walker(rng, walk, m.cache, static=rng.random() < 0.4)
             stroll.s0 = rng.uniform(0, max(stroll.route.s[-1] - 20, 1.0))
             stroll.start_step, stroll.role = 0, "stroller"
             out.append(stroll)
@@ -175,10 +168,9 @@ def _sdc(rng, route: Route, s0: float) -> Agent:
     return a
 
 
-def _walker(rng, path: np.ndarray, static: bool = False, routes: dict | None = None) -> Agent:
+def _walker(rng, path: np.ndarray, routes: dict, static: bool = False) -> Agent:
     """A pedestrian along ``path`` (either way); ``routes`` caches the walk routes of a map."""
     flip = rng.random() < 0.5
-    routes = {} if routes is None else routes
     key = ("walk", id(path), flip)  # the map holds its paths: their ids stay theirs
     if key not in routes:
         routes[key] = Route(geo.resample(path[::-1] if flip else path, 0.5), group=-1,
@@ -360,7 +352,7 @@ def _edges(m: MapData) -> tuple[cKDTree, np.ndarray]:
 def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray:
     """Steps at which a box corner lies on the outer (right) side of the nearest edge point."""
     tree, table = edges
-    corners = box_corners(agent.xy, agent.yaw, agent.length, agent.width)  # [T, 4, 2]
+    corners = ag.box_corners(agent.xy, agent.yaw, agent.length, agent.width)  # [T, 4, 2]
     _, idx = tree.query(corners.reshape(-1, 2))
     p, d = table[idx, :2], table[idx, 2:]
     rel = corners.reshape(-1, 2) - p
@@ -371,7 +363,7 @@ def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray
 def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
     planned: list[Agent] = []
     boxes = np.empty((len(cast), 4))  # planned agents' path boxes grown by their reach
-    pose_standing([a for a in cast if a.static])  # they ignore the others: all at once
+    ag.pose_standing([a for a in cast if a.static])  # they ignore the others: all at once
     for agent in _priority(rng, cast):
         plan(agent, planned)
         if not agent.valid.any():
