@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
+from math import sqrt
 
 import numpy as np
 
@@ -61,6 +62,10 @@ class Agent:
     lo: np.ndarray | None = None  # bounding box of the valid centre positions
     hi: np.ndarray | None = None
     reach: float = 0.0  # half the box diagonal
+    standing: bool = False  # static and valid at every step (planned once, never moves)
+    bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # lo and hi as floats
+    track: np.ndarray | None = None  # moving agents: [7, T] x, y, yaw, cos, sin, speed, valid
+    stand: tuple[float, ...] = ()  # standing agents: x, y, yaw, length, width, reach
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
@@ -83,34 +88,45 @@ def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
     aligned, i.e. it is cross traffic). A point is near an other's path when it lies in the
     bounding box of its valid centres grown by its reach and ``agent``'s half width + 1 m;
     rows where the other never covers the point are left out."""
-    pts = agent.route.points
     lo, hi = agent.route.bounds
     none = (np.zeros(0, int), np.zeros((0, T), bool), np.zeros((0, T)))
     if not others:
         return none
     reach = np.array([o.reach for o in others]) + agent.width / 2 + 1.0
-    olo, ohi = np.array([o.lo for o in others]), np.array([o.hi for o in others])
+    box = np.array([o.bbox for o in others])
+    olo, ohi = box[:, :2], box[:, 2:]
     meets = ((olo - reach[:, None] <= hi) & (ohi + reach[:, None] >= lo)).all(1)
     if not meets.any():
         return none
     others = [o for o, m in zip(others, meets, strict=True) if m]
     olo, ohi = olo[meets] - reach[meets, None], ohi[meets] + reach[meets, None]
-    j, k = np.nonzero(((pts >= olo[:, None]) & (pts <= ohi[:, None])).all(2))
+    px, py = agent.route.columns
+    j, k = np.nonzero((px >= olo[:, :1]) & (px <= ohi[:, :1]) & (py >= olo[:, 1:])
+                      & (py <= ohi[:, 1:]))
     if len(k) == 0:
         return none
-    xy = np.stack([o.xy for o in others])  # [O, T, 2]
-    yaw = np.stack([o.yaw for o in others])
-    size = np.array([(o.length, o.width) for o in others])
-    c, s = np.cos(yaw), np.sin(yaw)
-    d = pts[k, None, :] - xy[j]  # [P, T, 2]
-    dx = np.abs(d[..., 0] * c[j] + d[..., 1] * s[j]) - size[j, :1] / 2
-    dy = np.abs(-d[..., 0] * s[j] + d[..., 1] * c[j]) - size[j, 1:] / 2
-    occ = (np.maximum(dx, dy) < agent.width / 2 + 0.4) & np.stack([o.valid for o in others])[j]
+    track = np.stack([o.track for o in others])  # [O, 7, T], see Agent.track
+    size = np.array([(o.length, o.width) for o in others])[j]
+    c, s = track[j, 3], track[j, 4]
+    d0, d1 = px[k, None] - track[j, 0], py[k, None] - track[j, 1]  # [P, T]
+    # |d0 c + d1 s| - length / 2 and |-d0 s + d1 c| - width / 2 both below the grown half
+    # width (in place: the same operations; -a + b is b - a exactly)
+    grow = agent.width / 2 + 0.4
+    dx = d0 * c
+    dx += d1 * s
+    np.abs(dx, out=dx)
+    dx -= size[:, :1] / 2
+    dy = d1 * c
+    dy -= d0 * s
+    np.abs(dy, out=dy)
+    dy -= size[:, 1:] / 2
+    occ = dx < grow
+    occ &= dy < grow
+    occ &= track[j, 6] > 0.5
     keep = occ.any(1)
     j, k, occ = j[keep], k[keep], occ[keep]
-    cosang = np.cos(yaw[j] - yaw_route[k, None])
-    speed = np.stack([o.speed for o in others])
-    along = np.where(cosang > 0.75, speed[j] * cosang, np.nan)
+    cosang = np.cos(track[j, 2] - yaw_route[k, None])
+    along = np.where(cosang > 0.75, track[j, 5] * cosang, np.nan)
     return k, occ, along
 
 
@@ -134,10 +150,9 @@ def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
     """Route points covered by standing objects: ``(rows, aligned)`` per (point, object) hit."""
     pts = agent.route.points
     lo, hi = agent.route.bounds
-    xy = np.array([o.xy[0] for o in fixed])
-    yaw = np.array([o.yaw[0] for o in fixed])
-    size = np.array([(o.length, o.width) for o in fixed])
-    reach = np.array([o.reach for o in fixed]) + agent.width / 2 + 1.0
+    stand = np.array([o.stand for o in fixed])  # [F, 6], see Agent.stand
+    xy, yaw, size = stand[:, :2], stand[:, 2], stand[:, 3:5]
+    reach = stand[:, 5] + agent.width / 2 + 1.0
     near = ((xy >= lo - reach[:, None]) & (xy <= hi + reach[:, None])).all(1)
     if near.any():
         near[near] = _may_cover(agent, xy[near], yaw[near], size[near, 0], size[near, 1])
@@ -154,16 +169,43 @@ def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
 
 def plan(agent: Agent, planned: list[Agent]) -> None:
     """Fill ``agent.s/valid/xy/yaw`` by simulating IDM against the already ``planned`` agents."""
-    route = agent.route
-    s_route = route.s
-    s = np.empty(T)
-    if agent.static or agent.walker:
-        speed = 0.0 if agent.static else agent.v0
+    if agent.static:
+        if agent.s is None:  # not yet posed with the other standing agents (pose_standing)
+            pose_standing([agent])
+        return
+    if agent.walker:
         moving = np.clip(np.arange(T) - agent.start_step, 0, None) * DT
-        s[:] = agent.s0 + speed * moving
+        s = agent.s0 + agent.v0 * moving
     else:
-        s[:] = _simulate(agent, s_route, planned)
-    _pose(agent, s, s_route)
+        s = _simulate(agent, agent.route.s, planned)
+    valid, xy, yaw = _pose_at([agent], s[None])
+    agent.s, agent.valid, agent.xy, agent.yaw = s, valid[0], xy[0], yaw[0]
+    agent.reach = float(np.hypot(agent.length, agent.width) / 2)
+    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
+    where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
+    agent.lo, agent.hi = where.min(0), where.max(0)
+    agent.bbox = (*agent.lo.tolist(), *agent.hi.tolist())
+    agent.track = np.stack([*agent.xy.T, agent.yaw, np.cos(agent.yaw), np.sin(agent.yaw),
+                            agent.speed, agent.valid])
+
+
+def pose_standing(agents: list[Agent]) -> None:
+    """Plan static agents (one pose, repeated; they ignore the others), all at once: one batch
+    of :func:`_pose_at`'s elementwise arithmetic per route (the same values as one by one)."""
+    by_route: dict[int, list[Agent]] = {}
+    for a in agents:
+        by_route.setdefault(id(a.route), []).append(a)
+    for group in by_route.values():
+        s = np.array([a.s0 for a in group], float)[:, None] + 0.0  # [N, 1]
+        valid, xy, yaw = _pose_at(group, s)
+        for i, a in enumerate(group):
+            a.s, a.valid, a.speed = np.full(T, s[i, 0]), np.full(T, valid[i, 0]), np.zeros(T)
+            a.xy, a.yaw = np.repeat(xy[i], T, 0), np.full(T, yaw[i, 0])
+            a.lo = a.hi = xy[i, 0]
+            a.reach = float(np.hypot(a.length, a.width) / 2)
+            a.standing = bool(valid[i, 0])
+            a.bbox = (*a.lo.tolist(), *a.hi.tolist())
+            a.stand = (*a.bbox[:2], float(yaw[i, 0]), a.length, a.width, a.reach)
 
 
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
@@ -171,7 +213,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
     v_prof = speed_profile(agent.route, agent.v_des, agent.brake).tolist()
     follow_rows, follow_t, follow_v = [], [], []
     cross_rows, cross_occ = [], []
-    fixed = [o for o in planned if o.static and o.valid.all()]
+    fixed = [o for o in planned if o.standing]
     if fixed:  # standing objects, all at once: aligned ones are followed, others crossed
         rows, aligned = _standing_hits(agent, yaw_route, fixed)
         k = rows[aligned]
@@ -196,15 +238,15 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         keep = cross.any(1)
         if keep.any():
             cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
-    # Follow obstacles per step: sorted route distances and leader speeds.
-    follow = [([], [])] * T
+    # Follow obstacles per step: sorted route distances and leader speeds, step t's in
+    # f_s[f_at[t]:f_at[t + 1]] (bisect within those bounds: no slices)
+    f_s, f_v, f_at = [], [], [0] * (T + 1)
     if follow_rows:
         k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
         order = np.lexsort((k, t))
         k, t, v = k[order], t[order], v[order]
         bounds = np.searchsorted(t, np.arange(T + 1))
-        ks, v = s_route[k].tolist(), v.tolist()
-        follow = [(ks[bounds[i]:bounds[i + 1]], v[bounds[i]:bounds[i + 1]]) for i in range(T)]
+        f_s, f_v, f_at = s_route[k].tolist(), v.tolist(), bounds.tolist()
     if cross_rows:
         c_rows = np.concatenate(cross_rows)
         occ = np.concatenate(cross_occ, 0)
@@ -214,40 +256,51 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
         order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
         c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
         c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
-    half = agent.length / 2
-    sqrt_ab = 2 * np.sqrt(agent.accel * agent.brake)
-    pos, v = agent.s0, agent.v0
+        occ_lists = next_occ.tolist()  # the window ahead is short (median 7): Python floats
+    # The step loop runs on Python floats (numpy scalars are several times slower; the same
+    # IEEE arithmetic, and ``**`` is C ``pow`` in both).
+    half, length = agent.length / 2, float(agent.length)
+    accel, brake = float(agent.accel), float(agent.brake)
+    headway, min_gap = float(agent.headway), float(agent.min_gap)
+    sqrt_ab = float(2 * np.sqrt(agent.accel * agent.brake))
+    pos, v = float(agent.s0), float(agent.v0)
     stop_at = 0.0
     stop_line, waited = agent.route.stop_at, 0
     if stop_line is not None and agent.s0 + half > stop_line - 0.5:
         stop_line = None  # already past it
+    stop_line = None if stop_line is None else float(stop_line)
     signal, signal_at, on_yellow = agent.route.signal, agent.route.signal_at, False
     if signal is not None and agent.s0 + half > signal_at - 0.5:
         signal = None
-    signal = signal.tolist() if signal is not None else None
-    inv_ds, last = (len(s_route) - 1) / s_route[-1], len(s_route) - 1
+    if signal is not None:
+        signal, signal_at = signal.tolist(), float(signal_at)
+    inv_ds, last = float((len(s_route) - 1) / s_route[-1]), len(s_route) - 1
     wave = agent.speed_wave
-    out = np.empty(T)
+    window = agent.stop_window if agent.stop_window is not None else (0, 0)
+    out = []
     for t in range(T):
-        out[t] = pos
+        out.append(pos)
         front = pos + half
         gap, v_lead = LOOKAHEAD, v
-        ks, vs = follow[t]
-        if ks:  # sorted: the first occupied point ahead of our front bumper
-            i = bisect_right(ks, front - 0.5)
-            if i < len(ks) and ks[i] < front + LOOKAHEAD:
-                gap, v_lead = ks[i] - front, max(vs[i], 0.0)
+        lo, hi = f_at[t], f_at[t + 1]
+        if hi > lo:  # sorted: the first occupied point ahead of our front bumper
+            i = bisect_right(f_s, front - 0.5, lo, hi)
+            if i < hi and f_s[i] < front + LOOKAHEAD:
+                gap, v_lead = f_s[i] - front, max(f_v[i], 0.0)
         if cross_rows:
             commit = v * v / (2 * B_MAX * 0.6)
             i0 = bisect_right(c_list, front + commit)
             i1 = bisect_left(c_list, front + LOOKAHEAD)
-            if i1 > i0:
-                d = c_s[i0:i1] - front
-                eta = d / np.maximum(v, np.sqrt(agent.accel * d))
-                clear = (agent.length + 4.0) / max(v, 3.0) + 1.0
-                hit = next_occ[t, i0:i1] <= t + (eta + clear) / DT
-                if hit.any():
-                    g = d[hit].min() - 1.5
+            if i1 > i0:  # the nearest point ahead that is occupied before we could clear it
+                clear = (length + 4.0) / max(v, 3.0) + 1.0
+                occ_t, nearest = occ_lists[t], None
+                for i in range(i0, i1):
+                    d = c_list[i] - front
+                    if occ_t[i] <= t + (d / max(v, sqrt(accel * d)) + clear) / DT:
+                        nearest = d  # ascending arc lengths: the first hit is the nearest
+                        break
+                if nearest is not None:
+                    g = nearest - 1.5
                     if g < gap:
                         gap, v_lead = g, 0.0
         if stop_line is not None:  # stop sign: come to a full stop, wait, then go
@@ -256,7 +309,7 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
                 stop_line = None
             else:
                 waited += v < 0.3 and g < 2.0
-                g += agent.min_gap - 0.5  # stand just behind the line, not min_gap before it
+                g += min_gap - 0.5  # stand just behind the line, not min_gap before it
                 if g < gap:
                     gap, v_lead = max(g, 0.05), 0.0
         if signal is not None:  # traffic light: stop at red, and at yellow when comfortable
@@ -264,35 +317,44 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             if g < -1.0:
                 signal = None
             elif signal[t] != LIGHT_GO and not on_yellow:
-                if signal[t] == LIGHT_CAUTION and v * v > 2 * 1.3 * agent.brake * max(g, 0.1):
+                if signal[t] == LIGHT_CAUTION and v * v > 2 * 1.3 * brake * max(g, 0.1):
                     on_yellow = True  # too close to stop comfortably: it clears on yellow
                 else:
-                    g += agent.min_gap - 0.5
+                    g += min_gap - 0.5
                     if g < gap:
                         gap, v_lead = max(g, 0.05), 0.0
-        if agent.stop_window is not None and agent.stop_window[0] <= t < agent.stop_window[1]:
-            if t == agent.stop_window[0]:
-                stop_at = pos + max(v * v / (2 * agent.brake * 1.3), 3.0) + half
+        if window[0] <= t < window[1]:  # a braking leader's stop
+            if t == window[0]:
+                stop_at = pos + max(v * v / (2 * brake * 1.3), 3.0) + half
             g = stop_at - front
             if g < gap:
                 gap, v_lead = g, 0.0
         if t == 0:  # start at a speed the situation allows (no brake slam at step 0)
-            v = min(v, _entry_speed(agent, gap, v_lead, sqrt_ab))
+            v = min(v, float(_entry_speed(agent, gap, v_lead, sqrt_ab)))
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
         if wave is not None:  # a driver who does not hold the speed exactly
-            v_d *= 1.0 + wave[0] * np.sin(2 * np.pi * t * DT / wave[1] + wave[2])
-        free = agent.accel * (1 - (v / v_d) ** 4)
+            v_d *= 1.0 + wave[0] * float(np.sin(2 * np.pi * t * DT / wave[1] + wave[2]))
+        free = accel * (1 - (v / v_d) ** 4)
         if v_lead < 0.3 and gap < LOOKAHEAD:
-            acc = min(free, _stopping(agent, gap - agent.min_gap, v))
+            # stop ``room`` ahead like a driver: roll on while the needed deceleration is
+            # below 0.8 of the comfortable one, then brake at the needed constant rate
+            room = gap - min_gap
+            if room <= 0.2:
+                stopping = -min(v / DT, B_MAX)
+            else:
+                need = v * v / (2 * room)
+                start = 0.8 * brake
+                stopping = accel * (1 - need / start) if need < start else -need
+            acc = min(free, stopping)
         else:
-            s_star = agent.min_gap + max(0.0, v * agent.headway + v * (v - v_lead) / sqrt_ab)
-            acc = free - agent.accel * (s_star / max(gap, 0.1)) ** 2
-        acc = min(max(acc, -B_MAX), agent.accel)
+            s_star = min_gap + max(0.0, v * headway + v * (v - v_lead) / sqrt_ab)
+            acc = free - accel * (s_star / max(gap, 0.1)) ** 2
+        acc = min(max(acc, -B_MAX), accel)
         v_new = max(v + acc * DT, 0.0)
         pos += 0.5 * (v + v_new) * DT
         v = v_new
-    return out
+    return np.array(out)
 
 
 def stop_cap(agent: Agent) -> float:
@@ -309,19 +371,6 @@ def stop_cap(agent: Agent) -> float:
     return cap
 
 
-def _stopping(agent: Agent, room: float, v: float) -> float:
-    """Acceleration to stop ``room`` metres ahead like a driver: roll on while the needed
-    deceleration is below 0.8 of the comfortable one, then brake at the needed constant rate
-    (no IDM creeping towards a standing obstacle or a stop line)."""
-    if room <= 0.2:
-        return -min(v / DT, B_MAX)
-    need = v * v / (2 * room)
-    start = 0.8 * agent.brake
-    if need < start:
-        return agent.accel * (1 - need / start)  # ease off as it approaches
-    return -need
-
-
 def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> float:
     """Largest speed whose IDM desired gap ``s*`` is at most ``1.2 gap`` (quadratic in v)."""
     a = 1.0 / sqrt_ab
@@ -333,39 +382,24 @@ def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> flo
     return max((-b + disc**0.5) / (2 * a), 0.0)
 
 
-def _pose(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
-    """Positions and headings along the route, with a smooth lateral wander (human-like)."""
-    if agent.static:  # one pose, repeated
-        _pose_at(agent, s[:1], s_route)
-        agent.s, agent.valid = s, np.repeat(agent.valid, T)
-        agent.xy, agent.yaw = np.repeat(agent.xy, T, 0), np.repeat(agent.yaw, T)
-        agent.speed = np.zeros(T)
-        return
-    _pose_at(agent, s, s_route)
-    agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
-    where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
-    agent.lo, agent.hi = where.min(0), where.max(0)
-
-
-def _pose_at(agent: Agent, s: np.ndarray, s_route: np.ndarray) -> None:
-    """Fill ``s, valid, xy, yaw, reach`` at arc lengths ``s``."""
-    pts = agent.route.points
+def _pose_at(agents: list[Agent], s: np.ndarray):
+    """Poses ``(valid, xy, yaw)`` of ``agents`` (all on one route) at arc lengths ``s [N, S]``:
+    along the route, with a smooth lateral wander (human-like)."""
+    route = agents[0].route
+    s_route, pts = route.s, route.points
     valid = (s >= 0) & (s <= s_route[-1] - 0.5)
     sc = np.clip(s, 0, s_route[-1])
     x, y = np.interp(sc, s_route, pts[:, 0]), np.interp(sc, s_route, pts[:, 1])
-    yaw_r = np.interp(sc, s_route, agent.route.yaw)
-    amp, wave, phase = agent.lateral
+    yaw_r = np.interp(sc, s_route, route.yaw)
+    amp, wave, phase = np.array([a.lateral for a in agents], float).T[..., None]  # [N, 1]
     k = 2 * np.pi / wave
     off = amp * np.sin(k * sc + phase)
-    if agent.offset:  # (0: the default's arithmetic, bit for bit)
-        off = off + agent.offset
+    offset = np.array([a.offset for a in agents], float)[:, None]
+    if offset.any():  # (0: the default's arithmetic, bit for bit)
+        off = np.where(offset != 0, off + offset, off)
     slope = amp * k * np.cos(k * sc + phase)
     nx, ny = -np.sin(yaw_r), np.cos(yaw_r)
-    agent.s, agent.valid = s, valid
-    agent.xy = np.stack([x + off * nx, y + off * ny], 1)
-    agent.yaw = yaw_r + np.arctan(slope)
-    agent.lo = agent.hi = agent.xy[0]
-    agent.reach = float(np.hypot(agent.length, agent.width) / 2)
+    return valid, np.stack([x + off * nx, y + off * ny], -1), yaw_r + np.arctan(slope)
 
 
 def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
@@ -379,17 +413,11 @@ def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Separating-axis test for convex quads given as corners ``[..., 4, 2]`` (the normals of
     each quad's first two edges; a projection is ``x * nx + y * ny``)."""
-    hit = np.ones(a.shape[:-2], bool)
-    for poly in (a, b):
-        for i in range(2):
-            edge = poly[..., i + 1, :] - poly[..., i, :]
-            nx, ny = -edge[..., 1:], edge[..., :1]
-            pa = a[..., 0] * nx + a[..., 1] * ny
-            pb = b[..., 0] * nx + b[..., 1] * ny
-            hit &= (pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))
-            if not hit.any():
-                return hit
-    return hit
+    edges = np.concatenate([a[..., 1:3, :] - a[..., :2, :], b[..., 1:3, :] - b[..., :2, :]], -2)
+    nx, ny = -edges[..., 1:], edges[..., :1]  # [..., 4 axes, 1]
+    pa = a[..., None, :, 0] * nx + a[..., None, :, 1] * ny  # [..., 4 axes, 4 corners]
+    pb = b[..., None, :, 0] * nx + b[..., None, :, 1] * ny
+    return ((pa.max(-1) > pb.min(-1)) & (pb.max(-1) > pa.min(-1))).all(-1)
 
 
 def collides_any(a: Agent, others: list[Agent]) -> bool:
@@ -400,15 +428,18 @@ def collides_any(a: Agent, others: list[Agent]) -> bool:
                   if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]
     if not others:
         return False
-    valid = np.stack([b.valid for b in others]) & a.valid  # [N, T]
     reach = a.reach + np.array([b.reach for b in others])
-    blo, bhi = np.array([b.lo for b in others]), np.array([b.hi for b in others])
-    meet = valid.any(1) & ~((a.lo[0] - reach > bhi[:, 0]) | (a.hi[0] + reach < blo[:, 0])
-                            | (a.lo[1] - reach > bhi[:, 1]) | (a.hi[1] + reach < blo[:, 1]))
+    box = np.array([b.bbox for b in others])  # lo x, lo y, hi x, hi y
+    meet = ~((a.lo[0] - reach > box[:, 2]) | (a.hi[0] + reach < box[:, 0])
+             | (a.lo[1] - reach > box[:, 3]) | (a.hi[1] + reach < box[:, 1]))
     if not meet.any():
         return False
     keep = np.flatnonzero(meet)
-    reach, valid = reach[keep], valid[keep]
+    valid = np.stack([others[k].valid for k in keep]) & a.valid  # [N, T]
+    live = valid.any(1)  # some step where both are valid
+    if not live.any():
+        return False
+    keep, reach, valid = keep[live], reach[keep][live], valid[live]
     xy = np.stack([others[k].xy for k in keep])  # [N, T, 2]
     d = (a.xy[None] - xy).reshape(-1, 2)
     near = valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)

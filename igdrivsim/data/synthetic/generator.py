@@ -29,8 +29,9 @@ from igdrivsim.data.scenario import (
     encode_scenario_id,
     fit_to_capacities,
 )
+from igdrivsim.data.synthetic import agents as ag
 from igdrivsim.data.synthetic import geometry as geo
-from igdrivsim.data.synthetic.agents import Agent, box_corners, collides_any, plan, stop_cap
+from igdrivsim.data.synthetic.agents import Agent, collides_any, plan, stop_cap
 from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
@@ -79,8 +80,9 @@ def scenario_rng(seed: int, index: int, split: str = "training") -> np.random.Ge
 
 def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw) -> Agent:
     big = rng.random() < 0.08
-    length = rng.uniform(6.5, 9.5) if big else float(np.clip(rng.normal(4.6, 0.35), 3.8, 5.6))
-    width = rng.uniform(2.3, 2.6) if big else float(np.clip(rng.normal(1.95, 0.08), 1.7, 2.2))
+    # min(max()) on a float: np.clip's value, without its overhead
+    length = rng.uniform(6.5, 9.5) if big else min(max(rng.normal(4.6, 0.35), 3.8), 5.6)
+    width = rng.uniform(2.3, 2.6) if big else min(max(rng.normal(1.95, 0.08), 1.7), 2.2)
     v_des = route.speed_limit * rng.uniform(0.85, 1.1) * v_scale
     a = Agent(route=route, s0=s0, v0=v_des * rng.uniform(0.6, 1.0), length=length, width=width,
               height=rng.uniform(2.5, 3.4) if big else rng.uniform(1.4, 1.9), v_des=v_des,
@@ -97,11 +99,17 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
 def _parked(rng, strips: list[Route], walks: list[np.ndarray], fill: float = 0.8) -> list[Agent]:
     """Cars parked along kerbside strips (about one per 6-9 m), clear of the crosswalks."""
     out = []
+    # a spot over 6 m (+ 1 um) from a segment's box is clear of it without the exact distance
+    boxes = [(*np.minimum(w[0], w[1]).tolist(), *np.maximum(w[0], w[1]).tolist()) for w in walks]
+    far = (6.0 + 1e-6) ** 2
     for strip in strips:
         at = rng.uniform(0, 6)
         while at < strip.s[-1] - 4:
             xy = strip.points[min(int(at), len(strip.points) - 1)]
-            clear = all(_segment_distance(xy, w[0], w[1]) > 6.0 for w in walks)
+            x, y = xy.tolist()
+            clear = all(max(x0 - x, x - x1, 0.0) ** 2 + max(y0 - y, y - y1, 0.0) ** 2 > far
+                        or _segment_distance(xy, w[0], w[1]) > 6.0
+                        for w, (x0, y0, x1, y1) in zip(walks, boxes, strict=True))
             if clear and rng.random() < fill:
                 out.append(_vehicle(rng, strip, at, "parked", static=True, v0=0.0))
             at += rng.uniform(6.3, 9.0)
@@ -137,7 +145,7 @@ def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, i
     out = []
     for walk, steps in zip(m.walk_paths, m.walk_steps, strict=True):
         for _ in range(int(rng.integers(*crossing))):
-            p = _walker(rng, walk)
+            p = _walker(rng, walk, m.cache)
             if steps is not None:
                 if not len(steps):
                     continue
@@ -145,7 +153,7 @@ def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, i
             out.append(p)
     for walk in m.sidewalks:
         for _ in range(int(rng.integers(*strolling))):
-            stroll = _walker(rng, walk, static=rng.random() < 0.4)
+            stroll = _walker(rng, walk, m.cache, static=rng.random() < 0.4)
             stroll.s0 = rng.uniform(0, max(stroll.route.s[-1] - 20, 1.0))
             stroll.start_step, stroll.role = 0, "stroller"
             out.append(stroll)
@@ -160,10 +168,14 @@ def _sdc(rng, route: Route, s0: float) -> Agent:
     return a
 
 
-def _walker(rng, path: np.ndarray, static: bool = False) -> Agent:
-    if rng.random() < 0.5:
-        path = path[::-1]
-    route = Route(geo.resample(path, 0.5), group=-1, kind="walk", speed_limit=1.5)
+def _walker(rng, path: np.ndarray, routes: dict, static: bool = False) -> Agent:
+    """A pedestrian along ``path`` (either way); ``routes`` caches the walk routes of a map."""
+    flip = rng.random() < 0.5
+    key = ("walk", id(path), flip)  # the map holds its paths: their ids stay theirs
+    if key not in routes:
+        routes[key] = Route(geo.resample(path[::-1] if flip else path, 0.5), group=-1,
+                            kind="walk", speed_limit=1.5)
+    route = routes[key]
     size = rng.uniform(0.5, 0.9)
     s0 = 0.0 if static else rng.uniform(0, 3)
     return Agent(route=route, s0=s0, v0=0.0 if static else rng.uniform(1.0, 1.6),
@@ -319,12 +331,20 @@ def _priority(rng, agents: list[Agent]) -> list[Agent]:
     return sorted(agents, key=key)
 
 
+def _resampled(m: MapData, spacing: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The map's features resampled at ``spacing`` and their WOMD ``dir`` (once per map)."""
+    key = ("features", spacing)
+    if key not in m.cache:
+        m.cache[key] = [(p, geo.next_dirs(p)) for p in
+                        (geo.resample(points, spacing) for points, _ in m.features)]
+    return m.cache[key]
+
+
 def _edges(m: MapData) -> tuple[cKDTree, np.ndarray]:
     pts, dirs = [], []
-    for points, t in m.features:
+    for (_, t), (p, d) in zip(m.features, _resampled(m, 0.5), strict=True):
         if t in RG_ROAD_EDGE_TYPES:
-            p = geo.resample(points, 0.5)
-            pts.append(p), dirs.append(geo.next_dirs(p))
+            pts.append(p), dirs.append(d)
     pts, dirs = np.concatenate(pts), np.concatenate(dirs)
     return cKDTree(pts), np.concatenate([pts, dirs], 1)
 
@@ -332,7 +352,7 @@ def _edges(m: MapData) -> tuple[cKDTree, np.ndarray]:
 def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray:
     """Steps at which a box corner lies on the outer (right) side of the nearest edge point."""
     tree, table = edges
-    corners = box_corners(agent.xy, agent.yaw, agent.length, agent.width)  # [T, 4, 2]
+    corners = ag.box_corners(agent.xy, agent.yaw, agent.length, agent.width)  # [T, 4, 2]
     _, idx = tree.query(corners.reshape(-1, 2))
     p, d = table[idx, :2], table[idx, 2:]
     rel = corners.reshape(-1, 2) - p
@@ -343,6 +363,7 @@ def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray
 def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
     planned: list[Agent] = []
     boxes = np.empty((len(cast), 4))  # planned agents' path boxes grown by their reach
+    ag.pose_standing([a for a in cast if a.static])  # they ignore the others: all at once
     for agent in _priority(rng, cast):
         plan(agent, planned)
         if not agent.valid.any():
@@ -391,7 +412,8 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     # Like a perception log, objects are valid only within sensor range of the SDC.
     sdc_xy = next(a.xy for a in agents if a.is_sdc)
     sensor = rng.uniform(90, 130)
-    seen = [a.valid & (np.linalg.norm(a.xy - sdc_xy, axis=1) <= sensor) for a in agents]
+    dist = np.linalg.norm(np.stack([a.xy for a in agents]) - sdc_xy, axis=-1)  # [N, T]
+    seen = [a.valid & (d <= sensor) for a, d in zip(agents, dist, strict=True)]
     keep = [k for k, a in enumerate(agents) if seen[k].any() or a.is_sdc]
     agents, seen = [agents[k] for k in keep], [seen[k] for k in keep]
     if len(agents) > caps.max_objects:  # keep the SDC and the objects nearest to it
@@ -445,9 +467,8 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
         valid=valid.any(1))
     pts, dirs, types, ids = [], [], [], []
     base = int(rng.integers(100, 5000))
-    for k, (points, t) in enumerate(m.features):
-        p = geo.resample(points, config.roadgraph_spacing)
-        d = geo.next_dirs(p)
+    resampled = _resampled(m, config.roadgraph_spacing)
+    for k, ((_, t), (p, d)) in enumerate(zip(m.features, resampled, strict=True)):
         pts.append(place(p)), dirs.append(d @ rot.T)
         types.append(np.full(len(p), t)), ids.append(np.full(len(p), base + k))
     pts, dirs = np.concatenate(pts), np.concatenate(dirs)

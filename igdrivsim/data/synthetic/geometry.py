@@ -7,7 +7,9 @@ import numpy as np
 
 def arc_length(points: np.ndarray) -> np.ndarray:
     """Cumulative arc length ``[N]`` along a polyline, starting at 0."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    points = np.asarray(points, float)
+    d = points[1:] - points[:-1]
+    seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])  # np.linalg.norm's arithmetic
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 
@@ -91,6 +93,11 @@ def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
     lo_b, hi_b = np.minimum(b0, b1), np.maximum(b0, b1)
     if np.any(hi_a.max(0) < lo_b.min(0)) or np.any(hi_b.max(0) < lo_a.min(0)):
         return False
+    # Only segments whose box meets the other path's box (+ 1 um: a computed hit is within
+    # 1e-9 m of a true one) can cross; the others are left out before the pairwise test.
+    near_a = ((hi_a >= lo_b.min(0) - 1e-6) & (lo_a <= hi_b.max(0) + 1e-6)).all(1)
+    near_b = ((hi_b >= lo_a.min(0) - 1e-6) & (lo_b <= hi_a.max(0) + 1e-6)).all(1)
+    a0, a1, b0, b1 = a0[near_a], a1[near_a], b0[near_b], b1[near_b]
     p, r = a0[:, None], (a1 - a0)[:, None]
     q, s = b0[None], (b1 - b0)[None]
     cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731

@@ -64,6 +64,11 @@ class Route:
         return self.points.min(0), self.points.max(0)
 
     @cached_property
+    def columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """The points' x and y as contiguous arrays."""
+        return self.points[:, 0].copy(), self.points[:, 1].copy()
+
+    @cached_property
     def yaw(self) -> np.ndarray:
         """Unwrapped heading at each point."""
         return geo.unwrapped_yaw(self.points)
@@ -71,7 +76,9 @@ class Route:
     @cached_property
     def smooth_curvature(self) -> np.ndarray:
         """|curvature| averaged over 7 points (the planner's curve speed limit)."""
-        kappa = np.abs(geo.curvature(self.points))
+        # geo.curvature(points) from the cached heading and arc length (the same arithmetic)
+        kappa = np.abs(np.gradient(self.yaw, self.s) if len(self.points) >= 3
+                       else np.zeros(len(self.points)))
         return np.convolve(np.pad(kappa, 3, mode="edge"), np.ones(7) / 7, "valid")
 
     @cached_property
@@ -106,6 +113,7 @@ class MapData:
     lights: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     # road maps with a signalised crosswalk: (ref index, vehicle states [T], pedestrian steps)
     crossing: tuple[int, np.ndarray, np.ndarray] | None = None
+    cache: dict = field(default_factory=dict, repr=False)  # the generator's per-map results
 
     def add(self, points: np.ndarray, rg_type: int) -> int:
         """Append a feature; its index (the roadgraph polyline id is derived from it)."""
