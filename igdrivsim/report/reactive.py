@@ -24,8 +24,7 @@ from igdrivsim.evaluation.aggregate import (
 from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
-from igdrivsim.report.results_tex import _num
-from igdrivsim.report.tables import _lookup, heading
+from igdrivsim.report.tables import _fmt, _lookup, heading
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -96,10 +95,10 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
 
 
 def _cell(row: pd.Series, cond: str, digits: int) -> str:
-    mean = _num(row[f"{cond}_mean"], digits)
+    mean = _fmt(row[f"{cond}_mean"], digits)
     if not np.isfinite(row[f"{cond}_ci_low"]):
         return mean
-    return f"{mean} [{_num(row[f'{cond}_ci_low'], digits)}, {_num(row[f'{cond}_ci_high'], digits)}]"
+    return f"{mean} [{_fmt(row[f'{cond}_ci_low'], digits)}, {_fmt(row[f'{cond}_ci_high'], digits)}]"
 
 
 def _diff_cell(row: pd.Series, digits: int) -> str:

@@ -29,7 +29,7 @@ from igdrivsim.names import (
     setting_short,
 )
 from igdrivsim.report.results_tex import read_table
-from igdrivsim.report.tables import md_head, md_row, wrap
+from igdrivsim.report.tables import _tex, md_head, md_row, wrap
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -233,11 +233,6 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
                             _vs_cv_cell(row)))
     extra = [] if readouts is None else readout_markdown(readouts)
     return "\n".join(lines + _paired_markdown(table) + extra) + "\n"
-
-
-def _tex(text: str) -> str:
-    return text.replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("%", r"\%") \
-        .replace("&", r"\&").replace("#", r"\#")
 
 
 def real_logs_latex(table: pd.DataFrame, real_label: str, validation_label: str) -> str:

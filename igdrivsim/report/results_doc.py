@@ -14,7 +14,7 @@ from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation.schema import COMPETENCE, PAPER_TABLE1, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
 from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
-from igdrivsim.report import methods_table
+from igdrivsim.report import methods_table, tables
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
@@ -64,7 +64,7 @@ def run_line(paper: Path, commit: bool = True) -> str:
 
 
 def _signed(value: float) -> str:
-    return ("+0.00" if round(value, 2) == 0 else f"{value:+.2f}") if math.isfinite(value) else "--"
+    return tables._signed(value) if math.isfinite(value) else "--"
 
 
 def _interval(row: pd.Series | None) -> str:
@@ -181,8 +181,9 @@ def _curves(curves: pd.DataFrame | None) -> list[str]:
                 "finds the runs' `curves.jsonl`).", ""]
     out = ["Mean over seeds on the fixed validation subset of the learning curves, at the last "
            "validation update and the one before it (Fig. 4).", "",
-           "| setting | method | updates | validation BC loss (nats) | log divergence (m) | "
-           "offroad (% steps) | overlap (% steps) |", "|---|---|---|---|---|---|---|"]
+           *md_head("setting", "method", "updates", "validation BC loss (nats)",
+                    "log divergence (m)", "offroad (% steps)", "overlap (% steps)")]
+
     def pair(row, col: str, scale: float = 1.0, digits: int = 2) -> str:
         a, b = getattr(row, f"{col}_previous") * scale, getattr(row, col) * scale
         return f"{a:.{digits}f} -> {b:.{digits}f}" if math.isfinite(a) else f"{b:.{digits}f}"
@@ -193,10 +194,10 @@ def _curves(curves: pd.DataFrame | None) -> list[str]:
     for row in curves.itertuples():
         updates = f"{row.previous_update} -> {row.update}" if row.previous_update >= 0 else (
             str(row.update))
-        out.append(f"| {setting_short(row.setting)} | {METHOD_LABELS.get(row.method, row.method)}"
-                   f" | {updates} | {pair(row, 'val_bc_loss', digits=3)} | "
-                   f"{pair(row, 'log_divergence')} | {pair(row, 'offroad', 100)} | "
-                   f"{pair(row, 'overlap', 100)} |")
+        out.append(md_row(setting_short(row.setting), METHOD_LABELS.get(row.method, row.method),
+                          updates, pair(row, "val_bc_loss", digits=3),
+                          pair(row, "log_divergence"), pair(row, "offroad", 100),
+                          pair(row, "overlap", 100)))
     return out + [""]
 
 
@@ -217,8 +218,8 @@ def _run_times(times: pd.DataFrame | None) -> list[str]:
     out = [f"{wall_text(wall)} from the first stage's start to the last stage's end."
            if math.isfinite(wall) else "", "",
            "Seconds per stage (`WORK/stages/<stage>.json`; stages in two lanes overlap, so the "
-           "wall time is below their sum).", "", "| stage | seconds | finished |", "|---|---|---|"]
-    out += [f"| {r.stage} | {r.seconds:.0f} | {r.finished} |" for r in times.itertuples()]
+           "wall time is below their sum).", "", *md_head("stage", "seconds", "finished")]
+    out += [md_row(r.stage, f"{r.seconds:.0f}", str(r.finished)) for r in times.itertuples()]
     return out + [""]
 
 
@@ -226,10 +227,10 @@ def _maze(maze: pd.DataFrame | None) -> list[str]:
     if maze is None or not len(maze):
         return ["Not in these tables.", ""]
     out = ["Final return, mean ± 95% CI over seeds ([tables/maze_summary.md]"
-           "(PAPER/tables/maze_summary.md)).", "", "| curve | return | episode length | seeds |",
-           "|---|---|---|---|"]
-    out += [f"| {r.curve} | {r.final_return_mean:.2f} ± {r.final_return_ci95:.2f} | "
-            f"{r.final_length_mean:.1f} | {int(r.seeds)} |" for r in maze.itertuples()]
+           "(PAPER/tables/maze_summary.md)).", "",
+           *md_head("curve", "return", "episode length", "seeds")]
+    out += [md_row(r.curve, f"{r.final_return_mean:.2f} ± {r.final_return_ci95:.2f}",
+                   f"{r.final_length_mean:.1f}", str(int(r.seeds))) for r in maze.itertuples()]
     return out + [""]
 
 
