@@ -40,6 +40,7 @@ from igdrivsim.report.tables import (
     setting_header,
     tex_across,
     tex_bold,
+    tex_row,
 )
 
 PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
@@ -170,12 +171,11 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
                     text, diff = tex_bold(text), tex_bold(diff)
                 means.append(text)
                 diffs.append(diff)
-            lines.append(f"{first} & {_tex(method_label(method))} & " + " & ".join(means)
-                         + r" \\")
+            lines.append(tex_row(first, _tex(method_label(method)), *means))
             first = ""
             if method != BC:
-                lines.append(r" & \quad\footnotesize $\Delta$ vs BC & " + " & ".join(
-                    rf"\footnotesize {d}" if d else "" for d in diffs) + r" \\")
+                lines.append(tex_row("", r"\quad\footnotesize $\Delta$ vs BC",
+                                     *[rf"\footnotesize {d}" if d else "" for d in diffs]))
         for method in _has_references(summary):
             value = _fmt_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             lines.append(rf"{first} & \textit{{{_tex(method_label(method)).lower()}}} & "

@@ -43,15 +43,21 @@ def provenance(paper: Path) -> dict[str, str]:
     return {key: value.replace("\\_", "_").replace("\\%", "%") for key, value in found}
 
 
+def _command(entry: dict, quote: str = "") -> str:
+    """The command and profile of a ``provenance.json`` entry (the profile within ``quote``)."""
+    updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
+    profile = f"{quote}{entry.get('profile', '?')}{quote}"
+    return f"`{entry.get('command', '?')}` (profile {profile}{updates})"
+
+
 def run_line(paper: Path, commit: bool = True) -> str:
     """How the run behind Table I was made (``paper/provenance.json``); empty without it."""
     files = load_provenance(Path(paper))
     entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
     if not isinstance(entry, dict):
         return ""
-    updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
     wall = entry.get("wall_s")
-    parts = [f"`{entry.get('command', '?')}` (profile {entry.get('profile', '?')}{updates})"]
+    parts = [_command(entry)]
     if commit:
         parts.append(f"commit {entry.get('commit', '?')}")
     parts += [str(entry.get("device", "device not recorded")),
@@ -310,12 +316,10 @@ def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -
         entry = files.get(rel)
         if not isinstance(entry, dict) or not entry.get("wall_s"):
             continue
-        updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
         device = str(entry.get("device") or "")
         where = (f"on {device}" if device and "not recorded" not in device
                  else "(device not recorded)")
-        runs += _bullet(f"{table}, {label}: `{entry.get('command', '?')}` (profile "
-                        f"`{entry.get('profile', '?')}`{updates}) took "
+        runs += _bullet(f"{table}, {label}: {_command(entry, '`')} took "
                         f"{wall_text(float(entry['wall_s']))} {where}, {entry.get('date', '')}.")
         gpu |= entry.get("profile") == "gpu"
     out = ["Measured run times (the report writes them from `paper/provenance.json`"

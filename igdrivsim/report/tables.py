@@ -61,6 +61,11 @@ def md_row(*cells: str) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
+def tex_row(*cells: str) -> str:
+    """A LaTeX table row."""
+    return " & ".join(cells) + r" \\"
+
+
 def md_head(*cells: str) -> list[str]:
     """A Markdown table's header row and rule."""
     return [md_row(*cells), "|" + "---|" * len(cells)]
@@ -153,8 +158,8 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         lines.append(r"\midrule")
         for i, method in enumerate((BC_RL, BC)):
             cells = _table1_cells(summary, tests, metric.key, method, cols, _fmt_mean, tex_bold)
-            lines.append(metric.label[i] + " & " + " & ".join(
-                rf"\cellcolor{{{colours[method]}}}{text}" for text in cells) + r" \\")
+            lines.append(tex_row(metric.label[i], *[rf"\cellcolor{{{colours[method]}}}{text}"
+                                                    for text in cells]))
         for method in _has_references(summary):
             value = _fmt_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             lines.append(rf"\quad\textit{{{METHOD_LABELS[method].lower()}}} & "
@@ -357,7 +362,7 @@ def power_latex(tests: pd.DataFrame) -> str:
         for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
             texts = [tex_bold(_tex_number(t)) if bold else _tex_number(t) for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
-            lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
+            lines.append(tex_row(first, label, *texts))
     return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
 
 
@@ -433,7 +438,7 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
             first = f"{_tex(metric.label)} ({_tex(metric.unit)}) {arrow}" if i == 0 else ""
             name = METHOD_LABELS[method]
             texts = [_fmt_mean(c) for c in cells]
-            row = tex_across(texts[0], len(cols)) if italic else " & ".join(texts) + r" \\"
+            row = tex_across(texts[0], len(cols)) if italic else tex_row(*texts)
             lines.append(f"{first} & " + (rf"\textit{{{name.lower()}}}" if italic else name)
                          + f" & {row}")
     return latex_float(caption, "tab:supplementary", "ll" + "c" * len(cols), lines)
