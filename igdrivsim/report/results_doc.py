@@ -13,12 +13,12 @@ import pandas as pd
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation.schema import COMPETENCE, PAPER_TABLE1, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
-from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
+from igdrivsim.names import BC, BC_RL, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report import methods_table, tables
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
-from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
+from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
@@ -104,7 +104,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
-    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
+    cv = tables.reference_means(summary, dict(_HEADLINE))
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
@@ -112,7 +112,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
            *md_head("setting", *[f"BC {label}" for _, label in _HEADLINE],
                     "BC-RL − BC offroad", "paper's BC-RL − BC offroad")]
     for setting in settings:
-        cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        cells = [_fmt(tables.cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
         out.append(md_row(setting_short(setting), *cells,
@@ -136,7 +136,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 def _competence(summary: pd.DataFrame) -> list[str]:
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
-    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    cv = tables.reference_means(summary, COMPETENCE)
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
         return ["No constant-velocity reference in this run.", ""]
     bars = ", ".join(f"{label} at most {ratio:g}x constant velocity's"
@@ -151,14 +151,14 @@ def _competence(summary: pd.DataFrame) -> list[str]:
         for method in methods:
             cells, met = [], 0
             for metric, (ratio, _, _) in COMPETENCE.items():
-                value = cell_mean(summary, metric, setting, method)
+                value = tables.cell_mean(summary, metric, setting, method)
                 ok = math.isfinite(value) and value <= ratio * cv[metric]
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
                 cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
             out.append(md_row(setting_short(setting), METHOD_LABELS.get(method, method), *cells,
                               f"{met} of {len(COMPETENCE)}"))
-    expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+    expert = [f"{label} {_fmt(tables.cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
                   + ", ".join(expert) + ".", ""]

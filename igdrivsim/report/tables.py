@@ -14,6 +14,7 @@ from igdrivsim.evaluation.schema import METRICS, PAPER_TABLE1, REFERENCE_SETTING
 from igdrivsim.names import (
     BC,
     BC_RL,
+    CONSTANT_VELOCITY,
     METHOD_LABELS,
     REFERENCES,
     SETTING_SHORT,
@@ -106,7 +107,18 @@ def _fmt(value: float | None, digits: int = 2) -> str:
 
 
 def _fmt_mean(row: pd.Series | None) -> str:
-    return _fmt(None if row is None else float(row["mean"]))
+    return _fmt(math.nan if row is None else float(row["mean"]))
+
+
+def cell_mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
+    """A ``summary.csv`` cell's mean (NaN when absent)."""
+    row = _lookup(summary, metric, setting, method)
+    return math.nan if row is None else float(row["mean"])
+
+
+def reference_means(summary: pd.DataFrame, keys, method: str = CONSTANT_VELOCITY) -> dict:
+    """A reference actor's mean of each metric in ``keys`` (NaN when absent)."""
+    return {key: cell_mean(summary, key, REFERENCE_SETTING, method) for key in keys}
 
 
 def tex_across(value: str, ncols: int) -> str:
@@ -241,11 +253,8 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 *md_head("setting", "ours BC-RL", "ours BC", "ours diff", "significant (95% CI)",
                          "paper BC-RL", "paper BC", "paper diff", "same direction")]
         for setting in SETTINGS:
-            ra = _lookup(summary, metric.key, setting, BC_RL)
-            rb = _lookup(summary, metric.key, setting, BC)
+            a, b = (cell_mean(summary, metric.key, setting, m) for m in (BC_RL, BC))
             pa, pb = PAPER_TABLE1[metric.key][setting]
-            a = float(ra["mean"]) if ra is not None else float("nan")
-            b = float(rb["mean"]) if rb is not None else float("nan")
             diff, pdiff = a - b, pa - pb
             sig = ""
             t = _test_row(tests, metric.key, setting)
@@ -259,7 +268,7 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 agree += ok
                 same = "yes" if ok else "no"
             out.append(f"| {SETTING_SHORT[setting]} | {_fmt(a)} | {_fmt(b)} | "
-                       f"{_fmt(diff) if math.isfinite(diff) else MISSING} | {sig or MISSING} | "
+                       f"{_fmt(diff)} | {sig or MISSING} | "
                        f"{pa:.2f} | {pb:.2f} | {pdiff:+.2f} | {same} |")
         out.append("")
     out.append(f"Direction of BC-RL minus BC agrees with the paper in {agree} of {total} "
