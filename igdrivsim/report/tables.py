@@ -310,8 +310,7 @@ def _power_rows(tests: pd.DataFrame) -> tuple[list[tuple], tuple[int, int, int]]
         paper, mde, holm = [], [], []
         for setting in cols:
             row = _test_row(tests, metric.key, setting)
-            m = float(row.mde) if row is not None else float("nan")
-            mh = float(row.mde_holm) if row is not None else float("nan")
+            m, mh = (math.nan,) * 2 if row is None else (float(row.mde), float(row.mde_holm))
             if setting in PAPER_TABLE1[metric.key]:
                 pa, pb = PAPER_TABLE1[metric.key][setting]
                 effect = pa - pb
