@@ -46,8 +46,10 @@ def report_arguments(parser: argparse.ArgumentParser) -> None:
                              "--evals folder)")
     actions = parser.add_subparsers(dest="action", metavar="ACTION")
     for name, (help_, arguments, _) in ACTIONS.items():
-        arguments(actions.add_parser(name, help=help_, description=help_,
-                                     formatter_class=DefaultsFormatter))
+        action = actions.add_parser(name, help=help_, description=help_,
+                                    formatter_class=DefaultsFormatter)
+        for flags, keywords in arguments:
+            action.add_argument(*flags, **keywords)
 
 
 def _provenance_from(eval_dirs: list[str]) -> tuple[str, str]:
@@ -101,72 +103,11 @@ def _wrote(paths) -> None:
         print(f"wrote {path}")
 
 
-def _compare_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("old", type=Path, help="report tables folder (summary.csv, tests.csv)")
-    p.add_argument("new", type=Path, help="the same for the run compared with it")
-    p.add_argument("--labels", nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
-                   help="the two runs' names in the table")
-    p.add_argument("--out", type=Path, help="also write the markdown here")
-
-
-def _figures_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("paper", nargs="?", default="paper", help="the report folder")
-
-
-def _provenance_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("task", choices=("check", "derived", "maze"),
-                   help="check the entries, record derived files, or record a maze study run "
-                        "alone")
-    p.add_argument("files", nargs="*", metavar="FILE",
-                   help="derived: the files written (relative to --paper)")
-    p.add_argument("--from", dest="source", default=None, metavar="SOURCE",
-                   help="derived: the file (relative to --paper) whose numbers they hold")
-    p.add_argument("--command", default=None, help="derived: the command that wrote them")
-    p.add_argument("--paper", default=str(REPO / "paper"), help="the report folder")
-
-
-def _reactive_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--log", nargs="+", required=True, metavar="DIR",
-                   help="evaluations with log-replay agents (Table I's)")
-    p.add_argument("--idm", nargs="+", required=True, metavar="DIR",
-                   help="the same drivers evaluated with --agents idm")
-    p.add_argument("--out", required=True, help="report folder (tables/, figures/)")
-
-
-def _real_logs_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--real", required=True, help="evaluations on real logs (folder)")
-    p.add_argument("--synthetic", dest="validation", default=None,
-                   help="evaluations on the (synthetic) validation set (folder)")
-    p.add_argument("--readouts", default=None, metavar="DIR",
-                   help="Full BC evaluated on the real logs under other action read-outs "
-                        "(one folder each: igdrivsim evaluate --actions greedy|mean)")
-    p.add_argument("--out", required=True, help="tables folder")
-    p.add_argument("--real-label", default="real scenarios",
-                   help="what the real data are")
-    p.add_argument("--synthetic-label", dest="validation_label",
-                   default="synthetic validation scenarios",
-                   help="what the validation data are")
-
-
 def _real_logs(args) -> None:
     paths = _module("real_logs").write_tables(args.real, args.validation, args.out,
                                               args.real_label, args.validation_label,
                                               args.readouts)
     print("wrote " + ", ".join(map(str, paths)))
-
-
-def _sweep_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("sweep", type=Path, help="sweep folder (runs/NAME, evals/NAME)")
-    p.add_argument("--references", type=Path, default=None, metavar="EVAL_DIR",
-                   help="`igdrivsim evaluate --references` output on the same data "
-                        "(none: no ratio to constant velocity)")
-    p.add_argument("--out", type=Path, help="also write the markdown here")
-
-
-def _transfer_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("work", type=Path, help="the folder holding one sub-folder per motion")
-    p.add_argument("--out", type=Path, default=None,
-                   help="the markdown file (none: print only)")
 
 
 def _transfer(args) -> None:
@@ -178,25 +119,62 @@ def _transfer(args) -> None:
 
 
 REPO = Path(__file__).resolve().parents[2]
-# igdrivsim report ACTION: (help, arguments, command)
+MARKDOWN_OUT = (("--out",), dict(type=Path, help="also write the markdown here"))
+# igdrivsim report ACTION: (help, its arguments as ((flags...), add_argument keywords), command)
 ACTIONS = {
-    "compare": ("two runs' Table I conclusions side by side (OLD_TABLES NEW_TABLES)",
-                _compare_arguments, lambda args: _print_or_write(_module(
-                    "compare").compare_markdown(args.old, args.new, tuple(args.labels)), args.out)),
+    "compare": ("two runs' Table I conclusions side by side (OLD_TABLES NEW_TABLES)", (
+        (("old",), dict(type=Path, help="report tables folder (summary.csv, tests.csv)")),
+        (("new",), dict(type=Path, help="the same for the run compared with it")),
+        (("--labels",), dict(nargs=2, default=("old", "new"), metavar=("OLD", "NEW"),
+                             help="the two runs' names in the table")),
+        MARKDOWN_OUT),
+        lambda args: _print_or_write(_module("compare").compare_markdown(
+            args.old, args.new, tuple(args.labels)), args.out)),
     "figures": ("redraw Fig. 3, 5 and 6 from the report's tables (PAPER/tables/*.csv)",
-                _figures_arguments,
+                ((("paper",), dict(nargs="?", default="paper", help="the report folder")),),
                 lambda args: _wrote(_module("figures").redraw_from_tables(args.paper))),
-    "provenance": ("check or record the entries of PAPER/provenance.json (which "
-                   "command wrote each report file)", _provenance_arguments,
-                   lambda args: _module("provenance").provenance_command(args, REPO)),
-    "reactive": ("Table I's companion under IDM sim agents: tables/reactive.{md,csv}, Fig. 7",
-                 _reactive_arguments,
-                 lambda args: _wrote(_module("reactive").build(args.log, args.idm, args.out))),
-    "real-logs": ("synthetic-trained drivers on real logs: real_logs.{md,tex,csv}",
-                  _real_logs_arguments, _real_logs),
-    "sweep": ("a sweep of training variants in one table (compute and metrics)",
-              _sweep_arguments, lambda args: _print_or_write(
-                  _module("sweep").sweep_markdown(args.sweep, args.references), args.out)),
+    "provenance": ("check or record the entries of PAPER/provenance.json (which command wrote "
+                   "each report file)", (
+        (("task",), dict(choices=("check", "derived", "maze"), help="check the entries, record "
+                         "derived files, or record a maze study run alone")),
+        (("files",), dict(nargs="*", metavar="FILE",
+                          help="derived: the files written (relative to --paper)")),
+        (("--from",), dict(dest="source", default=None, metavar="SOURCE", help="derived: the "
+                           "file (relative to --paper) whose numbers they hold")),
+        (("--command",), dict(default=None, help="derived: the command that wrote them")),
+        (("--paper",), dict(default=str(REPO / "paper"), help="the report folder"))),
+        lambda args: _module("provenance").provenance_command(args, REPO)),
+    "reactive": ("Table I's companion under IDM sim agents: tables/reactive.{md,csv}, Fig. 7", (
+        (("--log",), dict(nargs="+", required=True, metavar="DIR",
+                          help="evaluations with log-replay agents (Table I's)")),
+        (("--idm",), dict(nargs="+", required=True, metavar="DIR",
+                          help="the same drivers evaluated with --agents idm")),
+        (("--out",), dict(required=True, help="report folder (tables/, figures/)"))),
+        lambda args: _wrote(_module("reactive").build(args.log, args.idm, args.out))),
+    "real-logs": ("synthetic-trained drivers on real logs: real_logs.{md,tex,csv}", (
+        (("--real",), dict(required=True, help="evaluations on real logs (folder)")),
+        (("--synthetic",), dict(dest="validation", default=None,
+                                help="evaluations on the (synthetic) validation set (folder)")),
+        (("--readouts",), dict(default=None, metavar="DIR", help="Full BC evaluated on the "
+                               "real logs under other action read-outs (one folder each: "
+                               "igdrivsim evaluate --actions greedy|mean)")),
+        (("--out",), dict(required=True, help="tables folder")),
+        (("--real-label",), dict(default="real scenarios", help="what the real data are")),
+        (("--synthetic-label",), dict(dest="validation_label",
+                                      default="synthetic validation scenarios",
+                                      help="what the validation data are"))),
+        _real_logs),
+    "sweep": ("a sweep of training variants in one table (compute and metrics)", (
+        (("sweep",), dict(type=Path, help="sweep folder (runs/NAME, evals/NAME)")),
+        (("--references",), dict(type=Path, default=None, metavar="EVAL_DIR", help="`igdrivsim "
+                                 "evaluate --references` output on the same data (none: no "
+                                 "ratio to constant velocity)")),
+        MARKDOWN_OUT),
+        lambda args: _print_or_write(_module("sweep").sweep_markdown(args.sweep,
+                                                                     args.references), args.out)),
     "transfer": ("Full BC of each synthetic motion model against constant velocity, on "
-                 "synthetic validation and real logs", _transfer_arguments, _transfer),
+                 "synthetic validation and real logs", (
+        (("work",), dict(type=Path, help="the folder holding one sub-folder per motion")),
+        (("--out",), dict(type=Path, default=None, help="the markdown file (none: print only)"))),
+        _transfer),
 }

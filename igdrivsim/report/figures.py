@@ -221,7 +221,6 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
         axes[-1, col].set_xlabel("training update (count)")
         for row, (key, label, scale, _) in enumerate(CURVE_ROWS):
             ax = axes[row, col]
-            drawn = False
             first: list[float] = []  # the untrained policy (first evaluated update)
             later: list[float] = []  # everything else drawn in the panel
             for method in methods:
@@ -236,7 +235,6 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                             linewidth=1.4)
                     ax.fill_between(band["update"], band["min"], band["max"],
                                     color=colours[method], alpha=0.2, linewidth=0)
-                    drawn = True
                 if key == "val_bc_loss":
                     train = _band(part, "bc_loss", 1.0)
                     if not train.empty:
@@ -244,16 +242,15 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                         ax.plot(train["update"], train["mean"], color=colours[method],
                                 linestyle="--", linewidth=0.9, alpha=0.7,
                                 label=f"{name} (training loss)")
-                        drawn = True
+            if not ax.lines:  # nothing logged (the references' lines come next)
+                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
+                        transform=ax.transAxes, color="0.5")
             for method, values in levels.items():
                 if key in values and math.isfinite(values[key]):
                     later.append(values[key])
                     ax.axhline(values[key], label=METHOD_LABELS[method],
                                **plots.REFERENCE_STYLE[method])
             _zoom_past_start(ax, first, later)
-            if not drawn:
-                ax.text(0.5, 0.5, "not logged", ha="center", va="center",
-                        transform=ax.transAxes, color="0.5")
             if col == 0:
                 ax.set_ylabel(label)
     handles = plots.figure_handles(fig)

@@ -23,7 +23,7 @@ from igdrivsim.names import (
 from igdrivsim.report.tables import (
     MISSING,
     _ci_text,
-    _fmt,
+    _fmt_mean,
     _has_references,
     _lookup,
     _metric_name,
@@ -33,10 +33,14 @@ from igdrivsim.report.tables import (
     _tex_number,
     heading,
     latex_float,
+    md_bold,
     md_head,
     md_row,
     present_settings,
     setting_header,
+    tex_across,
+    tex_bold,
+    tex_row,
 )
 
 PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
@@ -62,14 +66,8 @@ def method_label(name: str) -> str:
 
 def method_colours(methods: Sequence[str]) -> dict[str, str]:
     """Each method's registry colour, else a matplotlib cycle colour from ``C2``."""
-    colours, spare = {}, 0
-    for name in methods:
-        if name in METHOD_COLOURS:
-            colours[name] = METHOD_COLOURS[name]
-        else:
-            colours[name] = f"C{2 + spare % 8}"
-            spare += 1
-    return colours
+    spare = [m for m in methods if m not in METHOD_COLOURS]
+    return {m: METHOD_COLOURS.get(m) or f"C{2 + spare.index(m) % 8}" for m in methods}
 
 
 def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
@@ -79,8 +77,9 @@ def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
 
 
 def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Series | None:
+    """``method`` against BC in a cell (None for BC itself, or without a difference)."""
     rows = tests[(tests.method == method) & (tests.metric == metric) & (tests.setting == setting)]
-    if rows.empty or not math.isfinite(float(rows.iloc[0]["diff"])):
+    if method == BC or rows.empty or not math.isfinite(float(rows.iloc[0]["diff"])):
         return None
     return rows.iloc[0]
 
@@ -126,30 +125,24 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
             f"(alpha={ALPHA}). `{MISSING}`: not evaluated in that setting.", "",
             *md_head("metric", "method", *map(setting_short, cols))]
-    references = _has_references(summary)
     for metric in METRICS:
         name = _metric_name(metric) + f" ({metric.unit})"
         for method in methods:
             cells = []
             for setting in cols:
                 text = _ci_text(_lookup(summary, metric.key, setting, method))
-                row = None if method == BC else _test(tests, method, metric.key, setting)
-                if row is not None:
+                if (row := _test(tests, method, metric.key, setting)) is not None:
                     text = f"{text} (Δ {_diff_text(row)})"
-                    text = f"**{text}**" if bool(row.significant) else text
+                    text = md_bold(text) if bool(row.significant) else text
                 cells.append(text)
             out.append(md_row(name, method_label(method), *cells))
-        out += _reference_rows(summary, metric, name, len(cols), references)
+        out += _reference_rows(summary, metric, name, len(cols))
     out += ["", methods_caption(tests)]
     return "\n".join(out) + "\n"
 
 
 def _tex_ci(row: pd.Series | None) -> str:
     return _tex_number(_ci_text(row)).replace("±", r"$\pm$")
-
-
-def _mean(row: pd.Series | None) -> float | None:
-    return None if row is None else float(row["mean"])
 
 
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
@@ -165,7 +158,6 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         rf"{holm} "
         rf"{MISSING}: not evaluated. {caption_extra}}}")
     lines = setting_header(cols, r"\textbf{Metric} &")
-    references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
         first = f"{_metric_name(metric)} ({_tex(metric.unit)})"
@@ -173,21 +165,20 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
             means, diffs = [], []
             for setting in cols:
                 text = _tex_ci(_lookup(summary, metric.key, setting, method))
-                row = None if method == BC else _test(tests, method, metric.key, setting)
+                row = _test(tests, method, metric.key, setting)
                 diff = "" if row is None else _tex_number(_diff_text(row))
                 if row is not None and bool(row.significant):
-                    text, diff = rf"\textbf{{{text}}}", rf"\textbf{{{diff}}}"
+                    text, diff = tex_bold(text), tex_bold(diff)
                 means.append(text)
                 diffs.append(diff)
-            lines.append(f"{first} & {_tex(method_label(method))} & " + " & ".join(means)
-                         + r" \\")
+            lines.append(tex_row(first, _tex(method_label(method)), *means))
             first = ""
             if method != BC:
-                lines.append(r" & \quad\footnotesize $\Delta$ vs BC & " + " & ".join(
-                    rf"\footnotesize {d}" if d else "" for d in diffs) + r" \\")
-        for method in references:
-            value = _fmt(_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method)))
+                lines.append(tex_row("", r"\quad\footnotesize $\Delta$ vs BC",
+                                     *[rf"\footnotesize {d}" if d else "" for d in diffs]))
+        for method in _has_references(summary):
+            value = _fmt_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             lines.append(rf"{first} & \textit{{{_tex(method_label(method)).lower()}}} & "
-                         rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
+                         + tex_across(value, len(cols)))
             first = ""
     return latex_float(caption, "tab:methods", "ll" + "c" * len(cols), lines)

@@ -24,8 +24,7 @@ from igdrivsim.evaluation.aggregate import (
 from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
-from igdrivsim.report.results_tex import _num
-from igdrivsim.report.tables import _lookup, heading
+from igdrivsim.report.tables import _fmt, _lookup, heading, md_bold, md_head, md_row
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -34,6 +33,8 @@ METRICS = (METRIC_BY_KEY["overlap_rate"], AT_FAULT, METRIC_BY_KEY["offroad_rate"
 HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} rate (%)",
            "offroad_rate": "offroad rate (%)", "max_log_divergence": "max log divergence (m)"}
 FIGURE = "fig7_reactive"
+# the table's column -> its key in paired_difference's result
+DIFF_COLUMNS = {"diff": "diff", "diff_low": "lo", "diff_high": "hi", "p_value": "p", "mde": "mde"}
 
 
 def _cube(frame: pd.DataFrame, scenarios: pd.Index) -> np.ndarray:
@@ -76,19 +77,16 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
         if scenarios.size:
             c = paired_difference(_cube(a, scenarios), _cube(b, scenarios), n_resamples, seed)
         else:
-            c = {k: np.full(len(METRICS), np.nan) for k in ("diff", "lo", "hi", "p", "mde")}
+            c = {k: np.full(len(METRICS), np.nan) for k in DIFF_COLUMNS.values()}
         for i, metric in enumerate(METRICS):
             row = dict(setting=setting, method=method, metric=metric.key)
             for cond, summary in summaries.items():
                 s = _lookup(summary, metric.key, setting, method)
-                row[f"{cond}_mean"] = np.nan if s is None else float(s["mean"])
-                row[f"{cond}_ci_low"] = np.nan if s is None else float(s.ci_low)
-                row[f"{cond}_ci_high"] = np.nan if s is None else float(s.ci_high)
+                row |= {f"{cond}_{k}": np.nan if s is None else float(s[k])
+                        for k in ("mean", "ci_low", "ci_high")}
                 row[f"{cond}_seeds"] = 0 if s is None else int(s.n_seeds)
-            row.update(diff=float(c["diff"][i]), diff_low=float(c["lo"][i]),
-                       diff_high=float(c["hi"][i]), p_value=float(c["p"][i]),
-                       mde=float(c["mde"][i]), n_pairs=int(scenarios.size))
-            rows.append(row)
+            row |= {name: float(c[k][i]) for name, k in DIFF_COLUMNS.items()}
+            rows.append(row | dict(n_pairs=int(scenarios.size)))
     out = pd.DataFrame(rows)
     out["p_holm"] = holm_adjust(out.p_value.to_numpy())
     out["significant"] = out.p_holm < ALPHA
@@ -96,10 +94,10 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
 
 
 def _cell(row: pd.Series, cond: str, digits: int) -> str:
-    mean = _num(row[f"{cond}_mean"], digits)
+    mean = _fmt(row[f"{cond}_mean"], digits)
     if not np.isfinite(row[f"{cond}_ci_low"]):
         return mean
-    return f"{mean} [{_num(row[f'{cond}_ci_low'], digits)}, {_num(row[f'{cond}_ci_high'], digits)}]"
+    return f"{mean} [{_fmt(row[f'{cond}_ci_low'], digits)}, {_fmt(row[f'{cond}_ci_high'], digits)}]"
 
 
 def _diff_cell(row: pd.Series, digits: int) -> str:
@@ -107,7 +105,7 @@ def _diff_cell(row: pd.Series, digits: int) -> str:
         return "--"
     text = (f"{row['diff']:+.{digits}f} [{row.diff_low:+.{digits}f}, "
             f"{row.diff_high:+.{digits}f}]")
-    return f"**{text}**" if row.significant else text
+    return md_bold(text) if row.significant else text
 
 
 def driver_label(setting: str, method: str) -> tuple[str, str]:
@@ -133,11 +131,10 @@ def reactive_markdown(table: pd.DataFrame, header: str = "") -> str:
     for metric in METRICS:
         digits = 2 if metric.key == "max_log_divergence" else 1
         lines += [f"## {HEADERS[metric.key]}", "",
-                  "| setting | driver | log | idm | log - idm [95% CI] |", "|---|---|---|---|---|"]
-        for _, row in table[table.metric == metric.key].iterrows():
-            setting, label = driver_label(row.setting, row.method)
-            lines.append(f"| {setting} | {label} | {_cell(row, 'log', digits)} | "
-                         f"{_cell(row, 'idm', digits)} | {_diff_cell(row, digits)} |")
+                  *md_head("setting", "driver", "log", "idm", "log - idm [95% CI]")]
+        lines += [md_row(*driver_label(row.setting, row.method), _cell(row, "log", digits),
+                         _cell(row, "idm", digits), _diff_cell(row, digits))
+                  for _, row in table[table.metric == metric.key].iterrows()]
         lines.append("")
     return "\n".join(lines)
 

@@ -29,7 +29,7 @@ from igdrivsim.names import (
     setting_short,
 )
 from igdrivsim.report.results_tex import read_table
-from igdrivsim.report.tables import md_head, md_row, wrap
+from igdrivsim.report.tables import _tex, md_head, md_row, tex_row, wrap
 
 METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
@@ -104,7 +104,7 @@ def _paired_stats(c: dict, prefix: str) -> dict[str, float]:
             for k in PAIRED_STATS}
 
 
-def paired_cells(values: dict | pd.Series, prefix: str = "") -> list[str]:
+def paired_cells(values: dict | pd.Series, prefix: str = "", mde: bool = True) -> list[str]:
     """The cells of :data:`PAIRED_HEAD` from :func:`~igdrivsim.evaluation.paired.compare_on_egos`'s
     numbers (keys ``prefix`` + ``egos``, ``sources``, ``win``...); ``--`` without egos."""
     def get(key: str) -> float:
@@ -116,8 +116,8 @@ def paired_cells(values: dict | pd.Series, prefix: str = "") -> list[str]:
     return [f"{int(get('egos'))} ({int(get('sources'))})",
             f"{100 * get('win'):.0f}% [{100 * get('win_lo'):.0f}, {100 * get('win_hi'):.0f}]",
             f"{get('median'):+.2f} [{get('median_lo'):+.2f}, {get('median_hi'):+.2f}]",
-            f"{get('ratio'):.2f}x [{get('ratio_lo'):.2f}, {get('ratio_hi'):.2f}], "
-            f"MDE {get('ratio_mde'):.2f}"]
+            f"{get('ratio'):.2f}x [{get('ratio_lo'):.2f}, {get('ratio_hi'):.2f}]"
+            + (f", MDE {get('ratio_mde'):.2f}" if mde else "")]
 
 
 PAIRED_NOTE = (
@@ -235,23 +235,16 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
     return "\n".join(lines + _paired_markdown(table) + extra) + "\n"
 
 
-def _tex(text: str) -> str:
-    return text.replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("%", r"\%") \
-        .replace("&", r"\&").replace("#", r"\#")
-
-
 def real_logs_latex(table: pd.DataFrame, real_label: str, validation_label: str) -> str:
     """The table as a LaTeX ``table`` (booktabs)."""
     lines = [r"\begin{table}[t]", r"\centering", r"\small",
              r"\begin{tabular}{ll" + "rr" * len(METRIC_KEYS) + "}", r"\toprule",
-             " & & " + " & ".join(rf"\multicolumn{{2}}{{c}}{{{_tex(HEADERS[k])}}}"
-                                  for k in METRIC_KEYS) + r" \\",
-             "setting & method & " + " & ".join("validation & real" for _ in METRIC_KEYS)
-             + r" \\", r"\midrule"]
-    for _, row in table.iterrows():
-        cells = [_tex(c) for c in _label(row)] + [
-            _cell(row, s, k) for k in METRIC_KEYS for s in SOURCES]
-        lines.append(" & ".join(cells) + r" \\")
+             " & & " + tex_row(*[rf"\multicolumn{{2}}{{c}}{{{_tex(HEADERS[k])}}}"
+                                 for k in METRIC_KEYS]),
+             tex_row("setting", "method", *["validation & real"] * len(METRIC_KEYS)), r"\midrule"]
+    lines += [tex_row(*[_tex(c) for c in _label(row)], *[_cell(row, s, k) for k in METRIC_KEYS
+                                                         for s in SOURCES])
+              for _, row in table.iterrows()]
     lines += [r"\bottomrule", r"\end{tabular}",
               r"\caption{Synthetic-trained drivers on real logs (beyond the paper). Real: "
               + _tex(real_label) + ". Validation: " + _tex(validation_label) + ". Mean over seeds "
@@ -340,13 +333,13 @@ def write_numbers(table: pd.DataFrame, out: Path) -> list[Path]:
 READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, when not its own
 
 
-def _vs_cv(row: pd.Series) -> str:
-    """The share of egos closer to the log than constant velocity, and the ratio."""
-    if pd.isna(row.get("real_vs_cv_win")):
-        return "-- | --"
-    return (f"{100 * row.real_vs_cv_win:.0f}% [{100 * row.real_vs_cv_win_lo:.0f}, "
-            f"{100 * row.real_vs_cv_win_hi:.0f}] | {row.real_vs_cv_ratio:.2f}x "
-            f"[{row.real_vs_cv_ratio_lo:.2f}, {row.real_vs_cv_ratio_hi:.2f}]")
+VS_CV_HEAD = ("N egos (sources)", "closer than CV [95% CI]", "mean / CV [95% CI]")
+
+
+def _vs_cv(row: pd.Series) -> list[str]:
+    """:data:`VS_CV_HEAD`'s cells: N egos, the share closer to the log than CV, the ratio."""
+    n, win, _, ratio = paired_cells(row, "real_vs_cv_", mde=False)
+    return [n, win, ratio]
 
 
 def _full_bc_line(table: pd.DataFrame) -> str | None:
@@ -369,14 +362,10 @@ def _readouts(tables: Path) -> list[str]:
     modes = read_table(tables / "real_logs_readouts.csv")
     if modes is None or len(modes) < 2:
         return []
-    out = ["", "Full BC's action read-outs (Table I samples its actions):", "",
-           "| actions | N egos (sources) | closer than CV [95% CI] | mean / CV [95% CI] "
-           "| median - CV (m) |", "|---|---|---|---|---|"]
-    for _, r in modes.iterrows():
-        name = READOUTS.get(r.actions, r.actions)
-        out.append(f"| {name} | {int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
-                   f"{_vs_cv(r)} | {r.real_vs_cv_median:+.2f} |")
-    return out
+    return ["", "Full BC's action read-outs (Table I samples its actions):", "",
+            *md_head("actions", *VS_CV_HEAD, "median - CV (m)"),
+            *[md_row(READOUTS.get(r.actions, r.actions), *_vs_cv(r), f"{r.real_vs_cv_median:+.2f}")
+              for _, r in modes.iterrows()]]
 
 
 def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
@@ -393,6 +382,7 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
         return wrap(text + f"; every setting: [{headline}]({headline}#on-real-logs).")
     learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
     settings = [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]
+    rows = {(r.setting, r.method): r for _, r in table.iterrows()}
     ego_table = []
     if "real_vs_cv_win" in table and table.real_vs_cv_win.notna().any():
         ego_table = [*wrap("Against constant velocity, ego by ego: the share of egos where the "
@@ -400,21 +390,14 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
                            "divergence over constant velocity's, with 95% intervals (bootstrap "
                            "over source scenarios, then seeds); N egos (source scenarios). All "
                            "statistics: [real_logs.md](PAPER/tables/real_logs.md)."), "",
-                     "| setting | method | N egos (sources) | closer than CV [95% CI] "
-                     "| mean / CV [95% CI] |", "|---|---|---|---|---|"]
-        for setting in settings:
-            for m in learned:
-                row = table[(table.setting == setting) & (table.method == m)]
-                if row.empty or pd.isna(row.real_vs_cv_egos.iloc[0]):
-                    continue
-                r = row.iloc[0]
-                ego_table.append(f"| {setting_short(setting)} | {METHOD_LABELS.get(m, m)} | "
-                                 f"{int(r.real_vs_cv_egos)} ({int(r.real_vs_cv_sources)}) | "
-                                 f"{_vs_cv(r)} |")
+                     *md_head("setting", "method", *VS_CV_HEAD)]
+        ego_table += [md_row(setting_short(s), METHOD_LABELS.get(m, m), *_vs_cv(rows[s, m]))
+                      for s in settings for m in learned
+                      if (s, m) in rows and pd.notna(rows[s, m].real_vs_cv_egos)]
         ego_table += [*_readouts(tables), ""]
 
-    def cell(row: pd.DataFrame, source: str) -> str:
-        return "--" if row.empty else _cell(row.iloc[0], source, "log_divergence")
+    def cell(key: tuple[str, str], source: str) -> str:
+        return _cell(rows[key], source, "log_divergence") if key in rows else "--"
 
     head = [f"{METHOD_LABELS.get(m, m)}, {src}" for src in ("real", "validation")
             for m in learned]
@@ -423,11 +406,8 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
            "Log divergence (m), mean over seeds of each seed's mean over scenarios; N: "
            "scenarios. Every metric: [real_logs.md](PAPER/tables/real_logs.md).", "",
            *md_head("setting", *head)]
-    for setting in settings:
-        rows = [table[(table.setting == setting) & (table.method == m)] for m in learned]
-        out.append(md_row(setting_short(setting), *[cell(r, src) for src in ("real", "validation")
-                                                    for r in rows]))
-    cv = table[table.method == CONSTANT_VELOCITY]
-    out.append(md_row("constant velocity", *[cell(cv, src) for src in ("real", "validation")
-                                             for _ in learned]))
+    cv = [(REFERENCE_SETTING, CONSTANT_VELOCITY)] * len(learned)
+    for name, keys in [*[(setting_short(s), [(s, m) for m in learned]) for s in settings],
+                       ("constant velocity", cv)]:
+        out.append(md_row(name, *[cell(k, src) for src in ("real", "validation") for k in keys]))
     return [*out, ""]

@@ -13,12 +13,12 @@ import pandas as pd
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.evaluation.schema import COMPETENCE, PAPER_TABLE1, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text, read_json
-from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
-from igdrivsim.report import methods_table
+from igdrivsim.names import BC, BC_RL, EXPERT, METHOD_LABELS, setting_short
+from igdrivsim.report import methods_table, tables
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
 from igdrivsim.report.real_logs import real_logs_section
-from igdrivsim.report.results_tex import cell_mean, read_table, write_macros
+from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
@@ -43,15 +43,21 @@ def provenance(paper: Path) -> dict[str, str]:
     return {key: value.replace("\\_", "_").replace("\\%", "%") for key, value in found}
 
 
+def _command(entry: dict, quote: str = "") -> str:
+    """The command and profile of a ``provenance.json`` entry (the profile within ``quote``)."""
+    updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
+    profile = f"{quote}{entry.get('profile', '?')}{quote}"
+    return f"`{entry.get('command', '?')}` (profile {profile}{updates})"
+
+
 def run_line(paper: Path, commit: bool = True) -> str:
     """How the run behind Table I was made (``paper/provenance.json``); empty without it."""
     files = load_provenance(Path(paper))
     entry = files.get("tables/table1.md") or files.get("tables/summary.csv")
     if not isinstance(entry, dict):
         return ""
-    updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
     wall = entry.get("wall_s")
-    parts = [f"`{entry.get('command', '?')}` (profile {entry.get('profile', '?')}{updates})"]
+    parts = [_command(entry)]
     if commit:
         parts.append(f"commit {entry.get('commit', '?')}")
     parts += [str(entry.get("device", "device not recorded")),
@@ -64,7 +70,7 @@ def run_line(paper: Path, commit: bool = True) -> str:
 
 
 def _signed(value: float) -> str:
-    return ("+0.00" if round(value, 2) == 0 else f"{value:+.2f}") if math.isfinite(value) else "--"
+    return tables._signed(value) if math.isfinite(value) else "--"
 
 
 def _interval(row: pd.Series | None) -> str:
@@ -98,7 +104,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
-    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m, _ in _HEADLINE}
+    cv = tables.reference_means(summary, dict(_HEADLINE))
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
                  "seeds; BC-RL − BC with its 95% two-level bootstrap interval, in percentage "
@@ -106,7 +112,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
            *md_head("setting", *[f"BC {label}" for _, label in _HEADLINE],
                     "BC-RL − BC offroad", "paper's BC-RL − BC offroad")]
     for setting in settings:
-        cells = [_fmt(cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
+        cells = [_fmt(tables.cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
         out.append(md_row(setting_short(setting), *cells,
@@ -130,7 +136,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 def _competence(summary: pd.DataFrame) -> list[str]:
     settings = [s for s in table_settings(summary) if s in set(summary.setting)]
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
-    cv = {m: cell_mean(summary, m, REFERENCE_SETTING, CONSTANT_VELOCITY) for m in COMPETENCE}
+    cv = tables.reference_means(summary, COMPETENCE)
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
         return ["No constant-velocity reference in this run.", ""]
     bars = ", ".join(f"{label} at most {ratio:g}x constant velocity's"
@@ -145,14 +151,14 @@ def _competence(summary: pd.DataFrame) -> list[str]:
         for method in methods:
             cells, met = [], 0
             for metric, (ratio, _, _) in COMPETENCE.items():
-                value = cell_mean(summary, metric, setting, method)
+                value = tables.cell_mean(summary, metric, setting, method)
                 ok = math.isfinite(value) and value <= ratio * cv[metric]
                 met += ok
                 ratio_text = f" ({value / cv[metric]:.2f}x)" if cv[metric] > 0 else ""
                 cells.append(f"{_fmt(value)}{ratio_text}{' ✓' if ok else ''}")
             out.append(md_row(setting_short(setting), METHOD_LABELS.get(method, method), *cells,
                               f"{met} of {len(COMPETENCE)}"))
-    expert = [f"{label} {_fmt(cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
+    expert = [f"{label} {_fmt(tables.cell_mean(summary, m, REFERENCE_SETTING, EXPERT))} {unit}"
               for m, (_, label, unit) in COMPETENCE.items()]
     return out + ["", "The discretised expert's replay on the same scenarios: "
                   + ", ".join(expert) + ".", ""]
@@ -181,8 +187,9 @@ def _curves(curves: pd.DataFrame | None) -> list[str]:
                 "finds the runs' `curves.jsonl`).", ""]
     out = ["Mean over seeds on the fixed validation subset of the learning curves, at the last "
            "validation update and the one before it (Fig. 4).", "",
-           "| setting | method | updates | validation BC loss (nats) | log divergence (m) | "
-           "offroad (% steps) | overlap (% steps) |", "|---|---|---|---|---|---|---|"]
+           *md_head("setting", "method", "updates", "validation BC loss (nats)",
+                    "log divergence (m)", "offroad (% steps)", "overlap (% steps)")]
+
     def pair(row, col: str, scale: float = 1.0, digits: int = 2) -> str:
         a, b = getattr(row, f"{col}_previous") * scale, getattr(row, col) * scale
         return f"{a:.{digits}f} -> {b:.{digits}f}" if math.isfinite(a) else f"{b:.{digits}f}"
@@ -193,10 +200,10 @@ def _curves(curves: pd.DataFrame | None) -> list[str]:
     for row in curves.itertuples():
         updates = f"{row.previous_update} -> {row.update}" if row.previous_update >= 0 else (
             str(row.update))
-        out.append(f"| {setting_short(row.setting)} | {METHOD_LABELS.get(row.method, row.method)}"
-                   f" | {updates} | {pair(row, 'val_bc_loss', digits=3)} | "
-                   f"{pair(row, 'log_divergence')} | {pair(row, 'offroad', 100)} | "
-                   f"{pair(row, 'overlap', 100)} |")
+        out.append(md_row(setting_short(row.setting), METHOD_LABELS.get(row.method, row.method),
+                          updates, pair(row, "val_bc_loss", digits=3),
+                          pair(row, "log_divergence"), pair(row, "offroad", 100),
+                          pair(row, "overlap", 100)))
     return out + [""]
 
 
@@ -217,8 +224,8 @@ def _run_times(times: pd.DataFrame | None) -> list[str]:
     out = [f"{wall_text(wall)} from the first stage's start to the last stage's end."
            if math.isfinite(wall) else "", "",
            "Seconds per stage (`WORK/stages/<stage>.json`; stages in two lanes overlap, so the "
-           "wall time is below their sum).", "", "| stage | seconds | finished |", "|---|---|---|"]
-    out += [f"| {r.stage} | {r.seconds:.0f} | {r.finished} |" for r in times.itertuples()]
+           "wall time is below their sum).", "", *md_head("stage", "seconds", "finished")]
+    out += [md_row(r.stage, f"{r.seconds:.0f}", str(r.finished)) for r in times.itertuples()]
     return out + [""]
 
 
@@ -226,10 +233,10 @@ def _maze(maze: pd.DataFrame | None) -> list[str]:
     if maze is None or not len(maze):
         return ["Not in these tables.", ""]
     out = ["Final return, mean ± 95% CI over seeds ([tables/maze_summary.md]"
-           "(PAPER/tables/maze_summary.md)).", "", "| curve | return | episode length | seeds |",
-           "|---|---|---|---|"]
-    out += [f"| {r.curve} | {r.final_return_mean:.2f} ± {r.final_return_ci95:.2f} | "
-            f"{r.final_length_mean:.1f} | {int(r.seeds)} |" for r in maze.itertuples()]
+           "(PAPER/tables/maze_summary.md)).", "",
+           *md_head("curve", "return", "episode length", "seeds")]
+    out += [md_row(r.curve, f"{r.final_return_mean:.2f} ± {r.final_return_ci95:.2f}",
+                   f"{r.final_length_mean:.1f}", str(int(r.seeds))) for r in maze.itertuples()]
     return out + [""]
 
 
@@ -309,12 +316,10 @@ def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -
         entry = files.get(rel)
         if not isinstance(entry, dict) or not entry.get("wall_s"):
             continue
-        updates = f", {entry['updates']:,} updates" if entry.get("updates") else ""
         device = str(entry.get("device") or "")
         where = (f"on {device}" if device and "not recorded" not in device
                  else "(device not recorded)")
-        runs += _bullet(f"{table}, {label}: `{entry.get('command', '?')}` (profile "
-                        f"`{entry.get('profile', '?')}`{updates}) took "
+        runs += _bullet(f"{table}, {label}: {_command(entry, '`')} took "
                         f"{wall_text(float(entry['wall_s']))} {where}, {entry.get('date', '')}.")
         gpu |= entry.get("profile") == "gpu"
     out = ["Measured run times (the report writes them from `paper/provenance.json`"

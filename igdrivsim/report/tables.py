@@ -14,6 +14,7 @@ from igdrivsim.evaluation.schema import METRICS, PAPER_TABLE1, REFERENCE_SETTING
 from igdrivsim.names import (
     BC,
     BC_RL,
+    CONSTANT_VELOCITY,
     METHOD_LABELS,
     REFERENCES,
     SETTING_SHORT,
@@ -48,9 +49,22 @@ def heading(title: str, header: str = "") -> list[str]:
     return [title, "", *([header, ""] if header else [])]
 
 
+def md_bold(text: str) -> str:
+    return f"**{text}**"
+
+
+def tex_bold(text: str) -> str:
+    return rf"\textbf{{{text}}}"
+
+
 def md_row(*cells: str) -> str:
     """A Markdown table row."""
     return "| " + " | ".join(cells) + " |"
+
+
+def tex_row(*cells: str) -> str:
+    """A LaTeX table row."""
+    return " & ".join(cells) + r" \\"
 
 
 def md_head(*cells: str) -> list[str]:
@@ -88,8 +102,28 @@ def _better(tests: pd.DataFrame, metric: str, setting: str) -> str:
     return "" if row is None else str(row.better or "")
 
 
-def _fmt(value: float) -> str:
-    return MISSING if value is None or not math.isfinite(value) else f"{value:.2f}"
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return MISSING if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _fmt_mean(row: pd.Series | None) -> str:
+    return _fmt(math.nan if row is None else float(row["mean"]))
+
+
+def cell_mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> float:
+    """A ``summary.csv`` cell's mean (NaN when absent)."""
+    row = _lookup(summary, metric, setting, method)
+    return math.nan if row is None else float(row["mean"])
+
+
+def reference_means(summary: pd.DataFrame, keys, method: str = CONSTANT_VELOCITY) -> dict:
+    """A reference actor's mean of each metric in ``keys`` (NaN when absent)."""
+    return {key: cell_mean(summary, key, REFERENCE_SETTING, method) for key in keys}
+
+
+def tex_across(value: str, ncols: int) -> str:
+    """A reference's one value, italic, spanning the ``ncols`` setting columns of a LaTeX row."""
+    return rf"\multicolumn{{{ncols}}}{{c}}{{\textit{{{value}}}}} \\"
 
 
 def _has_references(summary: pd.DataFrame) -> list[str]:
@@ -113,6 +147,13 @@ def latex_float(caption: str, label: str, spec: str, rows: list[str]) -> str:
                       *rows, r"\bottomrule", r"\end{tabular}%", "}", r"\end{table*}", ""])
 
 
+def _table1_cells(summary: pd.DataFrame, tests: pd.DataFrame, key: str, method: str,
+                  cols: list[str], text, bold) -> list[str]:
+    """``method``'s Table I cells of metric ``key``: ``text(row)``, ``bold``-ed where better."""
+    cells = {s: text(_lookup(summary, key, s, method)) for s in cols}
+    return [bold(c) if _better(tests, key, s) == method else c for s, c in cells.items()]
+
+
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """Table I as a ``table*`` float (colours ``bcrlcolor`` / ``bccolor``)."""
     cols = table_settings(summary, tests)
@@ -125,23 +166,16 @@ def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         rf"better method where the difference is significant ({TEST_NAME}, "
         rf"$\alpha={ALPHA}$). {caption_extra}}}")
     lines = setting_header(cols, r"\textbf{Metric}")
-    references = _has_references(summary)
     for metric in METRICS:
         lines.append(r"\midrule")
         for i, method in enumerate((BC_RL, BC)):
-            cells = []
-            for setting in cols:
-                row = _lookup(summary, metric.key, setting, method)
-                text = _fmt(None if row is None else float(row["mean"]))
-                if _better(tests, metric.key, setting) == method:
-                    text = rf"\textbf{{{text}}}"
-                cells.append(rf"\cellcolor{{{colours[method]}}}{text}")
-            lines.append(metric.label[i] + " & " + " & ".join(cells) + r" \\")
-        for method in references:
-            row = _lookup(summary, metric.key, REFERENCE_SETTING, method)
-            value = _fmt(None if row is None else float(row["mean"]))
+            cells = _table1_cells(summary, tests, metric.key, method, cols, _fmt_mean, tex_bold)
+            lines.append(tex_row(metric.label[i], *[rf"\cellcolor{{{colours[method]}}}{text}"
+                                                    for text in cells]))
+        for method in _has_references(summary):
+            value = _fmt_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method))
             lines.append(rf"\quad\textit{{{METHOD_LABELS[method].lower()}}} & "
-                         rf"\multicolumn{{{len(cols)}}}{{c}}{{\textit{{{value}}}}} \\")
+                         + tex_across(value, len(cols)))
     return latex_float(caption, "tab:results", "l" + "c" * len(cols), lines)
 
 
@@ -165,17 +199,10 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
         if len(rows) == 0:
             verdicts[setting] = "not evaluated"
             continue
-        wins = int(((rows.better == BC_RL)).sum())
-        losses = int(((rows.better == BC)).sum())
+        wins, losses = int((rows.better == BC_RL).sum()), int((rows.better == BC).sum())
         lower = int((rows["diff"] < 0).sum())
-        if wins and not losses:
-            word = "yes"
-        elif losses and not wins:
-            word = "no (BC is safer)"
-        elif wins and losses:
-            word = "mixed"
-        else:
-            word = "no significant difference"
+        word = {(True, False): "yes", (False, True): "no (BC is safer)",
+                (True, True): "mixed"}.get((wins > 0, losses > 0), "no significant difference")
         verdicts[setting] = (f"{word}: BC-RL significantly better on {wins}/4 safety metrics, "
                              f"worse on {losses}/4, lower mean on {lower}/4")
     return verdicts
@@ -189,18 +216,12 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
             f"better method where the difference is significant ({TEST_NAME}, alpha={ALPHA}). "
             "Lower is better for every metric.", ""]
     out += md_head("metric", "method", *map(setting_short, cols))
-    references = _has_references(summary)
     for metric in METRICS:
         name = " ".join(metric.label).replace("\\", "")
         for method in (BC_RL, BC):
-            cells = []
-            for setting in cols:
-                text = _ci_text(_lookup(summary, metric.key, setting, method))
-                if _better(tests, metric.key, setting) == method:
-                    text = f"**{text}**"
-                cells.append(text)
-            out.append(md_row(name, METHOD_LABELS[method], *cells))
-        out += _reference_rows(summary, metric, name, len(cols), references)
+            out.append(md_row(name, METHOD_LABELS[method], *_table1_cells(
+                summary, tests, metric.key, method, cols, _ci_text, md_bold)))
+        out += _reference_rows(summary, metric, name, len(cols))
     if len(_cells(tests)):
         out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
     out += ["", "## Is BC-RL safer than BC?", ""]
@@ -213,14 +234,11 @@ def _metric_name(metric) -> str:
     return " ".join(metric.label).replace(chr(92), "").replace(" (%)", "")
 
 
-def _reference_rows(summary: pd.DataFrame, metric, name: str, ncols: int,
-                    references: list[str]) -> list[str]:
+def _reference_rows(summary: pd.DataFrame, metric, name: str, ncols: int) -> list[str]:
     """Markdown rows repeating each reference's one value (italic) in every setting column."""
-    rows = []
-    for method in references:
-        text = _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-        rows.append(md_row(name, f"*{METHOD_LABELS[method]}*", *[f"*{text}*"] * ncols))
-    return rows
+    texts = {m: _ci_text(_lookup(summary, metric.key, REFERENCE_SETTING, m))
+             for m in _has_references(summary)}
+    return [md_row(name, f"*{METHOD_LABELS[m]}*", *[f"*{t}*"] * ncols) for m, t in texts.items()]
 
 
 def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
@@ -235,11 +253,8 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 *md_head("setting", "ours BC-RL", "ours BC", "ours diff", "significant (95% CI)",
                          "paper BC-RL", "paper BC", "paper diff", "same direction")]
         for setting in SETTINGS:
-            ra = _lookup(summary, metric.key, setting, BC_RL)
-            rb = _lookup(summary, metric.key, setting, BC)
+            a, b = (cell_mean(summary, metric.key, setting, m) for m in (BC_RL, BC))
             pa, pb = PAPER_TABLE1[metric.key][setting]
-            a = float(ra["mean"]) if ra is not None else float("nan")
-            b = float(rb["mean"]) if rb is not None else float("nan")
             diff, pdiff = a - b, pa - pb
             sig = ""
             t = _test_row(tests, metric.key, setting)
@@ -253,7 +268,7 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 agree += ok
                 same = "yes" if ok else "no"
             out.append(f"| {SETTING_SHORT[setting]} | {_fmt(a)} | {_fmt(b)} | "
-                       f"{_fmt(diff) if math.isfinite(diff) else MISSING} | {sig or MISSING} | "
+                       f"{_fmt(diff)} | {sig or MISSING} | "
                        f"{pa:.2f} | {pb:.2f} | {pdiff:+.2f} | {same} |")
         out.append("")
     out.append(f"Direction of BC-RL minus BC agrees with the paper in {agree} of {total} "
@@ -271,7 +286,7 @@ def _interval_text(row: pd.Series | None) -> str:
         return MISSING
     text = (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
             f"{_signed(float(row.ci_high))}]")
-    return f"**{text}**" if bool(row.significant) else text
+    return md_bold(text) if bool(row.significant) else text
 
 
 def effects_markdown(tests: pd.DataFrame) -> str:
@@ -295,8 +310,7 @@ def _power_rows(tests: pd.DataFrame) -> tuple[list[tuple], tuple[int, int, int]]
         paper, mde, holm = [], [], []
         for setting in cols:
             row = _test_row(tests, metric.key, setting)
-            m = float(row.mde) if row is not None else float("nan")
-            mh = float(row.mde_holm) if row is not None else float("nan")
+            m, mh = (math.nan,) * 2 if row is None else (float(row.mde), float(row.mde_holm))
             if setting in PAPER_TABLE1[metric.key]:
                 pa, pb = PAPER_TABLE1[metric.key][setting]
                 effect = pa - pb
@@ -328,8 +342,8 @@ def power_markdown(tests: pd.DataFrame, header: str = "") -> str:
     labels = ("paper BC-RL − BC", f"MDE (α={ALPHA})", f"MDE (Holm, α={ALPHA}/{n_cells})")
     for name, unit, groups in rows:
         for label, cells in zip(labels, groups, strict=True):
-            texts = [f"**{t}**" if bold else t for t, bold in cells]
-            out.append(md_row(f"{name} ({unit})", label, *texts))
+            out.append(md_row(f"{name} ({unit})", label,
+                              *[md_bold(t) if b else t for t, b in cells]))
     return "\n".join(out) + "\n"
 
 
@@ -354,10 +368,9 @@ def power_latex(tests: pd.DataFrame) -> str:
     for name, unit, groups in rows:
         lines.append(r"\midrule")
         for i, (label, cells) in enumerate(zip(labels, groups, strict=True)):
-            texts = [rf"\textbf{{{_tex_number(t)}}}" if bold else _tex_number(t)
-                     for t, bold in cells]
+            texts = [tex_bold(_tex_number(t)) if bold else _tex_number(t) for t, bold in cells]
             first = f"{name} ({unit.replace('%', chr(92) + '%')})" if i == 0 else ""
-            lines.append(f"{first} & {label} & " + " & ".join(texts) + r" \\")
+            lines.append(tex_row(first, label, *texts))
     return latex_float(caption, "tab:power", "ll" + "c" * len(cols), lines)
 
 
@@ -431,11 +444,9 @@ def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "")
         arrow = r"$\uparrow$" if metric.higher_is_better else r"$\downarrow$"
         for i, (method, italic, cells) in enumerate(groups):
             first = f"{_tex(metric.label)} ({_tex(metric.unit)}) {arrow}" if i == 0 else ""
-            texts = [_fmt(None if c is None else float(c["mean"])) for c in cells]
             name = METHOD_LABELS[method]
-            if italic:
-                lines.append(rf"{first} & \textit{{{name.lower()}}} & \multicolumn"
-                             rf"{{{len(cols)}}}{{c}}{{\textit{{{texts[0]}}}}} \\")
-            else:
-                lines.append(f"{first} & {name} & " + " & ".join(texts) + r" \\")
+            texts = [_fmt_mean(c) for c in cells]
+            row = tex_across(texts[0], len(cols)) if italic else tex_row(*texts)
+            lines.append(f"{first} & " + (rf"\textit{{{name.lower()}}}" if italic else name)
+                         + f" & {row}")
     return latex_float(caption, "tab:supplementary", "ll" + "c" * len(cols), lines)

@@ -160,23 +160,19 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         "the minimum detectable effect (MDE, 80% power). On the real sets every vehicle that "
         "passes the scenario filter is the ego in turn (N: egos). Log divergence in m, "
         "offroad and overlap in % of steps.",
-        "",
-        "| data | motion | N | BC log div. | CV log div. | BC / CV | BC - CV log div. "
-        "| BC offroad | CV offroad | BC overlap | CV overlap |",
-        "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for _, r in vs_cv.iterrows():
-        lines.append(
-            f"| {r.data} | {r.motion} | {r.n} | {r.log_divergence_a:.2f} | "
-            f"{r.log_divergence_b:.2f} | {r.log_divergence_a / r.log_divergence_b:.2f} | "
-            f"{_diff(r, 'log_divergence')} | {r.offroad_a:.1f} | {r.offroad_b:.1f} | "
-            f"{r.overlap_a:.1f} | {r.overlap_b:.1f} |")
+        "", *md_head("data", "motion", "N", "BC log div.", "CV log div.", "BC / CV",
+                     "BC - CV log div.", "BC offroad", "CV offroad", "BC overlap", "CV overlap")]
+    lines += [md_row(r.data, r.motion, str(r.n), f"{r.log_divergence_a:.2f}",
+                     f"{r.log_divergence_b:.2f}", f"{r.log_divergence_a / r.log_divergence_b:.2f}",
+                     _diff(r, "log_divergence"), f"{r.offroad_a:.1f}", f"{r.offroad_b:.1f}",
+                     f"{r.overlap_a:.1f}", f"{r.overlap_b:.1f}") for _, r in vs_cv.iterrows()]
     if not motions.empty:
         lines += ["", "BC of one motion model against BC of another, on the same real scenarios:",
-                  "", "| data | motion - baseline | N | log divergence (m) | offroad (%) |",
-                  "|---|---|---|---|---|"]
-        for _, r in motions.iterrows():
-            lines.append(f"| {r.data} | {r.motion} - {r.baseline} | {r.n} | "
-                         f"{_diff(r, 'log_divergence')} | {_diff(r, 'offroad')} |")
+                  "", *md_head("data", "motion - baseline", "N", "log divergence (m)",
+                               "offroad (%)")]
+        lines += [md_row(r.data, f"{r.motion} - {r.baseline}", str(r.n),
+                         _diff(r, "log_divergence"), _diff(r, "offroad"))
+                  for _, r in motions.iterrows()]
     if egos is not None and not egos.empty:
         lines += ["", "Every driver against constant velocity and the expert, ego by ego (heavy "
                   "tails leave a mean weak): N egos (source scenarios); the share of egos where "
