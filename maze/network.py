@@ -54,8 +54,7 @@ class GRUPolicy(nn.Module):
     @nn.compact
     def __call__(self, h: jax.Array, obs: jax.Array, first: jax.Array):
         hid = self.hidden
-        x_proj = _InputProjection(3 * hid, self.side, self.patch_size, self.encoding,
-                                  name="input")(self.features(obs), obs)  # all steps at once
+        x_proj = dense_2d(nn.Dense(3 * hid, name="input"), self.features(obs))  # all steps at once
         w_h = self.param("recurrent", nn.initializers.orthogonal(), (hid, 3 * hid))
         b_hn = self.param("recurrent_bias", nn.initializers.zeros, (hid,))
 
@@ -69,38 +68,6 @@ class GRUPolicy(nn.Module):
                                 name="aux"), hs)
             return h, logits, value[..., 0], aux
         return h, logits, value[..., 0]
-
-
-class _InputProjection(nn.Module):
-    """``nn.Dense`` on :meth:`GRUPolicy.features` (the same parameters, ``kernel`` and ``bias``,
-    initialised alike). A single step (``T = 1``: acting, evaluation) with the ``onehot``
-    encoding adds the kernel rows of the four one-hot blocks instead of multiplying them by
-    60 mostly-zero inputs: the same sums (up to float rounding order) at a fraction of the
-    products, which made the in-loop projection as costly as the recurrent one. Training
-    (``T > 1``) keeps the dense product: one large matrix product outside the time loop, whose
-    weight gradient a scatter-add would only slow down."""
-
-    features: int
-    side: int
-    patch_size: int
-    encoding: str
-
-    @nn.compact
-    def __call__(self, x: jax.Array, obs: jax.Array) -> jax.Array:
-        """``x``: the features of ``obs``."""
-        kernel = self.param("kernel", nn.initializers.lecun_normal(), (x.shape[-1],
-                                                                       self.features))
-        bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        if self.encoding != "onehot" or obs.shape[0] != 1:
-            return (x.reshape(-1, x.shape[-1]) @ kernel + bias).reshape(*x.shape[:-1], -1)
-        side, dense = self.side, x.shape[-1] - 4 * self.side
-        cells = obs[..., self.patch_size:].astype(jnp.int32)  # (pos row, col, goal row, col)
-        out = x[..., :dense] @ kernel[:dense] + bias
-        for i in range(4):  # a hidden goal is (-1, -1): no one-hot row, no contribution
-            idx = cells[..., i]
-            row = jnp.take(kernel, dense + i * side + jnp.clip(idx, 0, side - 1), axis=0)
-            out = out + jnp.where((idx >= 0)[..., None], row, 0.0)
-        return out
 
 
 def make_policy(hidden: int, params: MazeParams, encoding: str = "onehot",
