@@ -208,9 +208,9 @@ class StageRunner:
     def _pin(self, pid: int) -> int | None:
         """Give a worker of a stage running side by side a free core of its own (Linux; None:
         none free or no affinity API). XLA runs parts of some programs (BC-RL's) on a thread
-        pool whatever its flags, and two such pools on two cores slow each other: two BC-RL
-        lanes side by side took 1.75 s per update unpinned, 1.56 s pinned (docs/bench/README.md).
-        Set right after the process starts, before it starts threads, which inherit it."""
+        pool whatever its flags, and two such pools on two cores slow each other (two BC-RL
+        lanes side by side: 1.11x faster pinned, docs/bench/pipeline.md). Set right after the
+        process starts, before it starts threads, which inherit it."""
         with self.core_lock:
             if not self.free_cores:
                 return None
