@@ -183,3 +183,20 @@ def test_real_logs_stage_reads_every_location_with_every_ego(tmp_path, monkeypat
     assert "--readouts" in commands[-1]
     assert pipe.command_text().endswith("--samples B")
 
+
+
+def test_full_bc_is_judged_against_the_real_log_targets():
+    """75% closer with 4 sources: the share's target met, the lower end's not (a wide interval);
+    offroad above constant velocity's is a miss by its difference; the ratio (0.97x) a miss
+    by 0.07x."""
+    frame = _frame()
+    for column in ("offroad", "offroad_steps"):  # half the steps offroad; CV never
+        frame[column] = np.where(frame.method == "bc", 0.5, 0.0)
+    md = real_logs_markdown(real_log_table(frame), "logs", "synthetic")
+    section = md.split("## Full BC against the real-log targets")[1].split("## Ego by ego")[0]
+    assert "12 egos from 4 source scenarios" in section
+    share, ratio, offroad = [line for line in section.splitlines() if line.startswith("| ")
+                             and not line.startswith("| target")]
+    assert "| 75% [" in share and "missed by 0 points (lower end by" in share
+    assert "| 0.97x [" in ratio and ratio.endswith("| missed by 0.07x |")
+    assert "missed by 50.0 points" in offroad
