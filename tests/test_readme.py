@@ -222,3 +222,19 @@ def test_readme_generated_lines_are_short():
         long = [line for line in block.splitlines()
                 if len(line) > 100 and not line.startswith("|") and "](" not in line]
         assert long == []
+
+
+def test_the_run_times_say_what_holds_the_run_above_an_hour():
+    """Two lanes: training 6,000 s of 7,000 s of stage time in 4,000 s of wall time, so at that
+    overlap (1.75) an hour holds 6,300 s of stage time, 5,300 s of it training: 6,000 / 5,300."""
+    import pandas as pd
+
+    end = pd.Timestamp("2026-01-01 02:00:00")
+    times = pd.DataFrame(dict(stage=["data", "train_bc", "train_bc_rl-1of2", "evaluate_bc"],
+                              seconds=[400.0, 3000.0, 3000.0, 600.0]))
+    times["finished"] = [str(end - pd.Timedelta(seconds=s)) for s in (3600, 0, 600, 0)]
+    assert results_doc.wall_seconds(times) == pytest.approx(4000.0)
+    text = results_doc.against_an_hour(times)
+    assert "train 86%, evaluation 9%, data 6%" in text
+    assert "training must shrink 1.1x for an hour" in text
+    assert results_doc.against_an_hour(times[1:2]).startswith("Within an hour (50 min")

@@ -216,13 +216,38 @@ def wall_seconds(times: pd.DataFrame | None) -> float:
     return float((end.max() - start.min()).total_seconds())
 
 
+HOUR = 3600.0  # the default run's time target (seconds)
+
+
+def against_an_hour(times: pd.DataFrame) -> str:
+    """Which stages hold the run above :data:`HOUR` and by how much: the training stages' share
+    of the stages' summed time, and the factor they must shrink by at this run's overlap."""
+    wall, total = wall_seconds(times), float(times.seconds.sum())
+    if not math.isfinite(wall) or wall <= 0:
+        return ""
+    if wall <= HOUR:
+        return f"Within an hour ({wall_text(wall)})."
+    kinds = times.stage.str.split("_").str[0].replace({"evaluate": "evaluation"})
+    by_kind = times.seconds.groupby(kinds).sum().sort_values(ascending=False)
+    train = float(by_kind.get("train", 0.0))
+    room = HOUR * total / wall - (total - train)  # training time that fits at this overlap
+    shares = ", ".join(f"{k} {100 * v / total:.0f}%" for k, v in by_kind.items()
+                       if v >= 0.01 * total)
+    cut = (f"training must shrink {train / room:.1f}x for an hour" if room > 0 else
+           "even without training the stages take more than an hour")
+    return (f"Against an hour: the stages add up to {total:,.0f} s on the workers, run in "
+            f"{wall:,.0f} s (on average {total / wall:.2f} stages at once): {shares}; at that "
+            f"overlap "
+            f"{cut}.")
+
+
 def _run_times(times: pd.DataFrame | None) -> list[str]:
     if times is None or not len(times):
         return ["Not in these tables (`tables/run_times.csv` is written when the report runs "
                 "inside `scripts/reproduce.sh`).", ""]
     wall = wall_seconds(times)
-    out = [f"{wall_text(wall)} from the first stage's start to the last stage's end."
-           if math.isfinite(wall) else "", "",
+    out = [f"{wall_text(wall)} from the first stage's start to the last stage's end. "
+           + against_an_hour(times) if math.isfinite(wall) else "", "",
            "Seconds per stage (`WORK/stages/<stage>.json`; stages in two lanes overlap, so the "
            "wall time is below their sum).", "", *md_head("stage", "seconds", "finished")]
     out += [md_row(r.stage, f"{r.seconds:.0f}", str(r.finished)) for r in times.itertuples()]
