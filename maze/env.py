@@ -146,7 +146,3 @@ def observe(state: MazeState, params: MazeParams, kind: str | jax.Array) -> jax.
     goal = jnp.where(hidden, -1, state.goal)
     return jnp.concatenate([wall_patch(state.pos, params), state.pos.astype(jnp.float32),
                             goal.astype(jnp.float32)])
-
-
-def observe_both(state: MazeState, params: MazeParams) -> dict[str, jax.Array]:
-    return {kind: observe(state, params, kind) for kind in OBS_KINDS}
