@@ -7,7 +7,13 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import DataError
-from igdrivsim.report.reactive import reactive_figure, reactive_markdown, reactive_table
+from igdrivsim.report.reactive import (
+    reactive_figure,
+    reactive_markdown,
+    reactive_section,
+    reactive_table,
+    verdict,
+)
 
 
 def frame(overlap_p: float, seed_count: int = 3, n: int = 60, rng_seed: int = 0,
@@ -48,6 +54,17 @@ def test_markdown_and_figure(table, tmp_path):
     assert "| -- | Expert (its own log) |" in md and "**+" in md
     paths = reactive_figure(table, tmp_path)
     assert paths[0].read_bytes().startswith(b"%PDF") and paths[1].stat().st_size > 1000
+
+
+def test_the_verdict_counts_the_learned_drivers_that_move(table):
+    text = verdict(table)
+    assert "of the 2 learned drivers" in text  # the expert is not counted
+    assert "overlap rate 2 lower and 0 higher" in text
+    assert "max log divergence 0 lower and 0 higher" in text
+    flipped = table.assign(diff=-table["diff"])
+    assert "overlap rate 0 lower and 2 higher" in verdict(flipped)
+    assert reactive_section(None) == []
+    assert reactive_section(table)[0] == "## Under reactive traffic"
 
 
 def test_nothing_in_common_is_a_clear_error():

@@ -17,6 +17,7 @@ from igdrivsim.names import BC, BC_RL, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report import methods_table, tables
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
+from igdrivsim.report.reactive import reactive_section
 from igdrivsim.report.real_logs import real_logs_section
 from igdrivsim.report.results_tex import read_table, write_macros
 from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
@@ -309,6 +310,7 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            "Cell by cell next to the paper: [vs_paper.md](PAPER/tables/vs_paper.md); the power "
            "table alone: [power.md](PAPER/tables/power.md); metrics beyond Table I: "
            "[supplementary_metrics.md](PAPER/tables/supplementary_metrics.md).", "",
+           *reactive_section(read_table(tables / "reactive.csv")),
            "## Learning curves", "", *_curves(read_table(tables / CURVES_SUMMARY))]
     out += _table2(tables, summary, header)
     out += ["## Maze (paper Fig. 2)", "", *_maze(read_table(tables / "maze_summary.csv"))]
