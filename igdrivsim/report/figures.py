@@ -36,6 +36,7 @@ from igdrivsim.report.methods_table import (  # noqa: E402
     method_colours,
     method_label,
 )
+from igdrivsim.report.results_tex import read_table  # noqa: E402
 from igdrivsim.report.tables import _metric_name, present_settings  # noqa: E402
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
 from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
@@ -324,28 +325,24 @@ def fig6_methods(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     return fig
 
 
-def _read(path: Path) -> pd.DataFrame | None:
-    return pd.read_csv(path, dtype={"setting": str, "method": str}) if path.is_file() else None
-
-
 def redraw_from_tables(paper: str | Path) -> list[Path]:
     """Fig. 3, 5 (and 6) from the tables under ``paper``; the paths."""
     from igdrivsim.evaluation import registry  # the supplementary metrics
 
     tables, figures = Path(paper) / "tables", Path(paper) / "figures"
-    seeds = _read(tables / "seed_means.csv")
-    summary = _read(tables / "summary.csv")
+    seeds = read_table(tables / "seed_means.csv")
+    summary = read_table(tables / "summary.csv")
     main = seeds if seeds is not None else summary
     if main is None:
         raise DataError("no seed_means.csv or summary.csv: run `igdrivsim report` first",
                         file=str(tables))
-    written = save_figure(fig3_metrics(main, _read(tables / "tests.csv")), figures,
+    written = save_figure(fig3_metrics(main, read_table(tables / "tests.csv")), figures,
                           "fig3_metrics")
-    supplementary = _read(tables / "supplementary_summary.csv")
+    supplementary = read_table(tables / "supplementary_summary.csv")
     if supplementary is not None:
         written += save_figure(supplementary_figure(supplementary, registry.metrics()),
                                figures, "fig5_supplementary")
-    tests_all = _read(tables / "tests_all.csv")
+    tests_all = read_table(tables / "tests_all.csv")
     if tests_all is not None and extended_methods(main):
         written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
     return written
