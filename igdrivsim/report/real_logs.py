@@ -184,14 +184,19 @@ def readout_markdown(readouts: pd.DataFrame) -> list[str]:
     return lines
 
 
+def _full_bc(table: pd.DataFrame) -> pd.Series | None:
+    """Full BC's row, when it was compared with constant velocity ego by ego."""
+    full = table[(table.setting == READOUT_SETTING) & (table.method == BC)]
+    return None if full.empty or pd.isna(full.iloc[0].get("real_vs_cv_win")) else full.iloc[0]
+
+
 def _target_rows(table: pd.DataFrame) -> tuple[list[tuple[str, str, str]], pd.Series] | None:
     """Full BC against :data:`~igdrivsim.evaluation.schema.REAL_COMPETENCE` on the real egos:
     ``(target, Full BC, verdict)`` per target, and Full BC's row; None without them."""
-    full = table[(table.setting == READOUT_SETTING) & (table.method == BC)]
-    cv = table[table.method == CONSTANT_VELOCITY]
-    if full.empty or cv.empty or pd.isna(full.iloc[0].get("real_vs_cv_win")):
+    r, cv = _full_bc(table), table[table.method == CONSTANT_VELOCITY]
+    if r is None or cv.empty:
         return None
-    r, c, t = full.iloc[0], cv.iloc[0], REAL_COMPETENCE
+    c, t = cv.iloc[0], REAL_COMPETENCE
     win, lo, hi = (100 * r[f"real_vs_cv_{k}"] for k in ("win", "win_lo", "win_hi"))
     offroad = r.real_offroad - t["offroad"] * c.real_offroad
 
@@ -258,9 +263,8 @@ def _cell(row: pd.Series, source: str, key: str) -> str:
 
 
 def _label(row: pd.Series) -> tuple[str, str]:
-    method = METHOD_LABELS.get(row.method, row.method)
-    setting = "--" if row.method in REFERENCES else setting_short(row.setting)
-    return setting, method
+    return ("--" if row.method in REFERENCES else setting_short(row.setting),
+            METHOD_LABELS.get(row.method, row.method))
 
 
 def _egos_text(table: pd.DataFrame) -> str:
@@ -344,10 +348,7 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
         win = 100 * learned.real_vs_cv_win.dropna()
         closer = (f"; ego by ego, they stay closer to the log than constant velocity on "
                   f"{_span(win, 0)}% of the egos")
-        full = learned[(learned.setting == "full") & (learned.method == BC)
-                       & learned.real_vs_cv_win.notna()]
-        if len(full):
-            r = full.iloc[0]
+        if (r := _full_bc(learned)) is not None:
             closer += (f", Full BC on {100 * r.real_vs_cv_win:.0f}% (95% CI "
                        f"{100 * r.real_vs_cv_win_lo:.0f}-{100 * r.real_vs_cv_win_hi:.0f}%)")
     where = f"{n} real scenarios"
@@ -403,10 +404,8 @@ def _vs_cv(row: pd.Series) -> list[str]:
 
 def _full_bc_line(table: pd.DataFrame) -> str | None:
     """The headline sentence on Full BC; None without that comparison."""
-    full = table[(table.setting == "full") & (table.method == BC)]
-    if full.empty or "real_vs_cv_win" not in full or pd.isna(full.real_vs_cv_win.iloc[0]):
+    if (r := _full_bc(table)) is None:
         return None
-    r = full.iloc[0]
     return (f"On real logs ({int(r.real_vs_cv_egos)} egos from {int(r.real_vs_cv_sources)} "
             "source scenarios, every vehicle that passes the scenario filter as the ego), "
             f"Full BC stays closer to the log than constant velocity on "
