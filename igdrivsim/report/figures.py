@@ -10,36 +10,28 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import matplotlib
+import matplotlib.pyplot as plt
+import pandas as pd
+import seaborn as sns
+from matplotlib.container import BarContainer
 
-matplotlib.use("Agg")  # figures are files; never open a window
-
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-import seaborn as sns  # noqa: E402
-from matplotlib.container import BarContainer  # noqa: E402
-
-from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import METRIC_BY_KEY  # noqa: E402
-from igdrivsim.io import atomic_savefig  # noqa: E402
-from igdrivsim.names import (  # noqa: E402
-    BC,
-    BC_RL,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    setting_short,
-)
-from igdrivsim.report import plots  # noqa: E402
-from igdrivsim.report.methods_table import (  # noqa: E402
+from igdrivsim.errors import DataError
+from igdrivsim.evaluation.schema import METRIC_BY_KEY
+from igdrivsim.io import atomic_savefig
+from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
+from igdrivsim.report import plots
+from igdrivsim.report.methods_table import (
     extended_methods,
     learned_methods,
     method_colours,
     method_label,
 )
-from igdrivsim.report.results_tex import read_table  # noqa: E402
-from igdrivsim.report.tables import _metric_name, present_settings  # noqa: E402
-from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
-from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
+from igdrivsim.report.results_tex import read_table
+from igdrivsim.report.tables import _metric_name, present_settings
+from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
+from igdrivsim.training.run import CURVES as CURVES_FILE
+
+matplotlib.use("Agg")  # figures are files; never open a window
 
 PANELS = ("log_divergence", "overlap", "offroad")
 CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
