@@ -50,11 +50,6 @@ EVAL_FOLDERS = {"log": ("evals", "", []), "idm": ("evals_idm", "_idm", ["--agent
 READOUTS = ("greedy", "mean")
 
 
-def _paths(value) -> tuple[str, ...]:
-    """One location or several as a tuple of strings."""
-    return (str(value),) if isinstance(value, str | Path) else tuple(map(str, value or ()))
-
-
 @dataclass
 class Pipeline(Publisher, StageRunner):
     """One reproduction: profile, locations, and how commands run."""
@@ -76,7 +71,8 @@ class Pipeline(Publisher, StageRunner):
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
-        self.samples, self.samples_given = map(_paths, (self.samples, self.samples_given))
+        self.samples, self.samples_given = (tuple(map(str, v))
+                                            for v in (self.samples, self.samples_given))
         self.settings = tuple(self.settings or self.profile.settings)
         for i, name in enumerate(self.settings):  # any registered setting or '+' composition
             if stack_settings(self.settings[:i + 1]) is None:
