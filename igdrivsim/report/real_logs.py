@@ -391,8 +391,6 @@ def write_numbers(table: pd.DataFrame, out: Path) -> list[Path]:
 
 # ------------------------------------------------------------------ the results page
 READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, when not its own
-
-
 VS_CV_HEAD = ("N egos (sources)", "closer than CV [95% CI]", "mean / CV [95% CI]")
 
 

@@ -96,7 +96,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
         return "No results yet: run the reproduction (`bash scripts/reproduce.sh`).\n"
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
-    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    settings = tables.present_settings(summary)
     cv = tables.reference_means(summary, dict(_HEADLINE))
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
@@ -129,7 +129,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 
 
 def _competence(summary: pd.DataFrame) -> list[str]:
-    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    settings = tables.present_settings(summary)
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
     cv = tables.reference_means(summary, COMPETENCE)
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
