@@ -23,12 +23,12 @@ from igdrivsim.names import (
 from igdrivsim.report.tables import (
     MISSING,
     _ci_text,
+    _diff_text,
     _fmt_mean,
     _has_references,
     _lookup,
     _metric_name,
     _reference_rows,
-    _signed,
     _tex,
     _tex_number,
     heading,
@@ -104,11 +104,6 @@ def methods_caption(tests: pd.DataFrame) -> str:
             f"Minimum detectable effect ({POWER:.0%} power) at alpha={ALPHA}: "
             f"{_ranges(tests, 'mde')}; "
             f"at the strictest Holm level alpha/{n}: {_ranges(tests, 'mde_holm')}.")
-
-
-def _diff_text(row: pd.Series) -> str:
-    return (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
-            f"{_signed(float(row.ci_high))}]")
 
 
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:

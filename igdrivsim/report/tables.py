@@ -278,11 +278,16 @@ def _signed(value: float) -> str:
     return f"{value:+.2f}" if round(value, 2) != 0 else "+0.00"
 
 
+def _diff_text(row: pd.Series) -> str:
+    """A difference and its interval: ``+0.12 [-0.03, +0.27]``."""
+    return (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
+            f"{_signed(float(row.ci_high))}]")
+
+
 def _interval_text(row: pd.Series | None) -> str:
     if row is None or not math.isfinite(float(row["diff"])):
         return MISSING
-    text = (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
-            f"{_signed(float(row.ci_high))}]")
+    text = _diff_text(row)
     return md_bold(text) if bool(row.significant) else text
 
 
