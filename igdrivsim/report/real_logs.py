@@ -32,7 +32,6 @@ from igdrivsim.names import (
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.tables import _tex, md_head, md_row, tex_row, wrap
 
-METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
 # real log divergence minus constant velocity's: difference, interval, detectable effect
 VS_CV = ["real_vs_cv_diff", "real_vs_cv_lo", "real_vs_cv_hi", "real_vs_cv_mde"]
@@ -50,7 +49,7 @@ PAIRED_HEAD = ["N egos (sources)", "closer to the log [95% CI]",
 
 def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -> pd.DataFrame:
     """One row per ``(setting, method)`` on real logs: means over seeds and counts."""
-    metrics = [METRIC_BY_KEY[k] for k in METRIC_KEYS]
+    metrics = [METRIC_BY_KEY[k] for k in STEP_METRICS]
     rows: dict[tuple[str, str], dict] = {}
     for source, frame in (("real", real), ("validation", validation)):
         if frame is None or frame.empty:
@@ -66,12 +65,12 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
             row[f"{source}_n"], row[f"{source}_seeds"] = int(c.n), int(c.seeds)
             if source == "real":
                 row["real_sources"] = int(c.sources)
-            for key in METRIC_KEYS:
+            for key in STEP_METRICS:
                 row[f"{source}_{key}"] = float(means.get((setting, method, key), float("nan")))
     for row in rows.values():
         row |= _ego_by_ego(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
-                                        for x in ("n", "seeds", *METRIC_KEYS)] + VS_CV + [
+                                        for x in ("n", "seeds", *STEP_METRICS)] + VS_CV + [
         "real_sources", *PAIRED]
     table = pd.DataFrame(list(rows.values()), columns=columns)
     methods = {m: i for i, m in enumerate(METHOD_LABELS)}
@@ -279,7 +278,7 @@ def _egos_text(table: pd.DataFrame) -> str:
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
                        readouts: pd.DataFrame | None = None) -> str:
     """The tables as Markdown: the metrics, ego by ego, the read-outs."""
-    head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
+    head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in STEP_METRICS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
              f"Real: {real_label}{_egos_text(table)}. Validation: {validation_label}. "
@@ -291,9 +290,8 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
              "scenarios, then seeds) and the smallest difference these scenarios detect "
              "at 80% power (MDE); a few real scenarios cannot separate the methods.",
              "", *md_head(*head)]
-    for _, row in table.iterrows():
-        lines.append(md_row(*_label(row), *[_cell(row, s, k) for k in METRIC_KEYS for s in SOURCES],
-                            _vs_cv_cell(row)))
+    lines += [md_row(*_label(row), *[_cell(row, s, k) for k in STEP_METRICS for s in SOURCES],
+                     _vs_cv_cell(row)) for _, row in table.iterrows()]
     extra = [] if readouts is None else readout_markdown(readouts)
     return "\n".join(lines + real_targets(table) + _paired_markdown(table) + extra) + "\n"
 
@@ -301,11 +299,11 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
 def real_logs_latex(table: pd.DataFrame, real_label: str, validation_label: str) -> str:
     """The table as a LaTeX ``table`` (booktabs)."""
     lines = [r"\begin{table}[t]", r"\centering", r"\small",
-             r"\begin{tabular}{ll" + "rr" * len(METRIC_KEYS) + "}", r"\toprule",
+             r"\begin{tabular}{ll" + "rr" * len(STEP_METRICS) + "}", r"\toprule",
              " & & " + tex_row(*[rf"\multicolumn{{2}}{{c}}{{{_tex(HEADERS[k])}}}"
-                                 for k in METRIC_KEYS]),
-             tex_row("setting", "method", *["validation & real"] * len(METRIC_KEYS)), r"\midrule"]
-    lines += [tex_row(*[_tex(c) for c in _label(row)], *[_cell(row, s, k) for k in METRIC_KEYS
+                                 for k in STEP_METRICS]),
+             tex_row("setting", "method", *["validation & real"] * len(STEP_METRICS)), r"\midrule"]
+    lines += [tex_row(*[_tex(c) for c in _label(row)], *[_cell(row, s, k) for k in STEP_METRICS
                                                          for s in SOURCES])
               for _, row in table.iterrows()]
     lines += [r"\bottomrule", r"\end{tabular}",
@@ -436,7 +434,7 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
     if headline:
         text = full or sentence.rstrip(".")
         return wrap(text + f"; every setting: [{headline}]({headline}#on-real-logs).")
-    learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
+    learned = [m for m in dict.fromkeys(table.method) if m not in REFERENCES]
     settings = [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]
     rows = {(r.setting, r.method): r for _, r in table.iterrows()}
     ego_table = []

@@ -17,7 +17,6 @@ from igdrivsim.names import (
     CONSTANT_VELOCITY,
     METHOD_LABELS,
     REFERENCES,
-    SETTING_SHORT,
     SETTINGS,
     setting_labels,
     setting_short,
@@ -265,7 +264,7 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 ok = (diff < 0) == (pdiff < 0) and diff != 0
                 agree += ok
                 same = "yes" if ok else "no"
-            out.append(md_row(SETTING_SHORT[setting], _fmt(a), _fmt(b), _fmt(diff),
+            out.append(md_row(setting_short(setting), _fmt(a), _fmt(b), _fmt(diff),
                               sig or MISSING, f"{pa:.2f}", f"{pb:.2f}", f"{pdiff:+.2f}", same))
         out.append("")
     out.append(f"Direction of BC-RL minus BC agrees with the paper in {agree} of {total} "
