@@ -144,13 +144,6 @@ def reference_lines(ax, frame: pd.DataFrame, metric: str) -> None:
                        **REFERENCE_STYLE[method])
 
 
-def significance_handle(baseline: str = BC):
-    """A legend entry explaining the asterisk."""
-    return Line2D([], [], linestyle="", marker="$*$", markersize=7, color="0.1",
-                  label=f"significant vs {METHOD_LABELS.get(baseline, baseline)} "
-                        f"(Holm, α={ALPHA})")
-
-
 def figure_handles(fig) -> dict[str, object]:
     """Each distinct legend entry of the figure's axes, first occurrence first."""
     handles: dict[str, object] = {}
@@ -173,9 +166,8 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     if cells.empty:
         ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
         return []
-    colours = method_colours(methods)
-    positions = draw_bars(ax, cells, settings, methods, colours,
-                                {m: method_label(m) for m in methods})
+    positions = draw_bars(ax, cells, settings, methods, method_colours(methods),
+                          {m: method_label(m) for m in methods})
     reference_lines(ax, frame, key)
     low, _ = feasible_range(unit)
     if math.isfinite(low):  # rates and distances start at 0
@@ -193,8 +185,9 @@ def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
     """The legend above (``top``) or below the panels; returns its number of rows."""
     handles = figure_handles(fig)  # the methods' bars first, then the lines
     handles = dict(sorted(handles.items(), key=lambda kv: not isinstance(kv[1], BarContainer)))
-    if tested:
-        star = significance_handle()
+    if tested:  # an entry explaining the asterisk
+        star = Line2D([], [], linestyle="", marker="$*$", markersize=7, color="0.1",
+                      label=f"significant vs {METHOD_LABELS[BC]} (Holm, α={ALPHA})")
         handles[star.get_label()] = star
     if not handles:
         return 0
