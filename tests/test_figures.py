@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from igdrivsim.evaluation.schema import REFERENCE_SETTING  # noqa: E402
 from igdrivsim.names import SETTINGS  # noqa: E402
-from igdrivsim.report import figures, plots  # noqa: E402
+from igdrivsim.report import figures  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WOMD = REPO.parent / "shared" / "data" / "womd" / "motion_data_one_example.tfrecord"
@@ -66,30 +66,30 @@ def errorbar_lows(ax) -> list[float]:
 
 # ------------------------------------------------------------------ the bars' numbers
 def test_rate_intervals_are_clipped_to_0_100():
-    assert plots.clip_interval(-2.5, 104.0, "%") == (0.0, 100.0)
-    assert plots.clip_interval(1.0, 3.0, "%") == (1.0, 3.0)
-    assert plots.clip_interval(-0.3, 1.2, "score") == (0.0, 1.0)
-    assert plots.clip_interval(-1.0, 2.0, "m") == (0.0, 2.0)  # a distance
-    assert plots.clip_interval(-1.0, 2.0, "ratio") == (-1.0, 2.0)  # no known range
-    low, high = plots.clip_interval(float("nan"), float("nan"), "%")
+    assert figures.clip_interval(-2.5, 104.0, "%") == (0.0, 100.0)
+    assert figures.clip_interval(1.0, 3.0, "%") == (1.0, 3.0)
+    assert figures.clip_interval(-0.3, 1.2, "score") == (0.0, 1.0)
+    assert figures.clip_interval(-1.0, 2.0, "m") == (0.0, 2.0)  # a distance
+    assert figures.clip_interval(-1.0, 2.0, "ratio") == (-1.0, 2.0)  # no known range
+    low, high = figures.clip_interval(float("nan"), float("nan"), "%")
     assert math.isnan(low) and math.isnan(high)
 
 
 def test_cell_stats_clip_the_t_interval_of_seed_means_and_read_summaries():
-    cells = plots.cell_stats(seed_frame(), "offroad", "%").set_index(["setting", "method"])
+    cells = figures.cell_stats(seed_frame(), "offroad", "%").set_index(["setting", "method"])
     row = cells.loc[("full", "bc")]
     assert row["mean"] == pytest.approx(4.3 / 3) and row["low"] == 0.0 < row["high"]
     summary = pd.DataFrame(dict(metric="overlap", setting="full", method="bc", mean=[1.0],
                                 ci_low=[-0.5], ci_high=[101.0]))
-    clipped = plots.cell_stats(summary, "overlap", "%").iloc[0]
+    clipped = figures.cell_stats(summary, "overlap", "%").iloc[0]
     assert (clipped["low"], clipped["high"]) == (0.0, 100.0)
 
 
 def test_significant_cells_follow_holm_column():
     tests = holm_rows([("bc_rl", "offroad", "circular_r4")])
-    assert plots.significant_cells(tests, "offroad") == {("circular_r4", "bc_rl")}
-    assert plots.significant_cells(tests, "overlap") == set()
-    assert plots.significant_cells(None, "offroad") == set()
+    assert figures.significant_cells(tests, "offroad") == {("circular_r4", "bc_rl")}
+    assert figures.significant_cells(tests, "overlap") == set()
+    assert figures.significant_cells(None, "offroad") == set()
 
 
 # ------------------------------------------------------------------ Fig. 3, 5, 6
@@ -99,7 +99,7 @@ def test_fig3_marks_significant_cells_clips_bars_and_draws_references():
         assert fig.marked == {"log_divergence": [], "overlap": [],
                               "offroad": [("circular_r4", "bc_rl")]}
         offroad = fig.axes[2]
-        assert [t.get_text() for t in offroad.texts] == [plots.SIGNIFICANT]
+        assert [t.get_text() for t in offroad.texts] == [figures.SIGNIFICANT]
         assert min(errorbar_lows(offroad)) == 0.0  # the t-interval reached below 0 %
         assert all(low >= 0 for ax in fig.axes for low in errorbar_lows(ax))
         assert [ax.get_ylabel() for ax in fig.axes] == [

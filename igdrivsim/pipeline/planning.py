@@ -23,6 +23,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from igdrivsim.data.reader import available_cpus
 from igdrivsim.names import METHODS, SETTINGS
 from igdrivsim.training import cost
 from igdrivsim.training.config import get_profile
@@ -82,11 +83,7 @@ def accelerator_name() -> str | None:
 
 def detect_machine() -> Machine:
     """Cores from the CPU affinity (``taskset`` counts), the accelerator from ``jax.devices()``."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cores = os.cpu_count() or 1
-    return Machine(cores, cpu_model(), accelerator_name(), available_memory_gb())
+    return Machine(available_cpus(), cpu_model(), accelerator_name(), available_memory_gb())
 
 
 def available_memory_gb() -> float | None:
@@ -128,12 +125,8 @@ def makespan(seconds: Sequence[float], workers: int) -> float:
 def chunks(settings: Sequence[str], parts: int) -> list[tuple[str, ...]]:
     """``settings`` in ``parts`` contiguous groups whose sizes differ by at most one."""
     size, extra = divmod(len(settings), parts)
-    out, start = [], 0
-    for k in range(parts):
-        end = start + size + (k < extra)
-        out.append(tuple(settings[start:end]))
-        start = end
-    return out
+    ends = [k * size + min(k, extra) for k in range(parts + 1)]  # the first ``extra`` one longer
+    return [tuple(settings[a:b]) for a, b in zip(ends, ends[1:], strict=False)]
 
 
 def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,

@@ -51,7 +51,7 @@ class Publisher:
             args += ["--profile", self.profile.name]
         if self.train_data is not None:
             args += ["--data", str(self.train_data), str(self.val_data)]
-        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
+        if not self.default_paper:
             args += ["--out", str(self.work)]
         if tuple(self.settings) != tuple(self.profile.settings):
             args += ["--obs", ",".join(self.settings)]
@@ -129,7 +129,7 @@ class Publisher:
             self._say("pdf: neither latexmk nor pdflatex found, skipping the PDF build (the "
                       "tables and figures are written)")
             return
-        if self.paper.resolve() != (REPO_ROOT / "paper").resolve():
+        if not self.default_paper:
             for name in PAPER_SOURCES:  # a self-contained paper folder under --out
                 atomic_copy(REPO_ROOT / "paper" / name, self.paper / name)
         try:

@@ -50,11 +50,6 @@ EVAL_FOLDERS = {"log": ("evals", "", []), "idm": ("evals_idm", "_idm", ["--agent
 READOUTS = ("greedy", "mean")
 
 
-def _paths(value) -> tuple[str, ...]:
-    """One location or several as a tuple of strings."""
-    return (str(value),) if isinstance(value, str | Path) else tuple(map(str, value or ()))
-
-
 @dataclass
 class Pipeline(Publisher, StageRunner):
     """One reproduction: profile, locations, and how commands run."""
@@ -76,7 +71,8 @@ class Pipeline(Publisher, StageRunner):
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
-        self.samples, self.samples_given = map(_paths, (self.samples, self.samples_given))
+        self.samples, self.samples_given = (tuple(map(str, v))
+                                            for v in (self.samples, self.samples_given))
         self.settings = tuple(self.settings or self.profile.settings)
         for i, name in enumerate(self.settings):  # any registered setting or '+' composition
             if stack_settings(self.settings[:i + 1]) is None:
@@ -431,38 +427,36 @@ class Pipeline(Publisher, StageRunner):
         for line in self.plan():
             self._say(line)
         first, second = self.parts()
+        names = [p.name for p in (*first, *second)]
         train, val = self.run_data()
         tm, vm = self.run_filter(train, val)
-        like = first[-1]  # the references take its capacities and simulator settings
-        jobs: list[lanes.Job] = []
-        costly = sorted([*[(p.seconds, p) for p in first], (self.maze_seconds, None)],
-                        key=lambda x: -x[0])
-        for _, part in costly:  # the longest first; the maze among them by its cost
-            if part is None:
-                jobs.append(lanes.Job("maze", lambda e: self.run_maze(e)))
-            else:
-                jobs.append(lanes.Job(f"train_{part.name}", lambda e, p=part: self.run_train(
-                    p.method, tm, vm, e, p)))
+        like = first[-1].name  # the references take its capacities and simulator settings
+
+        def train_job(part: planning.Part, after: tuple[str, ...] = ()) -> lanes.Job:
+            return lanes.Job(f"train_{part.name}",
+                             lambda e: self.run_train(part.method, tm, vm, e, part), after)
+
+        # the longest first; the maze among them by its cost
+        costly = [*[(p.seconds, train_job(p)) for p in first],
+                  (self.maze_seconds, lanes.Job("maze", self.run_maze))]
+        jobs = [job for _, job in sorted(costly, key=lambda x: -x[0])]
         if second:  # the methods taught by the better full-setting policy
             jobs.append(lanes.Job("teacher", lambda e: self.run_teacher([p.name for p in first]),
                                   after=tuple(f"train_{p.name}" for p in first)))
-            jobs += [lanes.Job(f"train_{p.name}", lambda e, p=p: self.run_train(
-                p.method, tm, vm, e, p), after=("teacher",)) for p in second]
-        jobs += [lanes.Job(f"evaluate_{p.name}", lambda e, p=p: self.run_evaluate(p.name, vm, e),
-                           after=(f"train_{p.name}",)) for p in (*first, *second)]
-        jobs += [lanes.Job(f"evaluate_{p.name}_idm",
-                           lambda e, p=p: self.run_evaluate(p.name, vm, e, agents="idm"),
-                           after=(f"train_{p.name}",)) for p in (*first, *second)]
+            jobs += [train_job(p, ("teacher",)) for p in second]
+        jobs += [lanes.Job(f"evaluate_{n}{suffix}", lambda e, n=n, a=agents: self.run_evaluate(
+                     n, vm, e, a), after=(f"train_{n}",))
+                 for agents, (_, suffix, _) in EVAL_FOLDERS.items() for n in names]
         jobs += [lanes.Job(f"evaluate_references{suffix}", lambda e, a=agents: self.run_evaluate(
-                     "references", vm, e, a, like.name), after=(f"train_{like.name}",))
+                     "references", vm, e, a, like), after=(f"train_{like}",))
                  for agents, (_, suffix, _) in EVAL_FOLDERS.items()]
         jobs += [lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
                  lanes.Job("render", lambda e: self.run_render(val, e))]
         lanes.run_jobs(jobs, self.lanes, self.stopping, echo_alone=self.in_process)
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
-                    *[f"evaluate_{p.name}" for p in (*first, *second)]]
-        self.run_report(self.work / "evals", upstream, [p.name for p in (*first, *second)])
-        self.run_reactive([p.name for p in (*first, *second)])
+                    *[f"evaluate_{n}" for n in names]]
+        self.run_report(self.work / "evals", upstream, names)
+        self.run_reactive(names)
         self.run_real_logs()
         self.publish()
         self.write_results()

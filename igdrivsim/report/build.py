@@ -78,12 +78,8 @@ def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path
 
 def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
     """The ``runs/`` folder next to each evaluation folder (``WORK/evals`` -> ``WORK/runs``)."""
-    found = []
-    for root in map(Path, eval_dirs):
-        runs = root.resolve().parent / "runs"
-        if runs.is_dir() and runs not in found:
-            found.append(runs)
-    return found
+    runs = (Path(root).resolve().parent / "runs" for root in eval_dirs)
+    return [r for r in dict.fromkeys(runs) if r.is_dir()]
 
 
 def build_report(eval_dirs: list[str | Path], out: str | Path,

@@ -1,66 +1,178 @@
 """Fig. 3 (BC versus BC-RL), Fig. 4 (learning curves), Fig. 5 (supplementary metrics) and
-Fig. 6 (every learned method). The bar figures' ``marked`` attribute maps each panel's metric to
-its asterisked ``(setting, method)`` cells."""
+Fig. 6 (every learned method). The bar panels of Fig. 3, 5 and 6: per setting a group of bars
+(mean over seeds, 95% t-interval clipped to the metric's range), asterisks where significant
+after Holm (the figure's ``marked`` attribute maps each panel's metric to its asterisked
+``(setting, method)`` cells), the reference actors as horizontal lines."""
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import seaborn as sns
+from matplotlib.container import BarContainer
+from matplotlib.lines import Line2D
 
-matplotlib.use("Agg")  # figures are files; never open a window
-
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-import seaborn as sns  # noqa: E402
-from matplotlib.container import BarContainer  # noqa: E402
-
-from igdrivsim.errors import DataError  # noqa: E402
-from igdrivsim.evaluation.schema import METRIC_BY_KEY  # noqa: E402
-from igdrivsim.io import atomic_savefig  # noqa: E402
-from igdrivsim.names import (  # noqa: E402
-    BC,
-    BC_RL,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    setting_short,
-)
-from igdrivsim.report import plots  # noqa: E402
-from igdrivsim.report.methods_table import (  # noqa: E402
+from igdrivsim.errors import DataError
+from igdrivsim.evaluation.aggregate import ALPHA, CONFIDENCE, t_interval
+from igdrivsim.evaluation.schema import METRIC_BY_KEY
+from igdrivsim.io import atomic_savefig
+from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
+from igdrivsim.report.methods_table import (
     extended_methods,
     learned_methods,
     method_colours,
     method_label,
 )
-from igdrivsim.report.tables import _metric_name, present_settings  # noqa: E402
-from igdrivsim.training.methods import METHODS as METHOD_REGISTRY  # noqa: E402
-from igdrivsim.training.run import CURVES as CURVES_FILE  # noqa: E402
+from igdrivsim.report.results_tex import read_table
+from igdrivsim.report.tables import _metric_name, present_settings
+from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
+from igdrivsim.training.run import CURVES as CURVES_FILE
+
+matplotlib.use("Agg")  # figures are files; never open a window
+
+Cell = tuple[str, str]  # (setting, method)
+
+INF = math.inf
+# what each unit can take; other units (e.g. "ratio") are not clipped
+FEASIBLE: dict[str, tuple[float, float]] = {
+    "%": (0.0, 100.0), "score": (0.0, 1.0), "m": (0.0, INF), "s": (0.0, INF),
+    "m/s": (0.0, INF), "m/s²": (0.0, INF), "m/s³": (0.0, INF), "rad/s": (0.0, INF),
+}
+REFERENCE_STYLE: dict[str, dict] = {  # distinct colour, dash and width, labelled in the legend
+    CONSTANT_VELOCITY: dict(color="#b2182b", linestyle="-.", linewidth=1.2),
+    EXPERT: dict(color="0.1", linestyle=":", linewidth=1.5),
+}
+SIGNIFICANT = "*"
+
+
+def feasible_range(unit: str) -> tuple[float, float]:
+    """``(low, high)`` a metric in ``unit`` can take (unbounded for an unknown unit)."""
+    return FEASIBLE.get(unit, (-INF, INF))
+
+
+def clip_interval(low: float, high: float, unit: str) -> tuple[float, float]:
+    """A confidence interval clipped to :func:`feasible_range` (NaN bounds stay NaN)."""
+    lo, hi = feasible_range(unit)
+    return (float(np.clip(low, lo, hi)) if math.isfinite(low) else low,
+            float(np.clip(high, lo, hi)) if math.isfinite(high) else high)
+
+
+def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
+    """``setting, method, mean, low, high`` of ``metric``, clipped to the unit's range."""
+    part = frame[frame.metric == metric]
+    rows = []
+    if "value" in part.columns:
+        for (setting, method), cell in part.groupby(["setting", "method"], sort=False):
+            values = cell["value"].dropna().to_numpy(float)
+            if values.size:
+                rows.append((setting, method, *t_interval(values, CONFIDENCE)))
+    else:
+        rows = [(r.setting, r.method, float(r.mean), float(r.ci_low), float(r.ci_high))
+                for r in part.itertuples()]
+    out = []
+    for setting, method, mean, low, high in rows:
+        if not math.isfinite(low):  # one seed: no interval
+            low = high = mean
+        out.append((str(setting), str(method), mean, *clip_interval(low, high, unit)))
+    return pd.DataFrame(out, columns=["setting", "method", "mean", "low", "high"])
+
+
+def significant_cells(tests: pd.DataFrame | None, metric: str) -> set[Cell]:
+    """``(setting, method)`` of the rows of ``tests`` significant after Holm."""
+    if tests is None or len(tests) == 0:
+        return set()
+    rows = tests[(tests.metric == metric) & tests.significant.astype(bool)]
+    return {(str(r.setting), str(r.method)) for r in rows.itertuples()}
+
+
+def draw_bars(ax, cells: pd.DataFrame, settings: Sequence[str], methods: Sequence[str],
+              colours: Mapping[str, str], labels: Mapping[str, str]) -> dict[Cell, tuple]:
+    """The bars of ``cells`` grouped by setting; ``(setting, method) -> (x, top)``."""
+    width = 0.8 / max(1, len(methods))
+    positions: dict[Cell, tuple] = {}
+    labelled: set[str] = set()
+    by_cell = {(r.setting, r.method): r for r in cells.itertuples()}
+    for g, setting in enumerate(settings):
+        present = [m for m in methods if (setting, m) in by_cell
+                   and math.isfinite(by_cell[setting, m].mean)]
+        for k, method in enumerate(present):
+            r = by_cell[setting, method]
+            x = g + (k - (len(present) - 1) / 2) * width
+            ax.bar(x, r.mean, width * 0.95, color=colours[method],
+                   label=None if method in labelled else labels[method])
+            labelled.add(method)
+            err = np.array([[max(r.mean - r.low, 0.0)], [max(r.high - r.mean, 0.0)]])
+            ax.errorbar(x, r.mean, yerr=err, fmt="none", ecolor="0.2", elinewidth=1.0,
+                        capsize=2.5)
+            positions[setting, method] = (x, max(r.mean, r.high))
+    ax.set_xticks(range(len(settings)))
+    ax.set_xlim(-0.5, len(settings) - 0.5)
+    return positions
+
+
+def mark_significant(ax, positions: Mapping[Cell, tuple], significant: set[Cell]) -> list[Cell]:
+    """An asterisk above each drawn bar in ``significant``; the marked cells."""
+    marked = sorted(c for c in significant if c in positions)
+    if not marked:
+        return []
+    low, high = ax.get_ylim()
+    pad = 0.03 * (high - low)
+    tops = []
+    for cell in marked:
+        x, top = positions[cell]
+        ax.text(x, top + pad, SIGNIFICANT, ha="center", va="bottom", fontsize=12,
+                fontweight="bold", color="0.1")
+        tops.append(top + 5 * pad)
+    ax.set_ylim(low, max(high, *tops))
+    return marked
+
+
+def reference_lines(ax, frame: pd.DataFrame, metric: str) -> None:
+    """A labelled horizontal line at each reference actor's mean of ``metric``."""
+    column = "value" if "value" in frame.columns else "mean"
+    for method in (CONSTANT_VELOCITY, EXPERT):
+        value = frame[(frame.method == method) & (frame.metric == metric)][column].mean()
+        if pd.notna(value):
+            ax.axhline(float(value), label=METHOD_LABELS[method], zorder=3,
+                       **REFERENCE_STYLE[method])
+
+
+def figure_handles(fig) -> dict[str, object]:
+    """Each distinct legend entry of the figure's axes, first occurrence first."""
+    handles: dict[str, object] = {}
+    for ax in fig.axes:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    return handles
+
 
 PANELS = ("log_divergence", "overlap", "offroad")
 CLIPPED = "error bars: 95% t-interval over seeds, clipped to the metric's range"
 
 
 def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[str],
-               methods: Sequence[str], tests: pd.DataFrame | None) -> list[plots.Cell]:
+               methods: Sequence[str], tests: pd.DataFrame | None) -> list[Cell]:
     """One metric's bars, references and significance marks on ``ax``; the marked cells."""
-    cells = plots.cell_stats(frame, key, unit)
+    cells = cell_stats(frame, key, unit)
     cells = cells[cells.method.isin(methods) & cells.setting.isin(settings)]
     ax.set_xticks(range(len(settings)), [setting_short(s) for s in settings])
     if cells.empty:
         ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
         return []
-    colours = method_colours(methods)
-    positions = plots.draw_bars(ax, cells, settings, methods, colours,
-                                {m: method_label(m) for m in methods})
-    plots.reference_lines(ax, frame, key)
-    low, _ = plots.feasible_range(unit)
+    positions = draw_bars(ax, cells, settings, methods, method_colours(methods),
+                          {m: method_label(m) for m in methods})
+    reference_lines(ax, frame, key)
+    low, _ = feasible_range(unit)
     if math.isfinite(low):  # rates and distances start at 0
         ax.set_ylim(bottom=low)
-    return plots.mark_significant(ax, positions, plots.significant_cells(tests, key))
+    return mark_significant(ax, positions, significant_cells(tests, key))
 
 
 def _rotate_settings(ax) -> None:
@@ -71,10 +183,11 @@ def _rotate_settings(ax) -> None:
 
 def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
     """The legend above (``top``) or below the panels; returns its number of rows."""
-    handles = plots.figure_handles(fig)  # the methods' bars first, then the lines
+    handles = figure_handles(fig)  # the methods' bars first, then the lines
     handles = dict(sorted(handles.items(), key=lambda kv: not isinstance(kv[1], BarContainer)))
-    if tested:
-        star = plots.significance_handle()
+    if tested:  # an entry explaining the asterisk
+        star = Line2D([], [], linestyle="", marker="$*$", markersize=7, color="0.1",
+                      label=f"significant vs {METHOD_LABELS[BC]} (Holm, α={ALPHA})")
         handles[star.get_label()] = star
     if not handles:
         return 0
@@ -249,11 +362,11 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
                 if key in values and math.isfinite(values[key]):
                     later.append(values[key])
                     ax.axhline(values[key], label=METHOD_LABELS[method],
-                               **plots.REFERENCE_STYLE[method])
+                               **REFERENCE_STYLE[method])
             _zoom_past_start(ax, first, later)
             if col == 0:
                 ax.set_ylabel(label)
-    handles = plots.figure_handles(fig)
+    handles = figure_handles(fig)
     fig.legend(list(handles.values()), list(handles), loc="lower center", frameon=False,
                ncols=min(len(handles), 4), bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.04 + 0.02 * math.ceil(len(handles) / 4), 1, 1))
@@ -324,28 +437,24 @@ def fig6_methods(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     return fig
 
 
-def _read(path: Path) -> pd.DataFrame | None:
-    return pd.read_csv(path, dtype={"setting": str, "method": str}) if path.is_file() else None
-
-
 def redraw_from_tables(paper: str | Path) -> list[Path]:
     """Fig. 3, 5 (and 6) from the tables under ``paper``; the paths."""
     from igdrivsim.evaluation import registry  # the supplementary metrics
 
     tables, figures = Path(paper) / "tables", Path(paper) / "figures"
-    seeds = _read(tables / "seed_means.csv")
-    summary = _read(tables / "summary.csv")
+    seeds = read_table(tables / "seed_means.csv")
+    summary = read_table(tables / "summary.csv")
     main = seeds if seeds is not None else summary
     if main is None:
         raise DataError("no seed_means.csv or summary.csv: run `igdrivsim report` first",
                         file=str(tables))
-    written = save_figure(fig3_metrics(main, _read(tables / "tests.csv")), figures,
+    written = save_figure(fig3_metrics(main, read_table(tables / "tests.csv")), figures,
                           "fig3_metrics")
-    supplementary = _read(tables / "supplementary_summary.csv")
+    supplementary = read_table(tables / "supplementary_summary.csv")
     if supplementary is not None:
         written += save_figure(supplementary_figure(supplementary, registry.metrics()),
                                figures, "fig5_supplementary")
-    tests_all = _read(tables / "tests_all.csv")
+    tests_all = read_table(tables / "tests_all.csv")
     if tests_all is not None and extended_methods(main):
         written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
     return written

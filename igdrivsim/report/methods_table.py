@@ -23,12 +23,12 @@ from igdrivsim.names import (
 from igdrivsim.report.tables import (
     MISSING,
     _ci_text,
+    _diff_text,
     _fmt_mean,
     _has_references,
     _lookup,
     _metric_name,
     _reference_rows,
-    _signed,
     _tex,
     _tex_number,
     heading,
@@ -84,10 +84,6 @@ def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Ser
     return rows.iloc[0]
 
 
-def _n_cells(tests: pd.DataFrame) -> int:
-    return int(np.isfinite(tests.p_value.to_numpy(float)).sum()) if len(tests) else 0
-
-
 def _ranges(tests: pd.DataFrame, column: str) -> str:
     """``lo–hi unit`` per metric unit over the cells with a finite ``column``."""
     parts = []
@@ -102,17 +98,12 @@ def _ranges(tests: pd.DataFrame, column: str) -> str:
 
 def methods_caption(tests: pd.DataFrame) -> str:
     """The Holm and MDE sentence of Table II (plain text; LaTeX callers escape it)."""
-    n = _n_cells(tests)
+    n = int(np.isfinite(tests.p_value.to_numpy(float)).sum()) if len(tests) else 0
     k = int(tests.significant.sum()) if len(tests) else 0
     return (f"Holm correction over the table's {n} comparison cells ({k} significant). "
             f"Minimum detectable effect ({POWER:.0%} power) at alpha={ALPHA}: "
             f"{_ranges(tests, 'mde')}; "
             f"at the strictest Holm level alpha/{n}: {_ranges(tests, 'mde_holm')}.")
-
-
-def _diff_text(row: pd.Series) -> str:
-    return (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
-            f"{_signed(float(row.ci_high))}]")
 
 
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
@@ -141,10 +132,6 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
     return "\n".join(out) + "\n"
 
 
-def _tex_ci(row: pd.Series | None) -> str:
-    return _tex_number(_ci_text(row)).replace("±", r"$\pm$")
-
-
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """Table II as a ``table*`` float (label ``tab:methods``)."""
     methods = learned_methods(summary)
@@ -164,7 +151,8 @@ def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str 
         for method in methods:
             means, diffs = [], []
             for setting in cols:
-                text = _tex_ci(_lookup(summary, metric.key, setting, method))
+                text = _tex_number(_ci_text(_lookup(summary, metric.key, setting, method)))
+                text = text.replace("±", r"$\pm$")
                 row = _test(tests, method, metric.key, setting)
                 diff = "" if row is None else _tex_number(_diff_text(row))
                 if row is not None and bool(row.significant):

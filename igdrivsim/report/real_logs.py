@@ -32,7 +32,6 @@ from igdrivsim.names import (
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.tables import _tex, md_head, md_row, tex_row, wrap
 
-METRIC_KEYS = STEP_METRICS
 SOURCES = ("validation", "real")  # the columns of each metric
 # real log divergence minus constant velocity's: difference, interval, detectable effect
 VS_CV = ["real_vs_cv_diff", "real_vs_cv_lo", "real_vs_cv_hi", "real_vs_cv_mde"]
@@ -50,7 +49,7 @@ PAIRED_HEAD = ["N egos (sources)", "closer to the log [95% CI]",
 
 def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -> pd.DataFrame:
     """One row per ``(setting, method)`` on real logs: means over seeds and counts."""
-    metrics = [METRIC_BY_KEY[k] for k in METRIC_KEYS]
+    metrics = [METRIC_BY_KEY[k] for k in STEP_METRICS]
     rows: dict[tuple[str, str], dict] = {}
     for source, frame in (("real", real), ("validation", validation)):
         if frame is None or frame.empty:
@@ -66,12 +65,12 @@ def real_log_table(real: pd.DataFrame, validation: pd.DataFrame | None = None) -
             row[f"{source}_n"], row[f"{source}_seeds"] = int(c.n), int(c.seeds)
             if source == "real":
                 row["real_sources"] = int(c.sources)
-            for key in METRIC_KEYS:
+            for key in STEP_METRICS:
                 row[f"{source}_{key}"] = float(means.get((setting, method, key), float("nan")))
     for row in rows.values():
         row |= _ego_by_ego(real, row["setting"], row["method"])
     columns = ["setting", "method"] + [f"{s}_{x}" for s in SOURCES
-                                        for x in ("n", "seeds", *METRIC_KEYS)] + VS_CV + [
+                                        for x in ("n", "seeds", *STEP_METRICS)] + VS_CV + [
         "real_sources", *PAIRED]
     table = pd.DataFrame(list(rows.values()), columns=columns)
     methods = {m: i for i, m in enumerate(METHOD_LABELS)}
@@ -184,14 +183,19 @@ def readout_markdown(readouts: pd.DataFrame) -> list[str]:
     return lines
 
 
+def _full_bc(table: pd.DataFrame) -> pd.Series | None:
+    """Full BC's row, when it was compared with constant velocity ego by ego."""
+    full = table[(table.setting == READOUT_SETTING) & (table.method == BC)]
+    return None if full.empty or pd.isna(full.iloc[0].get("real_vs_cv_win")) else full.iloc[0]
+
+
 def _target_rows(table: pd.DataFrame) -> tuple[list[tuple[str, str, str]], pd.Series] | None:
     """Full BC against :data:`~igdrivsim.evaluation.schema.REAL_COMPETENCE` on the real egos:
     ``(target, Full BC, verdict)`` per target, and Full BC's row; None without them."""
-    full = table[(table.setting == READOUT_SETTING) & (table.method == BC)]
-    cv = table[table.method == CONSTANT_VELOCITY]
-    if full.empty or cv.empty or pd.isna(full.iloc[0].get("real_vs_cv_win")):
+    r, cv = _full_bc(table), table[table.method == CONSTANT_VELOCITY]
+    if r is None or cv.empty:
         return None
-    r, c, t = full.iloc[0], cv.iloc[0], REAL_COMPETENCE
+    c, t = cv.iloc[0], REAL_COMPETENCE
     win, lo, hi = (100 * r[f"real_vs_cv_{k}"] for k in ("win", "win_lo", "win_hi"))
     offroad = r.real_offroad - t["offroad"] * c.real_offroad
 
@@ -258,9 +262,8 @@ def _cell(row: pd.Series, source: str, key: str) -> str:
 
 
 def _label(row: pd.Series) -> tuple[str, str]:
-    method = METHOD_LABELS.get(row.method, row.method)
-    setting = "--" if row.method in REFERENCES else setting_short(row.setting)
-    return setting, method
+    return ("--" if row.method in REFERENCES else setting_short(row.setting),
+            METHOD_LABELS.get(row.method, row.method))
 
 
 def _egos_text(table: pd.DataFrame) -> str:
@@ -275,7 +278,7 @@ def _egos_text(table: pd.DataFrame) -> str:
 def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: str,
                        readouts: pd.DataFrame | None = None) -> str:
     """The tables as Markdown: the metrics, ego by ego, the read-outs."""
-    head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in METRIC_KEYS
+    head = ["setting", "method"] + [f"{HEADERS[k]}, {s}" for k in STEP_METRICS
                                      for s in SOURCES] + [VS_CV_HEADER]
     lines = ["# Synthetic-trained drivers on real logs (beyond the paper)", "",
              f"Real: {real_label}{_egos_text(table)}. Validation: {validation_label}. "
@@ -287,9 +290,8 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
              "scenarios, then seeds) and the smallest difference these scenarios detect "
              "at 80% power (MDE); a few real scenarios cannot separate the methods.",
              "", *md_head(*head)]
-    for _, row in table.iterrows():
-        lines.append(md_row(*_label(row), *[_cell(row, s, k) for k in METRIC_KEYS for s in SOURCES],
-                            _vs_cv_cell(row)))
+    lines += [md_row(*_label(row), *[_cell(row, s, k) for k in STEP_METRICS for s in SOURCES],
+                     _vs_cv_cell(row)) for _, row in table.iterrows()]
     extra = [] if readouts is None else readout_markdown(readouts)
     return "\n".join(lines + real_targets(table) + _paired_markdown(table) + extra) + "\n"
 
@@ -297,11 +299,11 @@ def real_logs_markdown(table: pd.DataFrame, real_label: str, validation_label: s
 def real_logs_latex(table: pd.DataFrame, real_label: str, validation_label: str) -> str:
     """The table as a LaTeX ``table`` (booktabs)."""
     lines = [r"\begin{table}[t]", r"\centering", r"\small",
-             r"\begin{tabular}{ll" + "rr" * len(METRIC_KEYS) + "}", r"\toprule",
+             r"\begin{tabular}{ll" + "rr" * len(STEP_METRICS) + "}", r"\toprule",
              " & & " + tex_row(*[rf"\multicolumn{{2}}{{c}}{{{_tex(HEADERS[k])}}}"
-                                 for k in METRIC_KEYS]),
-             tex_row("setting", "method", *["validation & real"] * len(METRIC_KEYS)), r"\midrule"]
-    lines += [tex_row(*[_tex(c) for c in _label(row)], *[_cell(row, s, k) for k in METRIC_KEYS
+                                 for k in STEP_METRICS]),
+             tex_row("setting", "method", *["validation & real"] * len(STEP_METRICS)), r"\midrule"]
+    lines += [tex_row(*[_tex(c) for c in _label(row)], *[_cell(row, s, k) for k in STEP_METRICS
                                                          for s in SOURCES])
               for _, row in table.iterrows()]
     lines += [r"\bottomrule", r"\end{tabular}",
@@ -344,10 +346,7 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
         win = 100 * learned.real_vs_cv_win.dropna()
         closer = (f"; ego by ego, they stay closer to the log than constant velocity on "
                   f"{_span(win, 0)}% of the egos")
-        full = learned[(learned.setting == "full") & (learned.method == BC)
-                       & learned.real_vs_cv_win.notna()]
-        if len(full):
-            r = full.iloc[0]
+        if (r := _full_bc(learned)) is not None:
             closer += (f", Full BC on {100 * r.real_vs_cv_win:.0f}% (95% CI "
                        f"{100 * r.real_vs_cv_win_lo:.0f}-{100 * r.real_vs_cv_win_hi:.0f}%)")
     where = f"{n} real scenarios"
@@ -390,8 +389,6 @@ def write_numbers(table: pd.DataFrame, out: Path) -> list[Path]:
 
 # ------------------------------------------------------------------ the results page
 READOUTS = {"sample": "sampled (Table I)"}  # a read-out's name in the table, when not its own
-
-
 VS_CV_HEAD = ("N egos (sources)", "closer than CV [95% CI]", "mean / CV [95% CI]")
 
 
@@ -403,10 +400,8 @@ def _vs_cv(row: pd.Series) -> list[str]:
 
 def _full_bc_line(table: pd.DataFrame) -> str | None:
     """The headline sentence on Full BC; None without that comparison."""
-    full = table[(table.setting == "full") & (table.method == BC)]
-    if full.empty or "real_vs_cv_win" not in full or pd.isna(full.real_vs_cv_win.iloc[0]):
+    if (r := _full_bc(table)) is None:
         return None
-    r = full.iloc[0]
     return (f"On real logs ({int(r.real_vs_cv_egos)} egos from {int(r.real_vs_cv_sources)} "
             "source scenarios, every vehicle that passes the scenario filter as the ego), "
             f"Full BC stays closer to the log than constant velocity on "
@@ -439,7 +434,7 @@ def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
     if headline:
         text = full or sentence.rstrip(".")
         return wrap(text + f"; every setting: [{headline}]({headline}#on-real-logs).")
-    learned = [m for m in dict.fromkeys(table.method) if m not in (EXPERT, CONSTANT_VELOCITY)]
+    learned = [m for m in dict.fromkeys(table.method) if m not in REFERENCES]
     settings = [s for s in dict.fromkeys(table.setting) if s != REFERENCE_SETTING]
     rows = {(r.setting, r.method): r for _, r in table.iterrows()}
     ego_table = []

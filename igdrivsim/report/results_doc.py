@@ -89,13 +89,6 @@ def _scope(prov: dict[str, str], summary: pd.DataFrame) -> str:
             f"{seeds} seeds, {scenarios} validation scenarios, sampled actions")
 
 
-def _significant(tests: pd.DataFrame | None) -> tuple[int, int]:
-    if tests is None:
-        return 0, 0
-    cells = tests[tests.method == BC_RL]
-    return int(cells.significant.astype(bool).sum()), len(cells)
-
-
 def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") -> str:
     """The README's short results table (BC and BC-RL per setting, the offroad effect)."""
     paper = Path(paper)
@@ -104,7 +97,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
         return "No results yet: run the reproduction (`bash scripts/reproduce.sh`).\n"
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
-    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    settings = tables.present_settings(summary)
     cv = tables.reference_means(summary, dict(_HEADLINE))
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
@@ -120,8 +113,9 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
                           _interval(_test_row(tests, "offroad", setting)), paper_text))
     out.append("| constant velocity | " + " | ".join(_fmt(cv[m]) for m, _ in _HEADLINE)
                + " | | |")
-    k, n = _significant(tests)
-    closing = f"BC-RL differs from BC in {k} of {n} cells of Table I after Holm."
+    cells = tables._cells(tests)  # BC-RL - BC
+    k = int(cells.significant.astype(bool).sum()) if len(cells) else 0
+    closing = f"BC-RL differs from BC in {k} of {len(cells)} cells of Table I after Holm."
     wall = wall_seconds(read_table(paper / "tables" / RUN_TIMES))
     line = run_line(paper, commit=False)
     if line:
@@ -135,7 +129,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
 
 
 def _competence(summary: pd.DataFrame) -> list[str]:
-    settings = [s for s in table_settings(summary) if s in set(summary.setting)]
+    settings = tables.present_settings(summary)
     methods = [m for m in (BC, BC_RL) if m in set(summary.method)]
     cv = tables.reference_means(summary, COMPETENCE)
     if not settings or not methods or not all(math.isfinite(v) for v in cv.values()):
@@ -238,8 +232,7 @@ def against_an_hour(times: pd.DataFrame) -> str:
            "even without training the stages take more than an hour")
     return (f"Against an hour: the stages add up to {total:,.0f} s on the workers, run in "
             f"{wall:,.0f} s (on average {total / wall:.2f} stages at once): {shares}; at that "
-            f"overlap "
-            f"{cut}.")
+            f"overlap {cut}.")
 
 
 def _run_times(times: pd.DataFrame | None) -> list[str]:
@@ -393,7 +386,6 @@ def write_run_times(work: str | Path, tables: Path) -> list[Path]:
 def write_markdown(paper: str | Path, results: str | Path | None,
                    readme: str | Path | None = None) -> list[Path]:
     """Write ``results``, fill ``readme``'s blocks and rewrite the PDF's macros."""
-
     paper = Path(paper)
     results = Path(results) if results else paper / "results.md"
     link = os.path.relpath(paper.resolve(), results.resolve().parent)

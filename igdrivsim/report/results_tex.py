@@ -209,19 +209,17 @@ def maze_tex(paper: str | Path) -> str | None:
 def write_macros(paper: str | Path) -> list[Path]:
     """Write the macro files whose tables are there, with their provenance."""
     paper = Path(paper)
-    written = []
-    files = provenance.load(paper) if (paper / provenance.FILE).is_file() else None
-    before = dict(files or {})
+    written, files = [], provenance.load(paper)
+    before = dict(files)
     for rel, text in (("generated/results.tex", results_tex(paper)),
                       ("generated/maze.tex", maze_tex(paper))):
         if text is None:
             continue
         written.append(atomic_write_text(paper / rel, text))
-        source = (files or {}).get(SOURCES[rel])
-        if files is not None and isinstance(source, dict):
+        if isinstance(source := files.get(SOURCES[rel]), dict):
             note = f"macros read from {SOURCES[rel]}"
             files[rel] = {**source, "note": f"{source['note']}; {note}" if source.get("note")
                           else note}
-    if files is not None and files != before:
+    if files != before:
         provenance.save(paper, files)
     return written

@@ -17,7 +17,6 @@ from igdrivsim.names import (
     CONSTANT_VELOCITY,
     METHOD_LABELS,
     REFERENCES,
-    SETTING_SHORT,
     SETTINGS,
     setting_labels,
     setting_short,
@@ -190,11 +189,9 @@ def _ci_text(row: pd.Series | None) -> str:
 
 def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
     """Per setting, a one-line answer to "is BC-RL safer than BC?"."""
-    cols = table_settings(tests)
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
-    verdicts = {}
-    cells = _cells(tests)
-    for setting in cols:
+    verdicts, cells = {}, _cells(tests)
+    for setting in table_settings(tests):
         rows = cells[(cells.setting == setting) & cells.metric.isin(safety)] if len(cells) else []
         if len(rows) == 0:
             verdicts[setting] = "not evaluated"
@@ -267,9 +264,8 @@ def vs_paper_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = 
                 ok = (diff < 0) == (pdiff < 0) and diff != 0
                 agree += ok
                 same = "yes" if ok else "no"
-            out.append(f"| {SETTING_SHORT[setting]} | {_fmt(a)} | {_fmt(b)} | "
-                       f"{_fmt(diff)} | {sig or MISSING} | "
-                       f"{pa:.2f} | {pb:.2f} | {pdiff:+.2f} | {same} |")
+            out.append(md_row(setting_short(setting), _fmt(a), _fmt(b), _fmt(diff),
+                              sig or MISSING, f"{pa:.2f}", f"{pb:.2f}", f"{pdiff:+.2f}", same))
         out.append("")
     out.append(f"Direction of BC-RL minus BC agrees with the paper in {agree} of {total} "
                "evaluated cells.")
@@ -281,11 +277,16 @@ def _signed(value: float) -> str:
     return f"{value:+.2f}" if round(value, 2) != 0 else "+0.00"
 
 
+def _diff_text(row: pd.Series) -> str:
+    """A difference and its interval: ``+0.12 [-0.03, +0.27]``."""
+    return (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
+            f"{_signed(float(row.ci_high))}]")
+
+
 def _interval_text(row: pd.Series | None) -> str:
     if row is None or not math.isfinite(float(row["diff"])):
         return MISSING
-    text = (f"{_signed(float(row['diff']))} [{_signed(float(row.ci_low))}, "
-            f"{_signed(float(row.ci_high))}]")
+    text = _diff_text(row)
     return md_bold(text) if bool(row.significant) else text
 
 
@@ -296,9 +297,9 @@ def effects_markdown(tests: pd.DataFrame) -> str:
            f"Negative: BC-RL lower (better). **Bold**: Holm-adjusted p < {ALPHA} over all "
            f"{len(_cells(tests))} cells ({TEST_NAME}).", "",
            *md_head("metric (unit)", *map(setting_short, cols))]
-    for metric in METRICS:
-        cells = [_interval_text(_test_row(tests, metric.key, s)) for s in cols]
-        out.append(md_row(f"{_metric_name(metric)} ({metric.unit})", *cells))
+    out += [md_row(f"{_metric_name(metric)} ({metric.unit})",
+                   *[_interval_text(_test_row(tests, metric.key, s)) for s in cols])
+            for metric in METRICS]
     return "\n".join(out) + "\n"
 
 
@@ -377,26 +378,16 @@ def power_latex(tests: pd.DataFrame) -> str:
 # ------------------------------------------------------------------ supplementary metrics
 def _supplementary_rows(summary: pd.DataFrame, metrics) -> list[tuple]:
     """Per metric: (metric, [(method, italic, [cell per setting])])."""
-    cols = table_settings(summary)
-    rows = []
-    references = _has_references(summary)
-    learned = [m for m in (BC_RL, BC) if m in set(summary.method)] or [BC_RL, BC]
-    learned += [m for m in METHOD_LABELS if m in set(summary.method)
-                and m not in learned and m not in REFERENCES]
-    for metric in metrics:
-        groups = []
-        for method in learned:  # the paper's two, then every other learned method present
-            groups.append((method, False, [_lookup(summary, metric.key, s, method)
-                                           for s in cols]))
-        for method in references:
-            row = _lookup(summary, metric.key, REFERENCE_SETTING, method)
-            groups.append((method, True, [row] * len(cols)))
-        rows.append((metric, groups))
-    return rows
-
-
-def _direction(metric) -> str:
-    return "higher is better" if metric.higher_is_better else "lower is better"
+    cols, present = table_settings(summary), set(summary.method)
+    # the paper's two, then every other learned method present
+    learned = [m for m in (BC_RL, BC) if m in present] or [BC_RL, BC]
+    learned += [m for m in METHOD_LABELS if m in present and m not in learned
+                and m not in REFERENCES]
+    return [(metric, [(m, False, [_lookup(summary, metric.key, s, m) for s in cols])
+                      for m in learned]
+             + [(m, True, [_lookup(summary, metric.key, REFERENCE_SETTING, m)] * len(cols))
+                for m in _has_references(summary)])
+            for metric in metrics]
 
 
 def _md(text: str) -> str:
@@ -414,7 +405,8 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
             "existed).", "",
             *md_head("metric (unit)", "method", *map(setting_short, cols))]
     for metric, groups in _supplementary_rows(summary, metrics):
-        name = _md(f"{metric.label} ({metric.unit}; {_direction(metric)})")
+        better = "higher" if metric.higher_is_better else "lower"
+        name = _md(f"{metric.label} ({metric.unit}; {better} is better)")
         for method, italic, cells in groups:
             label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
             texts = [_ci_text(c) for c in cells]
