@@ -94,7 +94,7 @@ def bench_data_command(args: argparse.Namespace) -> int:
         else:
             inputs = _tile(Path(args.samples), args.records, args.shards, folder)
         for fmt, paths in inputs.items():
-            for what, fn in (("read", lambda p, w: _time_read(p, w)),
+            for what, fn in (("read", _time_read),
                              ("filter", lambda p, w: _time_filter(p, w, folder))):
                 for workers in sorted({1, args.workers}):
                     cpu = process_cpu_seconds()
