@@ -11,6 +11,7 @@ import os
 import platform
 import subprocess
 import sys
+import time
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -33,6 +34,15 @@ def machine_record() -> dict:
             # JAX_DEFAULT_MATMUL_PRECISION changes what a float32 product costs on a GPU
             "matmul_precision": jax.config.jax_default_matmul_precision,
             "command": " ".join(["igdrivsim", *sys.argv[1:]]) if sys.argv else None}
+
+
+def process_cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and of its finished (joined) worker
+    processes: a cost that a machine shared with other work does not distort."""
+    import resource  # Unix only
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 PACKAGE_REPO = Path(__file__).resolve().parents[1]  # the checkout holding this package

@@ -21,7 +21,7 @@ from igdrivsim.data.manifest import write_json
 from igdrivsim.data.reader import available_cpus, iter_scenarios
 from igdrivsim.errors import DataError, check_min
 from igdrivsim.io import require_file_target
-from igdrivsim.machine import machine_record
+from igdrivsim.machine import machine_record, process_cpu_seconds
 
 DEFAULT_SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "womd"
 
@@ -55,14 +55,6 @@ def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, li
             tfrecord.write_records(f, [data] * (n // k + (i < n % k)))
         out[fmt] = files
     return out
-
-
-def _cpu_s() -> float:
-    """CPU seconds of this process and its finished (joined) worker processes."""
-    import resource  # optional: Unix only (peak memory)
-
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def _time_read(paths, workers: int) -> dict:
@@ -102,15 +94,15 @@ def bench_data_command(args: argparse.Namespace) -> int:
         else:
             inputs = _tile(Path(args.samples), args.records, args.shards, folder)
         for fmt, paths in inputs.items():
-            for what, fn in (("read", lambda p, w: _time_read(p, w)),
+            for what, fn in (("read", _time_read),
                              ("filter", lambda p, w: _time_filter(p, w, folder))):
                 for workers in sorted({1, args.workers}):
-                    cpu = _cpu_s()
+                    cpu = process_cpu_seconds()
                     row = {"input": fmt, "what": what, "workers": workers,
                            **fn(paths, workers if workers > 1 else 0)}
                     # CPU time (incl. worker start-up) per scenario: robust to a busy machine.
                     row["cpu_ms_per_scenario"] = round(
-                        1000 * (_cpu_s() - cpu) / max(row["scenarios"], 1), 2)
+                        1000 * (process_cpu_seconds() - cpu) / max(row["scenarios"], 1), 2)
                     results["runs"].append(row)
                     print(json.dumps(row), flush=True)
     if args.out:

@@ -38,7 +38,7 @@ from igdrivsim.simulator.agents import AGENTS
 from igdrivsim.simulator.metrics import step_metrics
 from igdrivsim.simulator.roadgraph import road_edges_from_roadgraph
 from igdrivsim.simulator.rollout import expert_discrete_action
-from igdrivsim.simulator.state import SimParams, SimState, reset, step
+from igdrivsim.simulator.state import SimParams, SimState, reset, step, vmap_batch
 
 DEFAULT_PARAMS = SimParams()
 
@@ -50,9 +50,7 @@ def naive_reset(scenario: Any, params: SimParams = DEFAULT_PARAMS) -> SimState:
     tiny = SimParams(dynamics=params.dynamics, edge_capacity=1,
                      offroad_method=params.offroad_method)
     state = reset(sc, tiny)
-    edges = road_edges_from_roadgraph
-    for _ in range(np.ndim(state.timestep)):
-        edges = jax.vmap(edges)
+    edges = vmap_batch(road_edges_from_roadgraph, np.ndim(state.timestep))
     return state.replace(roadgraph=sc.roadgraph, road_edges=edges(sc.roadgraph))
 
 

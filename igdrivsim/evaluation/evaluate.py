@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from igdrivsim.data import Capacities
 from igdrivsim.data.validation import load_scenarios
-from igdrivsim.errors import ConfigError
+from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.evaluation.rollout import (
     evaluate_policy,
     reference_frames,
@@ -42,8 +42,7 @@ def _check_sizes(max_scenarios: int, batch_size: int) -> None:
     """``--limit`` (0: every scenario) and ``--batch-size`` before anything is read."""
     if max_scenarios < 0:
         raise ConfigError(f"--limit must be >= 1 (or 0 for every scenario), got {max_scenarios}")
-    if batch_size < 1:
-        raise ConfigError(f"--batch-size must be >= 1, got {batch_size}")
+    check_min("--batch-size", batch_size, 1)
 
 
 def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",

@@ -131,9 +131,8 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
         out |= {name: float(point[i]), f"{name}_lo": float(lo[i]), f"{name}_hi": float(hi[i])}
     if point[0] in (0.0, 1.0):  # every resample agrees: the percentile interval is a point
         out["win_lo"], out["win_hi"] = wilson_interval(point[0], len(uniques), confidence)
-    out["win_mde"] = float(minimum_detectable_effect(se[0]))
-    out["ratio_mde"] = float(minimum_detectable_effect(se[2]))
-    out["diff_mde"] = float(minimum_detectable_effect(se[3]))
+    out |= {f"{name}_mde": float(minimum_detectable_effect(se[i]))
+            for i, name in enumerate(STATISTICS) if name != "median"}
     return out
 
 
@@ -161,10 +160,8 @@ def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference:
         ref = ref[ref.setting == REFERENCE_SETTING]
     if ours.empty or ref.empty:
         return np.zeros((0, 0)), np.zeros(0), []
-    a = ours.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
-                         dropna=False)
-    b = ref.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
-                        dropna=False)
+    a, b = (f.pivot_table(index="seed", columns="scenario_id", values=column, aggfunc="mean",
+                          dropna=False) for f in (ours, ref))
     egos = sorted(set(a.columns[a.notna().all(axis=0)]) & set(b.columns[b.notna().all(axis=0)]))
     source = source_map(pd.concat([ours, ref]))
     return (a[egos].to_numpy(float).reshape(len(a), len(egos)),

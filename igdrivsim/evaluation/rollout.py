@@ -100,11 +100,10 @@ def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_si
                      ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Tidy frames of both reference actors (setting ``none``, seed 0)."""
     ids = scenario_ids_of(scenarios)
-    steps, scens = [], []
+    frames = []
     for name in REFERENCE_ACTORS:
         outs = closed_loop.evaluate_reference(scenarios, name, params, batch_size, metrics_fn,
                                               progress, episode_metrics=registry.episode_values)
-        a, b = tidy_frames(outs, ids, REFERENCE_SETTING, name, [0])
-        steps.append(a)
-        scens.append(b)
+        frames.append(tidy_frames(outs, ids, REFERENCE_SETTING, name, [0]))
+    steps, scens = zip(*frames, strict=True)
     return pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True)

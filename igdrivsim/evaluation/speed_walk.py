@@ -26,6 +26,7 @@ from igdrivsim.data.validation import load_validation
 from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.rollout import Actor, expert_action, run_episode
+from igdrivsim.simulator.state import _take
 
 MIDDLE = dynamics.NUM_BINS // 2
 PARAMS = SimParams()
@@ -36,9 +37,7 @@ OFFSETS = jnp.arange(-3, 4)  # the offsets the fourth actor draws (labels beyond
 
 def constant_velocity_level(state) -> jax.Array:
     """The dx level of keeping the current (simulated) speed, ``int32[...]``."""
-    t = state.timestep[..., None]
-    vx = jnp.take_along_axis(state.sdc.vel_x, t, -1)[..., 0]
-    vy = jnp.take_along_axis(state.sdc.vel_y, t, -1)[..., 0]
+    vx, vy = _take(state.sdc.vel_x, state.timestep), _take(state.sdc.vel_y, state.timestep)
     return MIDDLE + dynamics.constant_speed_offset(jnp.hypot(vx, vy))
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 from pathlib import Path
 
 import jax
@@ -14,7 +13,8 @@ import igdrivsim.simulator as sim
 from igdrivsim.data import decode_scenario_id, load_scenario
 from igdrivsim.data.formats import format_of
 from igdrivsim.data.samples import find_samples
-from igdrivsim.errors import ConfigError, DataError
+from igdrivsim.data.synthetic.plot import GENERATED_ID
+from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import require_folder
 from igdrivsim.observation import render
 from igdrivsim.observation.models import PAPER_SETTINGS, get_setting
@@ -61,13 +61,10 @@ def _data_path(args) -> str:
     return path
 
 
-SYNTHETIC_ID = re.compile(r"syn[0-9a-f]+[a-z]\d{8}")  # the generator's scenario names
-
-
 def scene_source(path: str, scenario) -> str:
     """What the figure shows, said in it: a synthetic scenario or a real one (and its dataset)."""
     sid = decode_scenario_id(scenario.scenario_id)
-    if SYNTHETIC_ID.fullmatch(sid):
+    if GENERATED_ID.fullmatch(sid):
         return f"synthetic scenario {sid} (igdrivsim's generator, not a real log)"
     dataset = format_of(path).dataset(path)
     return f"real {dataset or 'logged'} scenario {sid} ({os.path.basename(path)})"
@@ -79,10 +76,8 @@ def render_command(args) -> int:
         raise ConfigError(f"--step must be in 10..90, got {args.step}")
     if not args.view > 0:  # also rejects nan
         raise ConfigError(f"--view must be > 0, got {args.view:g}")
-    if args.every < 1:
-        raise ConfigError(f"--every must be >= 1, got {args.every}")
-    if args.record < 0:
-        raise ConfigError(f"--record must be >= 0, got {args.record}")
+    check_min("--every", args.every, 1)
+    check_min("--record", args.record, 0)
     setting = get_setting(args.setting)  # fail early on a bad name
     panels = ([p.strip() for p in args.panels.split(",") if p.strip()]
               if args.panels is not None else list(PAPER_SETTINGS))

@@ -145,16 +145,10 @@ def object_features(sdc_xy: jax.Array, sdc_yaw: jax.Array, objects: Any, sdc_ind
     return obj, obj_valid, obj_idx
 
 
-def observe_arrays(
-    sdc_xy: jax.Array,
-    sdc_yaw: jax.Array,
-    sdc_speed: jax.Array,
-    objects: Any,
-    sdc_index: jax.Array,
-    roadgraph: Any,
-    config: ObservationConfig = DEFAULT_CONFIG,
-    sdc_yaw_rate: jax.Array = 0.0,
-) -> tuple[Observation, Selection]:
+def observe_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax.Array, objects: Any,
+                   sdc_index: jax.Array, roadgraph: Any,
+                   config: ObservationConfig = DEFAULT_CONFIG, sdc_yaw_rate: jax.Array = 0.0
+                   ) -> tuple[Observation, Selection]:
     """``(observation, selection)`` of one example at the ego's (believed) pose ``sdc_xy``,
     ``sdc_yaw`` from global-frame ``objects`` (``x, y, yaw, vel_x, vel_y, valid`` ``[O]``, the
     ego in slot ``sdc_index``) and ``roadgraph`` (``xyz, dir, type, valid`` ``[R]``)."""

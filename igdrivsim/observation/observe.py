@@ -93,19 +93,11 @@ def episode_observations(rec: ObservationRecord, setting, episode_key: jax.Array
         r, setting, episode_key, jax.random.fold_in(episode_key, t), config))(per_step, steps)
 
 
-def observe_setting_arrays(
-    sdc_xy: jax.Array,
-    sdc_yaw: jax.Array,
-    sdc_speed: jax.Array,
-    objects: Any,
-    sdc_index: jax.Array,
-    roadgraph: Any,
-    setting: ObservationSetting,
-    episode_key: jax.Array,
-    step_key: jax.Array,
-    config: ObservationConfig = DEFAULT_CONFIG,
-    sdc_yaw_rate: jax.Array = 0.0,
-) -> tuple[Observation, Selection]:
+def observe_setting_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax.Array,
+                           objects: Any, sdc_index: jax.Array, roadgraph: Any,
+                           setting: ObservationSetting, episode_key: jax.Array,
+                           step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG,
+                           sdc_yaw_rate: jax.Array = 0.0) -> tuple[Observation, Selection]:
     """:func:`observe_arrays` under ``setting`` from the ego's TRUE pose ``sdc_xy``, ``sdc_yaw``."""
     xy, yaw = perceive_pose(setting, jnp.asarray(sdc_xy, jnp.float32),
                             jnp.asarray(sdc_yaw, jnp.float32), episode_key, step_key)
@@ -121,13 +113,9 @@ def sdc_pose(objects: Any, sdc_index: jax.Array) -> tuple[jax.Array, jax.Array, 
     return xy, pick(objects.yaw), jnp.hypot(pick(objects.vel_x), pick(objects.vel_y))
 
 
-def observe_with_selection(
-    state: Any,
-    setting: ObservationSetting,
-    episode_key: jax.Array,
-    step_key: jax.Array,
-    config: ObservationConfig = DEFAULT_CONFIG,
-) -> tuple[Observation, Selection]:
+def observe_with_selection(state: Any, setting: ObservationSetting, episode_key: jax.Array,
+                           step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG
+                           ) -> tuple[Observation, Selection]:
     """:func:`observe` that also returns which object / roadgraph slots were selected."""
     objects = current_objects(state)
     xy, yaw, speed = sdc_pose(objects, state.sdc_index)
@@ -135,13 +123,8 @@ def observe_with_selection(
                                   setting, episode_key, step_key, config, sdc_yaw_rate(state))
 
 
-def observe(
-    source: Any,
-    setting: ObservationSetting,
-    episode_key: jax.Array,
-    step_key: jax.Array,
-    config: ObservationConfig = DEFAULT_CONFIG,
-) -> Observation:
+def observe(source: Any, setting: ObservationSetting, episode_key: jax.Array,
+            step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG) -> Observation:
     """The imitator's observation (one example) under ``setting``, of a simulator state or of
     one recorded step: the SAME ``episode_key`` at every step of an episode, a fresh
     ``step_key`` per step (e.g. ``fold_in(episode_key, state.timestep)``)."""

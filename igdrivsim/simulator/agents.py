@@ -44,10 +44,9 @@ class IdmParams:
         for name in ("min_gap", "time_headway", "parked_distance"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"IdmParams.{name} must be >= 0, got {getattr(self, name)}")
-        if self.max_agents < 1:
-            raise ConfigError(f"IdmParams.max_agents must be >= 1, got {self.max_agents}")
-        if self.path_samples < 1:
-            raise ConfigError(f"IdmParams.path_samples must be >= 1, got {self.path_samples}")
+        for name in ("max_agents", "path_samples"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"IdmParams.{name} must be >= 1, got {getattr(self, name)}")
 
 
 @struct.dataclass

@@ -42,16 +42,23 @@ from igdrivsim.simulator.state import (
 DEFAULT_PARAMS = SimParams()
 
 
+def _sdc_box(obj, i):
+    """The SDC's ``(x, y, yaw, length, width)`` in slot ``i`` of objects ``[..., O]``, each
+    ``[..., 1]``."""
+    return tuple(_take(a, i)[..., None] for a in (obj.x, obj.y, obj.yaw, obj.length, obj.width))
+
+
+def _hits(obj, i, box):
+    """``bool[..., O]``: the SDC ``box`` overlaps each other object valid at the step."""
+    ex, ey, eyaw, el, ew = box
+    hit = boxes_overlap(ex, ey, el, ew, eyaw, obj.x, obj.y, obj.length, obj.width, obj.yaw)
+    return hit & obj.valid & (jnp.arange(obj.x.shape[-1]) != i[..., None])
+
+
 def overlap(state: SimState):
     """``bool[...]``: the SDC box overlaps some other object valid at the current step."""
-    obj = current_objects(state)
-    i = state.sdc_index
-    hit = boxes_overlap(
-        _take(obj.x, i)[..., None], _take(obj.y, i)[..., None], _take(obj.length, i)[..., None],
-        _take(obj.width, i)[..., None], _take(obj.yaw, i)[..., None],
-        obj.x, obj.y, obj.length, obj.width, obj.yaw)
-    others = obj.valid & (jnp.arange(obj.x.shape[-1]) != i[..., None])
-    return jnp.any(hit & others, axis=-1) & _take(obj.valid, i)
+    obj, i = current_objects(state), state.sdc_index
+    return jnp.any(_hits(obj, i, _sdc_box(obj, i)), axis=-1) & _take(obj.valid, i)
 
 
 STOPPED_SPEED = 0.05  # m/s: nuPlan's stopped ego / stopped object threshold
@@ -84,10 +91,8 @@ def at_fault_overlap(state: SimState):
 
 def at_fault_objects(obj, i):
     """:func:`at_fault_overlap` of objects ``obj`` ``[..., O]`` (the SDC in slot ``i``)."""
-    ex, ey, eyaw = (_take(a, i)[..., None] for a in (obj.x, obj.y, obj.yaw))
-    el, ew = _take(obj.length, i)[..., None], _take(obj.width, i)[..., None]
-    hit = boxes_overlap(ex, ey, el, ew, eyaw, obj.x, obj.y, obj.length, obj.width, obj.yaw)
-    hit = hit & obj.valid & (jnp.arange(obj.x.shape[-1]) != i[..., None])
+    ex, ey, eyaw, el, ew = box = _sdc_box(obj, i)
+    hit = _hits(obj, i, box)
     ego_moving = jnp.hypot(_take(obj.vel_x, i), _take(obj.vel_y, i))[..., None] >= STOPPED_SPEED
     stopped = jnp.hypot(obj.vel_x, obj.vel_y) < STOPPED_SPEED
     c, s = jnp.cos(eyaw), jnp.sin(eyaw)
@@ -154,20 +159,13 @@ def signed_distance_segment(px, py, edges: RoadEdges):
 SIGNED_DISTANCE = {"point": signed_distance_point, "segment": signed_distance_segment}
 
 
-def sdc_corners(state: SimState):
-    """Corners of the simulated SDC box at the current step: ``(cx, cy)``, each ``[..., 4]``."""
-    x, y, yaw, _ = sdc_pose(state)
-    i, t = state.sdc_index, state.timestep
-    length = _take(_row(state.log.length, i), t)
-    width = _take(_row(state.log.width, i), t)
-    return box_corners(x, y, length, width, yaw)
-
-
 def offroad(state: SimState, method: str = "point"):
     """``bool[...]``: some SDC box corner is outside the road (see the module docstring)."""
-    cx, cy = sdc_corners(state)
+    x, y, yaw, valid = sdc_pose(state)
+    i, t = state.sdc_index, state.timestep
+    cx, cy = box_corners(x, y, _take(_row(state.log.length, i), t),
+                         _take(_row(state.log.width, i), t), yaw)
     sd = SIGNED_DISTANCE[method](cx, cy, state.road_edges)
-    _, _, _, valid = sdc_pose(state)
     outside = (sd > 0) & jnp.isfinite(sd)
     return (outside[..., 0] | outside[..., 1] | outside[..., 2] | outside[..., 3]) & valid
 

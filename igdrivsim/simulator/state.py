@@ -182,21 +182,16 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
     sc = jax.tree.map(jnp.asarray, scenario)
     traj = sc.trajectory
     sdc_index = jnp.argmax(sc.metadata.is_sdc, axis=-1).astype(jnp.int32)
-    path_x, path_y = _row(traj.x, sdc_index), _row(traj.y, sdc_index)
-    path_valid = _row(traj.valid, sdc_index)
-
-    ref = jnp.stack([path_x[..., CURRENT_INDEX], path_y[..., CURRENT_INDEX]], -1)
+    row = jax.tree.map(lambda a: _row(a, sdc_index), traj)  # the SDC's log
+    ref = jnp.stack([row.x[..., CURRENT_INDEX], row.y[..., CURRENT_INDEX]], -1)
     road_edges = vmap_batch(
         lambda rg, r: select_road_edges(rg, r, edge_capacity=params.edge_capacity),
         sdc_index.ndim)(sc.roadgraph, ref)
     roadgraph = vmap_batch(lambda rg, r: thin_roadgraph(rg, params.roadgraph_stride, r),
                             sdc_index.ndim)(sc.roadgraph, ref)
-    t = jnp.arange(traj.x.shape[-1])
-    past = t <= CURRENT_INDEX
-    sdc = SdcTrajectory(
-        x=path_x, y=path_y, yaw=_row(traj.yaw, sdc_index), vel_x=_row(traj.vel_x, sdc_index),
-        vel_y=_row(traj.vel_y, sdc_index), valid=path_valid & past,
-    )
+    past = jnp.arange(traj.x.shape[-1]) <= CURRENT_INDEX
+    sdc = SdcTrajectory(x=row.x, y=row.y, yaw=row.yaw, vel_x=row.vel_x, vel_y=row.vel_y,
+                        valid=row.valid & past)
     agents = None
     if params.agents == "idm":
         agents = vmap_batch(lambda lg, md, i: sim_agents.init_agents(lg, md, i, params.idm),

@@ -39,9 +39,7 @@ def set_object(sc: Scenario, slot: int, x, y, yaw, *, length=4.5, width=2.0, sdc
     """Set object ``slot``'s trajectory from arrays (or scalars) over the 91 steps."""
     tr, md = sc.trajectory, sc.metadata
     t = np.arange(NUM_STEPS)
-    x = np.broadcast_to(np.asarray(x, np.float32), t.shape)
-    y = np.broadcast_to(np.asarray(y, np.float32), t.shape)
-    yaw = np.broadcast_to(np.asarray(yaw, np.float32), t.shape)
+    x, y, yaw = (np.broadcast_to(np.asarray(a, np.float32), t.shape) for a in (x, y, yaw))
     tr.x[slot], tr.y[slot], tr.yaw[slot] = x, y, yaw
     vx, vy = np.gradient(x) / 0.1, np.gradient(y) / 0.1
     tr.vel_x[slot], tr.vel_y[slot] = vx, vy
@@ -65,7 +63,7 @@ def straight_road(caps: Capacities = TOY_CAPS,
     set_object(sc, 0, -10.0 + speed * t, 0.0, 0.0, sdc=True)
     set_object(sc, 1, 10.0 + speed * t, 0.0, 0.0)
     set_object(sc, 2, 40.0, -3.0, np.pi)
-    n = (caps.max_roadgraph_points // 3)
+    n = caps.max_roadgraph_points // 3
     xs = -30.0 + spacing * np.arange(n, dtype=np.float32)
     i = add_polyline(sc, 0, np.stack([xs, np.zeros_like(xs)], 1), RG_LANE_SURFACE_STREET, 1)
     # Right edge runs +x (interior, y > -hw, on its left); left edge runs -x.
@@ -73,8 +71,7 @@ def straight_road(caps: Capacities = TOY_CAPS,
                      RG_ROAD_EDGE_BOUNDARY, 2)
     add_polyline(sc, i, np.stack([xs[::-1], np.full_like(xs, half_width)], 1),
                  RG_ROAD_EDGE_BOUNDARY, 3)
-    sc = sc.replace(scenario_id=encode_scenario_id(scenario_id))
-    return sc
+    return sc.replace(scenario_id=encode_scenario_id(scenario_id))
 
 
 def following(gap: float = 40.0, speed: float = 10.0, leader_speed: float = 0.0,

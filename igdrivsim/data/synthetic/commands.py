@@ -25,17 +25,9 @@ from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.data.tfrecord import write_records
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, read_json, require_folder
+from igdrivsim.machine import process_cpu_seconds
 
 CHUNK = 8  # scenarios per worker task
-
-
-def _cpu_seconds() -> float:
-    """CPU seconds (user + system) of this process and of its finished worker processes: the
-    cost of generating, which a machine shared with other work does not distort."""
-    import resource  # Unix only
-
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def shard_paths(out: str, split: str, shards: int) -> list[str]:
@@ -125,7 +117,7 @@ def generate_command(args: argparse.Namespace) -> int:
             if args.overwrite or not os.path.exists(path):
                 todo.append((split, path, indices))
     total = sum(len(r) for _, _, r in todo)
-    start, cpu = time.perf_counter(), _cpu_seconds()
+    start, cpu = time.perf_counter(), process_cpu_seconds()
     # One stream of chunks over all shards (no worker waits at a shard's end); the shards are
     # written in order as their chunks come back.
     chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
@@ -146,7 +138,7 @@ def generate_command(args: argparse.Namespace) -> int:
                 write_records(path, records())
     finally:
         results.close()  # the worker processes end here: their CPU time is counted below
-    seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
+    seconds, cpu = time.perf_counter() - start, process_cpu_seconds() - cpu
     if args.plot:
         scenarios = [generate_scenario(args.seed, i, "training", config)
                      for i in range(min(args.plot, args.train))]

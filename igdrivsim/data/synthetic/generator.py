@@ -341,11 +341,9 @@ def _resampled(m: MapData, spacing: float) -> list[tuple[np.ndarray, np.ndarray]
 
 
 def _edges(m: MapData) -> tuple[cKDTree, np.ndarray]:
-    pts, dirs = [], []
-    for (_, t), (p, d) in zip(m.features, _resampled(m, 0.5), strict=True):
-        if t in RG_ROAD_EDGE_TYPES:
-            pts.append(p), dirs.append(d)
-    pts, dirs = np.concatenate(pts), np.concatenate(dirs)
+    edges = [(p, d) for (_, t), (p, d) in zip(m.features, _resampled(m, 0.5), strict=True)
+             if t in RG_ROAD_EDGE_TYPES]
+    pts, dirs = (np.concatenate(a) for a in zip(*edges, strict=True))
     return cKDTree(pts), np.concatenate([pts, dirs], 1)
 
 

@@ -279,13 +279,14 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
         right = right + w * smooth((s_ref - (drop - taper)) / taper)
     left = (n_back * w + half_m + bike_l + park_l if n_back else 0.0) + shoulder
     right = np.broadcast_to(right, s_ref.shape)
-    if park_r:  # parking strips: routes (never driven) where parked cars stand
-        m.parking.append(_route(geo.offset(ref, -(n_fwd * w + half_m + bike + park_r / 2)), -2,
-                                "parking", 0.0))
-    if park_l:
-        m.parking.append(_route(geo.offset(ref, n_back * w + half_m + bike_l + park_l / 2)[::-1],
-                                -3,
-                                "parking", 0.0))
+    # the kerb sides, right then left: (offset sign, traffic lanes, bike lane, parking strip);
+    # kerb_line: the line d m out on a side, in that side's driving direction
+    kerbs = ((-1, n_fwd, bike, park_r), (1, n_back, bike_l, park_l))
+    kerb_line = lambda sign, d: geo.offset(ref, sign * d)[::-sign]
+    for k, (sign, n, bk, park) in enumerate(kerbs):
+        if park:  # parking strips: routes (never driven) where parked cars stand
+            m.parking.append(_route(kerb_line(sign, n * w + half_m + bk + park / 2), -2 - k,
+                                    "parking", 0.0))
     # side streets (T junctions): on the right, and on the left of a two-way road, each on a
     # straight stretch away from the crosswalk and from each other
     kappa = np.abs(geo.curvature(ref))
@@ -323,18 +324,14 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
     elif n_back:
         m.add(geo.offset(ref, 0.0), int(rng.choice(
             [SOLID_DOUBLE_YELLOW, BROKEN_YELLOW, PASSING_DOUBLE_YELLOW], p=[0.6, 0.25, 0.15])))
-    if park_r or bike:  # a solid white line beside the outer traffic lane
-        m.add(geo.offset(ref, -(n_fwd * w + half_m)), SOLID_WHITE)
-    if park_l or bike_l:
-        m.add(geo.offset(ref, n_back * w + half_m)[::-1], SOLID_WHITE)
-    if bike:  # bike lanes (WOMD lane type 3), ridden by cyclists
-        m.bike_routes.append(_route(geo.offset(ref, -(n_fwd * w + half_m + bike / 2)), -4,
-                                    "bike", 6.0))
-        m.add(m.bike_routes[-1].points, RG_LANE_BIKE)
-    if bike_l:
-        m.bike_routes.append(_route(geo.offset(ref, n_back * w + half_m + bike_l / 2)[::-1],
-                                    -5, "bike", 6.0))
-        m.add(m.bike_routes[-1].points, RG_LANE_BIKE)
+    for sign, n, bk, park in kerbs:
+        if park or bk:  # a solid white line beside the outer traffic lane
+            m.add(kerb_line(sign, n * w + half_m), SOLID_WHITE)
+    for k, (sign, n, bk, _) in enumerate(kerbs):
+        if bk:  # bike lanes (WOMD lane type 3), ridden by cyclists
+            m.bike_routes.append(_route(kerb_line(sign, n * w + half_m + bk / 2), -4 - k, "bike",
+                                        6.0))
+            m.add(m.bike_routes[-1].points, RG_LANE_BIKE)
     for side in (right - 2.0, left + 2.0):  # sidewalks, 2 m outside the road edges
         m.sidewalks.append(geo.offset(ref, side))
     if cross_i is not None:

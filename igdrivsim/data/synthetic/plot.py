@@ -18,13 +18,13 @@ from igdrivsim.data.scenario import (
 from igdrivsim.io import atomic_savefig
 
 _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
-_GENERATED = re.compile(r"syn([0-9a-f]+)([a-z])(\d{8})")  # the generator's scenario names
+GENERATED_ID = re.compile(r"syn([0-9a-f]+)([a-z])(\d{8})")  # the generator's scenario names
 _SPLITS = {"t": "training", "v": "validation"}
 
 
 def readable_title(scenario_id: str) -> str:
     """``syn0t00000003`` -> ``Synthetic training scenario 3 (seed 0)``; another id as it is."""
-    match = _GENERATED.fullmatch(scenario_id)
+    match = GENERATED_ID.fullmatch(scenario_id)
     if match is None:
         return f"Scenario {scenario_id}"
     seed, split, index = match.groups()
