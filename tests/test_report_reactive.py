@@ -7,13 +7,9 @@ import pandas as pd
 import pytest
 
 from igdrivsim.errors import DataError
-from igdrivsim.report.reactive import (
-    reactive_figure,
-    reactive_markdown,
-    reactive_section,
-    reactive_table,
-    verdict,
-)
+from igdrivsim.report.reactive import reactive_figure, reactive_markdown, reactive_table
+from igdrivsim.report.results_tex import reactive_section
+from igdrivsim.report.results_tex import reactive_verdict as verdict
 
 
 def frame(overlap_p: float, seed_count: int = 3, n: int = 60, rng_seed: int = 0,

@@ -167,31 +167,6 @@ def reactive_figure(table: pd.DataFrame, out_dir: str | Path) -> list[Path]:
     return save_figure(fig, out_dir, FIGURE)
 
 
-def verdict(table: pd.DataFrame) -> str:
-    """One sentence: per metric, how many learned drivers are significantly lower or higher
-    under IDM agents than under log replay (Holm over the table), of how many."""
-    learned = table[table.setting != REFERENCE_SETTING]
-    parts = []
-    for metric in METRICS:
-        part = learned[learned.metric == metric.key]
-        sig = part.significant.astype(bool)
-        lower, higher = int((sig & (part["diff"] > 0)).sum()), int((sig & (part["diff"] < 0)).sum())
-        parts.append(f"{HEADERS[metric.key].split(' (')[0]} {lower} lower and {higher} higher")
-    n = learned[["setting", "method"]].drop_duplicates().shape[0]
-    return (f"With IDM sim agents instead of log replay, of the {n} learned drivers (settings x "
-            f"methods), significantly so at Holm-adjusted p < {ALPHA} over the table: "
-            + "; ".join(parts) + "; the rest do not differ detectably")
-
-
-def reactive_section(table: pd.DataFrame | None, link: str = "PAPER/tables/reactive.md"
-                     ) -> list[str]:
-    """The results page's section on reactive traffic (nothing without ``reactive.csv``)."""
-    if table is None or not len(table):
-        return []
-    return ["## Under reactive traffic", "",
-            f"{verdict(table)} (every cell: [reactive.md]({link}); Fig. 7).", ""]
-
-
 def build(log_dirs: list[str], idm_dirs: list[str], out: str | Path) -> list[Path]:
     """Read both evaluations and write the table, its numbers and the figure under ``out``."""
     table = reactive_table(load_evaluations(log_dirs)[1], load_evaluations(idm_dirs)[1])

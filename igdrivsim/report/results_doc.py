@@ -17,9 +17,8 @@ from igdrivsim.names import BC, BC_RL, EXPERT, METHOD_LABELS, setting_short
 from igdrivsim.report import methods_table, tables
 from igdrivsim.report.provenance import load as load_provenance
 from igdrivsim.report.provenance import wall_text
-from igdrivsim.report.reactive import reactive_section
 from igdrivsim.report.real_logs import real_logs_section
-from igdrivsim.report.results_tex import read_table, write_macros
+from igdrivsim.report.results_tex import reactive_section, read_table, write_macros
 from igdrivsim.report.tables import _fmt, _test_row, md_head, md_row, table1_markdown, wrap
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
