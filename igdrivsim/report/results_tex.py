@@ -149,7 +149,7 @@ def reactive_verdict(table: pd.DataFrame) -> str:
         part = learned[learned.metric == key]
         sig = part.significant.astype(bool)
         lower, higher = int((sig & (part["diff"] > 0)).sum()), int((sig & (part["diff"] < 0)).sum())
-        label = key.replace("_", " ").replace("at fault", "at-fault")
+        label = key.replace("_", " ").replace("at fault overlap", "at-fault overlap rate")
         parts.append(f"{label} {lower} lower and {higher} higher")
     n = len(learned[["setting", "method"]].drop_duplicates())
     return (f"With IDM sim agents instead of log replay, of the {n} learned drivers (settings x "
