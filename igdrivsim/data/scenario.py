@@ -213,10 +213,7 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
     b = lambda *s: np.zeros(s, bool)  # noqa: E731
     return Scenario(
-        trajectory=Trajectory(
-            x=f(o, t), y=f(o, t), z=f(o, t), yaw=f(o, t), vel_x=f(o, t), vel_y=f(o, t),
-            length=f(o, t), width=f(o, t), height=f(o, t), valid=b(o, t),
-        ),
+        trajectory=Trajectory(*(f(o, t) for _ in range(9)), valid=b(o, t)),  # 9 float fields
         metadata=ObjectMetadata(
             id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
             tracks_to_predict=b(o), objects_of_interest=b(o), valid=b(o),
