@@ -21,7 +21,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
-from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, pool_map
+from igdrivsim.data.reader import ReadStats, as_paths, expand_paths, iter_file, pool_map
 from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
@@ -256,9 +256,7 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     if part is not None:
         files = files[part[0]::part[1]]
     os.makedirs(os.path.join(out, SHARDS_DIR), exist_ok=True)
-    resolved = {**asdict(config), "inputs": [os.fspath(i) for i in
-                                               ([inputs] if isinstance(inputs, str | os.PathLike)
-                                                else inputs)],
+    resolved = {**asdict(config), "inputs": as_paths(inputs),
                 "part": None if part is None else f"{part[0]}/{part[1]}", "skip_bad": skip_bad,
                 **({} if egos == "sdc" else {"egos": egos})}
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
@@ -326,7 +324,7 @@ def stored_config(dirs) -> FilterConfig | None:
 def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
     """Join the per-shard results of the filter runs in ``dirs`` into ``out`` (entries sorted by
     file, then record); ``config=None``: the runs' own settings (else the paper's)."""
-    dirs = [os.fspath(d) for d in ([dirs] if isinstance(dirs, str | os.PathLike) else dirs)]
+    dirs = as_paths(dirs)
     paths = []
     for d in dirs:
         shard_dir = os.path.join(d, SHARDS_DIR)

@@ -1,17 +1,20 @@
 """One way in for data: :func:`open_scenarios` reads whatever a data path names (a filter output
 folder, or files of any registered format; docs/data.md, Inputs); :func:`count_scenarios`,
 :func:`data_identity` and :func:`scenario_refs` answer the questions asked of a path without
-reading it whole.
+reading it whole; :func:`load_scenarios` stacks its scenarios (the validation scenarios that the
+training curves and the evaluation are judged on).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from collections.abc import Iterator
 from itertools import chain, islice
 
 import numpy as np
+from tqdm import tqdm
 
 from igdrivsim.data.egos import PAPER_FILTER, check_egos, ego_of, ego_slot, expand_egos
 from igdrivsim.data.filter import FilterConfig
@@ -30,7 +33,10 @@ from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
     Scenario,
+    decode_scenario_id,
     fit_to_capacities,
+    split_ego_id,
+    stack_scenarios,
 )
 from igdrivsim.errors import DataError
 
@@ -220,3 +226,44 @@ def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scena
     if slot is None:
         raise DataError(f"no object {ego} (the file changed?)", file=file, record=record)
     return next(_egos_of(rec, caps, PAPER_FILTER, only=slot)).scenario
+
+
+def origin_of(rec: ScenarioRecord) -> dict:
+    """Where one read scenario comes from: ``{"scenario_id", "source", "logged_sdc"}``.
+    ``source`` is the source log: for a window cut from a long log (ScenarioNet), the reader's
+    source id; for an ego of ``egos="all"``, its scenario's id; else the scenario's own id.
+    ``logged_sdc``: whether the ego is the log's SDC (always, with ``egos="sdc"``)."""
+    sid = decode_scenario_id(rec.scenario.scenario_id)
+    if rec.source and rec.source.get("source_id"):
+        source = str(rec.source["source_id"])
+    else:
+        source = split_ego_id(sid)[0] if rec.ego is not None else sid
+    return {"scenario_id": sid, "source": source,
+            "logged_sdc": True if rec.ego is None else bool(rec.ego["logged_sdc"])}
+
+
+def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
+                   egos: str = "sdc") -> tuple:
+    """``(stacked scenarios [N], origins)`` of ``data``, one :func:`origin_of` dict per
+    scenario; ``data``: a location or a list of them (read in turn); see
+    :func:`load_validation`."""
+    check_data(data, "validation")
+    total = count_scenarios(data, max_scenarios, egos) if progress else None
+    scenarios, origins = [], []
+    with tqdm(total=total, desc="loading", unit="scn", file=sys.stderr,
+              disable=not progress, dynamic_ncols=True) as bar:
+        for rec in open_scenarios(data, caps, egos=egos, limit=max_scenarios):
+            scenarios.append(rec.scenario)
+            origins.append(origin_of(rec))
+            bar.update()
+    if not scenarios:
+        raise DataError("no validation scenarios (empty manifest or no records)",
+                        file=str(data))
+    return stack_scenarios(scenarios), origins
+
+
+def load_validation(data, caps, max_scenarios: int = 0, progress: bool = False,
+                    egos: str = "sdc"):
+    """Stacked validation scenarios ``[N]`` of ``data`` (:func:`load_scenarios`); ``progress``: a
+    "loading" bar on stderr, with a total where that is cheap to know."""
+    return load_scenarios(data, caps, max_scenarios, progress, egos)[0]
