@@ -27,12 +27,11 @@ def write_json(path: str | os.PathLike, obj) -> None:
 
 def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
     """Write manifest lines (fields in :data:`FIELDS` order) atomically; returns the count."""
-    n = 0
+    lines = [json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n"
+             for entry in entries]
     with atomic_path(path, "w") as f:
-        for entry in entries:
-            f.write(json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n")
-            n += 1
-    return n
+        f.writelines(lines)
+    return len(lines)
 
 
 def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]:

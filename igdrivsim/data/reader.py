@@ -162,12 +162,11 @@ def pool_map(fn, tasks, workers: int) -> Iterator:
         todo = iter(tasks)
         pending = [pool.submit(fn, *task) for task in itertools.islice(todo, 2 * workers)]
         try:
+            for task in todo:  # one more in flight as each result is taken
+                pending.append(pool.submit(fn, *task))
+                yield pending.pop(0).result()
             while pending:
-                fut = pending.pop(0)
-                task = next(todo, None)
-                if task is not None:
-                    pending.append(pool.submit(fn, *task))
-                yield fut.result()
+                yield pending.pop(0).result()
         finally:
             for fut in pending:
                 fut.cancel()

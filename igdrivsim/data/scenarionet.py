@@ -46,6 +46,7 @@ from igdrivsim.errors import DataError
 FORMAT_SCENARIONET = "scenarionet"
 SUMMARY_FILE, MAPPING_FILE = "dataset_summary.pkl", "dataset_mapping.pkl"
 PICKLE_SUFFIXES = (".pkl", ".pickle")
+PROBE = 0.2  # m: a derived road-edge sample is on the boundary when this far right is no lane
 
 _ALLOWED = {
     ("builtins", n) for n in ("dict", "list", "tuple", "set", "frozenset", "str", "bytes",
@@ -297,13 +298,12 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
     return xyz
 
 
-def union_boundary(polygons: list[np.ndarray], spacing: float = MAX_SPACING,
-                   probe: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def union_boundary(polygons: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boundary of the union of polygons as sampled, oriented polylines.
 
     Each ring is oriented counter-clockwise (interior on the left of ``dir``) and sampled every
-    ``spacing`` metres; a sample is on the union's boundary when the point ``probe`` metres to
-    its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
+    ``MAX_SPACING`` metres; a sample is on the union's boundary when the point ``PROBE`` metres
+    to its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
     dir [N, 2], polyline [N])``.
     """
     from matplotlib.path import Path  # heavy: only for maps without road edges
@@ -327,9 +327,9 @@ def union_boundary(polygons: list[np.ndarray], spacing: float = MAX_SPACING,
     segs = np.concatenate([np.roll(p, -1, axis=0) - p for p in rings])  # each ring closed
     lens = np.linalg.norm(segs, axis=1)
     ok = lens > 1e-9
-    xy, src = subdivide(starts[ok], segs[ok], spacing)
+    xy, src = subdivide(starts[ok], segs[ok], MAX_SPACING)
     d, ring_of = segs[ok][src] / lens[ok][src, None], ring_of[ok][src]
-    outside = xy + probe * np.stack([d[:, 1], -d[:, 0]], -1)  # right of dir
+    outside = xy + PROBE * np.stack([d[:, 1], -d[:, 0]], -1)  # right of dir
     covered = np.zeros(len(xy), bool)
     bbox = np.asarray(bbox)
     for ring, (x0, y0, x1, y1) in zip(rings, bbox, strict=True):
