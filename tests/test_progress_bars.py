@@ -126,7 +126,7 @@ def test_dataset_passes_the_number_of_scenarios(which, limit, total, shard, filt
 @pytest.mark.parametrize("which, limit, counts", [("shard", 0, "3/3"), ("shard", 2, "2/2"),
                                                   ("filtered", 0, "2/2")])
 def test_load_validation_bar(which, limit, counts, shard, filtered, capsys):
-    from igdrivsim.data.validation import load_validation
+    from igdrivsim.data.source import load_validation
 
     data = str({"shard": shard, "filtered": filtered}[which])
     stacked = load_validation(data, CAPS, limit, progress=True)

@@ -332,7 +332,7 @@ def test_every_real_location_is_read_with_each_ego_s_source_log():
     its source log (a window of a ScenarioNet log: the log, not the window) and whether it is
     the logged SDC."""
     from igdrivsim.data import Capacities
-    from igdrivsim.data.validation import load_scenarios
+    from igdrivsim.data.source import load_scenarios
 
     shared = Path(__file__).resolve().parents[2] / "shared" / "data"
     log = shared / "scenarionet" / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"

@@ -21,7 +21,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from igdrivsim.data.manifest import COUNTS, MANIFEST, write_json, write_manifest
-from igdrivsim.data.reader import ReadStats, expand_paths, iter_file, pool_map
+from igdrivsim.data.reader import ReadStats, as_paths, expand_paths, iter_file, pool_map
 from igdrivsim.data.scenario import TYPE_VEHICLE, Scenario, as_ego, decode_scenario_id
 from igdrivsim.errors import ConfigError, DataError
 from igdrivsim.io import atomic_path, read_json
@@ -43,13 +43,6 @@ class FilterConfig:
         if not np.isfinite(self.min_speed) or self.min_speed < 0:
             raise ConfigError(f"min_speed must be a finite number >= 0, got {self.min_speed}")
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-def _cross(ax, ay, bx, by):
-    return ax * by - ay * bx
-
 
 def segments_intersect(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray
                        ) -> np.ndarray:
@@ -60,24 +53,16 @@ def segments_intersect(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.nd
     degenerate, zero-length, segments).
     """
     p0, p1, q0, q1 = (np.asarray(a, np.float64) for a in (p0, p1, q0, q1))
-    dpx, dpy = p1[..., 0] - p0[..., 0], p1[..., 1] - p0[..., 1]
-    dqx, dqy = q1[..., 0] - q0[..., 0], q1[..., 1] - q0[..., 1]
-    o1 = _cross(dpx, dpy, q0[..., 0] - p0[..., 0], q0[..., 1] - p0[..., 1])
-    o2 = _cross(dpx, dpy, q1[..., 0] - p0[..., 0], q1[..., 1] - p0[..., 1])
-    o3 = _cross(dqx, dqy, p0[..., 0] - q0[..., 0], p0[..., 1] - q0[..., 1])
-    o4 = _cross(dqx, dqy, p1[..., 0] - q0[..., 0], p1[..., 1] - q0[..., 1])
-    straddle = (np.sign(o1) * np.sign(o2) <= 0) & (np.sign(o3) * np.sign(o4) <= 0)
-    boxes = np.ones_like(straddle)
-    for k in (0, 1):
-        boxes &= (np.maximum(p0[..., k], p1[..., k]) >= np.minimum(q0[..., k], q1[..., k]))
-        boxes &= (np.maximum(q0[..., k], q1[..., k]) >= np.minimum(p0[..., k], p1[..., k]))
+
+    def side(a, b, c):  # sign of (b - a) x (c - a)
+        return np.sign((b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1])
+                       - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0]))
+
+    straddle = ((side(p0, p1, q0) * side(p0, p1, q1) <= 0)
+                & (side(q0, q1, p0) * side(q0, q1, p1) <= 0))
+    boxes = ((np.maximum(p0, p1) >= np.minimum(q0, q1))
+             & (np.maximum(q0, q1) >= np.minimum(p0, p1))).all(-1)
     return straddle & boxes
-
-
-def path_segments(xy: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Segments ``(start, end)`` ``[S, 2]`` of one object's path between consecutive valid steps."""
-    both = valid[:-1] & valid[1:]
-    return xy[:-1][both], xy[1:][both]
 
 
 def valid_xy(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
@@ -98,24 +83,22 @@ def intersecting_objects(scenario: Scenario) -> np.ndarray:
         return hits
     sdc = int(np.argmax(is_sdc))
     valid, xy = valid_xy(scenario)
-    s0, s1 = path_segments(xy[sdc], valid[sdc])
+    seg_ok = valid[:, :-1] & valid[:, 1:]  # path segments: between consecutive valid steps
+    s0, s1 = xy[sdc, :-1][seg_ok[sdc]], xy[sdc, 1:][seg_ok[sdc]]
     if len(s0) == 0:
         return hits
     origin = s0[0]
     s0, s1, xy = s0 - origin, s1 - origin, xy - origin
-    # Other objects' segments, keeping those whose bounding box meets the SDC path's box.
-    seg_ok = valid[:, :-1] & valid[:, 1:]
     seg_ok[sdc] = False
+    # Other objects' segments, keeping those whose bounding box meets the SDC path's box.
     owner, t = np.nonzero(seg_ok)
     q0, q1 = xy[owner, t], xy[owner, t + 1]
     qlo, qhi = np.minimum(q0, q1), np.maximum(q0, q1)
-    lo, hi = np.minimum(s0, s1).min(0), np.maximum(s0, s1).max(0)
-    near = (qlo <= hi).all(-1) & (qhi >= lo).all(-1)
+    slo, shi = np.minimum(s0, s1), np.maximum(s0, s1)
+    near = (qlo <= shi.max(0)).all(-1) & (qhi >= slo.min(0)).all(-1)
     owner, q0, q1, qlo, qhi = owner[near], q0[near], q1[near], qlo[near], qhi[near]
     # Segment pairs whose boxes overlap, then the exact test on those only.
-    slo, shi = np.minimum(s0, s1), np.maximum(s0, s1)
-    i, j = np.nonzero((slo[:, None, 0] <= qhi[None, :, 0]) & (shi[:, None, 0] >= qlo[None, :, 0])
-                      & (slo[:, None, 1] <= qhi[None, :, 1]) & (shi[:, None, 1] >= qlo[None, :, 1]))
+    i, j = np.nonzero(((slo[:, None] <= qhi[None]) & (shi[:, None] >= qlo[None])).all(-1))
     crossed = segments_intersect(s0[i], s1[i], q0[j], q1[j])
     hits[owner[j[crossed]]] = True
     return hits
@@ -148,10 +131,8 @@ def scenario_stats(scenario: Scenario) -> dict:
 
 def keep(stats: dict, config: FilterConfig = FilterConfig()) -> bool:
     """Whether a scenario with these :func:`scenario_stats` passes the filter."""
-    if config.criterion == "paper":
-        interactive = bool(stats["interactive"])
-    else:
-        interactive = int(stats["objects_of_interest"]) > 0
+    interactive = (bool(stats["interactive"]) if config.criterion == "paper"
+                   else int(stats["objects_of_interest"]) > 0)
     return interactive and float(stats["sdc_mean_speed"]) >= config.min_speed
 
 
@@ -275,9 +256,7 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
     if part is not None:
         files = files[part[0]::part[1]]
     os.makedirs(os.path.join(out, SHARDS_DIR), exist_ok=True)
-    resolved = {**config.to_dict(), "inputs": [os.fspath(i) for i in
-                                               ([inputs] if isinstance(inputs, str | os.PathLike)
-                                                else inputs)],
+    resolved = {**asdict(config), "inputs": as_paths(inputs),
                 "part": None if part is None else f"{part[0]}/{part[1]}", "skip_bad": skip_bad,
                 **({} if egos == "sdc" else {"egos": egos})}
     name = CONFIG_FILE if part is None else f"filter_config.part-{part[0]}-of-{part[1]}.json"
@@ -345,7 +324,7 @@ def stored_config(dirs) -> FilterConfig | None:
 def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
     """Join the per-shard results of the filter runs in ``dirs`` into ``out`` (entries sorted by
     file, then record); ``config=None``: the runs' own settings (else the paper's)."""
-    dirs = [os.fspath(d) for d in ([dirs] if isinstance(dirs, str | os.PathLike) else dirs)]
+    dirs = as_paths(dirs)
     paths = []
     for d in dirs:
         shard_dir = os.path.join(d, SHARDS_DIR)
@@ -363,5 +342,5 @@ def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
                             "unreadable shards)", file=p)
         files.setdefault(result["file"], p)
     os.makedirs(out, exist_ok=True)
-    write_json(os.path.join(out, CONFIG_FILE), {**config.to_dict(), "merged": dirs})
+    write_json(os.path.join(out, CONFIG_FILE), {**asdict(config), "merged": dirs})
     return _write_outputs(out, [files[f] for f in sorted(files)], config)

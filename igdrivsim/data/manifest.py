@@ -9,8 +9,6 @@ import json
 import os
 from collections.abc import Iterable, Iterator
 
-from tqdm.auto import tqdm
-
 from igdrivsim.data.reader import iter_file, pool_map
 from igdrivsim.data.scenario import DEFAULT_CAPS, Capacities, Scenario, decode_scenario_id
 from igdrivsim.errors import DataError
@@ -29,12 +27,11 @@ def write_json(path: str | os.PathLike, obj) -> None:
 
 def write_manifest(path: str | os.PathLike, entries: Iterable[dict]) -> int:
     """Write manifest lines (fields in :data:`FIELDS` order) atomically; returns the count."""
-    n = 0
+    lines = [json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n"
+             for entry in entries]
     with atomic_path(path, "w") as f:
-        for entry in entries:
-            f.write(json.dumps({k: entry[k] for k in FIELDS + EGO_FIELDS if k in entry}) + "\n")
-            n += 1
-    return n
+        f.writelines(lines)
+    return len(lines)
 
 
 def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]:
@@ -85,11 +82,10 @@ def _load_records(file: str, records: list[int], caps: Capacities | None
 
 
 def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = DEFAULT_CAPS,
-                            workers: int = 0, chunk: int = 32, check_ids: bool = True,
-                            progress: bool = False) -> Iterator[tuple[dict, Scenario]]:
+                            workers: int = 0, chunk: int = 32) -> Iterator[tuple[dict, Scenario]]:
     """Stream ``(entry, scenario)`` for manifest ``entries``, each file read once, front to back
-    (files in order of first appearance, records ascending; ``workers``: as :func:`pool_map`).
-    ``check_ids``: the manifest's scenario id must match the record's."""
+    (files in order of first appearance, records ascending; ``workers``: as :func:`pool_map`);
+    the manifest's scenario id must match the record's."""
     groups: dict[str, dict[int, dict]] = {}
     for e in entries:
         groups.setdefault(os.fspath(e["file"]), {})[int(e["record"])] = e
@@ -97,15 +93,11 @@ def iter_manifest_scenarios(entries: Iterable[dict], caps: Capacities | None = D
     for file, by_record in groups.items():
         records = sorted(by_record)
         tasks += [(file, records[i:i + chunk], caps) for i in range(0, len(records), chunk)]
-    with tqdm(total=sum(len(g) for g in groups.values()), desc="loading", unit="scn",
-              disable=not progress) as bar:
-        for file, loaded in pool_map(_load_records, tasks, workers):
-            for record, scenario in loaded:
-                entry = groups[file][record]
-                if check_ids and "scenario_id" in entry:
-                    sid = decode_scenario_id(scenario.scenario_id)
-                    if sid != entry["scenario_id"]:
-                        raise DataError(f"scenario id is {sid!r}, the manifest says "
-                                        f"{entry['scenario_id']!r}", file=file, record=record)
-                bar.update()
-                yield entry, scenario
+    for file, loaded in pool_map(_load_records, tasks, workers):
+        for record, scenario in loaded:
+            entry = groups[file][record]
+            if "scenario_id" in entry and (
+                    sid := decode_scenario_id(scenario.scenario_id)) != entry["scenario_id"]:
+                raise DataError(f"scenario id is {sid!r}, the manifest says "
+                                f"{entry['scenario_id']!r}", file=file, record=record)
+            yield entry, scenario

@@ -70,11 +70,11 @@ AGENT_TYPES = (TYPE_VEHICLE, TYPE_CYCLIST)
 def _cv(h: int) -> tuple[Statistic, ...]:
     top = {1: 5.0, 3: 20.0, 5: 40.0, 8: 80.0}[h]
     return (Statistic(f"cv_distance_{h}s", f"CV distance at {h} s", "m",
-                            np.linspace(0, top, 51), "agent"),
+                      np.linspace(0, top, 51), "agent"),
             Statistic(f"cv_along_{h}s", f"CV distance along the heading at {h} s", "m",
-                            np.linspace(-top, top, 81), "agent"),
+                      np.linspace(-top, top, 81), "agent"),
             Statistic(f"cv_across_{h}s", f"CV distance across the heading at {h} s (abs.)",
-                            "m", np.linspace(0, top / 2, 51), "agent"))
+                      "m", np.linspace(0, top / 2, 51), "agent"))
 
 
 MOTION_STATISTICS: tuple[Statistic, ...] = (
@@ -84,15 +84,14 @@ MOTION_STATISTICS: tuple[Statistic, ...] = (
     Statistic("jerk", "longitudinal jerk", "m/s^3", np.linspace(-10, 10, 81)),
     Statistic("yaw_rate", "yaw rate (speed > 1 m/s)", "rad/s", np.linspace(-0.5, 0.5, 81)),
     Statistic("curvature", "curvature (speed > 1 m/s)", "1/m", np.linspace(-0.1, 0.1, 81)),
-    Statistic("lane_offset", "lateral offset from the lane centre", "m",
-                    np.linspace(-4, 4, 81)),
+    Statistic("lane_offset", "lateral offset from the lane centre", "m", np.linspace(-4, 4, 81)),
     Statistic("lane_offset_rate", "lateral offset rate", "m/s", np.linspace(-2, 2, 81)),
     Statistic("stopped_share", "share of the future stopped (< 0.5 m/s)", "",
-                    np.linspace(0, 1, 21), "agent"),
-    Statistic("lane_changes", "lane changes per agent (mean)", "",
-                    np.arange(-0.5, 6.0), "agent", count=True),
-    Statistic("turns", "turns > 45 deg per agent (mean)", "",
-                    np.arange(-0.5, 2.0), "agent", count=True),
+              np.linspace(0, 1, 21), "agent"),
+    Statistic("lane_changes", "lane changes per agent (mean)", "", np.arange(-0.5, 6.0), "agent",
+              count=True),
+    Statistic("turns", "turns > 45 deg per agent (mean)", "", np.arange(-0.5, 2.0), "agent",
+              count=True),
 )
 AGENT_KEYS = tuple(s.key for s in MOTION_STATISTICS if s.per == "agent")
 STEP_KEYS = tuple(s.key for s in MOTION_STATISTICS if s.per == "step")

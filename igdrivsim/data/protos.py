@@ -21,12 +21,13 @@ _SCALARS = {
 }
 
 
-def _message(file: descriptor_pb2.FileDescriptorProto, name: str, fields, oneof: str | None = None,
-             packed: bool = False) -> descriptor_pb2.DescriptorProto:
+def _message(file: descriptor_pb2.FileDescriptorProto, name: str, fields, oneof: str | None = None
+             ) -> descriptor_pb2.DescriptorProto:
     """Add message ``name`` with ``fields`` = [(name, number, type, repeated)] to ``file``.
 
     ``type`` is a scalar name (see ``_SCALARS``) or ``.pkg.Message``. Enums are read as int32
-    (same wire format), which keeps unknown enum values instead of failing.
+    (same wire format), which keeps unknown enum values instead of failing. Repeated numbers are
+    packed where the file's syntax is proto3 (tf.Example's lists), as in the ``.proto`` files.
     """
     msg = file.message_type.add(name=name)
     if oneof:
@@ -35,8 +36,6 @@ def _message(file: descriptor_pb2.FileDescriptorProto, name: str, fields, oneof:
         f = msg.field.add(name=fname, number=number, label=_REP if repeated else _OPT)
         if ftype in _SCALARS:
             f.type = _SCALARS[ftype]
-            if repeated and packed:
-                f.options.packed = True
         else:
             f.type, f.type_name = _F.TYPE_MESSAGE, ftype
             if oneof:
@@ -49,8 +48,8 @@ def _example_file() -> descriptor_pb2.FileDescriptorProto:
                                               package="igdrivsim.tfex", syntax="proto3")
     p = ".igdrivsim.tfex."
     _message(file, "BytesList", [("value", 1, "bytes", True)])
-    _message(file, "FloatList", [("value", 1, "float", True)], packed=True)
-    _message(file, "Int64List", [("value", 1, "int64", True)], packed=True)
+    _message(file, "FloatList", [("value", 1, "float", True)])
+    _message(file, "Int64List", [("value", 1, "int64", True)])
     _message(file, "Feature", [("bytes_list", 1, p + "BytesList", False),
                                ("float_list", 2, p + "FloatList", False),
                                ("int64_list", 3, p + "Int64List", False)], oneof="kind")

@@ -20,8 +20,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from tqdm.auto import tqdm
-
 from igdrivsim.data import samples, tfrecord
 from igdrivsim.data.formats import folder_files, format_of
 from igdrivsim.data.scenario import (
@@ -99,9 +97,9 @@ def expand_paths(spec: PathSpec) -> list[str]:
     return files
 
 
-def _locate(err: DataError, file: str, record: int | None) -> DataError:
-    return DataError(err.problem, file=file, record=record if err.record is None else err.record,
-                     key=err.key)
+def as_paths(spec: PathSpec) -> list[str]:
+    """A path or a list of them, as a list of path strings."""
+    return [os.fspath(s) for s in ([spec] if isinstance(spec, str | os.PathLike) else spec)]
 
 
 def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool = False,
@@ -110,43 +108,39 @@ def iter_file(path: str, caps: Capacities | None = DEFAULT_CAPS, skip_bad: bool 
     """Decode scenarios ``start <= i < stop`` of one file of any registered format
     (:mod:`igdrivsim.data.formats`), fitted to ``caps`` (None: native sizes)."""
     stats = stats if stats is not None else ReadStats()
-    try:
-        for index, fmt, scenario, source in format_of(path).decode(path, start, stop):
-            try:
-                if isinstance(scenario, DataError):
-                    raise scenario
-                if caps is not None:
-                    scenario = fit_to_capacities(scenario, caps)
-            except DataError as err:
-                err = _locate(err, path, index)
-                if not skip_bad:
-                    raise err from None
-                stats.skip(err)
-                continue
-            stats.read += 1
-            yield ScenarioRecord(path, index, fmt, scenario, source)
-    except DataError as err:  # the file as a whole does not read: one bad record
-        err = _locate(err, path, None)
+
+    def bad(err: DataError, record: int | None) -> None:  # raise or skip it, located
+        err = DataError(err.problem, file=path, key=err.key,
+                        record=record if err.record is None else err.record)
         if not skip_bad:
             raise err from None
         stats.skip(err)
 
+    try:
+        for index, fmt, scenario, source in format_of(path).decode(path, start, stop):
+            if isinstance(scenario, DataError):
+                bad(scenario, index)
+                continue
+            if caps is not None:
+                scenario = fit_to_capacities(scenario, caps)
+            stats.read += 1
+            yield ScenarioRecord(path, index, fmt, scenario, source)
+    except DataError as err:  # the file as a whole does not read: one bad record
+        bad(err, None)
+
 
 def iter_scenarios(paths: PathSpec, caps: Capacities | None = DEFAULT_CAPS,
                    skip_bad: bool = False, stats: ReadStats | None = None, workers: int = 0,
-                   chunk: int = 16, progress: bool = False) -> Iterator[ScenarioRecord]:
+                   chunk: int = 16) -> Iterator[ScenarioRecord]:
     """Stream :class:`ScenarioRecord` over all files of ``paths`` in order; ``workers > 1``
     decodes chunks of ``chunk`` records in that many processes (:func:`pool_map`)."""
     files = expand_paths(paths)
     stats = stats if stats is not None else ReadStats()
     if workers <= 1:
-        records = (rec for path in files for rec in iter_file(path, caps, skip_bad, stats))
+        for path in files:
+            yield from iter_file(path, caps, skip_bad, stats)
     else:
-        records = _iter_parallel(files, caps, skip_bad, stats, workers, chunk)
-    with tqdm(desc="reading", unit="scn", disable=not progress) as bar:
-        for rec in records:
-            bar.update()
-            yield rec
+        yield from _iter_parallel(files, caps, skip_bad, stats, workers, chunk)
 
 
 def _decode_chunk(path: str, caps, skip_bad: bool, start: int, stop: int):
@@ -168,12 +162,11 @@ def pool_map(fn, tasks, workers: int) -> Iterator:
         todo = iter(tasks)
         pending = [pool.submit(fn, *task) for task in itertools.islice(todo, 2 * workers)]
         try:
+            for task in todo:  # one more in flight as each result is taken
+                pending.append(pool.submit(fn, *task))
+                yield pending.pop(0).result()
             while pending:
-                fut = pending.pop(0)
-                task = next(todo, None)
-                if task is not None:
-                    pending.append(pool.submit(fn, *task))
-                yield fut.result()
+                yield pending.pop(0).result()
         finally:
             for fut in pending:
                 fut.cancel()
@@ -200,10 +193,9 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
 
 
 def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,
-                   stats: ReadStats | None = None, workers: int = 0,
-                   progress: bool = False) -> Iterator[Scenario]:
+                   stats: ReadStats | None = None, workers: int = 0) -> Iterator[Scenario]:
     """The scenarios of :func:`iter_scenarios`, without where they come from."""
-    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers, progress=progress):
+    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers):
         yield rec.scenario
 
 
@@ -219,11 +211,10 @@ def load_scenario(path: str | os.PathLike, index: int = 0,
 def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
     """Unbatched scenarios from scenarios that may carry leading batch dimensions."""
     for s in scenarios:
-        if not s.batch_shape:
+        if s.batch_shape:
+            yield from unbatch(index_scenario(s, i) for i in range(s.batch_shape[0]))
+        else:
             yield s
-            continue
-        for i in range(s.batch_shape[0]):
-            yield from unbatch([index_scenario(s, i)])
 
 
 def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario,

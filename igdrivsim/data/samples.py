@@ -60,11 +60,8 @@ def scenario_dir(out: str | os.PathLike) -> Path:
 
 def sha256(path: str | os.PathLike) -> str:
     """Hex sha256 of a file."""
-    digest = hashlib.sha256()
     with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def verified(out: str | os.PathLike, files: dict = FILES) -> list[Path] | None:

@@ -213,10 +213,7 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
     b = lambda *s: np.zeros(s, bool)  # noqa: E731
     return Scenario(
-        trajectory=Trajectory(
-            x=f(o, t), y=f(o, t), z=f(o, t), yaw=f(o, t), vel_x=f(o, t), vel_y=f(o, t),
-            length=f(o, t), width=f(o, t), height=f(o, t), valid=b(o, t),
-        ),
+        trajectory=Trajectory(*(f(o, t) for _ in range(9)), valid=b(o, t)),  # 9 float fields
         metadata=ObjectMetadata(
             id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
             tracks_to_predict=b(o), objects_of_interest=b(o), valid=b(o),
@@ -247,39 +244,33 @@ def index_scenario(batch: Scenario, i) -> Scenario:
     return jax.tree.map(lambda x: x[i], batch)
 
 
-def _select(tree, index: np.ndarray, axis: int, size: int, template):
-    """Take ``index`` along ``axis`` of every leaf; pad with the ``template`` leaves to ``size``."""
+def _fit_section(tree, template, capacity: int, valid: np.ndarray, dist: np.ndarray,
+                 must_keep: np.ndarray | None = None):
+    """One section (objects, roadgraph or lights) at ``capacity`` slots: every slot in place if
+    they fit, else the valid ``must_keep`` slots plus the valid ones nearest by ``dist`` (in
+    their original order); padded with the ``template`` leaves."""
+    index = np.arange(len(valid))
+    if len(index) > capacity:
+        candidates = np.flatnonzero(valid)
+        if len(candidates) > capacity:
+            priority = dist[candidates].astype(np.float64)
+            if must_keep is not None:
+                priority = np.where(must_keep[candidates], -np.inf, priority)
+            candidates = np.sort(candidates[np.argsort(priority, kind="stable")[:capacity]])
+        index = candidates
+
     def one(x, pad):
-        x = np.take(np.asarray(x), index, axis=axis)
-        missing = size - x.shape[axis]
-        if missing <= 0:
-            return x
-        pad = np.take(np.asarray(pad), np.arange(missing), axis=axis)
-        return np.concatenate([x, pad.astype(x.dtype)], axis=axis)
+        x = np.asarray(x)[index]
+        missing = capacity - len(x)
+        return x if missing <= 0 else np.concatenate([x, np.asarray(pad)[:missing].astype(x.dtype)])
 
     return jax.tree.map(one, tree, template)
-
-
-def _keep_nearest(valid: np.ndarray, dist: np.ndarray, capacity: int,
-                  must_keep: np.ndarray | None = None) -> np.ndarray:
-    """Indices (in original order) of the valid slots to keep: all if they fit, else the
-    ``must_keep`` slots plus the nearest others by ``dist``."""
-    candidates = np.flatnonzero(valid)
-    if len(candidates) <= capacity:
-        return candidates
-    priority = dist[candidates].astype(np.float64)
-    if must_keep is not None:
-        priority = np.where(must_keep[candidates], -np.inf, priority)
-    chosen = candidates[np.argsort(priority, kind="stable")[:capacity]]
-    return np.sort(chosen)
 
 
 def _present_distance(xy: np.ndarray, valid: np.ndarray, ref: np.ndarray, ref_t: int
                       ) -> np.ndarray:
     """Distance of each object ``xy [O, T, 2]`` to ``ref`` at its last valid step ``<= ref_t``
     (``inf`` when it has none: it appears only in the future)."""
-    if not xy.shape[0]:
-        return np.zeros(0)
     seen = valid[:, : ref_t + 1]
     last = seen.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)
     pos = xy[np.arange(xy.shape[0]), last]
@@ -316,30 +307,19 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
         np.flatnonzero(sdc_valid)[0])
     ref = xy[sdc, ref_t]
 
-    def fit(section, template_section, axis_len, capacity, slot_valid, dist, must_keep=None):
-        if axis_len <= capacity:
-            index = np.arange(axis_len)
-        else:
-            index = _keep_nearest(slot_valid, dist, capacity, must_keep)
-        return _select(section, index, 0, capacity, template_section)
-
-    num_objects = is_sdc.shape[0]
     obj_dist = _present_distance(xy, valid, ref, ref_t)
     obj_valid = np.asarray(md.valid) | is_sdc
-    trajectory = fit(tr, template.trajectory, num_objects, caps.max_objects, obj_valid, obj_dist,
-                     is_sdc)
-    metadata = fit(md, template.metadata, num_objects, caps.max_objects, obj_valid, obj_dist,
-                   is_sdc)
-    rg_xy = np.asarray(rg.xyz)[:, :2]
-    rg_dist = np.linalg.norm(rg_xy - ref, axis=-1)
-    roadgraph = fit(rg, template.roadgraph, rg_xy.shape[0], caps.max_roadgraph_points,
-                    np.asarray(rg.valid), rg_dist)
+    trajectory, metadata = (_fit_section(part, pad, caps.max_objects, obj_valid, obj_dist, is_sdc)
+                            for part, pad in ((tr, template.trajectory), (md, template.metadata)))
+    rg_dist = np.linalg.norm(np.asarray(rg.xyz)[:, :2] - ref, axis=-1)
+    roadgraph = _fit_section(rg, template.roadgraph, caps.max_roadgraph_points,
+                             np.asarray(rg.valid), rg_dist)
     tl_valid = np.asarray(tl.valid)
     tl_xy = np.stack([np.asarray(tl.x), np.asarray(tl.y)], -1)
     tl_dist = np.where(tl_valid, np.linalg.norm(tl_xy - ref, axis=-1), np.inf).min(
         axis=1, initial=np.inf)
-    lights = fit(tl, template.traffic_lights, tl_valid.shape[0], caps.max_traffic_lights,
-                 tl_valid.any(axis=1), tl_dist)
+    lights = _fit_section(tl, template.traffic_lights, caps.max_traffic_lights,
+                          tl_valid.any(axis=1), tl_dist)
     return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
                     traffic_lights=lights, scenario_id=np.asarray(scenario.scenario_id, np.uint8))
 

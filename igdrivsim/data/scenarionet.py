@@ -40,12 +40,13 @@ from igdrivsim.data.scenario import (
     Trajectory,
     encode_scenario_id,
 )
-from igdrivsim.data.womd_proto import MAX_SPACING, roadgraph_from_polylines
+from igdrivsim.data.womd_proto import MAX_SPACING, roadgraph_from_polylines, subdivide
 from igdrivsim.errors import DataError
 
 FORMAT_SCENARIONET = "scenarionet"
 SUMMARY_FILE, MAPPING_FILE = "dataset_summary.pkl", "dataset_mapping.pkl"
 PICKLE_SUFFIXES = (".pkl", ".pickle")
+PROBE = 0.2  # m: a derived road-edge sample is on the boundary when this far right is no lane
 
 _ALLOWED = {
     ("builtins", n) for n in ("dict", "list", "tuple", "set", "frozenset", "str", "bytes",
@@ -68,6 +69,7 @@ ROAD_EDGE_TYPES = {"ROAD_EDGE_BOUNDARY": RG_ROAD_EDGE_BOUNDARY,
                    "ROAD_EDGE_MEDIAN": RG_ROAD_EDGE_MEDIAN,
                    "ROAD_EDGE_UNKNOWN": RG_ROAD_EDGE_BOUNDARY,
                    "ROAD_EDGE_SIDEWALK": RG_ROAD_EDGE_BOUNDARY}
+POLYLINE_TYPES = {**LANE_TYPES, **ROAD_LINE_TYPES, **ROAD_EDGE_TYPES}
 POLYGON_TYPES = {"CROSSWALK": RG_CROSSWALK, "SPEED_BUMP": RG_SPEED_BUMP}
 # WOMD TrafficSignalLaneState codes; MetaDrive's TRAFFIC_LIGHT_* names are used for nuPlan.
 LIGHT_STATES = {
@@ -132,10 +134,9 @@ class SafeUnpickler(pickle.Unpickler):
             kind, _, member = name.partition(".")
             if kind in LEGACY_TAGS and not member:
                 return LegacyTag(kind, self.name)
-            names = LEGACY_TAGS.get(kind, ())
-            for code, full in enumerate(names):  # an enum member pickled by name
+            for full in LEGACY_TAGS.get(kind, ()):  # an enum member pickled by name
                 if member and member in (full, _member(full)):
-                    return names[code]
+                    return full
         raise DataError(f"refused to load class {module}.{name} (a ScenarioNet file holds only "
                         "NumPy arrays, builtin containers and legacy type tags)", file=self.name)
 
@@ -203,14 +204,12 @@ def _array(value, shape_tail: tuple[int, ...], key: str) -> np.ndarray:
         a = np.asarray(value, np.float64)
     except (TypeError, ValueError):
         raise DataError("not a numeric array", key=key) from None
-    if shape_tail and a.ndim == 1 and len(shape_tail) == 1 and shape_tail[0] == 1:
+    if shape_tail == (1,) and a.ndim == 1:
         a = a[:, None]
     if a.ndim != 1 + len(shape_tail) or any(
             s != -1 and a.shape[1 + i] < s for i, s in enumerate(shape_tail)):
         raise DataError(f"shape {a.shape}, expected [T, {shape_tail}]", key=key)
-    if not np.isfinite(a).all():
-        a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
-    return a
+    return np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def _timestep(desc: dict) -> float:
@@ -299,13 +298,12 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
     return xyz
 
 
-def union_boundary(polygons: list[np.ndarray], spacing: float = MAX_SPACING,
-                   probe: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def union_boundary(polygons: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boundary of the union of polygons as sampled, oriented polylines.
 
     Each ring is oriented counter-clockwise (interior on the left of ``dir``) and sampled every
-    ``spacing`` metres; a sample is on the union's boundary when the point ``probe`` metres to
-    its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
+    ``MAX_SPACING`` metres; a sample is on the union's boundary when the point ``PROBE`` metres
+    to its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
     dir [N, 2], polyline [N])``.
     """
     from matplotlib.path import Path  # heavy: only for maps without road edges
@@ -324,21 +322,14 @@ def union_boundary(polygons: list[np.ndarray], spacing: float = MAX_SPACING,
         bbox.append(np.r_[p.min(0), p.max(0)])
     if not rings:
         return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
-    xy, d, ring_of = [], [], []
-    for r, p in enumerate(rings):
-        closed = np.vstack([p, p[:1]])
-        seg = np.diff(closed, axis=0)
-        length = np.linalg.norm(seg, axis=1)
-        ok = length > 1e-9
-        pts, segs, lens = closed[:-1][ok], seg[ok], length[ok]
-        n = np.maximum(1, np.ceil(lens / spacing - 1e-3)).astype(np.int64)
-        src = np.repeat(np.arange(len(pts)), n)
-        frac = (np.arange(len(src)) - np.repeat(np.cumsum(n) - n, n)) / n[src]
-        xy.append(pts[src] + frac[:, None] * segs[src])
-        d.append(segs[src] / lens[src, None])
-        ring_of.append(np.full(len(src), r))
-    xy, d, ring_of = np.concatenate(xy), np.concatenate(d), np.concatenate(ring_of)
-    outside = xy + probe * np.stack([d[:, 1], -d[:, 0]], -1)  # right of dir
+    starts = np.concatenate(rings)
+    ring_of = np.repeat(np.arange(len(rings)), [len(p) for p in rings])
+    segs = np.concatenate([np.roll(p, -1, axis=0) - p for p in rings])  # each ring closed
+    lens = np.linalg.norm(segs, axis=1)
+    ok = lens > 1e-9
+    xy, src = subdivide(starts[ok], segs[ok], MAX_SPACING)
+    d, ring_of = segs[ok][src] / lens[ok][src, None], ring_of[ok][src]
+    outside = xy + PROBE * np.stack([d[:, 1], -d[:, 0]], -1)  # right of dir
     covered = np.zeros(len(xy), bool)
     bbox = np.asarray(bbox)
     for ring, (x0, y0, x1, y1) in zip(rings, bbox, strict=True):
@@ -367,21 +358,18 @@ def _decode_map(desc: dict) -> tuple[Roadgraph, dict]:
         where = f"map_features/{k}"
         if kind in LANE_TYPES and f.get("polygon") is not None:
             lane_polygons.append(_points(f["polygon"], f"{where}/polygon", True))
-        if kind in LANE_TYPES or kind in ROAD_LINE_TYPES or kind in ROAD_EDGE_TYPES:
-            rg_type = {**LANE_TYPES, **ROAD_LINE_TYPES, **ROAD_EDGE_TYPES}[kind]
-            if f.get("polyline") is None or not len(f["polyline"]):
-                continue
-            pts = _points(f["polyline"], f"{where}/polyline", drop_z)
-            if kind in ROAD_LINE_TYPES and len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
-                lane_polygons.append(pts)  # a closed outline: nuScenes' drivable area
-        elif kind in POLYGON_TYPES:
-            if f.get("polygon") is None or not len(f["polygon"]):
-                continue
-            pts = _points(f["polygon"], f"{where}/polygon", drop_z)
-            pts = np.vstack([pts, pts[:1]])
-            rg_type = POLYGON_TYPES[kind]
-        elif kind == "STOP_SIGN" and f.get("position") is not None:
+        if kind == "STOP_SIGN" and f.get("position") is not None:
             pts, rg_type = _points(f["position"], f"{where}/position", drop_z), RG_STOP_SIGN
+        elif kind in POLYLINE_TYPES or kind in POLYGON_TYPES:
+            field = "polyline" if kind in POLYLINE_TYPES else "polygon"
+            if f.get(field) is None or not len(f[field]):
+                continue
+            pts = _points(f[field], f"{where}/{field}", drop_z)
+            rg_type = (POLYLINE_TYPES | POLYGON_TYPES)[kind]
+            if kind in POLYGON_TYPES:
+                pts = np.vstack([pts, pts[:1]])
+            elif kind in ROAD_LINE_TYPES and len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
+                lane_polygons.append(pts)  # a closed outline: nuScenes' drivable area
         else:  # driveways, drivable-area outlines without a type we know: skipped
             continue
         xyz.append(pts)

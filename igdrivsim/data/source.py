@@ -1,17 +1,20 @@
 """One way in for data: :func:`open_scenarios` reads whatever a data path names (a filter output
 folder, or files of any registered format; docs/data.md, Inputs); :func:`count_scenarios`,
 :func:`data_identity` and :func:`scenario_refs` answer the questions asked of a path without
-reading it whole.
+reading it whole; :func:`load_scenarios` stacks its scenarios (the validation scenarios that the
+training curves and the evaluation are judged on).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from collections.abc import Iterator
 from itertools import chain, islice
 
 import numpy as np
+from tqdm import tqdm
 
 from igdrivsim.data.egos import PAPER_FILTER, check_egos, ego_of, ego_slot, expand_egos
 from igdrivsim.data.filter import FilterConfig
@@ -21,6 +24,7 @@ from igdrivsim.data.reader import (
     PathSpec,
     ReadStats,
     ScenarioRecord,
+    as_paths,
     expand_paths,
     iter_file,
     iter_scenarios,
@@ -29,7 +33,10 @@ from igdrivsim.data.scenario import (
     DEFAULT_CAPS,
     Capacities,
     Scenario,
+    decode_scenario_id,
     fit_to_capacities,
+    split_ego_id,
+    stack_scenarios,
 )
 from igdrivsim.errors import DataError
 
@@ -37,9 +44,9 @@ from igdrivsim.errors import DataError
 def check_data(data, what: str) -> None:
     """One-line :class:`DataError` "``what`` data not found" when a location of ``data`` (a
     path or a list of them) names nothing; globs and ``name@N`` are left to the reader."""
-    for where in [data] if isinstance(data, str | os.PathLike) else data:
-        if not os.path.exists(where) and not any(ch in str(where) for ch in "*?@"):
-            raise DataError(f"{what} data not found", file=os.fspath(where))
+    for where in as_paths(data):
+        if not os.path.exists(where) and not any(ch in where for ch in "*?@"):
+            raise DataError(f"{what} data not found", file=where)
 
 
 def manifest_of(path) -> str | None:
@@ -61,7 +68,7 @@ def _fit(rec: ScenarioRecord, caps: Capacities | None) -> ScenarioRecord:
 
 
 def _from_manifest(manifest: str, caps, egos: str, config: FilterConfig, limit: int,
-                   workers: int, check_ids: bool, progress: bool) -> Iterator[ScenarioRecord]:
+                   workers: int) -> Iterator[ScenarioRecord]:
     entries = read_manifest(manifest, kept_only=True)
     per_ego = any("ego" in e for e in entries)  # written by `filter --egos all`
     if egos == "sdc" and not per_ego and limit:
@@ -71,17 +78,14 @@ def _from_manifest(manifest: str, caps, egos: str, config: FilterConfig, limit: 
         wanted.setdefault((e["file"], e["record"]), []).append(e)
     first = [group[0] for group in wanted.values()]
     decode_caps = None if egos == "all" or per_ego else caps
-    done: dict[tuple[str, int], object] = {}
-    order = iter(wanted)
-    nxt = next(order, None)
+    order, done = list(wanted)[::-1], {}  # the manifest's order, the next one last
     # each file is read once, front to back; the records come out in the manifest's order
-    for entry, scenario in iter_manifest_scenarios(first, decode_caps, workers,
-                                                   check_ids=check_ids, progress=progress):
+    for entry, scenario in iter_manifest_scenarios(first, decode_caps, workers):
         done[(entry["file"], entry["record"])] = scenario
-        while nxt is not None and nxt in done:
-            yield from _manifest_records(nxt, done.pop(nxt), wanted[nxt], caps, egos, per_ego,
+        while order and order[-1] in done:
+            ref = order.pop()
+            yield from _manifest_records(ref, done.pop(ref), wanted[ref], caps, egos, per_ego,
                                          config)
-            nxt = next(order, None)
 
 
 def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, egos: str,
@@ -113,27 +117,23 @@ def _egos_of(rec: ScenarioRecord, caps, config: FilterConfig, only: int | None =
 def open_scenarios(path: PathSpec, caps: Capacities | None = DEFAULT_CAPS, *,
                    egos: str = "sdc", filter_config: FilterConfig = PAPER_FILTER,
                    limit: int = 0, skip_bad: bool = False, stats: ReadStats | None = None,
-                   workers: int = 0, check_ids: bool = True,
-                   progress: bool = False) -> Iterator[ScenarioRecord]:
+                   workers: int = 0) -> Iterator[ScenarioRecord]:
     """Stream the scenarios ``path`` names (docs/data.md, Inputs) as :class:`ScenarioRecord`,
     fitted to ``caps`` (None: native sizes), at most ``limit`` (0: all); ``egos="all"``: one per
-    vehicle eligible under ``filter_config``. ``skip_bad``, ``stats``, ``workers`` and ``progress``
-    are the reader's (:func:`~igdrivsim.data.reader.iter_scenarios`)."""
+    vehicle eligible under ``filter_config``. ``skip_bad``, ``stats`` and ``workers`` are the
+    reader's (:func:`~igdrivsim.data.reader.iter_scenarios`)."""
     check_egos(egos)
-    if not isinstance(path, str | os.PathLike):
-        records = chain.from_iterable(
-            open_scenarios(item, caps, egos=egos, filter_config=filter_config, limit=limit,
-                           skip_bad=skip_bad, stats=stats, workers=workers, check_ids=check_ids,
-                           progress=progress) for item in path)
-    elif (manifest := manifest_of(path)) is not None:
-        records = _from_manifest(manifest, caps, egos, filter_config, limit, workers, check_ids,
-                                 progress)
-    else:
-        decode_caps = caps if egos == "sdc" else None
-        records = iter_scenarios(path, decode_caps, skip_bad, stats, workers, progress=progress)
-        if egos == "all":
-            records = (e for rec in records for e in _egos_of(rec, caps, filter_config))
-    yield from islice(records, limit or None)
+
+    def records(item: str) -> Iterator[ScenarioRecord]:
+        if (manifest := manifest_of(item)) is not None:
+            yield from _from_manifest(manifest, caps, egos, filter_config, limit, workers)
+        elif egos == "sdc":
+            yield from iter_scenarios(item, caps, skip_bad, stats, workers)
+        else:
+            for rec in iter_scenarios(item, None, skip_bad, stats, workers):
+                yield from _egos_of(rec, caps, filter_config)
+
+    yield from islice(chain.from_iterable(map(records, as_paths(path))), limit or None)
 
 
 def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | None:
@@ -142,7 +142,7 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
     ScenarioNet) or the path does not read (the read itself reports it)."""
     total = 0
     try:
-        for item in [data] if isinstance(data, str | os.PathLike) else data:
+        for item in as_paths(data):
             manifest = manifest_of(item)
             if manifest is not None:
                 entries = read_manifest(manifest)
@@ -201,21 +201,18 @@ def scenario_refs(data, limit: int = 0, egos: str = "sdc",
 
 def _refs(data, limit: int, egos: str, filter_config: FilterConfig
           ) -> Iterator[tuple[str, int, int]]:
-    if not isinstance(data, str | os.PathLike):
-        for item in data:
-            yield from _refs(item, limit, egos, filter_config)
-        return
-    manifest = manifest_of(data)
-    if egos == "all" or (manifest is not None and any(
-            "ego" in e for e in read_manifest(manifest))):
-        for rec in open_scenarios(data, None, egos=egos, filter_config=filter_config,
-                                  limit=limit):
-            yield rec.file, rec.record, -1 if rec.ego is None else rec.ego["object_id"]
-    elif manifest is not None:
-        yield from ((e["file"], e["record"], -1) for e in read_manifest(manifest))
-    else:
-        yield from ((name, r, -1) for name in expand_paths(data)
-                    for r in range(format_of(name).count(name)))
+    for item in as_paths(data):
+        manifest = manifest_of(item)
+        if egos == "all" or (manifest is not None and any(
+                "ego" in e for e in read_manifest(manifest))):
+            for rec in open_scenarios(item, None, egos=egos, filter_config=filter_config,
+                                      limit=limit):
+                yield rec.file, rec.record, -1 if rec.ego is None else rec.ego["object_id"]
+        elif manifest is not None:
+            yield from ((e["file"], e["record"], -1) for e in read_manifest(manifest))
+        else:
+            yield from ((name, r, -1) for name in expand_paths(item)
+                        for r in range(format_of(name).count(name)))
 
 
 def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scenario:
@@ -229,3 +226,44 @@ def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scena
     if slot is None:
         raise DataError(f"no object {ego} (the file changed?)", file=file, record=record)
     return next(_egos_of(rec, caps, PAPER_FILTER, only=slot)).scenario
+
+
+def origin_of(rec: ScenarioRecord) -> dict:
+    """Where one read scenario comes from: ``{"scenario_id", "source", "logged_sdc"}``.
+    ``source`` is the source log: for a window cut from a long log (ScenarioNet), the reader's
+    source id; for an ego of ``egos="all"``, its scenario's id; else the scenario's own id.
+    ``logged_sdc``: whether the ego is the log's SDC (always, with ``egos="sdc"``)."""
+    sid = decode_scenario_id(rec.scenario.scenario_id)
+    if rec.source and rec.source.get("source_id"):
+        source = str(rec.source["source_id"])
+    else:
+        source = split_ego_id(sid)[0] if rec.ego is not None else sid
+    return {"scenario_id": sid, "source": source,
+            "logged_sdc": True if rec.ego is None else bool(rec.ego["logged_sdc"])}
+
+
+def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
+                   egos: str = "sdc") -> tuple:
+    """``(stacked scenarios [N], origins)`` of ``data``, one :func:`origin_of` dict per
+    scenario; ``data``: a location or a list of them (read in turn); see
+    :func:`load_validation`."""
+    check_data(data, "validation")
+    total = count_scenarios(data, max_scenarios, egos) if progress else None
+    scenarios, origins = [], []
+    with tqdm(total=total, desc="loading", unit="scn", file=sys.stderr,
+              disable=not progress, dynamic_ncols=True) as bar:
+        for rec in open_scenarios(data, caps, egos=egos, limit=max_scenarios):
+            scenarios.append(rec.scenario)
+            origins.append(origin_of(rec))
+            bar.update()
+    if not scenarios:
+        raise DataError("no validation scenarios (empty manifest or no records)",
+                        file=str(data))
+    return stack_scenarios(scenarios), origins
+
+
+def load_validation(data, caps, max_scenarios: int = 0, progress: bool = False,
+                    egos: str = "sdc"):
+    """Stacked validation scenarios ``[N]`` of ``data`` (:func:`load_scenarios`); ``progress``: a
+    "loading" bar on stderr, with a total where that is cheap to know."""
+    return load_scenarios(data, caps, max_scenarios, progress, egos)[0]

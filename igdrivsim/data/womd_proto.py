@@ -33,7 +33,9 @@ from igdrivsim.data.scenario import (
 )
 from igdrivsim.errors import DataError
 
-ROAD_LINE_OFFSET = 5
+# a line feature's tf.Example type: its own type plus the offset of its kind
+TYPE_OFFSETS = {"lane": 0, "road_line": 5, "road_edge": RG_ROAD_EDGE_UNKNOWN}
+POLYGON_TYPES = {"crosswalk": RG_CROSSWALK, "speed_bump": RG_SPEED_BUMP}
 MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
 
 
@@ -101,6 +103,18 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
     return trajectory, metadata
 
 
+def subdivide(starts: np.ndarray, segments: np.ndarray, max_spacing: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Evenly spaced points on each segment ``starts[k] + [0, 1) * segments[k]``, pieces at most
+    ``max_spacing`` long (2-D length): ``(points, index of each point's segment)``."""
+    length = np.linalg.norm(segments[:, :2], axis=1)
+    pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
+    source = np.repeat(np.arange(len(starts)), pieces)
+    first = np.repeat(np.cumsum(pieces) - pieces, pieces)
+    frac = ((np.arange(len(source)) - first) / pieces[source])[:, None]
+    return starts[source] + frac * segments[source], source
+
+
 def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Insert evenly spaced points on every segment longer than ``max_spacing`` (2-D length) of
@@ -109,14 +123,10 @@ def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
     seg = np.zeros_like(points)
     inside = poly[1:] == poly[:-1]  # vertex k starts a segment of its polyline
     seg[:-1] = np.where(inside[:, None], np.diff(points, axis=0), 0.0)
-    length = np.linalg.norm(seg[:, :2], axis=1)
-    pieces = np.maximum(1, np.ceil(length / max_spacing - 1e-3)).astype(np.int64)
-    if (pieces == 1).all():
+    if (np.linalg.norm(seg[:, :2], axis=1) / max_spacing - 1e-3 <= 1).all():
         return points, poly
-    source = np.repeat(np.arange(len(points)), pieces)
-    first = np.repeat(np.cumsum(pieces) - pieces, pieces)
-    frac = ((np.arange(len(source)) - first) / pieces[source])[:, None]
-    return points[source] + frac * seg[source], poly[source]
+    points, source = subdivide(points, seg, max_spacing)
+    return points, poly[source]
 
 
 def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
@@ -150,18 +160,14 @@ def _decode_map(features) -> Roadgraph:
     xyz, types, ids = [], [], []
     for feature in features:
         kind = feature.WhichOneof("feature_data")
-        if kind == "lane":
-            rg_type, pts = feature.lane.type, feature.lane.polyline
-        elif kind == "road_line":
-            rg_type, pts = feature.road_line.type + ROAD_LINE_OFFSET, feature.road_line.polyline
-        elif kind == "road_edge":
-            rg_type, pts = feature.road_edge.type + RG_ROAD_EDGE_UNKNOWN, feature.road_edge.polyline
+        if kind in TYPE_OFFSETS:
+            rg_type = getattr(feature, kind).type + TYPE_OFFSETS[kind]
+            pts = getattr(feature, kind).polyline
+        elif kind in POLYGON_TYPES:  # closed polygons
+            rg_type, pts = POLYGON_TYPES[kind], [*getattr(feature, kind).polygon]
+            pts = pts + pts[:1]
         elif kind == "stop_sign":
             rg_type, pts = RG_STOP_SIGN, [feature.stop_sign.position]
-        elif kind in ("crosswalk", "speed_bump"):
-            rg_type = RG_CROSSWALK if kind == "crosswalk" else RG_SPEED_BUMP
-            pts = list(getattr(feature, kind).polygon)
-            pts = pts + pts[:1]  # closed polygon
         else:  # driveway or unset: no tf.Example type
             continue
         if not pts:

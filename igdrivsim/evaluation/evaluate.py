@@ -11,7 +11,7 @@ import jax
 from tqdm import tqdm
 
 from igdrivsim.data import Capacities
-from igdrivsim.data.validation import load_scenarios
+from igdrivsim.data.source import load_scenarios
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.evaluation.rollout import (
     evaluate_policy,

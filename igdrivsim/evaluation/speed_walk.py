@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from igdrivsim.data import Capacities
-from igdrivsim.data.validation import load_validation
+from igdrivsim.data.source import load_validation
 from igdrivsim.io import atomic_write_json
 from igdrivsim.simulator import SimParams, dynamics, reset
 from igdrivsim.simulator.rollout import Actor, expert_action, run_episode

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.core.devices import barrier, batch_sharding, make_mesh, place, replicated
-from igdrivsim.data.validation import load_validation
+from igdrivsim.data.source import load_validation
 from igdrivsim.errors import ConfigError
 from igdrivsim.observation import stack_settings
 from igdrivsim.policy.closed_loop import evaluate_policy
