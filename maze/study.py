@@ -10,8 +10,11 @@ evaluation episodes; the final point uses ``final_eval_rounds`` times more. The 
 tested for a plateau (:func:`maze.extended.plateau`) and drawn "converged" or "not converged".
 Outputs under ``--out`` (default ``outputs/maze/``): ``figures/fig2_maze.{pdf,png,csv}``,
 ``figures/fig2b_maze_baselines.{pdf,png}``, ``tables/maze_summary.{md,tex,csv}`` and
-``maze_config.json``. Deterministic for a given config. ``--replot`` redraws Fig. 2 and 2b
-from ``--out``'s ``figures/fig2_maze.csv`` and ``maze_config.json`` without training.
+``maze_config.json``. Deterministic for a given config and number of usable CPU cores: XLA
+compiles different CPU code for a process pinned to one core (the pipeline's maze stage) than
+for two (``python -m maze``), so the two agree within the seeds' intervals, not bit for bit.
+``--replot`` redraws Fig. 2 and 2b from ``--out``'s ``figures/fig2_maze.csv`` and
+``maze_config.json`` without training.
 """
 
 from __future__ import annotations
