@@ -420,7 +420,8 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
 def _tex(text: str) -> str:
     return (text.replace("\\", r"\textbackslash{}").replace("%", r"\%").replace("_", r"\_")
             .replace("&", r"\&").replace("#", r"\#").replace("²", "$^2$").replace("³", "$^3$")
-            .replace("≥", r"$\geq$").replace(">=", r"$\geq$").replace("|", r"$|$"))
+            .replace("≥", r"$\geq$").replace(">=", r"$\geq$").replace("|", r"$|$")
+            .replace("<", "$<$"))
 
 
 def supplementary_latex(summary: pd.DataFrame, metrics, caption_extra: str = "") -> str:
