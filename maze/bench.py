@@ -1,8 +1,10 @@
 """Speed of the maze study's parts: ``python -m maze.bench [--seeds 5] [--hidden 64]``.
 
 Prints one JSON line per measurement: batched environment steps/s (random actions, auto-reset,
-observation included) and recurrent-PPO training env steps/s (rollout + 4 epochs, ``vmap`` over
-seeds). Compile time is measured separately and excluded from the rates.
+observation included), recurrent-PPO training env steps/s (the study's PPO update, ``vmap`` over
+seeds) and the rate of the GRU's matrix products over one PPO minibatch, forward and with its
+gradient (:func:`igdrivsim.core.nn.gru_scan`): what bounds the study's time. Compile time is
+measured separately and excluded from the rates.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from igdrivsim.cli_args import DefaultsFormatter
+from igdrivsim.core.nn import gru_scan
 from maze import env as maze_env
 from maze.network import init_stacked, make_policy
 from maze.ppo import PPOConfig, make_ppo
@@ -74,6 +77,36 @@ def bench_ppo(seeds: int, hidden: int, updates: int, partial: bool) -> dict:
             "compile_plus_first_chunk_s": first_s}
 
 
+def bench_gru(seeds: int, hidden: int, repeats: int = 20) -> dict:
+    """GFLOP/s of the GRU's products over one PPO minibatch (``seeds`` x ``num_steps`` x
+    ``num_envs / num_minibatches`` streams): the forward loop's recurrent product, and with the
+    gradient also the backward loop's, the recomputed candidate product and the kernel's
+    gradient (2 1/3 times the forward's)."""
+    cfg = PPOConfig()
+    rows, steps = cfg.num_envs // cfg.num_minibatches, cfg.num_steps
+    key = jax.random.PRNGKey(0)
+    x = jax.random.normal(key, (seeds, steps, rows, 3 * hidden))
+    first = jnp.zeros((seeds, steps, rows), bool).at[:, 0].set(True)
+    w_h = 0.1 * jax.random.normal(key, (seeds, hidden, 3 * hidden))
+    b_hn, h0 = jnp.zeros((seeds, hidden)), jnp.zeros((seeds, rows, hidden))
+
+    def loss(x, w_h, b_hn):
+        return jax.vmap(lambda *a: gru_scan(*a)[1].sum())(x, first, h0, w_h, b_hn).sum()
+
+    flops = seeds * steps * rows * hidden * 3 * hidden * 2
+    out = {"what": "gru_gflop_per_s", "seeds": seeds, "hidden": hidden, "rows": rows,
+           "steps": steps}
+    for name, fn, work in (("forward", jax.jit(loss), flops),
+                           ("with_gradient", jax.jit(jax.grad(loss, (0, 1, 2))), flops * 10 / 3)):
+        jax.block_until_ready(fn(x, w_h, b_hn))
+        t = time.perf_counter()
+        for _ in range(repeats):
+            result = fn(x, w_h, b_hn)
+        jax.block_until_ready(result)
+        out[name] = work * repeats / (time.perf_counter() - t) / 1e9
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m maze.bench", description=__doc__.split(
         "\n")[0], formatter_class=DefaultsFormatter)
@@ -88,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.skip_ppo:
         for hidden in args.hidden:
             print(json.dumps(bench_ppo(args.seeds, hidden, args.updates, True)), flush=True)
+            print(json.dumps(bench_gru(args.seeds, hidden)), flush=True)
     return 0
 
 
