@@ -38,8 +38,8 @@ LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
 LAPTOP_OTHER_CPU_S = 1211.0 - 534.0
 # The maze study with its converged references and baselines: `python -m maze` on 2 quiet cores
-# printed 205 s wall, 399 s CPU (2026-11-28).
-MAZE_CPU_S = 399.0
+# printed 141 s wall, 271 s CPU (2026-12-02, the run of paper/maze_config.json).
+MAZE_CPU_S = 271.0
 # One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H200 (16 CPU
 # cores), `igdrivsim bench train --profiles gpu --method M --updates 5`: BC 0.0513 s per update
 # (compiling 17.8 s), BC-RL 0.1994 s (compiling 46.7 s) (docs/bench/train_gpu_bc_h200.json,
