@@ -1,8 +1,8 @@
 """``python -m maze --out DIR [--seeds 10] [--quick]``: the maze study (see :mod:`maze.study`).
 
-``--quick`` runs the seconds-long smoke profile. Besides the study's outputs this writes
-``DIR/summary.csv`` (``curve,final_return_mean,final_return_ci95,final_length_mean,
-final_length_ci95,seeds``, one row per curve).
+``--quick`` runs the seconds-long smoke profile. The final returns per curve are in
+``DIR/tables/maze_summary.csv`` (``curve,final_return_mean,final_return_ci95,final_length_mean,
+final_length_ci95,seeds``).
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import sys
 
 from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.errors import run_command
-from igdrivsim.io import atomic_write_csv
 from maze import study
 
 
@@ -28,10 +27,9 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> None:
         if args.compile_cache:
             study.use_compile_cache(args.work / "xla-cache")
-        summary = study.run_study(study.resolve(args), args.out, args.work, args.force,
-                                  progress=not args.no_progress,
-                                  command=study.command_text("python -m maze", argv))
-        atomic_write_csv(args.out / "summary.csv", summary)
+        study.run_study(study.resolve(args), args.out, args.work, args.force,
+                        progress=not args.no_progress,
+                        command=study.command_text("python -m maze", argv))
 
     return run_command("maze", body)
 
