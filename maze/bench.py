@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from igdrivsim.cli_args import DefaultsFormatter
-from igdrivsim.core.nn import gru_scan
+from igdrivsim.core.nn import gru_scan, matmul_flops
 from maze import env as maze_env
 from maze.network import init_stacked, make_policy
 from maze.ppo import PPOConfig, make_ppo
@@ -78,32 +78,30 @@ def bench_ppo(seeds: int, hidden: int, updates: int, partial: bool) -> dict:
 
 
 def bench_gru(seeds: int, hidden: int, repeats: int = 20) -> dict:
-    """GFLOP/s of the GRU's products over one PPO minibatch (``seeds`` x ``num_steps`` x
-    ``num_envs / num_minibatches`` streams): the forward loop's recurrent product, and with the
-    gradient also the backward loop's, the recomputed candidate product and the kernel's
-    gradient (2 1/3 times the forward's)."""
+    """GFLOP/s of the GRU's products (:func:`igdrivsim.core.nn.matmul_flops`) over one PPO
+    minibatch (``seeds`` x ``num_steps`` x ``num_envs / num_minibatches`` streams), forward and
+    with the gradient."""
     cfg = PPOConfig()
     rows, steps = cfg.num_envs // cfg.num_minibatches, cfg.num_steps
     key = jax.random.PRNGKey(0)
-    x = jax.random.normal(key, (seeds, steps, rows, 3 * hidden))
+    args = (jax.random.normal(key, (seeds, steps, rows, 3 * hidden)),
+            0.1 * jax.random.normal(key, (seeds, hidden, 3 * hidden)), jnp.zeros((seeds, hidden)))
     first = jnp.zeros((seeds, steps, rows), bool).at[:, 0].set(True)
-    w_h = 0.1 * jax.random.normal(key, (seeds, hidden, 3 * hidden))
-    b_hn, h0 = jnp.zeros((seeds, hidden)), jnp.zeros((seeds, rows, hidden))
+    h0 = jnp.zeros((seeds, rows, hidden))
 
     def loss(x, w_h, b_hn):
         return jax.vmap(lambda *a: gru_scan(*a)[1].sum())(x, first, h0, w_h, b_hn).sum()
 
-    flops = seeds * steps * rows * hidden * 3 * hidden * 2
     out = {"what": "gru_gflop_per_s", "seeds": seeds, "hidden": hidden, "rows": rows,
            "steps": steps}
-    for name, fn, work in (("forward", jax.jit(loss), flops),
-                           ("with_gradient", jax.jit(jax.grad(loss, (0, 1, 2))), flops * 10 / 3)):
-        jax.block_until_ready(fn(x, w_h, b_hn))
+    for name, fn in (("forward", jax.jit(loss)),
+                     ("with_gradient", jax.jit(jax.grad(loss, (0, 1, 2))))):
+        jax.block_until_ready(fn(*args))
         t = time.perf_counter()
         for _ in range(repeats):
-            result = fn(x, w_h, b_hn)
+            result = fn(*args)
         jax.block_until_ready(result)
-        out[name] = work * repeats / (time.perf_counter() - t) / 1e9
+        out[name] = matmul_flops(fn, *args) * repeats / (time.perf_counter() - t) / 1e9
     return out
 
 

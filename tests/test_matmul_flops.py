@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from igdrivsim.bench.train import matmul_flops
+from igdrivsim.core.nn import matmul_flops
 
 PRODUCT = 2 * 8 * 64 * 64  # one [8, 64] @ [64, 64]
 

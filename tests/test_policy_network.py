@@ -70,7 +70,7 @@ def test_type_pooled_mlp_is_the_mlp_of_each_point_next_to_its_types_pool():
 def _paper_network(method: str):
     import dataclasses
 
-    from igdrivsim.bench.train import matmul_flops
+    from igdrivsim.core.nn import matmul_flops
     from igdrivsim.policy.act import example_observation
     from igdrivsim.policy.network import apply_step, count_params, init_params, initial_carry
     from igdrivsim.training.config import get_profile

@@ -23,9 +23,9 @@ from collections import defaultdict
 
 import jax
 import numpy as np
-from jax.extend.core import ClosedJaxpr, Jaxpr
 
 from igdrivsim.core.devices import batch_sharding, make_mesh, place, replicated
+from igdrivsim.core.nn import matmul_flops
 from igdrivsim.errors import ConfigError, check_min
 from igdrivsim.io import atomic_write_json, require_file_target
 from igdrivsim.machine import machine_record
@@ -73,33 +73,6 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
                              "seed (recording the teacher-forced episodes, the setting's "
                              "observations, the policy's rollout, one forward and backward "
                              "pass) into the record's parts_s")
-
-
-def matmul_flops(fn, *args) -> int:
-    """Floating-point operations of the matrix products one call of ``fn`` does (a ``scan``
-    body's times its length: XLA's cost analysis counts a loop's body once, so it cannot price
-    a 90-step episode); the element-wise rest is left out, so a rate from it is a lower bound."""
-    def count(jaxpr) -> int:
-        total = 0
-        for eqn in jaxpr.eqns:
-            if eqn.primitive.name == "dot_general":
-                (contract, _), _ = eqn.params["dimension_numbers"]
-                lhs = eqn.invars[0].aval.shape
-                total += 2 * int(np.prod(eqn.outvars[0].aval.shape)) * int(
-                    np.prod([lhs[d] for d in contract]))
-                continue
-            subs = [v for v in eqn.params.values() if isinstance(v, (Jaxpr,
-                                                                     ClosedJaxpr))]
-            subs += [b for v in eqn.params.values() if isinstance(v, tuple)
-                     for b in v if isinstance(b, (Jaxpr, ClosedJaxpr))]
-            inner = [count(getattr(j, "jaxpr", j)) for j in subs]
-            if eqn.primitive.name == "cond":
-                total += max(inner, default=0)  # one branch runs
-            else:
-                total += sum(inner) * int(eqn.params.get("length", 1))
-        return total
-
-    return count(jax.make_jaxpr(fn)(*args).jaxpr)
 
 
 def trace_summary(trace_dir: str, top: int = 15) -> dict:
