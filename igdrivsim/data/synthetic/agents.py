@@ -1,11 +1,7 @@
 """Agents and their longitudinal planner: IDM car-following over a space-time occupancy map.
 
-Agents are planned one after the other in priority order. An agent sees every agent planned
-before it: a vehicle ahead on its route (car following, with that vehicle's speed), and cross
-traffic that will occupy a point of its route before it could clear that point (yielding: the
-point acts as a stopped obstacle). Curves are anticipated through a speed profile limited by
-lateral acceleration and comfortable braking, so the expert slows early for what is far ahead.
-Stop signs and traffic lights (stop at red, at yellow when comfortable) act as stop lines.
+Agents are planned one by one in priority order: each follows those planned before it ahead on
+its route, yields to crossing ones, and slows early for curves, stop signs and lights.
 """
 
 from __future__ import annotations
@@ -62,32 +58,24 @@ class Agent:
     lo: np.ndarray | None = None  # bounding box of the valid centre positions
     hi: np.ndarray | None = None
     reach: float = 0.0  # half the box diagonal
-    standing: bool = False  # static and valid at every step (planned once, never moves)
     bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # lo and hi as floats
     track: np.ndarray | None = None  # moving agents: [7, T] x, y, yaw, cos, sin, speed, valid
     stand: tuple[float, ...] = ()  # standing agents: x, y, yaw, length, width, reach
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
-    """Desired speed at each route point: the limit, the curve limit sqrt(A_LAT / |kappa|), and
-    braking early enough (at ``brake``) for every slower point ahead."""
+    """Desired speed per route point: ``v_des``, sqrt(A_LAT / |kappa|), and braking early enough
+    (at ``brake``) for every slower point ahead."""
     v = np.minimum(v_des, np.sqrt(A_LAT / np.maximum(route.smooth_curvature, 1e-6)))
     s = route.s
     # v[k]^2 <= v[j]^2 + 2 b (s_j - s_k) for all j >= k: a reversed running minimum.
     reach = np.minimum.accumulate((v**2 + 2 * brake * s)[::-1])[::-1]
-    v = np.sqrt(np.maximum(reach - 2 * brake * s, 0.0))
-    return v
+    return np.sqrt(np.maximum(reach - 2 * brake * s, 0.0))
 
 
 def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
-    """Where and when the moving ``others`` cover ``agent``'s route, all at once:
-    ``(rows [P], occ [P, T], along [P, T])``, one row per (other, route point near its path),
-    other by other (in ``others``' order), points ascending.
-
-    ``along`` is the other's speed along the route direction (NaN where its heading is not
-    aligned, i.e. it is cross traffic). A point is near an other's path when it lies in the
-    bounding box of its valid centres grown by its reach and ``agent``'s half width + 1 m;
-    rows where the other never covers the point are left out."""
+    """Where and when ``others`` cover ``agent``'s route: ``(rows [P], occ [P, T], along [P, T])``
+    per (other, covered route point); ``along``: its speed along the route (NaN: crossing)."""
     lo, hi = agent.route.bounds
     none = (np.zeros(0, int), np.zeros((0, T), bool), np.zeros((0, T)))
     if not others:
@@ -100,7 +88,7 @@ def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
         return none
     others = [o for o, m in zip(others, meets, strict=True) if m]
     olo, ohi = olo[meets] - reach[meets, None], ohi[meets] + reach[meets, None]
-    px, py = agent.route.columns
+    px, py = agent.route.points.T
     j, k = np.nonzero((px >= olo[:, :1]) & (px <= ohi[:, :1]) & (py >= olo[:, 1:])
                       & (py <= ohi[:, 1:]))
     if len(k) == 0:
@@ -109,20 +97,11 @@ def _occupancy(agent: Agent, yaw_route: np.ndarray, others: list[Agent]):
     size = np.array([(o.length, o.width) for o in others])[j]
     c, s = track[j, 3], track[j, 4]
     d0, d1 = px[k, None] - track[j, 0], py[k, None] - track[j, 1]  # [P, T]
-    # |d0 c + d1 s| - length / 2 and |-d0 s + d1 c| - width / 2 both below the grown half
-    # width (in place: the same operations; -a + b is b - a exactly)
+    # the point within the other's box grown by agent's half width + 0.4 m, at a valid step
     grow = agent.width / 2 + 0.4
-    dx = d0 * c
-    dx += d1 * s
-    np.abs(dx, out=dx)
-    dx -= size[:, :1] / 2
-    dy = d1 * c
-    dy -= d0 * s
-    np.abs(dy, out=dy)
-    dy -= size[:, 1:] / 2
-    occ = dx < grow
-    occ &= dy < grow
-    occ &= track[j, 6] > 0.5
+    dx = np.abs(d0 * c + d1 * s) - size[:, :1] / 2
+    dy = np.abs(d1 * c - d0 * s) - size[:, 1:] / 2
+    occ = (dx < grow) & (dy < grow) & (track[j, 6] > 0.5)
     keep = occ.any(1)
     j, k, occ = j[keep], k[keep], occ[keep]
     cosang = np.cos(track[j, 2] - yaw_route[k, None])
@@ -147,8 +126,7 @@ def _may_cover(agent: Agent, xy: np.ndarray, yaw: np.ndarray, length, width) -> 
 
 
 def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
-    """Route points covered by standing objects: ``(rows, aligned)`` per (point, object) hit."""
-    pts = agent.route.points
+    """Route points covered by standing objects, as :func:`_occupancy` (``along`` 0: aligned)."""
     lo, hi = agent.route.bounds
     stand = np.array([o.stand for o in fixed])  # [F, 6], see Agent.stand
     xy, yaw, size = stand[:, :2], stand[:, 2], stand[:, 3:5]
@@ -157,25 +135,23 @@ def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
     if near.any():
         near[near] = _may_cover(agent, xy[near], yaw[near], size[near, 0], size[near, 1])
     if not near.any():
-        return np.zeros(0, int), np.zeros(0, bool)
+        return np.zeros(0, int), np.zeros((0, T), bool), np.zeros((0, T))
     xy, yaw, size = xy[near], yaw[near], size[near]
-    d = pts[:, None, :] - xy[None]
+    d = agent.route.points[:, None, :] - xy[None]
     c, s = np.cos(yaw), np.sin(yaw)
     dx = np.abs(d[..., 0] * c + d[..., 1] * s) - size[:, 0] / 2
     dy = np.abs(-d[..., 0] * s + d[..., 1] * c) - size[:, 1] / 2
     k, j = np.nonzero(np.maximum(dx, dy) < agent.width / 2 + 0.4)
-    return k, np.cos(yaw[j] - yaw_route[k]) > 0.75
+    along = np.where(np.cos(yaw[j] - yaw_route[k]) > 0.75, 0.0, np.nan)
+    return k, np.ones((len(k), T), bool), np.repeat(along[:, None], T, 1)
 
 
 def plan(agent: Agent, planned: list[Agent]) -> None:
     """Fill ``agent.s/valid/xy/yaw`` by simulating IDM against the already ``planned`` agents."""
-    if agent.static:
-        if agent.s is None:  # not yet posed with the other standing agents (pose_standing)
-            pose_standing([agent])
+    if agent.static:  # posed by pose_standing, with the other standing agents at once
         return
-    if agent.walker:
-        moving = np.clip(np.arange(T) - agent.start_step, 0, None) * DT
-        s = agent.s0 + agent.v0 * moving
+    if agent.walker:  # constant speed from start_step on
+        s = agent.s0 + agent.v0 * (np.clip(np.arange(T) - agent.start_step, 0, None) * DT)
     else:
         s = _simulate(agent, agent.route.s, planned)
     valid, xy, yaw = _pose_at([agent], s[None])
@@ -190,8 +166,7 @@ def plan(agent: Agent, planned: list[Agent]) -> None:
 
 
 def pose_standing(agents: list[Agent]) -> None:
-    """Plan static agents (one pose, repeated; they ignore the others), all at once: one batch
-    of :func:`_pose_at`'s elementwise arithmetic per route (the same values as one by one)."""
+    """Plan static agents (one pose, repeated; they ignore the others), one batch per route."""
     by_route: dict[int, list[Agent]] = {}
     for a in agents:
         by_route.setdefault(id(a.route), []).append(a)
@@ -203,7 +178,6 @@ def pose_standing(agents: list[Agent]) -> None:
             a.xy, a.yaw = np.repeat(xy[i], T, 0), np.full(T, yaw[i, 0])
             a.lo = a.hi = xy[i, 0]
             a.reach = float(np.hypot(a.length, a.width) / 2)
-            a.standing = bool(valid[i, 0])
             a.bbox = (*a.lo.tolist(), *a.hi.tolist())
             a.stand = (*a.bbox[:2], float(yaw[i, 0]), a.length, a.width, a.reach)
 
@@ -211,69 +185,47 @@ def pose_standing(agents: list[Agent]) -> None:
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
     yaw_route = agent.route.yaw
     v_prof = speed_profile(agent.route, agent.v_des, agent.brake).tolist()
-    follow_rows, follow_t, follow_v = [], [], []
-    cross_rows, cross_occ = [], []
-    fixed = [o for o in planned if o.standing]
-    if fixed:  # standing objects, all at once: aligned ones are followed, others crossed
-        rows, aligned = _standing_hits(agent, yaw_route, fixed)
-        k = rows[aligned]
-        follow_rows.append(np.repeat(k, T)), follow_t.append(np.tile(np.arange(T), len(k)))
-        follow_v.append(np.zeros(len(k) * T))
-        if (~aligned).any():
-            k = np.unique(rows[~aligned])
-            cross_rows.append(k), cross_occ.append(np.ones((len(k), T), bool))
     group, parallel = agent.route.group, agent.route.kind in PARALLEL
     on_road = agent.route.kind in ON_ROAD
-    # every planned agent that is not standing (a standing one that is planned is valid at
-    # every step, above), but neither another lane of the road (at least a lane's width away)
-    # nor, for a road user, a pedestrian on the sidewalk (2 m outside the road edge)
+    # the other moving agents, but neither another lane of the road (a lane's width away) nor,
+    # for a road user, a pedestrian on the sidewalk (2 m outside the road edge)
     moving = [o for o in planned if not o.static
               and not (parallel and o.route.kind in PARALLEL and o.route.group != group)
               and not (on_road and o.role == "stroller")]
-    rows, occ, along = _occupancy(agent, yaw_route, moving)
-    if len(rows):
-        k, t = np.nonzero(occ & ~np.isnan(along))
+    fixed = [o for o in planned if o.static]  # planned ones stand at every step
+    hits = [_standing_hits(agent, yaw_route, fixed)] if fixed else []
+    follow_rows, follow_t, follow_v, cross_rows, cross_occ = [], [], [], [], []
+    for rows, occ, along in [*hits, _occupancy(agent, yaw_route, moving)]:
+        k, t = np.nonzero(occ & ~np.isnan(along))  # aligned: followed; the others: crossed
         follow_rows.append(rows[k]), follow_t.append(t), follow_v.append(along[k, t])
         cross = occ & np.isnan(along)
         keep = cross.any(1)
         if keep.any():
             cross_rows.append(rows[keep]), cross_occ.append(cross[keep])
-    # Follow obstacles per step: sorted route distances and leader speeds, step t's in
-    # f_s[f_at[t]:f_at[t + 1]] (bisect within those bounds: no slices)
-    f_s, f_v, f_at = [], [], [0] * (T + 1)
-    if follow_rows:
-        k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
-        order = np.lexsort((k, t))
-        k, t, v = k[order], t[order], v[order]
-        bounds = np.searchsorted(t, np.arange(T + 1))
-        f_s, f_v, f_at = s_route[k].tolist(), v.tolist(), bounds.tolist()
+    # Follow obstacles: route distances and leader speeds, step t's in f_s[f_at[t]:f_at[t + 1]]
+    k, t, v = (np.concatenate(x) for x in (follow_rows, follow_t, follow_v))
+    order = np.lexsort((k, t))
+    f_s, f_v = s_route[k[order]].tolist(), v[order].tolist()
+    f_at = np.searchsorted(t[order], np.arange(T + 1)).tolist()
     if cross_rows:
-        c_rows = np.concatenate(cross_rows)
-        occ = np.concatenate(cross_occ, 0)
-        times = np.where(occ, np.arange(T)[None], 10 * T).astype(float)
+        c_s = s_route[np.concatenate(cross_rows)]
+        times = np.where(np.concatenate(cross_occ, 0), np.arange(T)[None], 10 * T).astype(float)
         next_occ = np.minimum.accumulate(times[:, ::-1], axis=1)[:, ::-1]  # first step >= t
-        c_s = s_route[c_rows]
         order = np.argsort(c_s, kind="stable")  # sorted: the window ahead is a slice
-        c_s, next_occ = c_s[order], np.ascontiguousarray(next_occ[order].T)  # [T, rows]
-        c_list = c_s.tolist()  # bisect on a list: np.searchsorted's answer, without its overhead
-        occ_lists = next_occ.tolist()  # the window ahead is short (median 7): Python floats
-    # The step loop runs on Python floats (numpy scalars are several times slower; the same
-    # IEEE arithmetic, and ``**`` is C ``pow`` in both).
+        # Python lists (bisect: np.searchsorted's answer without its overhead); occ_lists[t]
+        c_list, occ_lists = c_s[order].tolist(), next_occ[order].T.tolist()
+    # The step loop runs on Python floats (numpy scalars are slower; the same IEEE arithmetic).
     half, length = agent.length / 2, float(agent.length)
     accel, brake = float(agent.accel), float(agent.brake)
     headway, min_gap = float(agent.headway), float(agent.min_gap)
     sqrt_ab = float(2 * np.sqrt(agent.accel * agent.brake))
     pos, v = float(agent.s0), float(agent.v0)
-    stop_at = 0.0
-    stop_line, waited = agent.route.stop_at, 0
-    if stop_line is not None and agent.s0 + half > stop_line - 0.5:
-        stop_line = None  # already past it
-    stop_line = None if stop_line is None else float(stop_line)
-    signal, signal_at, on_yellow = agent.route.signal, agent.route.signal_at, False
-    if signal is not None and agent.s0 + half > signal_at - 0.5:
-        signal = None
-    if signal is not None:
-        signal, signal_at = signal.tolist(), float(signal_at)
+    stop_at, waited, on_yellow = 0.0, 0, False
+    stop_line, signal, signal_at = agent.route.stop_at, None, agent.route.signal_at
+    if stop_line is not None:  # None when already past it
+        stop_line = float(stop_line) if agent.s0 + half <= stop_line - 0.5 else None
+    if agent.route.signal is not None and agent.s0 + half <= signal_at - 0.5:
+        signal, signal_at = agent.route.signal.tolist(), float(signal_at)
     inv_ds, last = float((len(s_route) - 1) / s_route[-1]), len(s_route) - 1
     wave = agent.speed_wave
     window = agent.stop_window if agent.stop_window is not None else (0, 0)
@@ -329,8 +281,10 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
             g = stop_at - front
             if g < gap:
                 gap, v_lead = g, 0.0
-        if t == 0:  # start at a speed the situation allows (no brake slam at step 0)
-            v = min(v, float(_entry_speed(agent, gap, v_lead, sqrt_ab)))
+        if t == 0:  # start no faster than the speed whose IDM s* is 1.2 gap (no brake slam)
+            inv, b = 1.0 / sqrt_ab, headway - v_lead / sqrt_ab
+            disc = b * b - 4 * inv * (min_gap - 1.2 * gap)
+            v = min(v, max((-b + disc**0.5) / (2 * inv), 0.0) if disc >= 0 else 0.0)
         k = min(max(int(pos * inv_ds + 0.5), 0), last)
         v_d = max(v_prof[k], 0.1)
         if wave is not None:  # a driver who does not hold the speed exactly
@@ -358,33 +312,18 @@ def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.nda
 
 
 def stop_cap(agent: Agent) -> float:
-    """The largest start speed that stops (at 1.5 m/s^2) before a stop sign or a red/yellow
-    light ahead."""
-    route, cap = agent.route, np.inf
+    """The largest start speed that stops (at 1.5 m/s^2) before a stop sign or light ahead."""
+    route = agent.route
     lines = [route.stop_at]
     if route.signal is not None and route.signal[0] != LIGHT_GO:
         lines.append(route.signal_at)
-    for line in lines:
-        if line is not None and agent.s0 < line:
-            room = max(line - agent.s0 - agent.length / 2 - 1.0, 0.0)
-            cap = min(cap, float(np.sqrt(2 * 1.5 * room)))
-    return cap
-
-
-def _entry_speed(agent: Agent, gap: float, v_lead: float, sqrt_ab: float) -> float:
-    """Largest speed whose IDM desired gap ``s*`` is at most ``1.2 gap`` (quadratic in v)."""
-    a = 1.0 / sqrt_ab
-    b = agent.headway - v_lead / sqrt_ab
-    c = agent.min_gap - 1.2 * gap
-    disc = b * b - 4 * a * c
-    if disc < 0:
-        return 0.0
-    return max((-b + disc**0.5) / (2 * a), 0.0)
+    rooms = [max(line - agent.s0 - agent.length / 2 - 1.0, 0.0) for line in lines
+             if line is not None and agent.s0 < line]
+    return min((float(np.sqrt(2 * 1.5 * room)) for room in rooms), default=np.inf)
 
 
 def _pose_at(agents: list[Agent], s: np.ndarray):
-    """Poses ``(valid, xy, yaw)`` of ``agents`` (all on one route) at arc lengths ``s [N, S]``:
-    along the route, with a smooth lateral wander (human-like)."""
+    """Poses ``(valid, xy, yaw)`` of ``agents`` (one route) at ``s [N, S]``, with lateral wander."""
     route = agents[0].route
     s_route, pts = route.s, route.points
     valid = (s >= 0) & (s <= s_route[-1] - 0.5)
@@ -395,8 +334,7 @@ def _pose_at(agents: list[Agent], s: np.ndarray):
     k = 2 * np.pi / wave
     off = amp * np.sin(k * sc + phase)
     offset = np.array([a.offset for a in agents], float)[:, None]
-    if offset.any():  # (0: the default's arithmetic, bit for bit)
-        off = np.where(offset != 0, off + offset, off)
+    off = np.where(offset != 0, off + offset, off)  # (an offset of 0 keeps off's sign bit)
     slope = amp * k * np.cos(k * sc + phase)
     nx, ny = -np.sin(yaw_r), np.cos(yaw_r)
     return valid, np.stack([x + off * nx, y + off * ny], -1), yaw_r + np.arctan(slope)
@@ -411,8 +349,7 @@ def box_corners(xy: np.ndarray, yaw: np.ndarray, length, width) -> np.ndarray:
 
 
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Separating-axis test for convex quads given as corners ``[..., 4, 2]`` (the normals of
-    each quad's first two edges; a projection is ``x * nx + y * ny``)."""
+    """Separating-axis test for convex quads given as corners ``[..., 4, 2]``."""
     edges = np.concatenate([a[..., 1:3, :] - a[..., :2, :], b[..., 1:3, :] - b[..., :2, :]], -2)
     nx, ny = -edges[..., 1:], edges[..., :1]  # [..., 4 axes, 1]
     pa = a[..., None, :, 0] * nx + a[..., None, :, 1] * ny  # [..., 4 axes, 4 corners]
@@ -421,8 +358,7 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def collides_any(a: Agent, others: list[Agent]) -> bool:
-    """Whether ``a``'s box overlaps one of ``others``' at a step where both are valid (all
-    pairs in one batch)."""
+    """Whether ``a``'s box overlaps one of ``others``' at a step where both are valid."""
     if a.route.kind in PARALLEL:
         others = [b for b in others
                   if not (b.route.kind in PARALLEL and b.route.group != a.route.group)]
@@ -434,21 +370,16 @@ def collides_any(a: Agent, others: list[Agent]) -> bool:
              | (a.lo[1] - reach > box[:, 3]) | (a.hi[1] + reach < box[:, 1]))
     if not meet.any():
         return False
-    keep = np.flatnonzero(meet)
-    valid = np.stack([others[k].valid for k in keep]) & a.valid  # [N, T]
-    live = valid.any(1)  # some step where both are valid
-    if not live.any():
-        return False
-    keep, reach, valid = keep[live], reach[keep][live], valid[live]
-    xy = np.stack([others[k].xy for k in keep])  # [N, T, 2]
+    others, reach = [b for b, m in zip(others, meet, strict=True) if m], reach[meet]
+    valid = np.stack([b.valid for b in others]) & a.valid  # [N, T]
+    xy = np.stack([b.xy for b in others])  # [N, T, 2]
     d = (a.xy[None] - xy).reshape(-1, 2)
-    near = valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)
-                    < (reach * reach)[:, None])
-    n, t = np.nonzero(near)
+    n, t = np.nonzero(valid & (np.einsum("ij,ij->i", d, d).reshape(valid.shape)
+                               < (reach * reach)[:, None]))
     if len(n) == 0:
         return False
-    size = np.array([(others[k].length, others[k].width) for k in keep])
-    yaw = np.stack([others[k].yaw for k in keep])
+    size = np.array([(b.length, b.width) for b in others])
+    yaw = np.stack([b.yaw for b in others])
     ca = box_corners(a.xy[t], a.yaw[t], a.length, a.width)
     cb = box_corners(xy[n, t], yaw[n, t], size[n, 0], size[n, 1])
     return bool(boxes_overlap(ca, cb).any())

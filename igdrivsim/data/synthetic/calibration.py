@@ -1,9 +1,7 @@
 """The motion calibration target: the logged SDC's constant-velocity divergence.
 
 ``igdrivsim cv-divergence`` prints per data set the median [p10, p90] over SDCs of
-:func:`cv_divergence` and of its parts along and across the heading: the mean over every step of
-the 8 s future, i.e. exactly a constant-velocity actor's log divergence (``igdrivsim stats``
-reports the CV distance at single horizons).
+:func:`cv_divergence` (a constant-velocity actor's log divergence over the 8 s future).
 """
 
 from __future__ import annotations
@@ -23,9 +21,8 @@ HORIZON_STEPS = 80  # 8 s after the current step
 
 
 def cv_divergence(scenario: Scenario) -> tuple[float, float, float]:
-    """``(distance, |along|, |across|)``: the SDC's distance from its constant-velocity
-    extrapolation from the current step (logged position and velocity), averaged over the valid
-    steps of the next 8 s, and the means of its absolute parts along and across the heading."""
+    """``(distance, |along|, |across|)``: the SDC's mean distance from its constant-velocity
+    extrapolation over the valid steps of the next 8 s, and its parts along/across its heading."""
     tr = scenario.trajectory
     i = int(np.argmax(np.asarray(scenario.metadata.is_sdc)))
     xy = np.stack([np.asarray(tr.x[i]), np.asarray(tr.y[i])], -1).astype(np.float64)
@@ -42,26 +39,19 @@ def cv_divergence(scenario: Scenario) -> tuple[float, float, float]:
             float(np.abs(across).mean()))
 
 
-def _cell(v: np.ndarray) -> str:
-    return f"{np.median(v):.2f} [{np.percentile(v, 10):.2f}, {np.percentile(v, 90):.2f}]"
-
-
 def cv_table(datasets: dict[str, list[str]], kept_only: Sequence[str] = ()) -> str:
-    """The Markdown table of :func:`cv_divergence` per data set (filter-kept scenarios only for
-    the sets in ``kept_only``)."""
+    """The Markdown table of :func:`cv_divergence` per data set (``kept_only``: filter-kept)."""
     lines = ["| data set | SDCs | CV divergence over 8 s (m) | along (m) | across (m) |",
              "|---|---|---|---|---|"]
     for name, paths in datasets.items():
-        rows = []
-        for s in (rec.scenario for rec in open_scenarios(paths, caps=None)):
-            if name in kept_only and not (intersecting_objects(s).any()
-                                          and sdc_mean_speed(s) >= 0.7):
-                continue
-            rows.append(cv_divergence(s))
+        scenarios = (rec.scenario for rec in open_scenarios(paths, caps=None))
+        rows = [cv_divergence(s) for s in scenarios if name not in kept_only
+                or (intersecting_objects(s).any() and sdc_mean_speed(s) >= 0.7)]
         v = np.array(rows).reshape(-1, 3)
         v = v[np.isfinite(v).all(1)]
         kept = " (kept)" if name in kept_only else ""
-        cells = " | ".join(_cell(v[:, j]) if len(v) else "-" for j in range(3))
+        cells = " | ".join(f"{np.median(c):.2f} [{np.percentile(c, 10):.2f}, "  # median [p10, p90]
+                           f"{np.percentile(c, 90):.2f}]" if len(v) else "-" for c in v.T)
         lines.append(f"| {name}{kept} | {len(v)} | {cells} |")
     return "\n".join(lines)
 

@@ -1,9 +1,8 @@
-"""``igdrivsim generate``: write synthetic scenarios as WOMD-named tf.Example shards.
+"""``igdrivsim generate``: write synthetic scenarios as WOMD-named tf.Example shards
+(``DIR/{split}/{split}_tfexample.tfrecord-0000k-of-0000K``) and ``DIR/generator_config.json``.
 
-``DIR/training/training_tfexample.tfrecord-0000k-of-0000K`` and the same for ``validation``, plus
-``DIR/generator_config.json``. Each shard is written atomically, so a re-run skips the shards that
-exist (same configuration) and finishes the others. Scenario ``i`` of a split depends only on
-``(seed, split, i)``, so the shard count and the worker count do not change the data.
+Shards are written atomically: a re-run skips those that exist (same configuration). Scenario
+``i`` depends only on ``(seed, split, i)``, not on the shard or worker count.
 """
 
 from __future__ import annotations
@@ -37,8 +36,7 @@ def shard_paths(out: str, split: str, shards: int) -> list[str]:
 
 def shard_ranges(count: int, shards: int) -> list[range]:
     """Contiguous scenario index ranges, one per shard (sizes differ by at most one)."""
-    bounds = [count * k // shards for k in range(shards + 1)]
-    return [range(bounds[k], bounds[k + 1]) for k in range(shards)]
+    return [range(count * k // shards, count * (k + 1) // shards) for k in range(shards)]
 
 
 def _encode_chunk(seed: int, split: str, start: int, stop: int, config: GeneratorConfig,
@@ -73,7 +71,8 @@ def generate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _check(args: argparse.Namespace) -> None:
+def generate_command(args: argparse.Namespace) -> int:
+    """Generate the requested splits; print one JSON summary line."""
     if args.train < 0 or args.val < 0:
         raise ConfigError(f"--train/--val must be >= 0, got {args.train}/{args.val}")
     check_min("--shards", args.shards, 1)
@@ -82,48 +81,34 @@ def _check(args: argparse.Namespace) -> None:
     check_min("--seed", args.seed, 0)
     check_min("--workers", args.workers, 1)
     check_min("--plot", args.plot, 0)
-
-
-def generate_command(args: argparse.Namespace) -> int:
-    """Generate the requested splits; print one JSON summary line."""
-    _check(args)
     require_folder(args.out)
     config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection,
                              motion=args.motion)
-    plan = {}
-    for split, count in (("training", args.train), ("validation", args.val)):
-        if count:
-            shards = args.shards or max(1, round(count / 250))
-            plan[split] = (count, min(shards, count))
+    plan = {split: (count, min(args.shards or max(1, round(count / 250)), count))
+            for split, count in (("training", args.train), ("validation", args.val)) if count}
     splits = {s: {"scenarios": c, "shards": k} for s, (c, k) in plan.items()}
     resolved = {"generator": config.to_dict(), "compact": args.compact, "splits": splits}
     os.makedirs(args.out, exist_ok=True)
     config_path = os.path.join(args.out, "generator_config.json")
-    if os.path.exists(config_path) and not args.overwrite:
-        previous = read_json(config_path)
-        if previous != resolved:
-            raise ConfigError(f"{config_path} holds a different configuration; use another --out "
-                              "or --overwrite")
+    if os.path.exists(config_path) and not args.overwrite and read_json(config_path) != resolved:
+        raise ConfigError(f"{config_path} holds a different configuration; use another --out "
+                          "or --overwrite")
     if args.overwrite:  # before the new config: no shard of the old one may stay to be reused
         for split in ("training", "validation"):
             for stale in glob.glob(os.path.join(args.out, split, f"{split}_tfexample.tfrecord-*")):
                 os.remove(stale)
     atomic_write_json(config_path, resolved, indent=2)
 
-    todo = []
-    for split, (count, shards) in plan.items():
-        for path, indices in zip(shard_paths(args.out, split, shards),
-                                 shard_ranges(count, shards), strict=True):
-            if args.overwrite or not os.path.exists(path):
-                todo.append((split, path, indices))
+    todo = [(split, path, indices) for split, (count, shards) in plan.items()
+            for path, indices in zip(shard_paths(args.out, split, shards),
+                                     shard_ranges(count, shards), strict=True)
+            if args.overwrite or not os.path.exists(path)]
     total = sum(len(r) for _, _, r in todo)
     start, cpu = time.perf_counter(), process_cpu_seconds()
-    # One stream of chunks over all shards (no worker waits at a shard's end); the shards are
-    # written in order as their chunks come back.
+    # One stream of chunks over all shards (no worker waits); shards are written in order.
     chunks = [[(args.seed, split, i, min(i + CHUNK, indices.stop), config, args.compact)
                for i in range(indices.start, indices.stop, CHUNK)] for split, _, indices in todo]
-    flat = [chunk for shard in chunks for chunk in shard]
-    results = pool_map(_encode_chunk, flat, args.workers)
+    results = pool_map(_encode_chunk, [chunk for shard in chunks for chunk in shard], args.workers)
     try:
         with tqdm(total=total, desc="generating", unit="scn", disable=args.no_progress) as bar:
             for (_, path, _), shard in zip(todo, chunks, strict=True):

@@ -1,17 +1,13 @@
-"""Synthetic WOMD-format scenarios: a map, a cast of agents with interactions, planned logs.
+"""Synthetic WOMD-format scenarios: a map (curved road or intersection), a cast of agents with
+interactions that need anticipation, and their planned logs (docs/synthetic.md).
 
-``generate_scenario(seed, index, split)`` is deterministic: it draws everything from a NumPy
-Generator seeded with ``(seed, split, index)``. Each scenario is a curved multi-lane road (with
-side streets, parking, bike lanes, maybe a signalised crosswalk) or an intersection (stop signs
-or traffic lights); the SDC meets at least one situation that needs anticipation (a stalled car
-around a bend, a braking leader, a cut-in, cross traffic, pedestrians on a crosswalk, a light),
-in scenes as crowded as WOMD's (parked cars, queues at red, neighbours; docs/synthetic.md). The
-SDC log is checked: no overlap with any object and all four box corners inside the road edges.
+``generate_scenario(seed, index, split)`` draws everything from a NumPy Generator seeded with
+``(seed, split, index)``. The SDC log never overlaps an object and stays inside the road edges.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -32,7 +28,6 @@ from igdrivsim.data.scenario import (
 from igdrivsim.data.synthetic import agents as ag
 from igdrivsim.data.synthetic import geometry as geo
 from igdrivsim.data.synthetic.agents import Agent, collides_any, plan, stop_cap
-from igdrivsim.data.synthetic.geometry import paths_intersect
 from igdrivsim.data.synthetic.maps import (
     LIGHT_GO,
     LIGHT_STOP,
@@ -44,10 +39,10 @@ from igdrivsim.data.synthetic.maps import (
 )
 from igdrivsim.data.synthetic.motion import (
     JUNCTION_SKEW,
+    MOTIONS,
     ROAD_BEND,
     calibrate_cast,
     calibrate_map,
-    check_motion,
 )
 
 SPLITS = {"training": 0, "validation": 1, "testing": 2}
@@ -67,7 +62,8 @@ class GeneratorConfig:
     motion: Literal["default", "calibrated"] = "default"  # calibrated: towards real logs
 
     def __post_init__(self) -> None:
-        check_motion(self.motion)
+        if self.motion not in MOTIONS:
+            raise ValueError(f"motion must be one of {MOTIONS}, got {self.motion!r}")
 
     def to_dict(self) -> dict:
         """The fields (``motion`` only when not the default: older folders stay resumable)."""
@@ -78,20 +74,19 @@ def scenario_rng(seed: int, index: int, split: str = "training") -> np.random.Ge
     return np.random.default_rng([int(seed), SPLITS[split], int(index)])
 
 
-def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw) -> Agent:
+def _vehicle(rng, route: Route, s0: float, role: str, **kw) -> Agent:
     big = rng.random() < 0.08
     # min(max()) on a float: np.clip's value, without its overhead
     length = rng.uniform(6.5, 9.5) if big else min(max(rng.normal(4.6, 0.35), 3.8), 5.6)
     width = rng.uniform(2.3, 2.6) if big else min(max(rng.normal(1.95, 0.08), 1.7), 2.2)
-    v_des = route.speed_limit * rng.uniform(0.85, 1.1) * v_scale
+    v_des = route.speed_limit * rng.uniform(0.85, 1.1)
     a = Agent(route=route, s0=s0, v0=v_des * rng.uniform(0.6, 1.0), length=length, width=width,
               height=rng.uniform(2.5, 3.4) if big else rng.uniform(1.4, 1.9), v_des=v_des,
               accel=rng.uniform(1.2, 2.0), brake=rng.uniform(1.6, 2.6),
               headway=rng.uniform(1.1, 1.8), min_gap=rng.uniform(2.0, 3.5),
               lateral=(rng.uniform(0.0, 0.25), rng.uniform(40, 120), rng.uniform(0, 6.3)),
               role=role)
-    for key, value in kw.items():
-        setattr(a, key, value)
+    a = replace(a, **kw)  # the caller's settings over the drawn ones
     a.v0 = min(a.v0, stop_cap(a))
     return a
 
@@ -99,17 +94,11 @@ def _vehicle(rng, route: Route, s0: float, role: str, v_scale: float = 1.0, **kw
 def _parked(rng, strips: list[Route], walks: list[np.ndarray], fill: float = 0.8) -> list[Agent]:
     """Cars parked along kerbside strips (about one per 6-9 m), clear of the crosswalks."""
     out = []
-    # a spot over 6 m (+ 1 um) from a segment's box is clear of it without the exact distance
-    boxes = [(*np.minimum(w[0], w[1]).tolist(), *np.maximum(w[0], w[1]).tolist()) for w in walks]
-    far = (6.0 + 1e-6) ** 2
     for strip in strips:
         at = rng.uniform(0, 6)
         while at < strip.s[-1] - 4:
             xy = strip.points[min(int(at), len(strip.points) - 1)]
-            x, y = xy.tolist()
-            clear = all(max(x0 - x, x - x1, 0.0) ** 2 + max(y0 - y, y - y1, 0.0) ** 2 > far
-                        or _segment_distance(xy, w[0], w[1]) > 6.0
-                        for w, (x0, y0, x1, y1) in zip(walks, boxes, strict=True))
+            clear = all(_segment_distance(xy, a, b) > 6.0 for a, b in walks)
             if clear and rng.random() < fill:
                 out.append(_vehicle(rng, strip, at, "parked", static=True, v0=0.0))
             at += rng.uniform(6.3, 9.0)
@@ -122,17 +111,15 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(p - a - u * ab))
 
 
-def _queue(rng, route: Route, behind: float, count: int, role: str = "queued") -> list[Agent]:
-    """Vehicles standing one behind the other, the first with its front ``behind`` (arc length);
-    static if their light stays red for the whole log."""
-    out, front = [], behind
-    stays = route.signal is not None and (route.signal == LIGHT_STOP).all()
-    for _ in range(count):
-        a = _vehicle(rng, route, 0.0, role, v0=0.0)
+def _queue(rng, route: Route, count: tuple[int, int]) -> list[Agent]:
+    """Vehicles standing in a row behind the route's signal; static if it stays red."""
+    out, front = [], route.signal_at - rng.uniform(0.6, 1.2)
+    stays = (route.signal == LIGHT_STOP).all()
+    for _ in range(int(rng.integers(*count))):
+        a = _vehicle(rng, route, 0.0, "queued", v0=0.0, static=stays)
         a.s0 = front - a.length / 2
         if a.s0 < 5:
             break
-        a.static = stays
         out.append(a)
         front = a.s0 - a.length / 2 - rng.uniform(1.8, 3.2)
     return out
@@ -140,8 +127,7 @@ def _queue(rng, route: Route, behind: float, count: int, role: str = "queued") -
 
 def _walkers(rng, m: MapData, crossing: tuple[int, int], strolling: tuple[int, int]
              ) -> list[Agent]:
-    """Pedestrians on the crosswalks (signalised ones start while the cars have red) and
-    walking or standing on the sidewalks."""
+    """Pedestrians on the crosswalks (at signals: while the cars have red) and the sidewalks."""
     out = []
     for walk, steps in zip(m.walk_paths, m.walk_steps, strict=True):
         for _ in range(int(rng.integers(*crossing))):
@@ -175,10 +161,9 @@ def _walker(rng, path: np.ndarray, routes: dict, static: bool = False) -> Agent:
     if key not in routes:
         routes[key] = Route(geo.resample(path[::-1] if flip else path, 0.5), group=-1,
                             kind="walk", speed_limit=1.5)
-    route = routes[key]
     size = rng.uniform(0.5, 0.9)
-    s0 = 0.0 if static else rng.uniform(0, 3)
-    return Agent(route=route, s0=s0, v0=0.0 if static else rng.uniform(1.0, 1.6),
+    return Agent(route=routes[key], s0=0.0 if static else rng.uniform(0, 3),
+                 v0=0.0 if static else rng.uniform(1.0, 1.6),
                  length=size, width=size, height=rng.uniform(1.5, 1.9), obj_type=TYPE_PEDESTRIAN,
                  walker=True, static=static, start_step=int(rng.integers(0, 45)), role="walker")
 
@@ -196,18 +181,16 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
         mouth = m.no_parking[int(rng.integers(len(m.no_parking)))].mean(0)
         at = lane.s[np.argmin(np.linalg.norm(lane.points - mouth, axis=1))]
         s0 = float(np.clip(at - rng.uniform(-20, 45), 30, lane.s[-1] - 150))
-    neighbours = [h for h in groups if m.lanes[h][1] == m.lanes[g][1]
-                  and abs(m.lanes[h][0] - m.lanes[g][0]) < 5]
-    neighbours = [h for h in neighbours if h != g and h not in m.dropped]
-    if g in m.dropped:  # the SDC's lane ends: it merges; no further lane change or cut-in
-        neighbours = []
+    # next lanes (none when the SDC's lane ends: it merges; no further lane change or cut-in)
+    neighbours = [h for h in groups if m.lanes[h][1] == m.lanes[g][1] and h != g
+                  and abs(m.lanes[h][0] - m.lanes[g][0]) < 5 and h not in m.dropped
+                  and g not in m.dropped]
     route = lane
     if neighbours and rng.random() < 0.15:
         route = lane_change_route(m, g, int(rng.choice(neighbours)), s0 + rng.uniform(20, 60),
                                   rng.uniform(30, 50))
     sdc = _sdc(rng, route, s0)
-    agents = [sdc]
-    agents += _parked(rng, m.parking, m.walk_paths + m.no_parking)
+    agents = [sdc, *_parked(rng, m.parking, m.walk_paths + m.no_parking)]
     for r in m.routes:  # traffic turning into and out of the side street
         if r.group >= 100 and rng.random() < 0.5:
             agents.append(_vehicle(rng, r, rng.uniform(0, max(r.s[-1] - 80, 1.0)), "side"))
@@ -245,8 +228,7 @@ def _cast_road(rng, m: MapData) -> list[Agent]:
             continue
         lo, hi = r.s[near[0]], r.s[near[-1]]
         if r.signal is not None and r.signal[0] != LIGHT_GO:
-            queue = _queue(rng, r, r.signal_at - rng.uniform(0.6, 1.2),
-                           int(rng.integers(0, 5)))
+            queue = _queue(rng, r, (0, 5))
             agents += [a for a in queue if h != g or a.s0 > s0 + 10]
         at = lo + rng.uniform(0, 30)
         while at < min(hi, r.s[-1] - 40):
@@ -272,18 +254,15 @@ def _cast_intersection(rng, m: MapData) -> list[Agent]:
     # Closer to a stop sign, so that the stop, the wait and the crossing fit in the 9 s log.
     s0 = route.entry - (rng.uniform(10, 40) if route.stop_at is not None else rng.uniform(8, 40))
     sdc = _sdc(rng, route, s0)
-    agents = [sdc]
-    agents += _parked(rng, m.parking, m.walk_paths, fill=0.85)
-    agents += _walkers(rng, m, (0, 3), (1, 4))
+    agents = [sdc, *_parked(rng, m.parking, m.walk_paths, fill=0.85),
+              *_walkers(rng, m, (0, 3), (1, 4))]
     eta = (route.entry - s0) / max(sdc.v0, 3.0)
-    groups = sorted({r.group for r in m.routes})
-    for g in groups:
+    for g in sorted({r.group for r in m.routes}):
         routes = [r for r in m.routes if r.group == g]
         pick = lambda rs=routes: rs[int(rng.integers(len(rs)))]  # noqa: E731
         red = routes[0].signal is not None and routes[0].signal[0] != LIGHT_GO
         if red:  # a queue at the red light (behind it the SDC, on its own lane)
-            queue = _queue(rng, pick(), routes[0].signal_at - rng.uniform(0.6, 1.2),
-                           int(rng.integers(1, 6)))
+            queue = _queue(rng, pick(), (1, 6))
             if g == route.group:
                 queue = [a for a in queue if a.s0 > s0 + 12]
             for a in queue:
@@ -317,8 +296,8 @@ def _cast_intersection(rng, m: MapData) -> list[Agent]:
 
 
 def _priority(rng, agents: list[Agent]) -> list[Agent]:
-    """Planning order: walkers and stalled cars, then lanes in random right-of-way order, and
-    within a lane the vehicle in front first (cut-ins before the SDC)."""
+    """Planning order: static agents and walkers, cut-ins, then lanes in random right-of-way
+    order (stop and red approaches last), the vehicle in front first."""
     rank = {g: rng.random() for g in {a.route.group for a in agents}}
 
     def key(a: Agent):
@@ -350,35 +329,28 @@ def _edges(m: MapData) -> tuple[cKDTree, np.ndarray]:
 def offroad_steps(edges: tuple[cKDTree, np.ndarray], agent: Agent) -> np.ndarray:
     """Steps at which a box corner lies on the outer (right) side of the nearest edge point."""
     tree, table = edges
-    corners = ag.box_corners(agent.xy, agent.yaw, agent.length, agent.width)  # [T, 4, 2]
-    _, idx = tree.query(corners.reshape(-1, 2))
-    p, d = table[idx, :2], table[idx, 2:]
-    rel = corners.reshape(-1, 2) - p
+    corners = ag.box_corners(agent.xy, agent.yaw, agent.length, agent.width).reshape(-1, 2)
+    _, idx = tree.query(corners)
+    d, rel = table[idx, 2:], corners - table[idx, :2]
     cross = d[:, 0] * rel[:, 1] - d[:, 1] * rel[:, 0]  # > 0: left of the edge (inside)
     return (cross < 0).reshape(-1, 4).any(1) & agent.valid
 
 
-def _stage(rng, m: MapData, cast: list[Agent], edges) -> list[Agent] | None:
+def _stage(rng, cast: list[Agent], edges) -> list[Agent] | None:
     planned: list[Agent] = []
-    boxes = np.empty((len(cast), 4))  # planned agents' path boxes grown by their reach
     ag.pose_standing([a for a in cast if a.static])  # they ignore the others: all at once
     for agent in _priority(rng, cast):
         plan(agent, planned)
         if not agent.valid.any():
             continue
-        b, r = boxes[: len(planned)], agent.reach
-        near = np.flatnonzero((b[:, 0] - r <= agent.hi[0]) & (b[:, 2] + r >= agent.lo[0])
-                              & (b[:, 1] - r <= agent.hi[1]) & (b[:, 3] + r >= agent.lo[1]))
-        if collides_any(agent, [planned[k] for k in near]):
+        if collides_any(agent, planned):
             if agent.is_sdc:
                 return None
             continue
-        boxes[len(planned)] = [*(agent.lo - r), *(agent.hi + r)]
         planned.append(agent)
     sdc = next((a for a in planned if a.is_sdc), None)
-    if sdc is None or not sdc.valid.all() or offroad_steps(edges, sdc).any():
-        return None
-    return planned
+    ok = sdc is not None and sdc.valid.all() and not offroad_steps(edges, sdc).any()
+    return planned if ok else None
 
 
 def plan_scenario(rng: np.random.Generator, config: GeneratorConfig = GeneratorConfig()):
@@ -394,7 +366,7 @@ def plan_scenario(rng: np.random.Generator, config: GeneratorConfig = GeneratorC
         for _ in range(3):
             cast = _cast_intersection(rng, m) if m.kind == "intersection" else _cast_road(rng, m)
             cast = calibrate_cast(rng, m, cast) if calibrated else cast
-            planned = _stage(rng, m, cast, edges)
+            planned = _stage(rng, cast, edges)
             if planned is not None:
                 return m, planned
     raise RuntimeError("synthetic generator: no valid scenario after max_attempts draws")
@@ -405,21 +377,19 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     """Place the planned map and agents at a random global pose and pack a :class:`Scenario`."""
     caps = Capacities(max_objects=config.max_objects,
                       max_roadgraph_points=config.max_roadgraph_points)
-    order = rng.permutation(len(agents))
-    agents = [agents[i] for i in order]
+    agents = [agents[i] for i in rng.permutation(len(agents))]
     # Like a perception log, objects are valid only within sensor range of the SDC.
     sdc_xy = next(a.xy for a in agents if a.is_sdc)
     sensor = rng.uniform(90, 130)
     dist = np.linalg.norm(np.stack([a.xy for a in agents]) - sdc_xy, axis=-1)  # [N, T]
     seen = [a.valid & (d <= sensor) for a, d in zip(agents, dist, strict=True)]
     keep = [k for k, a in enumerate(agents) if seen[k].any() or a.is_sdc]
+    if len(keep) > caps.max_objects:  # keep the SDC and the objects nearest to it
+        near = np.argsort([np.linalg.norm(agents[k].xy - sdc_xy, axis=1).min() for k in keep])
+        keep = [keep[k] for k in np.sort(near[: caps.max_objects])]
     agents, seen = [agents[k] for k in keep], [seen[k] for k in keep]
-    if len(agents) > caps.max_objects:  # keep the SDC and the objects nearest to it
-        near = np.argsort([np.linalg.norm(a.xy - sdc_xy, axis=1).min() for a in agents])
-        chosen = np.sort(near[: caps.max_objects])
-        agents, seen = [agents[k] for k in chosen], [seen[k] for k in chosen]
     n = len(agents)
-    if n > caps.max_objects or not any(a.is_sdc for a in agents):
+    if not any(a.is_sdc for a in agents):
         raise RuntimeError("synthetic generator: SDC lost while packing objects")
     angle = rng.uniform(-np.pi, np.pi)
     rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
@@ -430,34 +400,30 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     out = empty_scenario(Capacities(max_objects=n, max_roadgraph_points=1,
                                     max_traffic_lights=min(len(m.lights),
                                                            caps.max_traffic_lights)))
-    tr = out.trajectory
     xy = np.stack([place(a.xy) for a in agents])  # [n, T, 2]
     valid = np.stack(seen)
     vel = np.gradient(xy, 0.1, axis=1)
     vel[~valid] = 0
-    yaw = np.stack([a.yaw for a in agents]) + angle
-    yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+    yaw = (np.stack([a.yaw for a in agents]) + angle + np.pi) % (2 * np.pi) - np.pi
     f32 = lambda v: np.where(valid, v, 0).astype(np.float32)  # noqa: E731
-    size = lambda name: np.repeat(np.array([getattr(a, name) for a in agents])[:, None],  # noqa: E731
-                                  NUM_STEPS, 1)
-    tr = tr.replace(x=f32(xy[..., 0]), y=f32(xy[..., 1]),
-                    z=f32(z0 + size("height") / 2), yaw=f32(yaw), vel_x=f32(vel[..., 0]),
-                    vel_y=f32(vel[..., 1]), length=f32(size("length")), width=f32(size("width")),
-                    height=f32(size("height")), valid=valid)
+    size = lambda name: np.array([getattr(a, name) for a in agents])[:, None]  # noqa: E731
+    tr = out.trajectory.replace(
+        x=f32(xy[..., 0]), y=f32(xy[..., 1]), z=f32(z0 + size("height") / 2), yaw=f32(yaw),
+        vel_x=f32(vel[..., 0]), vel_y=f32(vel[..., 1]), length=f32(size("length")),
+        width=f32(size("width")), height=f32(size("height")), valid=valid)
     sdc = int(np.flatnonzero([a.is_sdc for a in agents])[0])
     lo = np.where(valid[..., None], xy, np.inf).min(1)  # path boxes: disjoint ones never cross
     hi = np.where(valid[..., None], xy, -np.inf).max(1)
     meets = np.all((lo <= hi[sdc]) & (hi >= lo[sdc]), axis=1)
-    interacting = [i for i in np.flatnonzero(meets) if i != sdc and paths_intersect(
+    interacting = [i for i in np.flatnonzero(meets) if i != sdc and geo.paths_intersect(
         xy[sdc], valid[sdc], xy[i], valid[i])]
     at_now = np.linalg.norm(xy[:, CURRENT_INDEX] - xy[sdc, CURRENT_INDEX], axis=1)
     at_now = np.where(valid[:, CURRENT_INDEX] & (valid.sum(1) > 20), at_now, np.inf)
     predict = np.zeros(n, bool)
     predict[np.argsort(at_now)[:8]] = np.isfinite(np.sort(at_now)[:8])
     interest = np.zeros(n, bool)
-    if interacting:
-        closest = min(interacting, key=lambda i: at_now[i])
-        interest[[sdc, closest]] = True
+    if interacting:  # the SDC and the interacting object closest to it
+        interest[[sdc, min(interacting, key=lambda i: at_now[i])]] = True
     md = out.metadata.replace(
         id=rng.choice(np.arange(1, 10_000), n, replace=False).astype(np.int32),
         object_type=np.array([a.obj_type for a in agents], np.int32),
@@ -493,13 +459,10 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     return fit_to_capacities(scenario, caps)
 
 
-def scenario_name(seed: int, index: int, split: str) -> str:
-    return f"syn{seed:x}{split[0]}{index:08d}"
-
-
 def generate_scenario(seed: int, index: int, split: str = "training",
                       config: GeneratorConfig = GeneratorConfig()) -> Scenario:
-    """The ``index``-th synthetic scenario of ``split`` for ``seed`` (deterministic)."""
+    """The ``index``-th synthetic scenario of ``split`` for ``seed`` (deterministic), named as
+    ``plot.GENERATED_ID`` parses."""
     rng = scenario_rng(seed, index, split)
     m, agents = plan_scenario(rng, config)
-    return to_scenario(rng, m, agents, scenario_name(seed, index, split), config)
+    return to_scenario(rng, m, agents, f"syn{seed:x}{split[0]}{index:08d}", config)

@@ -50,16 +50,13 @@ def unwrapped_yaw(points: np.ndarray) -> np.ndarray:
 
 def curvature(points: np.ndarray) -> np.ndarray:
     """Signed curvature ``[N]`` (1/m) from the heading change per unit arc length."""
-    yaw = unwrapped_yaw(points)
-    s = arc_length(points)
     if len(points) < 3:
         return np.zeros(len(points))
-    return np.gradient(yaw, s)
+    return np.gradient(unwrapped_yaw(points), arc_length(points))
 
 
 def bezier_cubic(p0, t0, p1, t1, n: int) -> np.ndarray:
-    """Cubic Bezier from ``p0`` leaving along ``t0`` to ``p1`` arriving along ``t1`` (the
-    tangents' lengths set the control-point distances)."""
+    """Cubic Bezier from ``p0`` leaving along ``t0`` to ``p1`` arriving along ``t1``."""
     p0, t0, p1, t1 = (np.asarray(v, float) for v in (p0, t0, p1, t1))
     u = np.linspace(0.0, 1.0, n)[:, None]
     c0, c1 = p0 + t0, p1 - t1
@@ -81,20 +78,16 @@ def concat(*pieces: np.ndarray) -> np.ndarray:
 def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
                     valid_b: np.ndarray) -> bool:
     """Whether two logged paths (segments between consecutive valid steps) cross or touch."""
-    def segments(xy, valid):
-        ok = valid[:-1] & valid[1:]
-        return xy[:-1][ok], xy[1:][ok]
-
-    a0, a1 = segments(xy_a, valid_a)
-    b0, b1 = segments(xy_b, valid_b)
+    ok_a, ok_b = valid_a[:-1] & valid_a[1:], valid_b[:-1] & valid_b[1:]
+    a0, a1 = xy_a[:-1][ok_a], xy_a[1:][ok_a]
+    b0, b1 = xy_b[:-1][ok_b], xy_b[1:][ok_b]
     if len(a0) == 0 or len(b0) == 0:
         return False
     lo_a, hi_a = np.minimum(a0, a1), np.maximum(a0, a1)
     lo_b, hi_b = np.minimum(b0, b1), np.maximum(b0, b1)
     if np.any(hi_a.max(0) < lo_b.min(0)) or np.any(hi_b.max(0) < lo_a.min(0)):
         return False
-    # Only segments whose box meets the other path's box (+ 1 um: a computed hit is within
-    # 1e-9 m of a true one) can cross; the others are left out before the pairwise test.
+    # only segments whose box meets the other path's box (+ 1 um margin) can cross
     near_a = ((hi_a >= lo_b.min(0) - 1e-6) & (lo_a <= hi_b.max(0) + 1e-6)).all(1)
     near_b = ((hi_b >= lo_a.min(0) - 1e-6) & (lo_b <= hi_a.max(0) + 1e-6)).all(1)
     a0, a1, b0, b1 = a0[near_a], a1[near_a], b0[near_b], b1[near_b]
@@ -106,5 +99,4 @@ def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         t = cross(qp, s) / den
         u = cross(qp, r) / den
-    hit = (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    return bool(hit.any())
+    return bool(((np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)).any())

@@ -1,17 +1,16 @@
-"""Procedural road maps: a curved multi-lane road (side streets, parking, bike lanes, a
-signalised crosswalk) and an N-arm intersection (stop signs or two-phase traffic lights).
-
-A map is a list of roadgraph features (polylines with a WOMD type) plus the driving *routes* the
-agents follow (lane centres, lane changes, turns through the intersection) and pedestrian paths.
-Road edges are oriented so that the road interior lies on the LEFT of the point direction.
+"""Procedural maps (a curved multi-lane road or an N-arm intersection): roadgraph features
+(polylines with a WOMD type), the *routes* agents drive and pedestrian paths. Road edges are
+oriented so that the road interior lies on the LEFT of the point direction.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from itertools import combinations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from igdrivsim.data.scenario import (
     DT,
@@ -37,11 +36,8 @@ YELLOW_S, ALL_RED_S = 3.0, 1.5  # yellow and all-red times of a signal cycle (s)
 
 @dataclass
 class Route:
-    """A path an agent can drive: ``points [K, 2]`` at ~1 m spacing.
-
-    ``group`` names the lane the route starts on (routes of one group share their beginning);
-    ``kind`` is "lane", "change", "merge", "straight", "left" or "right".
-    """
+    """A path an agent can drive: ``points [K, 2]`` at ~1 m spacing; ``group`` names the lane
+    it starts on, ``kind`` its type ("lane", "change", "merge", "straight", "left", ...)."""
 
     points: np.ndarray
     group: int
@@ -64,11 +60,6 @@ class Route:
         return self.points.min(0), self.points.max(0)
 
     @cached_property
-    def columns(self) -> tuple[np.ndarray, np.ndarray]:
-        """The points' x and y as contiguous arrays."""
-        return self.points[:, 0].copy(), self.points[:, 1].copy()
-
-    @cached_property
     def yaw(self) -> np.ndarray:
         """Unwrapped heading at each point."""
         return geo.unwrapped_yaw(self.points)
@@ -82,10 +73,8 @@ class Route:
         return np.convolve(np.pad(kappa, 3, mode="edge"), np.ones(7) / 7, "valid")
 
     @cached_property
-    def tree(self):
+    def tree(self) -> cKDTree:
         """A k-d tree of the points (nearest route point of a position)."""
-        from scipy.spatial import cKDTree  # heavy: scipy is needed only here
-
         return cKDTree(self.points)
 
     @cached_property
@@ -123,8 +112,7 @@ class MapData:
 
 def signal_states(rng: np.random.Generator, phases: int = 2,
                   green: tuple[float, float] = (10.0, 30.0)) -> np.ndarray:
-    """Light states ``[phases, T]`` of a fixed-time cycle (green, yellow, all red per phase) seen
-    from a random point of the cycle."""
+    """Light states ``[phases, T]`` of a fixed-time cycle seen from a random point of it."""
     greens = rng.uniform(*green, phases)
     slots = greens + YELLOW_S + ALL_RED_S
     cycle = slots.sum()
@@ -155,15 +143,14 @@ def attach_crossing_signal(m: MapData, route: Route) -> None:
 
 
 def lane_change_route(m: MapData, src: int, dst: int, start: float, span: float) -> Route:
-    """Road maps: drive lane ``src`` and move smoothly to lane ``dst`` over ``[start,
-    start + span]`` metres (measured along the driving direction)."""
+    """Road maps: drive lane ``src``, moving to lane ``dst`` over ``[start, start + span]`` m."""
     (d0, direction), (d1, _) = m.lanes[src], m.lanes[dst]
     s = geo.arc_length(m.ref)
     s_dir = s if direction > 0 else s[-1] - s
     u = np.clip((s_dir - start) / span, 0, 1)
     path = geo.offset(m.ref, d0 + (d1 - d0) * u * u * (3 - 2 * u))
     limit = next(r.speed_limit for r in m.routes if r.group == src)
-    route = _route(path if direction > 0 else path[::-1], src, "change", limit)
+    route = _route(path[::direction], src, "change", limit)
     attach_crossing_signal(m, route)
     return route
 
@@ -177,9 +164,8 @@ def _crosswalk(m: MapData, centre, along, half_len: float, half_width: float) ->
     along = np.asarray(along, float) / np.linalg.norm(along)
     side = np.array([-along[1], along[0]])
     c = np.asarray(centre, float)
-    poly = np.array([c - half_len * along - half_width * side, c + half_len * along - half_width
-                     * side, c + half_len * along + half_width * side,
-                     c - half_len * along + half_width * side])
+    a, b = half_len * along, half_width * side
+    poly = np.array([c - a - b, c + a - b, c + a + b, c - a + b])
     m.add(np.concatenate([poly, poly[:1]]), RG_CROSSWALK)
     m.walk_paths.append(np.stack([c - (half_len + 2.5) * along, c + (half_len + 2.5) * along]))
     m.walk_steps.append(None)
@@ -188,8 +174,7 @@ def _crosswalk(m: MapData, centre, along, half_len: float, half_width: float) ->
 def _reference_curve(rng: np.random.Generator, length: float, bend: float = 1.0) -> np.ndarray:
     """A smooth centre line: straight pieces and bends (radius >= 35 m / ``bend``)."""
     ds = 0.5
-    n = int(length / ds) + 1
-    kappa = np.zeros(n)
+    kappa = np.zeros(int(length / ds) + 1)
     s = 0.0
     while s < length:
         piece = rng.uniform(40, 110)
@@ -202,17 +187,14 @@ def _reference_curve(rng: np.random.Generator, length: float, bend: float = 1.0)
         s += piece
     win = int(25 / ds)  # ~25 m transitions
     kappa = np.convolve(np.pad(kappa, win, mode="edge"), np.ones(win) / win, "same")[win:-win]
-    if bend != 1.0:  # (1: the default's arithmetic, bit for bit)
-        kappa = kappa * bend
-    yaw = np.cumsum(kappa) * ds
+    yaw = np.cumsum(kappa * bend) * ds
     pts = np.stack([np.cos(yaw), np.sin(yaw)], 1).cumsum(0) * ds
     return geo.resample(pts - pts[0], 1.0)
 
 
 def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
-    """A curved road (curvature times ``bend``), 1-3 lanes each way (or one-way), sometimes
-    divided, parking strips, a lane drop (the rightmost lane ends and its traffic merges), maybe
-    a crosswalk."""
+    """A curved road (curvature times ``bend``), 1-3 lanes each way (or one-way), maybe divided,
+    with parking, bike lanes, side streets, a lane drop and a (signalised) crosswalk."""
     ref = _reference_curve(rng, rng.uniform(340, 400), bend)
     m = MapData(kind="road", ref=ref)
     n_fwd = int(rng.choice([1, 2, 3], p=[0.05, 0.4, 0.55]))
@@ -225,7 +207,6 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
     lane_type = RG_LANE_FREEWAY if freeway else RG_LANE_SURFACE_STREET
     limit = rng.uniform(13, 17) if freeway else rng.uniform(9, 14)
     half_m = w / 2 if centre_lane else median / 2
-    rev = lambda p: p[::-1]  # noqa: E731
     fwd_off = [-(j + 0.5) * w - half_m for j in range(n_fwd)]
     back_off = [(j + 0.5) * w + half_m for j in range(n_back)]
     park_r = rng.uniform(2.3, 2.7) if rng.random() < 0.7 else 0.0
@@ -247,9 +228,7 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
         m.crossing = (cross_i, states[0], np.flatnonzero(states[0] == LIGHT_STOP))
     group = 0
     for offs, direction in ((fwd_off, 1), (back_off, -1)):
-        lanes = [geo.offset(ref, d) for d in offs]
-        lanes = [lane if direction > 0 else rev(lane) for lane in lanes]
-        for j, lane in enumerate(lanes):
+        for j, lane in enumerate(geo.offset(ref, d)[::direction] for d in offs):
             m.lanes[group + j] = (offs[j], direction)
             lights = m.crossing is not None
             if drop and direction > 0 and j == len(offs) - 1:
@@ -262,17 +241,15 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
                 m.dropped.add(group + j)
             else:
                 k = m.add(lane, lane_type)
+                m.routes.append(_route(lane, group + j, "lane", limit))
             if lights:  # the stop line STOP_LINE m before the crosswalk
                 at = geo.offset(ref, offs[j])[cross_i - direction * int(STOP_LINE + 1)]
                 m.lights.append((k, at, m.crossing[1]))
-            if group + j in m.dropped:
-                continue
-            m.routes.append(_route(lane, group + j, "lane", limit))
         for j in range(len(offs) - 1):
             line = geo.offset(ref, (offs[j] + offs[j + 1]) / 2)
             if drop and direction > 0 and j == len(offs) - 2:
                 line = line[before_drop]
-            m.add(line if direction > 0 else rev(line), BROKEN_WHITE)
+            m.add(line[::direction], BROKEN_WHITE)
         group += len(offs)
     right = -(n_fwd * w + half_m + bike + park_r + shoulder)
     if drop:
@@ -283,15 +260,10 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
     # kerb_line: the line d m out on a side, in that side's driving direction
     kerbs = ((-1, n_fwd, bike, park_r), (1, n_back, bike_l, park_l))
     kerb_line = lambda sign, d: geo.offset(ref, sign * d)[::-sign]
-    for k, (sign, n, bk, park) in enumerate(kerbs):
-        if park:  # parking strips: routes (never driven) where parked cars stand
-            m.parking.append(_route(kerb_line(sign, n * w + half_m + bk + park / 2), -2 - k,
-                                    "parking", 0.0))
-    # side streets (T junctions): on the right, and on the left of a two-way road, each on a
-    # straight stretch away from the crosswalk and from each other
+    # side streets (T junctions), on straight stretches away from the crosswalk and each other
     kappa = np.abs(geo.curvature(ref))
     taken = [cross_i] if cross_i is not None else []
-    sides = []
+    sides = {}
     for side, p in (("right", 0.0 if drop else 0.85), ("left", 0.55 if n_back else 0.0)):
         if rng.random() >= p:
             continue
@@ -300,46 +272,46 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
             if kappa[max(i - 30, 0): i + 30].max() < 1 / 90 and all(abs(i - j) > 40
                                                                       for j in taken):
                 taken.append(i)
-                sides.append((side, i))
+                sides[side] = i
                 break
-    sides = dict(sides)
     if "right" in sides:
         _side_street(rng, m, ref, sides["right"], right, fwd_off,
                      back_off if not median else [], w, limit, 100)
     else:
         m.add(geo.offset(ref, right), RG_ROAD_EDGE_BOUNDARY)
     if "left" in sides:  # the same construction seen from the other direction
-        _side_street(rng, m, rev(ref), len(ref) - 1 - sides["left"], np.full(len(ref), -left),
+        _side_street(rng, m, ref[::-1], len(ref) - 1 - sides["left"], np.full(len(ref), -left),
                      [-o for o in back_off], [-o for o in fwd_off] if not median else [], w,
                      limit, 110)
     else:
-        m.add(rev(geo.offset(ref, left)), RG_ROAD_EDGE_BOUNDARY)
+        m.add(geo.offset(ref, left)[::-1], RG_ROAD_EDGE_BOUNDARY)
     if median > 0:
-        m.add(rev(geo.offset(ref, -half_m)), RG_ROAD_EDGE_MEDIAN)
+        m.add(geo.offset(ref, -half_m)[::-1], RG_ROAD_EDGE_MEDIAN)
         m.add(geo.offset(ref, half_m), RG_ROAD_EDGE_MEDIAN)
     elif centre_lane:
         m.add(geo.offset(ref, 0.0), RG_LANE_SURFACE_STREET)
         m.add(geo.offset(ref, -half_m), BROKEN_YELLOW)
-        m.add(rev(geo.offset(ref, half_m)), BROKEN_YELLOW)
+        m.add(geo.offset(ref, half_m)[::-1], BROKEN_YELLOW)
     elif n_back:
         m.add(geo.offset(ref, 0.0), int(rng.choice(
             [SOLID_DOUBLE_YELLOW, BROKEN_YELLOW, PASSING_DOUBLE_YELLOW], p=[0.6, 0.25, 0.15])))
     for sign, n, bk, park in kerbs:
         if park or bk:  # a solid white line beside the outer traffic lane
             m.add(kerb_line(sign, n * w + half_m), SOLID_WHITE)
-    for k, (sign, n, bk, _) in enumerate(kerbs):
+    for k, (sign, n, bk, park) in enumerate(kerbs):
+        if park:  # parking strips: routes (never driven) where parked cars stand
+            m.parking.append(_route(kerb_line(sign, n * w + half_m + bk + park / 2), -2 - k,
+                                    "parking", 0.0))
         if bk:  # bike lanes (WOMD lane type 3), ridden by cyclists
             m.bike_routes.append(_route(kerb_line(sign, n * w + half_m + bk / 2), -4 - k, "bike",
                                         6.0))
             m.add(m.bike_routes[-1].points, RG_LANE_BIKE)
-    for side in (right - 2.0, left + 2.0):  # sidewalks, 2 m outside the road edges
-        m.sidewalks.append(geo.offset(ref, side))
+    m.sidewalks += [geo.offset(ref, side) for side in (right - 2.0, left + 2.0)]  # 2 m outside
     if cross_i is not None:
-        i = cross_i
-        t = geo.tangents(ref)[i]
+        t = geo.tangents(ref)[cross_i]
         normal = np.array([-t[1], t[0]])
-        mid = ref[i] + normal * (left + right[i]) / 2
-        _crosswalk(m, mid, normal, (left - right[i]) / 2, 1.6)
+        mid = ref[cross_i] + normal * (left + right[cross_i]) / 2
+        _crosswalk(m, mid, normal, (left - right[cross_i]) / 2, 1.6)
         if m.crossing is not None:
             m.walk_steps[-1] = m.crossing[2]
     for route in m.routes + m.bike_routes:
@@ -349,9 +321,8 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
 
 def _side_street(rng, m: MapData, ref: np.ndarray, i: int, right: np.ndarray, fwd_off: list,
                  back_off: list, w: float, limit: float, group: int) -> None:
-    """A two-lane side street joining the road's right kerb at ``ref[i]``: the right road edge
-    with a gap and rounded corners, its lanes, and right/left turn connectors as routes (left
-    turns only across ``back_off`` lanes: none over a median)."""
+    """A two-lane side street joining the road's right kerb at ``ref[i]``: edges with rounded
+    corners, lanes, and turn routes (left turns only across ``back_off`` lanes)."""
     t = geo.tangents(ref)[i]
     d = -np.array([-t[1], t[0]])  # outwards, away from the road
     kerb = ref[i] - d * right[i]
@@ -389,9 +360,8 @@ def _side_street(rng, m: MapData, ref: np.ndarray, i: int, right: np.ndarray, fw
 
 
 def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
-    """A 3- or 4-arm intersection of two-way roads (1-3 lanes per direction; arm angles off the
-    right angles by up to ``0.2 skew`` rad) with turn connectors, crosswalks, sidewalks, kerbside
-    parking on some arms and no control, stop signs or traffic lights (two phases)."""
+    """A 3- or 4-arm intersection (1-3 lanes per direction, arms up to ``0.2 skew`` rad off right
+    angles; crosswalks, parking) with no control, stop signs or two-phase traffic lights."""
     m = MapData(kind="intersection")
     n_arms = 3 if rng.random() < 0.3 else 4
     angles = np.arange(4) * np.pi / 2 + skew * rng.uniform(-0.2, 0.2, 4)
@@ -410,17 +380,13 @@ def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
     side_in, side_out = n_in * w + park[:, 0], n_out * w + park[:, 1]  # kerb offsets
     control = rng.choice(["none", "two_way", "all_way", "signal"], p=[0.1, 0.12, 0.08, 0.7])
     if control == "all_way":
-        stop_arms = set(range(n_arms))
+        m.stop_arms = set(range(n_arms))
     elif control == "two_way":
         parity = int(rng.integers(2))
-        stop_arms = {a for a in range(n_arms) if a % 2 == parity} or {0}
-    else:
-        stop_arms = set()
-    m.stop_arms = stop_arms
+        m.stop_arms = {a for a in range(n_arms) if a % 2 == parity} or {0}
     phase = np.arange(n_arms) % 2
     if n_arms == 3:  # the two most nearly opposite arms share a phase
-        pairs = [(a, b) for a in range(3) for b in range(a + 1, 3)]
-        a, b = min(pairs, key=lambda p: float(u[p[0]] @ u[p[1]]))
+        a, b = min(combinations(range(3), 2), key=lambda p: float(u[p[0]] @ u[p[1]]))
         phase = np.array([0 if k in (a, b) else 1 for k in range(3)])
     states = signal_states(rng, 2) if control == "signal" else None
     gaps = np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi]))
@@ -428,14 +394,13 @@ def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
     r = float(half_width.max() / np.sin(min(gaps.min(), np.pi / 2)) + corner * 0.7 + 1.0)
     along = lambda a, d: lambda s: u[a] * s + nrm[a] * d  # noqa: E731
     line = lambda a, d, s0, s1: np.stack([along(a, d)(s) for s in np.linspace(s0, s1, 2)])  # noqa: E731
-    ins, outs, in_feature = {}, {}, {}
+    ins, outs = {}, {}
     for a in range(n_arms):
         for j in range(n_in[a]):
             ins[a, j] = geo.resample(line(a, (j + 0.5) * w, length, r), 1.0)
-            in_feature[a, j] = m.add(ins[a, j], RG_LANE_SURFACE_STREET)
+            k = m.add(ins[a, j], RG_LANE_SURFACE_STREET)
             if states is not None:
-                m.lights.append((in_feature[a, j], along(a, (j + 0.5) * w)(r + STOP_LINE),
-                                 states[phase[a]]))
+                m.lights.append((k, along(a, (j + 0.5) * w)(r + STOP_LINE), states[phase[a]]))
         for j in range(n_out[a]):
             outs[a, j] = geo.resample(line(a, -(j + 0.5) * w, r, length), 1.0)
             m.add(outs[a, j], RG_LANE_SURFACE_STREET)
@@ -454,7 +419,7 @@ def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
             m.add(geo.resample(line(a, -n_out[a] * w, r + 8, length), 1.0), SOLID_WHITE)
         m.sidewalks.append(line(a, side_in[a] + 2.0, length, r + 4))
         m.sidewalks.append(line(a, -(side_out[a] + 2.0), r + 4, length))
-        if a in stop_arms:  # WOMD stop signs are single points beside the stop line
+        if a in m.stop_arms:  # WOMD stop signs are single points beside the stop line
             m.add(along(a, side_in[a] + 0.8)(r + STOP_LINE)[None], RG_STOP_SIGN)
         _crosswalk(m, u[a] * (r + 2.0) + nrm[a] * (side_in[a] - side_out[a]) / 2, nrm[a],
                    (side_in[a] + side_out[a]) / 2, 1.5)
@@ -479,23 +444,18 @@ def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
                 turn = np.arctan2(cross, np.dot(-u[a], u[b]))
                 if abs(turn) < np.pi / 5:
                     kind, k = "straight", min(j, n_out[b] - 1)
-                elif turn < 0:
-                    kind, k = "right", 0
-                    if j != 0:
-                        continue
+                elif j == (0 if turn < 0 else n_in[a] - 1):  # turns from the outer lanes only
+                    kind, k = ("right", 0) if turn < 0 else ("left", n_out[b] - 1)
                 else:
-                    kind, k = "left", n_out[b] - 1
-                    if j != n_in[a] - 1:
-                        continue
+                    continue
                 start, end = ins[a, j][-1], outs[b, k][0]
                 c = 0.4 * np.linalg.norm(end - start)
                 conn = geo.bezier_cubic(start, -u[a] * c, end, u[b] * c, 30)
                 m.add(conn, RG_LANE_SURFACE_STREET)
-                path = geo.concat(ins[a, j], conn, outs[b, k])
-                route = _route(path, group, kind, limit)
+                route = _route(geo.concat(ins[a, j], conn, outs[b, k]), group, kind, limit)
                 route.entry = float(geo.arc_length(ins[a, j])[-1])
                 route.lane = j
-                if a in stop_arms:
+                if a in m.stop_arms:
                     route.stop_at = route.entry - STOP_LINE
                 if states is not None:
                     route.signal, route.signal_at = states[phase[a]], route.entry - STOP_LINE

@@ -1,9 +1,6 @@
-"""Calibrated motion (``GeneratorConfig(motion="calibrated")``): the map and the cast drawn as
-by default, then the driving retuned towards real logs: straighter roads and junctions, fewer SDC
-turns and stops, vehicles starting near their desired speed, a gentler SDC, slowly varying
-desired speeds and lateral offsets per lane and driver (docs/synthetic.md, "Calibrated motion",
-says what was measured and why).
-"""
+"""Calibrated motion (``GeneratorConfig(motion="calibrated")``): the default map and cast with
+the driving retuned towards real logs (straighter roads, fewer SDC turns and stops, near-desired
+start speeds, varying speeds and lateral offsets); docs/synthetic.md, "Calibrated motion"."""
 
 from __future__ import annotations
 
@@ -35,13 +32,6 @@ MOVING_ROLES = ("sdc", "background", "leader", "follower", "alongside", "cross",
                 "side", "cut_in", "braking_leader")
 
 
-def check_motion(motion: str) -> str:
-    """``motion`` if it names a motion model, else a ``ValueError``."""
-    if motion not in MOTIONS:
-        raise ValueError(f"motion must be one of {MOTIONS}, got {motion!r}")
-    return motion
-
-
 def calibrate_map(rng: np.random.Generator, m: MapData) -> None:
     """Scale the speed limits of every route of ``m`` (one factor per scenario)."""
     scale = rng.uniform(*SPEED_SCALE)
@@ -49,28 +39,14 @@ def calibrate_map(rng: np.random.Generator, m: MapData) -> None:
         route.speed_limit *= scale
 
 
-def _straight_on(m: MapData, sdc: Agent) -> None:
-    """Route the SDC straight through the junction from the same approach lane, if it can."""
-    straight = [r for r in m.routes if r.group == sdc.route.group and r.kind == "straight"]
-    if straight:
-        sdc.route = straight[0]
-
-
-def _cross_later(rng: np.random.Generator, sdc: Agent, a: Agent) -> None:
-    """Place cross traffic to reach the junction after the SDC has cleared it."""
-    eta = (sdc.route.entry - sdc.s0) / max(sdc.v0, 3.0)
-    d = a.v0 * (eta + rng.uniform(*CROSS_LATER))
-    a.s0 = float(max(a.route.entry - d, 0.0))
-
-
 def calibrate_cast(rng: np.random.Generator, m: MapData, cast: list[Agent]) -> list[Agent]:
-    """Retune the drawn ``cast`` (the SDC first) in place: routes, start speeds, braking
-    situations and lane keeping; returns it."""
+    """Retune the drawn ``cast`` (the SDC first) in place, and return it."""
     sdc = cast[0]
     waits = sdc.v0 == 0.0  # the SDC stands in a queue (a road draw the paper's filter drops)
     if m.kind == "intersection" and sdc.route.kind in ("left", "right"):
-        if rng.random() > P_SDC_TURN_KEPT[sdc.route.kind]:
-            _straight_on(m, sdc)
+        if rng.random() > P_SDC_TURN_KEPT[sdc.route.kind]:  # straight on, if it can
+            sdc.route = next((r for r in m.routes if r.group == sdc.route.group
+                              and r.kind == "straight"), sdc.route)
     biases: dict[int, float] = {}
     for a in cast:
         if a.role == "walker" and not a.static and rng.random() < P_WALKER_LATE:
@@ -85,8 +61,10 @@ def calibrate_cast(rng: np.random.Generator, m: MapData, cast: list[Agent]) -> l
             if a.route.group == sdc.route.group and a.s0 > sdc.s0:  # ahead in the SDC's lane:
                 a.v_des = max(a.v_des, sdc.v_des * rng.uniform(0.95, 1.1))  # keeps pace
             a.v0 = a.v_des * start
-            if a.role == "cross":
-                _cross_later(rng, sdc, a)
+            if a.role == "cross":  # reaches the junction after the SDC has cleared it
+                eta = (sdc.route.entry - sdc.s0) / max(sdc.v0, 3.0)
+                d = a.v0 * (eta + rng.uniform(*CROSS_LATER))
+                a.s0 = float(max(a.route.entry - d, 0.0))
         if a.role == "braking_leader" and rng.random() > P_LEADER_STOPS:
             a.stop_window = None
             a.v_des *= rng.uniform(0.75, 0.95)  # a slower leader: followed, not stopped for

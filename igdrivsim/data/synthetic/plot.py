@@ -32,20 +32,11 @@ def readable_title(scenario_id: str) -> str:
             f"(seed {int(seed, 16)})")
 
 
-def add_scale_bar(ax, metres: float = 20.0) -> None:
-    """A ``metres``-long bar with its length, lower right inside the axes (data in metres)."""
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # heavy: drawing only
-
-    ax.add_artist(AnchoredSizeBar(ax.transData, metres, f"{metres:g} m", "lower right",
-                                  pad=0.4, sep=3, frameon=True, size_vertical=0.8,
-                                  fontproperties={"size": 7}))
-
-
 def draw_scenario(ax, scenario: Scenario, radius: float = 70.0, title: str | None = None) -> None:
-    """Draw one (unbatched) scenario on a matplotlib axis: boxes at step 10, the whole logged
-    trajectories, the view centred on the middle of the SDC's log, a scale bar; ``title``
-    (default: :func:`readable_title` of its id) above."""
+    """Draw one (unbatched) scenario on a matplotlib axis: boxes at step 10, logged trajectories,
+    centred on the middle of the SDC's log, a 20 m scale bar and ``title`` (default: its id's)."""
     from matplotlib.patches import Polygon  # heavy: only when drawing
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     rg, tr, md = scenario.roadgraph, scenario.trajectory, scenario.metadata
     xy, t, ids = np.asarray(rg.xyz)[:, :2], np.asarray(rg.type), np.asarray(rg.id)
@@ -56,11 +47,9 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0, title: str | Non
     for types, style in styles:
         sel = ok & np.isin(t, types)
         for pid in np.unique(ids[sel]):
-            p = xy[sel & (ids == pid)]
-            ax.plot(p[:, 0], p[:, 1], **style)
+            ax.plot(*xy[sel & (ids == pid)].T, **style)
     sdc = int(np.argmax(np.asarray(md.is_sdc)))
-    x, y, yaw = (np.asarray(a) for a in (tr.x, tr.y, tr.yaw))
-    valid = np.asarray(tr.valid)
+    x, y, yaw, valid = (np.asarray(a) for a in (tr.x, tr.y, tr.yaw, tr.valid))
     now = CURRENT_INDEX
     for i in np.flatnonzero(np.asarray(md.valid)):
         color = "tab:red" if i == sdc else ("tab:green" if md.object_type[i] == TYPE_PEDESTRIAN
@@ -83,13 +72,11 @@ def draw_scenario(ax, scenario: Scenario, radius: float = 70.0, title: str | Non
     mid = np.flatnonzero(valid[sdc])  # centre the view on the middle of the SDC's log
     mid = mid[len(mid) // 2] if len(mid) else now
     cx, cy = x[sdc, mid], y[sdc, mid]
-    ax.set_xlim(cx - radius, cx + radius)
-    ax.set_ylim(cy - radius, cy + radius)
-    ax.set_aspect("equal")
-    ax.set_xticks([])
-    ax.set_yticks([])
+    ax.set(xlim=(cx - radius, cx + radius), ylim=(cy - radius, cy + radius), aspect="equal",
+           xticks=[], yticks=[])
     ax.set_title(title or readable_title(decode_scenario_id(scenario.scenario_id)), fontsize=9)
-    add_scale_bar(ax)
+    ax.add_artist(AnchoredSizeBar(ax.transData, 20.0, "20 m", "lower right", pad=0.4, sep=3,
+                                  frameon=True, size_vertical=0.8, fontproperties={"size": 7}))
 
 
 def add_legend(ax) -> None:
@@ -107,8 +94,7 @@ def add_legend(ax) -> None:
 
 
 def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
-    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` titled ``k: ...`` (k from 1), written
-    atomically."""
+    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` titled ``k: ...`` (k from 1)."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
