@@ -33,15 +33,14 @@ from igdrivsim.io import require_folder
 
 def describe(scenario: Scenario) -> dict:
     """Summary of one unbatched scenario (what ``igdrivsim inspect`` prints)."""
-    md, tr, rg = scenario.metadata, scenario.trajectory, scenario.roadgraph
-    valid = np.asarray(tr.valid, bool)
+    md, rg = scenario.metadata, scenario.roadgraph
     rg_valid = np.asarray(rg.valid, bool)
     types = np.asarray(md.object_type)[np.asarray(md.valid, bool)]
     return {
         "scenario_id": decode_scenario_id(scenario.scenario_id),
         "num_object_slots": scenario.num_objects,
         "num_valid_objects": int(np.asarray(md.valid, bool).sum()),
-        "num_valid_at_current": int(valid[:, CURRENT_INDEX].sum()),
+        "num_valid_at_current": int(np.asarray(scenario.trajectory.valid)[:, CURRENT_INDEX].sum()),
         "object_types": {str(t): int((types == t).sum()) for t in np.unique(types)},
         "sdc_index": int(np.argmax(np.asarray(md.is_sdc))),
         "num_roadgraph_points": int(rg_valid.sum()),
@@ -128,8 +127,7 @@ def filter_command(args: argparse.Namespace) -> int:
         part = parse_part(args.part)
         check_min("--workers", args.workers, 0)
         counts = run_filter(args.inputs, args.out, config, workers=args.workers, part=part,
-                            skip_bad=args.skip_bad, progress=not args.no_progress,
-                            egos=args.egos)
+                            skip_bad=args.skip_bad, progress=not args.no_progress, egos=args.egos)
         if counts is None:
             print(f"igdrivsim filter: part {args.part} done; join the parts with "
                   f"`igdrivsim filter --merge {args.out} ... --out DIR`", file=sys.stderr)

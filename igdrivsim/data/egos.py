@@ -1,7 +1,5 @@
-"""Every vehicle as the ego: one scenario per eligible vehicle (valid over the whole window and
-passing the scenario filter as the SDC) of a logged scenario (docs/data.md, Every vehicle as the
-ego; :func:`~igdrivsim.data.scenario.as_ego` lives with the scenario model).
-"""
+"""Every vehicle as the ego: one scenario per vehicle of a log that is valid over the whole window
+and passes the scenario filter as the SDC (docs/data.md, Every vehicle as the ego)."""
 
 from __future__ import annotations
 
@@ -36,22 +34,16 @@ def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> li
     """Slots of the vehicles valid over the whole window that pass the filter as the ego."""
     tr = scenario.trajectory
     speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
-    out = []
-    for slot in ego_candidates(scenario):
-        if speed[slot].mean() < config.min_speed:  # cheap first: the filter's speed bound
-            continue
-        if keep(scenario_stats(as_ego(scenario, int(slot))), config):
-            out.append(int(slot))
-    return out
+    return [int(slot) for slot in ego_candidates(scenario)
+            if not speed[slot].mean() < config.min_speed  # cheap first: the filter's speed bound
+            and keep(scenario_stats(as_ego(scenario, int(slot))), config)]
 
 
 def expand_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER
                 ) -> Iterator[tuple[Scenario, dict]]:
-    """``(scenario as seen from the ego, {"id", "object_id", "logged_sdc"})`` per eligible
-    vehicle of one unbatched scenario (native sizes: fit to capacities afterwards, so that the
-    objects kept are those nearest to the ego)."""
-    for slot in eligible_egos(scenario, config):
-        yield ego_of(scenario, slot)
+    """:func:`ego_of` per eligible vehicle of one unbatched scenario (native sizes: fit them to
+    capacities afterwards, so that the objects kept are those nearest to the ego)."""
+    yield from (ego_of(scenario, slot) for slot in eligible_egos(scenario, config))
 
 
 def ego_of(scenario: Scenario, slot: int) -> tuple[Scenario, dict]:

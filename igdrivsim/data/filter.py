@@ -1,12 +1,9 @@
 """The paper's scenario filter: keep scenarios where the SDC is interactive and actually drives
 (docs/data.md, The paper's filter; thresholds in :class:`FilterConfig`).
 
-**Interactive** (criterion ``paper``): the SDC's logged path (segments between consecutive valid
-steps) intersects another object's, regardless of time: the exact 2-D orientation test
-(touching and collinear overlaps count) in float64 relative to the SDC, after a bounding-box
-pre-check. **Mean speed**: over the SDC's valid steps (the original code averaged over the wrong
-axis); 0 if never valid. ``objects_of_interest`` replaces "interactive" by WOMD's flag (what the
-original code used).
+**Interactive** (criterion ``paper``): the SDC's logged path intersects another object's,
+regardless of time (exact 2-D test, touching counts); ``objects_of_interest``: WOMD's flag
+instead. **Mean speed**: over the SDC's valid steps; 0 if never valid.
 """
 
 from __future__ import annotations
@@ -47,11 +44,7 @@ class FilterConfig:
 def segments_intersect(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray
                        ) -> np.ndarray:
     """Whether segment ``p0-p1`` and segment ``q0-q1`` share a point; ``[..., 2]`` arrays broadcast.
-
-    Exact orientation test: each segment's end points lie on different sides of (or on) the
-    other's supporting line, and the bounding boxes overlap (which settles collinear and
-    degenerate, zero-length, segments).
-    """
+    Orientation test plus bounding-box overlap (settles collinear and zero-length segments)."""
     p0, p1, q0, q1 = (np.asarray(a, np.float64) for a in (p0, p1, q0, q1))
 
     def side(a, b, c):  # sign of (b - a) x (c - a)
@@ -66,8 +59,7 @@ def segments_intersect(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.nd
 
 
 def valid_xy(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
-    """``(valid [O, T], xy [O, T, 2])`` of one unbatched scenario: steps valid in a valid slot,
-    positions in float64."""
+    """``(valid [O, T], xy [O, T, 2] float64)`` of one unbatched scenario (slot valid too)."""
     tr, md = scenario.trajectory, scenario.metadata
     valid = np.asarray(tr.valid, bool) & np.asarray(md.valid, bool)[:, None]
     return valid, np.stack([np.asarray(tr.x, np.float64), np.asarray(tr.y, np.float64)], -1)
@@ -106,12 +98,9 @@ def intersecting_objects(scenario: Scenario) -> np.ndarray:
 
 def sdc_mean_speed(scenario: Scenario) -> float:
     """Mean speed (m/s) of the SDC over its valid steps; 0 when it is never valid."""
-    tr, md = scenario.trajectory, scenario.metadata
-    is_sdc = np.asarray(md.is_sdc, bool)
-    if not is_sdc.any():
-        return 0.0
+    tr, is_sdc = scenario.trajectory, np.asarray(scenario.metadata.is_sdc, bool)
     sdc = int(np.argmax(is_sdc))
-    valid = np.asarray(tr.valid, bool)[sdc]
+    valid = np.asarray(tr.valid, bool)[sdc] & is_sdc.any()  # no SDC: never valid
     if not valid.any():
         return 0.0
     speed = np.hypot(np.asarray(tr.vel_x, np.float64)[sdc], np.asarray(tr.vel_y, np.float64)[sdc])
@@ -178,8 +167,7 @@ def shard_result_path(out: str, file: str) -> str:
 
 
 def ego_candidates(scenario: Scenario) -> np.ndarray:
-    """Slots of the vehicles valid over the whole window: who may be the ego
-    (:mod:`igdrivsim.data.egos`)."""
+    """Slots of the vehicles valid over the whole window: who may be the ego."""
     md = scenario.metadata
     valid = np.asarray(scenario.trajectory.valid, bool).all(axis=-1) & np.asarray(md.valid, bool)
     return np.flatnonzero(valid & (np.asarray(md.object_type) == TYPE_VEHICLE))
@@ -199,9 +187,8 @@ def ego_entries(scenario: Scenario) -> list[dict]:
 
 def filter_shard(file: str, result_path: str, skip_bad: bool = False, egos: str = "sdc"
                  ) -> tuple[int, int]:
-    """Compute :func:`scenario_stats` for every record of ``file`` (``egos="all"``: for every
-    candidate ego, :func:`ego_entries`) and write them atomically to ``result_path``; returns
-    ``(scenarios, bad_records)``."""
+    """:func:`scenario_stats` of every record of ``file`` (``egos="all"``: :func:`ego_entries`),
+    written atomically to ``result_path``; returns ``(scenarios, bad_records)``."""
     file = os.path.abspath(file)
     signature = _signature(file)  # before reading: a file changed meanwhile is redone next time
     stats = ReadStats()
@@ -227,31 +214,25 @@ def _signature(file: str) -> dict:
 
 def _read_shard_result(path: str, file: str | None = None, egos: str | None = None
                        ) -> dict | None:
-    """A finished partial result, or None if it is absent, unreadable or (given the input
-    ``file`` and ``egos``) made from a different version of that file or for other egos; then
-    it is redone."""
+    """A finished partial result, or None (to redo) if it is absent, unreadable or (given
+    ``file`` and ``egos``) made from another version of that file or for other egos."""
     result = read_json(path, {})
-    if "entries" not in result:
+    if "entries" not in result or (egos is not None and result.get("egos", "sdc") != egos):
         return None
-    if egos is not None and result.get("egos", "sdc") != egos:
+    try:
+        if file is not None and any(result.get(k) != v for k, v in _signature(file).items()):
+            return None
+    except OSError:
         return None
-    if file is not None:
-        try:
-            current = _signature(file)
-        except OSError:
-            return None
-        if any(result.get(k) != v for k, v in current.items()):
-            return None
     return result
 
 
 def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers: int = 0,
                part: tuple[int, int] | None = None, skip_bad: bool = False,
                progress: bool = True, egos: str = "sdc") -> dict | None:
-    """Filter the shards named by ``inputs`` into ``out`` (docs/data.md, The paper's filter): each
-    shard's result goes to ``out/shards/`` as soon as it is done (a rerun skips the finished ones);
-    without ``part`` the run ends by writing and returning the counts, with ``part=(i, n)`` it does
-    slice ``i`` of ``n`` only (joined by :func:`merge`) and returns None."""
+    """Filter the shards named by ``inputs`` into ``out`` (docs/data.md, The paper's filter), each
+    shard's result kept in ``out/shards/`` once done (a rerun skips it); returns the counts, or with
+    ``part=(i, n)`` does slice ``i`` of ``n`` only (joined by :func:`merge`) and returns None."""
     files = expand_paths(inputs)
     if part is not None:
         files = files[part[0]::part[1]]
@@ -278,8 +259,7 @@ def run_filter(inputs, out: str, config: FilterConfig = FilterConfig(), workers:
 def _write_outputs(out: str, result_paths: list[str], config: FilterConfig) -> dict:
     entries, bad, seen = [], [], set()
     for path in result_paths:
-        result = _read_shard_result(path)
-        if result is None:
+        if (result := _read_shard_result(path)) is None:
             raise DataError("partial filter result missing or unreadable", file=path)
         if result["file"] in seen:
             continue
@@ -302,8 +282,7 @@ def _write_outputs(out: str, result_paths: list[str], config: FilterConfig) -> d
 
 
 def stored_config(dirs) -> FilterConfig | None:
-    """The filter config the runs in ``dirs`` were made with (None if none stored; raises
-    :class:`ConfigError` if they disagree)."""
+    """The filter settings of the runs in ``dirs`` (None: none stored; ConfigError: they differ)."""
     found = set()
     for d in dirs:
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
@@ -335,12 +314,10 @@ def merge(dirs, out: str, config: FilterConfig | None = None) -> dict:
     config = config or stored_config(dirs) or FilterConfig()
     files = {}
     for p in paths:
-        result = _read_shard_result(p)
-        if result is None or not isinstance(result.get("file"), str):
+        if (result := _read_shard_result(p)) is None or not isinstance(result.get("file"), str):
             raise DataError("partial filter result unreadable (corrupt JSON or no \"file\" / "
                             "\"entries\"); rerun the filter run that wrote it (it redoes "
                             "unreadable shards)", file=p)
         files.setdefault(result["file"], p)
-    os.makedirs(out, exist_ok=True)
     write_json(os.path.join(out, CONFIG_FILE), {**asdict(config), "merged": dirs})
     return _write_outputs(out, [files[f] for f in sorted(files)], config)

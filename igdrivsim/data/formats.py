@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from google.protobuf.message import DecodeError
 
 from igdrivsim.data import gpudrive, scenarionet, tfrecord
-from igdrivsim.data.protos import example_class
+from igdrivsim.data.protos import example_class, scenario_class
 from igdrivsim.data.scenario import Scenario
 from igdrivsim.data.tfexample import decode_tfexample, is_tfexample
-from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto, parse_scenario_proto
+from igdrivsim.data.womd_proto import decode_scenario_proto, is_scenario_proto
 from igdrivsim.errors import DataError
 
 FORMAT_TFEXAMPLE, FORMAT_SCENARIO = "tf_example", "scenario_proto"
@@ -38,15 +38,14 @@ class Format:
 
 
 def decode_record(data: bytes) -> tuple[str, Scenario]:
-    """Detect the format of one TFRecord record and decode it at native sizes:
-    ``(format, scenario)`` (a WOMD tf.Example or a WOMD Scenario protobuf)."""
+    """``(format, scenario)`` of one TFRecord record: a WOMD tf.Example or Scenario protobuf."""
     kinds = (FORMAT_TFEXAMPLE, FORMAT_SCENARIO)
     for kind in kinds if data[:1] == b"\x0a" else kinds[::-1]:
         try:
             if kind == FORMAT_TFEXAMPLE:
                 if is_tfexample(example_class().FromString(data)):
                     return kind, decode_tfexample(data)
-            elif is_scenario_proto(message := parse_scenario_proto(data)):
+            elif is_scenario_proto(message := scenario_class().FromString(data)):
                 return kind, decode_scenario_proto(message)
         except DecodeError:
             continue
@@ -88,9 +87,8 @@ FORMATS: dict[str, Format] = {
                           cheap_count=False, lists=scenarionet.is_scenarionet_file,
                           folder=scenarionet.dataset_files, dataset=scenarionet.source_dataset),
     "gpudrive": Format("gpudrive", gpudrive.is_gpudrive_file, _decode_gpudrive, lambda path: 1),
-    # TFRecord files hold WOMD tf.Examples or Scenario protos (told apart record by record);
-    # every file no other format detects is tried as one; a folder listing takes names
-    # containing "tfrecord"
+    # WOMD tf.Examples or Scenario protos (told apart per record); the fallback for every file no
+    # other format detects; a folder listing takes names containing "tfrecord"
     "tfrecord": Format("tfrecord", lambda path: True, _decode_tfrecord, tfrecord.count_records,
                        lists=lambda path: "tfrecord" in os.path.basename(path)),
 }
@@ -108,8 +106,7 @@ def folder_files(folder: str) -> list[str]:
     that lists any (TFRecords first, then registry order), else every file no other format
     detects."""
     for fmt in FORMATS.values():
-        listed = fmt.folder(folder)
-        if listed is not None:
+        if (listed := fmt.folder(folder)) is not None:
             return listed
     by_format: dict[str, list[str]] = {}
     for name in sorted(os.listdir(folder)):

@@ -36,9 +36,7 @@ INVALID = -10000.0  # what the converter writes in every field of an invalid ste
 OBJECT_TYPES = {name.lower(): code for code, name in enumerate(TYPE_NAMES)}
 # coarse road ``type`` -> tf.Example code, when a road has no ``map_element_id``
 COARSE_TYPES = {"lane": RG_LANE_SURFACE_STREET, "road_line": 5, "road_edge": RG_ROAD_EDGE_BOUNDARY,
-                "stop_sign": RG_STOP_SIGN, "crosswalk": RG_CROSSWALK,
-                "speed_bump": RG_SPEED_BUMP}
-POLYGONS = (RG_CROSSWALK, RG_SPEED_BUMP)
+                "stop_sign": RG_STOP_SIGN, "crosswalk": RG_CROSSWALK, "speed_bump": RG_SPEED_BUMP}
 LIGHT_STATES = {name.lower(): code for code, name in enumerate(LIGHT_STATE_NAMES)}
 
 
@@ -51,13 +49,13 @@ def is_gpudrive_file(path: str) -> bool:
 
 
 def _get(obj, key: str, where: str, kind=None):
+    at = f"{where}.{key}" if where else key
     if not isinstance(obj, dict) or key not in obj:
-        raise DataError(f"missing key {key!r}", key=f"{where}.{key}" if where else key)
-    value = obj[key]
-    if kind is not None and not isinstance(value, kind):
+        raise DataError(f"missing key {key!r}", key=at)
+    if kind is not None and not isinstance(obj[key], kind):
         raise DataError(f"expected {kind.__name__ if isinstance(kind, type) else 'a number'}, "
-                        f"got {type(value).__name__}", key=f"{where}.{key}" if where else key)
-    return value
+                        f"got {type(obj[key]).__name__}", key=at)
+    return obj[key]
 
 
 def _xyz(points, where: str, dims: str = "xyz") -> np.ndarray:
@@ -68,7 +66,7 @@ def _xyz(points, where: str, dims: str = "xyz") -> np.ndarray:
                         key=where) from None
 
 
-def _decode_objects(objects: list) -> tuple[Trajectory, ObjectMetadata, np.ndarray]:
+def _decode_objects(objects: list) -> tuple[Trajectory, np.ndarray, np.ndarray]:
     num = len(objects)
     f = np.full((9, num, NUM_STEPS), -1.0, np.float32)  # x y z yaw vx vy length width height
     valid = np.zeros((num, NUM_STEPS), bool)
@@ -96,11 +94,7 @@ def _decode_objects(objects: list) -> tuple[Trajectory, ObjectMetadata, np.ndarr
             raise DataError(f"unknown object type {kind!r}; known: {', '.join(OBJECT_TYPES)}",
                             key=f"{w}.type")
         types[i] = OBJECT_TYPES[kind]
-    trajectory = Trajectory(*f, valid=valid)
-    metadata = ObjectMetadata(id=ids, object_type=types, is_sdc=np.zeros(num, bool),
-                              tracks_to_predict=np.zeros(num, bool),
-                              objects_of_interest=np.zeros(num, bool), valid=valid.any(axis=1))
-    return trajectory, metadata, ids
+    return Trajectory(*f, valid=valid), ids, types
 
 
 def road_code(road: dict, where: str) -> int | None:
@@ -117,16 +111,13 @@ def _decode_roads(roads: list) -> Roadgraph:
     xyz, types, ids = [], [], []
     for i, road in enumerate(roads):
         w = f"roads[{i}]"
-        code = road_code(road, w)
-        if code is None:
+        if (code := road_code(road, w)) is None:
             continue
         pts = _xyz(_get(road, "geometry", w, list), f"{w}.geometry")
         if not len(pts):
             continue
         if not np.isfinite(pts).all():
             raise DataError("non-finite map point", key=f"{w}.geometry")
-        if code in POLYGONS:
-            pts = np.concatenate([pts, pts[:1]])
         xyz.append(pts)
         types.append(code)
         ids.append(int(road.get("id", i)))
@@ -164,7 +155,7 @@ def decode_gpudrive(desc: dict) -> Scenario:
     objects = _get(desc, "objects", "", list)
     if not objects:
         raise DataError("no objects", key="objects")
-    trajectory, metadata, ids = _decode_objects(objects)
+    trajectory, ids, types = _decode_objects(objects)
     meta = _get(desc, "metadata", "", dict)
     sdc = _get(meta, "sdc_track_index", "metadata", int)
     if not 0 <= sdc < len(objects):
@@ -173,7 +164,8 @@ def decode_gpudrive(desc: dict) -> Scenario:
     predict = [_get(req, "track_index", f"metadata.tracks_to_predict[{k}]", int)
                for k, req in enumerate(_get(meta, "tracks_to_predict", "metadata", list))]
     interest = _get(meta, "objects_of_interest", "metadata", list)
-    metadata = metadata.replace(**object_flags(ids, sdc, predict, interest))
+    metadata = ObjectMetadata(id=ids, object_type=types, valid=trajectory.valid.any(axis=1),
+                              **object_flags(ids, sdc, predict, interest))
     sid = read_scenario_id(_get(desc, "scenario_id", "", str), "scenario_id")
     return Scenario(trajectory=trajectory, metadata=metadata,
                     roadgraph=_decode_roads(_get(desc, "roads", "", list)),
@@ -181,8 +173,7 @@ def decode_gpudrive(desc: dict) -> Scenario:
 
 
 def read_file(path: str | os.PathLike) -> Scenario:
-    """The scenario of one GPUDrive JSON file; a malformed file raises one :class:`DataError`
-    naming the file and the key."""
+    """The scenario of one GPUDrive JSON file; a malformed one: a DataError naming file and key."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:

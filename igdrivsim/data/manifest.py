@@ -54,8 +54,7 @@ def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]
                 raise DataError(f"line {line_no}: bad JSON ({err.msg})", file=path) from None
             missing = [k for k in FIELDS if k not in entry] if isinstance(entry, dict) else FIELDS
             if missing:
-                raise DataError(f"line {line_no}: missing field(s) {', '.join(missing)}",
-                                file=path)
+                raise DataError(f"line {line_no}: missing field(s) {', '.join(missing)}", file=path)
             entry["file"] = os.path.normpath(os.path.join(base, entry["file"]))
             entry["record"] = int(entry["record"])
             entry["line"] = line_no
@@ -66,16 +65,14 @@ def read_manifest(path: str | os.PathLike, kept_only: bool = True) -> list[dict]
 
 def _load_records(file: str, records: list[int], caps: Capacities | None
                   ) -> tuple[str, list[tuple[int, Scenario]]]:
-    """``(file, [(record, scenario)])`` for ``records`` (sorted) of one file, read in one
-    forward pass."""
+    """``(file, [(record, scenario)])`` for sorted ``records`` of one file, in one forward pass."""
     if not os.path.isfile(file):
         raise DataError("manifest points at a missing file", file=file)
     wanted = set(records)
     found = {rec.record: rec.scenario
              for rec in iter_file(file, caps, start=records[0], stop=records[-1] + 1)
              if rec.record in wanted}
-    absent = [r for r in records if r not in found]
-    if absent:
+    if absent := [r for r in records if r not in found]:
         raise DataError("manifest points at a record the file does not have", file=file,
                         record=absent[0])
     return file, [(r, found[r]) for r in records]

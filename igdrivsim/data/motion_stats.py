@@ -97,10 +97,6 @@ AGENT_KEYS = tuple(s.key for s in MOTION_STATISTICS if s.per == "agent")
 STEP_KEYS = tuple(s.key for s in MOTION_STATISTICS if s.per == "step")
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
-
-
 def _cross(d: np.ndarray, v: np.ndarray) -> np.ndarray:
     return d[..., 0] * v[..., 1] - d[..., 1] * v[..., 0]
 
@@ -149,8 +145,7 @@ class LaneMap:
         return offset, index
 
     def _nearest_on(self, lane: int, p: np.ndarray) -> int:
-        pts = self._points.get(lane)
-        if pts is None:
+        if (pts := self._points.get(lane)) is None:
             pts = self._points[lane] = np.flatnonzero(self.ids == lane)
         return int(pts[np.argmin(np.linalg.norm(self.xy[pts] - p, axis=1))])
 
@@ -211,7 +206,7 @@ def agent_motion(xy: np.ndarray, yaw: np.ndarray, vel: np.ndarray, valid: np.nda
     span = LAG * DT
     ok = valid[LAG:] & valid[:-LAG]  # window [t, t + LAG]
     speed = np.linalg.norm(xy[LAG:] - xy[:-LAG], axis=1) / span
-    yaw_rate = _wrap(yaw[LAG:] - yaw[:-LAG]) / span
+    yaw_rate = ((yaw[LAG:] - yaw[:-LAG] + np.pi) % (2 * np.pi) - np.pi) / span  # change wrapped
     moving = ok & (speed > MOVING_SPEED)
     acc = (speed[LAG:] - speed[:-LAG]) / span
     acc_ok = ok[LAG:] & ok[:-LAG]
@@ -279,8 +274,7 @@ def motion_statistics(scenario: Scenario) -> Motion:
 
 
 class MotionPool:
-    """Pooled motion statistics of one data set, per group: the per-agent values and the
-    per-window samples of every scenario added."""
+    """A data set's pooled per-agent values and per-window samples, per group."""
 
     def __init__(self) -> None:
         self.parts: dict[str, dict[str, list]] = {g: defaultdict(list) for g in GROUPS}
@@ -325,14 +319,12 @@ def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:
                              "scenarios": pool.scenarios, "agents": pool.agents[g],
                              "samples": len(v), "mean": float(v.mean()) if len(v) else np.nan,
                              "median": med, "p10": p10, "p90": p90,
-                             "js": js if np.isnan(js) else round(js, 4),
-                             "reference": reference})
+                             "js": js if np.isnan(js) else round(js, 4), "reference": reference})
     return rows
 
 
-FIGURE_KEYS = ("cv_distance_8s", "cv_along_8s", "cv_across_8s", "speed", "acceleration", "jerk",
-               "yaw_rate", "curvature", "lane_offset", "lane_offset_rate", "stopped_share",
-               "lane_changes", "turns")
+FIGURE_STATISTICS = tuple(s for s in MOTION_STATISTICS  # CV: at the last horizon only
+                          if not s.key.startswith("cv_") or s.key.endswith(f"_{HORIZONS[-1]}s"))
 
 
 XLABELS = {"cv_distance_8s": "distance", "cv_along_8s": "along, < 0: behind",
@@ -340,14 +332,13 @@ XLABELS = {"cv_distance_8s": "distance", "cv_along_8s": "along, < 0: behind",
 
 
 def plot_motion(pools: dict[str, MotionPool], path: str) -> None:
-    """Two rows of panels per group: the constant-velocity distance against the horizon
-    (median, p10-p90 band) and the distribution of :data:`FIGURE_KEYS`, one line per data set."""
+    """Two rows of panels per group: the CV distance against the horizon (median, p10-p90 band)
+    and the distribution of :data:`FIGURE_STATISTICS`, one line per data set."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy: only when drawing
 
-    stats = {s.key: s for s in MOTION_STATISTICS}
     cols = 7
     fig, axes = plt.subplots(2 * len(GROUPS), cols, figsize=(3.3 * cols, 2.7 * 2 * len(GROUPS)))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -357,15 +348,13 @@ def plot_motion(pools: dict[str, MotionPool], path: str) -> None:
         for ci, (name, pool) in enumerate(pools.items()):
             c = colours[ci % len(colours)]
             q = np.array([summary(pool.values(g, f"cv_distance_{h}s")) for h in HORIZONS])
-            n = pool.agents[g]
-            ax.plot(HORIZONS, q[:, 0], "o-", color=c, label=f"{name} (n = {n})")
+            ax.plot(HORIZONS, q[:, 0], "o-", color=c, label=f"{name} (n = {pool.agents[g]})")
             ax.fill_between(HORIZONS, q[:, 1], q[:, 2], color=c, alpha=0.15)
         ax.set_title(f"{GROUP_LABELS[g]}: CV distance", fontsize=9)
         ax.set_xlabel("horizon (s)")
         ax.set_ylabel("distance (m), median, p10-p90")
         ax.legend(fontsize=7, title="n = agents", title_fontsize=7)
-        for ax, key in zip(panels[1:], FIGURE_KEYS, strict=False):
-            s = stats[key]
+        for ax, s in zip(panels[1:], FIGURE_STATISTICS, strict=False):
             for ci, (name, pool) in enumerate(pools.items()):
                 h = pool.histogram(g, s)
                 share = h / h.sum() if h.sum() else h.astype(float)
@@ -373,10 +362,10 @@ def plot_motion(pools: dict[str, MotionPool], path: str) -> None:
                           label=f"{name} (n = {pool.agents[g]})")
             ax.set_title(f"{GROUP_SHORT[g]}: {s.label.removesuffix(' (mean)')}", fontsize=8)
             unit = s.unit or ("events per agent" if s.count else "share of the future")
-            name = XLABELS.get(key, key.replace("_", " "))
+            name = XLABELS.get(s.key, s.key.replace("_", " "))
             ax.set_xlabel(f"{name} ({unit})")
             ax.set_ylabel(f"share of {'agents' if s.per == 'agent' else 'windows'} per bin")
-        for ax in panels[1 + len(FIGURE_KEYS):]:
+        for ax in panels[1 + len(FIGURE_STATISTICS):]:
             ax.axis("off")
     fig.tight_layout()
     atomic_savefig(fig, path, dpi=90)

@@ -21,15 +21,13 @@ _SCALARS = {
 }
 
 
-def _message(file: descriptor_pb2.FileDescriptorProto, name: str, fields, oneof: str | None = None
-             ) -> descriptor_pb2.DescriptorProto:
-    """Add message ``name`` with ``fields`` = [(name, number, type, repeated)] to ``file``.
-
-    ``type`` is a scalar name (see ``_SCALARS``) or ``.pkg.Message``. Enums are read as int32
-    (same wire format), which keeps unknown enum values instead of failing. Repeated numbers are
-    packed where the file's syntax is proto3 (tf.Example's lists), as in the ``.proto`` files.
-    """
-    msg = file.message_type.add(name=name)
+def _message(parent, name: str, fields, oneof: str | None = None) -> descriptor_pb2.DescriptorProto:
+    """Add message ``name`` with ``fields`` = [(name, number, type, repeated)] to ``parent`` (a
+    file, or a message for a nested one). ``type``: a ``_SCALARS`` name or ``.pkg.Message``; enums
+    are read as int32 (same wire format), which keeps unknown enum values instead of failing.
+    Repeated numbers are packed in proto3 files (tf.Example's lists), as in the ``.proto`` files."""
+    top = isinstance(parent, descriptor_pb2.FileDescriptorProto)
+    msg = (parent.message_type if top else parent.nested_type).add(name=name)
     if oneof:
         msg.oneof_decl.add(name=oneof)
     for fname, number, ftype, repeated in fields:
@@ -54,11 +52,9 @@ def _example_file() -> descriptor_pb2.FileDescriptorProto:
                                ("float_list", 2, p + "FloatList", False),
                                ("int64_list", 3, p + "Int64List", False)], oneof="kind")
     feats = _message(file, "Features", [("feature", 1, p + "Features.FeatureEntry", True)])
-    entry = feats.nested_type.add(name="FeatureEntry")
+    entry = _message(feats, "FeatureEntry", [("key", 1, "string", False),
+                                             ("value", 2, p + "Feature", False)])
     entry.options.map_entry = True
-    entry.field.add(name="key", number=1, label=_OPT, type=_F.TYPE_STRING)
-    entry.field.add(name="value", number=2, label=_OPT, type=_F.TYPE_MESSAGE,
-                    type_name=p + "Feature")
     _message(file, "Example", [("features", 1, p + "Features", False)])
     return file
 
@@ -84,12 +80,11 @@ def _scenario_file() -> descriptor_pb2.FileDescriptorProto:
     _message(file, "StopSign", [("lane", 1, "int64", True), ("position", 2, p + "MapPoint", False)])
     for name in ("Crosswalk", "SpeedBump", "Driveway"):
         _message(file, name, [("polygon", 1, p + "MapPoint", True)])
-    mf = _message(file, "MapFeature", [
+    _message(file, "MapFeature", [
         ("lane", 3, p + "LaneCenter", False), ("road_line", 4, p + "RoadLine", False),
         ("road_edge", 5, p + "RoadEdge", False), ("stop_sign", 7, p + "StopSign", False),
         ("crosswalk", 8, p + "Crosswalk", False), ("speed_bump", 9, p + "SpeedBump", False),
-        ("driveway", 10, p + "Driveway", False)], oneof="feature_data")
-    mf.field.add(name="id", number=1, label=_OPT, type=_F.TYPE_INT64)
+        ("driveway", 10, p + "Driveway", False), ("id", 1, "int64", False)], oneof="feature_data")
     # scenario.proto
     _message(file, "ObjectState", [
         ("center_x", 2, "double", False), ("center_y", 3, "double", False),

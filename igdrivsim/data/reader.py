@@ -1,10 +1,9 @@
 """Reading scenario files: path expansion, streaming and parallel reads.
 
-Each file's format is found in the registry (:mod:`igdrivsim.data.formats`: WOMD tf.Example or
-Scenario protobuf TFRecords, ScenarioNet pickles, GPUDrive JSON); its scenarios are decoded at
-their native sizes, then fitted to the requested :class:`Capacities`. Bad records raise
-:class:`DataError` naming file, record and problem; with ``skip_bad=True`` they are skipped with
-a warning and counted in a :class:`ReadStats`, and the rest of the file is still read.
+Each file is decoded by its format (:mod:`igdrivsim.data.formats`) at native sizes, then fitted
+to the requested :class:`Capacities`. A bad record is a :class:`DataError` naming file, record and
+problem; with ``skip_bad=True`` it is skipped with a warning, counted in a :class:`ReadStats`, and
+the rest of the file is still read.
 """
 
 from __future__ import annotations
@@ -84,8 +83,7 @@ def expand_paths(spec: PathSpec) -> list[str]:
     elif (m := _SHARDED.match(spec)) is not None:
         count = int(m["count"])
         files = [f"{m['name']}-{i:05d}-of-{count:05d}" for i in range(count)]
-        missing = [f for f in files if not os.path.isfile(f)]
-        if missing:
+        if missing := [f for f in files if not os.path.isfile(f)]:
             raise DataError(f"{len(missing)} of {count} shards missing, e.g. {missing[0]}",
                             file=spec)
     elif glob.has_magic(spec):
@@ -162,10 +160,8 @@ def pool_map(fn, tasks, workers: int) -> Iterator:
         todo = iter(tasks)
         pending = [pool.submit(fn, *task) for task in itertools.islice(todo, 2 * workers)]
         try:
-            for task in todo:  # one more in flight as each result is taken
-                pending.append(pool.submit(fn, *task))
-                yield pending.pop(0).result()
-            while pending:
+            while pending:  # one more in flight as each result is taken
+                pending += [pool.submit(fn, *task) for task in itertools.islice(todo, 1)]
                 yield pending.pop(0).result()
         finally:
             for fut in pending:
@@ -195,8 +191,7 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
 def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,
                    stats: ReadStats | None = None, workers: int = 0) -> Iterator[Scenario]:
     """The scenarios of :func:`iter_scenarios`, without where they come from."""
-    for rec in iter_scenarios(paths, caps, skip_bad, stats, workers):
-        yield rec.scenario
+    return (rec.scenario for rec in iter_scenarios(paths, caps, skip_bad, stats, workers))
 
 
 def load_scenario(path: str | os.PathLike, index: int = 0,
@@ -224,6 +219,5 @@ def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Sce
     fixed sizes)."""
     if isinstance(scenarios, Scenario):
         scenarios = [scenarios]
-    prepare = trim_padding if trim else (lambda s: s)
-    return tfrecord.write_records(path, (encode_tfexample(prepare(s))
+    return tfrecord.write_records(path, (encode_tfexample(trim_padding(s) if trim else s)
                                          for s in unbatch(scenarios)))

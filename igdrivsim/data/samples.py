@@ -1,12 +1,9 @@
 """``igdrivsim samples``: real WOMD scenarios a user can fetch without a WOMD licence of their own.
 
-MetaDrive's wheel ``metadrive-simulator==0.2.6.0`` (PyPI, 49 MB) ships three real WOMD scenarios
-as MetaDrive 0.2 pickles (``metadrive/assets/waymo/{0,1,2}.pkl``), read by the restricted
-unpickler of :mod:`igdrivsim.data.scenarionet` (legacy type tags). This command downloads the
-wheel with pip's own ``pip download`` (no other network code), checks its sha256, extracts the
-three files into ``OUT/womd/`` and checks theirs. Once there, it verifies and reuses them
-offline. The wheel's Argoverse log (``metadrive/assets/real_data/*.pkl``) holds actor positions
-only (no map, sizes, types or ego), so it is not extracted (docs/scenarionet.md).
+MetaDrive's wheel (:data:`PACKAGE`, 49 MB) ships three real WOMD scenarios as MetaDrive 0.2
+pickles (read by :mod:`igdrivsim.data.scenarionet`). This command gets the wheel with ``pip
+download`` (no other network code), extracts them into ``OUT/womd/`` with every sha256 checked,
+and later verifies and reuses them offline (docs/scenarionet.md).
 """
 
 from __future__ import annotations
@@ -30,16 +27,10 @@ WHEEL_SHA256 = "4d5c2c4d5acc52a4596b76fcdd3f4cdb35ac812270cc4298779763c9730f2109
 SUBDIR = "womd"
 # wheel member -> (file under OUT/womd, sha256, WOMD scenario id)
 FILES: dict[str, tuple[str, str, str]] = {
-    "metadrive/assets/waymo/0.pkl": (
-        "0.pkl", "d11856cdc81285cd8b23566d4363f5f4912bcc7da4760ba0af4613e827e36bf3",
-        "2831b6fde0420b0d"),
-    "metadrive/assets/waymo/1.pkl": (
-        "1.pkl", "e0b79e64d0b413317d9d3d17c92de3b1dcef6d15510170a264ba599308d90089",
-        "1446dc44bd6fd420"),
-    "metadrive/assets/waymo/2.pkl": (
-        "2.pkl", "505939e3e3bac02b96cca3bde2cd44ba8d567577ea0c8867558187886893d2cf",
-        "8d3d061e518531d0"),
-}
+    f"metadrive/assets/waymo/{i}.pkl": (f"{i}.pkl", digest, sid) for i, (digest, sid) in enumerate((
+        ("d11856cdc81285cd8b23566d4363f5f4912bcc7da4760ba0af4613e827e36bf3", "2831b6fde0420b0d"),
+        ("e0b79e64d0b413317d9d3d17c92de3b1dcef6d15510170a264ba599308d90089", "1446dc44bd6fd420"),
+        ("505939e3e3bac02b96cca3bde2cd44ba8d567577ea0c8867558187886893d2cf", "8d3d061e518531d0")))}
 TERMS = ("real scenarios of the Waymo Open Motion Dataset, as redistributed in MetaDrive's "
          f"wheel ({PACKAGE}); they come under the Waymo Open Dataset License Agreement for "
          "Non-Commercial Use (https://waymo.com/open/terms/): non-commercial use only, not "
@@ -107,8 +98,7 @@ def extract(wheel: Path, out: Path, files: dict = FILES,
                     raise DataError("member missing from the wheel", file=str(wheel),
                                     key=member) from None
                 if (got := hashlib.sha256(data).hexdigest()) != digest:
-                    raise DataError(f"sha256 {got}, expected {digest}", file=str(wheel),
-                                    key=member)
+                    raise DataError(f"sha256 {got}, expected {digest}", file=str(wheel), key=member)
                 written.append(atomic_write_bytes(scenario_dir(out) / name, data))
     except zipfile.BadZipFile as err:
         raise DataError(f"not a wheel (zip): {err}", file=str(wheel)) from None

@@ -87,11 +87,8 @@ class ObjectMetadata:
 
 @struct.dataclass
 class Roadgraph:
-    """Roadgraph sample points, ``[..., R]`` (``xyz`` and ``dir`` are ``[..., R, 3]``).
-
-    ``dir`` is the unit direction to the next point of the same polyline (zero at its end); for
-    road edges the road interior lies on the left of ``dir``.
-    """
+    """Roadgraph sample points, ``[..., R]`` (``xyz``, ``dir``: ``[..., R, 3]``); ``dir``: unit
+    vector to the next point of the polyline (zero at its end), road interior on an edge's left."""
 
     xyz: np.ndarray
     dir: np.ndarray
@@ -102,8 +99,7 @@ class Roadgraph:
 
 @struct.dataclass
 class TrafficLights:
-    """Traffic-light states, ``[..., L, T]`` each (WOMD stores ``[T, 16]``; we store lanes
-    first)."""
+    """Traffic-light states, ``[..., L, T]`` each (WOMD stores ``[T, 16]``: lanes go first)."""
 
     state: np.ndarray  # int32, WOMD TrafficSignalLaneState enum
     valid: np.ndarray  # bool
@@ -140,14 +136,11 @@ def encode_scenario_id(sid: str) -> np.ndarray:
     raw = sid.encode("ascii")
     if len(raw) > SCENARIO_ID_BYTES:
         raise ValueError(f"scenario id {sid!r} longer than {SCENARIO_ID_BYTES} bytes")
-    out = np.zeros(SCENARIO_ID_BYTES, np.uint8)
-    out[: len(raw)] = np.frombuffer(raw, np.uint8)
-    return out
+    return np.frombuffer(raw.ljust(SCENARIO_ID_BYTES, b"\0"), np.uint8).copy()
 
 
 def read_scenario_id(sid: str | bytes, key: str) -> np.ndarray:
-    """A reader's :func:`encode_scenario_id`: a non-ASCII or too long id is a
-    :class:`DataError` at ``key``."""
+    """:func:`encode_scenario_id` for readers: a non-ASCII or too long id: DataError at ``key``."""
     try:
         return encode_scenario_id(sid.decode("ascii") if isinstance(sid, bytes) else sid)
     except ValueError as err:  # UnicodeError included
@@ -157,11 +150,8 @@ def read_scenario_id(sid: str | bytes, key: str) -> np.ndarray:
 def object_flags(ids: np.ndarray, sdc: int, predict: Iterable[int], interest) -> dict:
     """A reader's ``is_sdc``, ``tracks_to_predict`` (track indices; those outside the objects
     are ignored) and ``objects_of_interest`` (object ids) for :class:`ObjectMetadata`."""
-    num = len(ids)
-    is_sdc, ttp = np.zeros(num, bool), np.zeros(num, bool)
-    is_sdc[sdc] = True
-    ttp[[i for i in predict if 0 <= i < num]] = True
-    return {"is_sdc": is_sdc, "tracks_to_predict": ttp,
+    slots = np.arange(len(ids))
+    return {"is_sdc": slots == sdc, "tracks_to_predict": np.isin(slots, list(predict)),
             "objects_of_interest": np.isin(ids, np.asarray(interest, np.int64))}
 
 
@@ -177,8 +167,7 @@ def ego_id(scenario_id: str, object_id: int) -> str:
     """``<scenario id>#<object id>``; a scenario id too long to fit is replaced by its hash."""
     tail = f"{EGO_SEPARATOR}{int(object_id)}"
     if len(scenario_id) + len(tail) > SCENARIO_ID_BYTES:
-        digest = hashlib.sha1(scenario_id.encode()).hexdigest()
-        scenario_id = digest[:SCENARIO_ID_BYTES - len(tail)]
+        scenario_id = hashlib.sha1(scenario_id.encode()).hexdigest()[:SCENARIO_ID_BYTES - len(tail)]
     return scenario_id + tail
 
 
@@ -193,16 +182,9 @@ def split_ego_id(text: str) -> tuple[str, int | None]:
 def as_ego(scenario: Scenario, slot: int) -> Scenario:
     """One unbatched scenario with object ``slot`` as the SDC and the ego's id."""
     md = scenario.metadata
-    is_sdc = np.zeros_like(np.asarray(md.is_sdc, bool))
-    is_sdc[slot] = True
+    is_sdc = np.arange(scenario.num_objects) == slot
     sid = ego_id(decode_scenario_id(scenario.scenario_id), int(np.asarray(md.id)[slot]))
-    return scenario.replace(metadata=md.replace(is_sdc=is_sdc),
-                            scenario_id=encode_scenario_id(sid))
-
-
-def sdc_index(scenario: Scenario) -> np.ndarray:
-    """Index of the SDC slot, ``[...]``; raises if an (unbatched, host) scenario has none."""
-    return np.argmax(np.asarray(scenario.metadata.is_sdc), axis=-1)
+    return scenario.replace(metadata=md.replace(is_sdc=is_sdc), scenario_id=encode_scenario_id(sid))
 
 
 def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
@@ -214,17 +196,12 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     b = lambda *s: np.zeros(s, bool)  # noqa: E731
     return Scenario(
         trajectory=Trajectory(*(f(o, t) for _ in range(9)), valid=b(o, t)),  # 9 float fields
-        metadata=ObjectMetadata(
-            id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
-            tracks_to_predict=b(o), objects_of_interest=b(o), valid=b(o),
-        ),
-        roadgraph=Roadgraph(
-            xyz=f(r, 3), dir=f(r, 3), type=i(r), id=np.full(r, -1, np.int32), valid=b(r)
-        ),
-        traffic_lights=TrafficLights(
-            state=i(nl, t), valid=b(nl, t), lane_id=np.full((nl, t), -1, np.int32),
-            x=f(nl, t), y=f(nl, t), z=f(nl, t),
-        ),
+        metadata=ObjectMetadata(id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
+                                tracks_to_predict=b(o), objects_of_interest=b(o), valid=b(o)),
+        roadgraph=Roadgraph(xyz=f(r, 3), dir=f(r, 3), type=i(r), id=np.full(r, -1, np.int32),
+                            valid=b(r)),
+        traffic_lights=TrafficLights(state=i(nl, t), valid=b(nl, t), x=f(nl, t), y=f(nl, t),
+                                     z=f(nl, t), lane_id=np.full((nl, t), -1, np.int32)),
         scenario_id=np.zeros(SCENARIO_ID_BYTES, np.uint8),
     )
 
@@ -280,18 +257,14 @@ def _present_distance(xy: np.ndarray, valid: np.ndarray, ref: np.ndarray, ref_t:
 def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Scenario:
     """Pad (invalid) or reduce a scenario to exactly ``caps``; arbitrary leading batch dims.
 
-    Nothing valid is cut while it fits: if a section already fits, slots keep their positions
-    (so WOMD's SDC slot stays put) and padding is appended. If there are more slots than the
-    capacity, invalid slots go first; if the valid ones still do not fit, the SDC and the
-    objects, roadgraph points and traffic lights nearest to the SDC's position at the current
-    step are kept, in their original order. Only the present and the past decide (an object's
-    distance is taken at its last valid step up to the current one; objects that appear only
-    later come last): what a policy may observe never depends on the logged future.
+    A section that fits keeps its slots in place (WOMD's SDC slot stays put), padding appended.
+    Else invalid slots go first, then (in their original order) the SDC and what lies nearest to
+    the SDC at the current step, by each object's last valid position up to then: what a policy
+    may observe never depends on the logged future.
     """
     if scenario.batch_shape:
-        n = scenario.batch_shape[0]
         return stack_scenarios([fit_to_capacities(index_scenario(scenario, i), caps)
-                                for i in range(n)])
+                                for i in range(scenario.batch_shape[0])])
     template = empty_scenario(caps)
     tr, md, rg, tl = (scenario.trajectory, scenario.metadata, scenario.roadgraph,
                       scenario.traffic_lights)
@@ -325,9 +298,8 @@ def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Sc
 
 
 def trim_padding(scenario: Scenario) -> Scenario:
-    """Drop trailing padding (invalid slots after the last valid object, SDC, roadgraph point
-    and traffic light) of one unbatched scenario; :func:`fit_to_capacities` pads it back.
-    Slot positions of everything kept are unchanged. Used to write compact files."""
+    """One unbatched scenario without its trailing padding slots, the rest in place (compact files;
+    :func:`fit_to_capacities` pads it back)."""
     if scenario.batch_shape:
         raise ValueError(f"trim_padding takes one scenario, got batch {scenario.batch_shape}")
 
@@ -338,11 +310,10 @@ def trim_padding(scenario: Scenario) -> Scenario:
     md = scenario.metadata
     num_objects = used(np.asarray(md.valid) | np.asarray(md.is_sdc)
                        | np.asarray(scenario.trajectory.valid).any(-1))
-    num_points = used(scenario.roadgraph.valid)
-    num_lights = used(np.asarray(scenario.traffic_lights.valid).any(-1))
     cut = lambda tree, n: jax.tree.map(lambda x: np.asarray(x)[:n], tree)  # noqa: E731
     return Scenario(trajectory=cut(scenario.trajectory, num_objects),
                     metadata=cut(md, num_objects),
-                    roadgraph=cut(scenario.roadgraph, num_points),
-                    traffic_lights=cut(scenario.traffic_lights, num_lights),
+                    roadgraph=cut(scenario.roadgraph, used(scenario.roadgraph.valid)),
+                    traffic_lights=cut(scenario.traffic_lights,
+                                       used(np.asarray(scenario.traffic_lights.valid).any(-1))),
                     scenario_id=np.asarray(scenario.scenario_id, np.uint8))

@@ -12,8 +12,10 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
+from collections import defaultdict
 from typing import Any, NamedTuple
 
+import jax
 import numpy as np
 
 from igdrivsim.data.scenario import (
@@ -59,8 +61,7 @@ _ALLOWED = {
 
 OBJECT_TYPES = {"VEHICLE": TYPE_VEHICLE, "PEDESTRIAN": TYPE_PEDESTRIAN,
                 "CYCLIST": TYPE_CYCLIST}  # anything else (cones, barriers, ...): TYPE_OTHER
-LANE_TYPES = {"LANE_FREEWAY": 1, "LANE_SURFACE_STREET": 2, "LANE_BIKE_LANE": 3,
-              "LANE_UNKNOWN": 2}
+LANE_TYPES = {"LANE_FREEWAY": 1, "LANE_SURFACE_STREET": 2, "LANE_BIKE_LANE": 3, "LANE_UNKNOWN": 2}
 ROAD_LINE_TYPES = {f"ROAD_LINE_{n}": 5 + i for i, n in enumerate((
     "UNKNOWN", "BROKEN_SINGLE_WHITE", "SOLID_SINGLE_WHITE", "SOLID_DOUBLE_WHITE",
     "BROKEN_SINGLE_YELLOW", "BROKEN_DOUBLE_YELLOW", "SOLID_SINGLE_YELLOW", "SOLID_DOUBLE_YELLOW",
@@ -72,11 +73,9 @@ ROAD_EDGE_TYPES = {"ROAD_EDGE_BOUNDARY": RG_ROAD_EDGE_BOUNDARY,
 POLYLINE_TYPES = {**LANE_TYPES, **ROAD_LINE_TYPES, **ROAD_EDGE_TYPES}
 POLYGON_TYPES = {"CROSSWALK": RG_CROSSWALK, "SPEED_BUMP": RG_SPEED_BUMP}
 # WOMD TrafficSignalLaneState codes; MetaDrive's TRAFFIC_LIGHT_* names are used for nuPlan.
-LIGHT_STATES = {
-    **{f"LANE_STATE_{n}": i for i, n in enumerate(LIGHT_STATE_NAMES)},
-    "TRAFFIC_LIGHT_UNKNOWN": 0, "TRAFFIC_LIGHT_RED": 4, "TRAFFIC_LIGHT_YELLOW": 5,
-    "TRAFFIC_LIGHT_GREEN": 6,
-}
+LIGHT_STATES = {**{f"LANE_STATE_{n}": i for i, n in enumerate(LIGHT_STATE_NAMES)},
+                "TRAFFIC_LIGHT_UNKNOWN": 0, "TRAFFIC_LIGHT_RED": 4, "TRAFFIC_LIGHT_YELLOW": 5,
+                "TRAFFIC_LIGHT_GREEN": 6}
 
 
 # Type tags of older MetaDrive / ScenarioNet exports (MetaDrive 0.2's WOMD pickles store
@@ -100,11 +99,8 @@ def _member(name: str) -> str:
 
 
 class LegacyTag:
-    """Inert stand-in for an old export's enum class: ``Tag(code)`` returns our name (a str).
-
-    It accepts exactly one int among the enum's codes; anything else is a :class:`DataError`.
-    It imports and calls nothing, so a pickle cannot use the legacy names to run code.
-    """
+    """Inert stand-in for an old export's enum class: ``Tag(code)`` returns our name (a str) for
+    one int among the enum's codes, else a :class:`DataError`; it cannot run code."""
 
     __slots__ = ("file", "kind", "names")
 
@@ -147,8 +143,6 @@ def safe_load(path: str | os.PathLike) -> Any:
     try:
         with open(path, "rb") as f:
             return SafeUnpickler(f, path).load()
-    except DataError:
-        raise
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
             IndexError, KeyError, MemoryError) as err:
         raise DataError(f"not a readable pickle: {type(err).__name__}: {err}", file=path) from None
@@ -240,8 +234,7 @@ def _decode_tracks(desc: dict) -> dict[str, np.ndarray]:
         raise DataError("no tracks", key="tracks")
     length = int(desc.get("length") or 0)
     keys = list(tracks)
-    rows: dict[str, list] = {k: [] for k in ("xyz", "yaw", "vel", "length", "width", "height",
-                                             "valid")}
+    rows: dict[str, list] = defaultdict(list)
     types = []
     for k in keys:
         track = tracks[k]
@@ -272,7 +265,7 @@ def _decode_tracks(desc: dict) -> dict[str, np.ndarray]:
     swap = (out["type"] == TYPE_VEHICLE) & (
         (out["width"] * out["valid"]).sum(1) / n > (out["length"] * out["valid"]).sum(1) / n)
     out["length"][swap], out["width"][swap] = out["width"][swap], out["length"][swap].copy()
-    out["id"] = np.asarray([_key_ids(keys)[k] for k in keys], np.int64).astype(np.int32)
+    out["id"] = np.asarray(list(_key_ids(keys).values()), np.int64).astype(np.int32)
     meta = desc.get("metadata", {})
     sdc = str(meta.get("sdc_id", ""))
     str_keys = [str(k) for k in keys]
@@ -291,21 +284,16 @@ def _points(value, key: str, drop_z: bool) -> np.ndarray:
         raise DataError("not a numeric point array", key=key) from None
     if a.shape[-1] < 2 or not np.isfinite(a).all():
         raise DataError(f"bad points of shape {a.shape}", key=key)
+    dims = 2 if drop_z else min(3, a.shape[1])
     xyz = np.zeros((len(a), 3))
-    xyz[:, :2] = a[:, :2]
-    if a.shape[1] >= 3 and not drop_z:
-        xyz[:, 2] = a[:, 2]
+    xyz[:, :dims] = a[:, :dims]
     return xyz
 
 
 def union_boundary(polygons: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Boundary of the union of polygons as sampled, oriented polylines.
-
-    Each ring is oriented counter-clockwise (interior on the left of ``dir``) and sampled every
-    ``MAX_SPACING`` metres; a sample is on the union's boundary when the point ``PROBE`` metres
-    to its right lies in no polygon. Runs of kept samples become polylines. Returns ``(xy [N, 2],
-    dir [N, 2], polyline [N])``.
-    """
+    """Boundary of the union of polygons as sampled, oriented polylines ``(xy [N, 2], dir [N, 2],
+    polyline [N])``: each ring counter-clockwise (interior on the left), sampled every
+    ``MAX_SPACING`` m; a sample is kept when the point ``PROBE`` m to its right is in no polygon."""
     from matplotlib.path import Path  # heavy: only for maps without road edges
 
     rings, bbox = [], []
@@ -366,9 +354,7 @@ def _decode_map(desc: dict) -> tuple[Roadgraph, dict]:
                 continue
             pts = _points(f[field], f"{where}/{field}", drop_z)
             rg_type = (POLYLINE_TYPES | POLYGON_TYPES)[kind]
-            if kind in POLYGON_TYPES:
-                pts = np.vstack([pts, pts[:1]])
-            elif kind in ROAD_LINE_TYPES and len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
+            if kind in ROAD_LINE_TYPES and len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
                 lane_polygons.append(pts)  # a closed outline: nuScenes' drivable area
         else:  # driveways, drivable-area outlines without a type we know: skipped
             continue
@@ -380,12 +366,10 @@ def _decode_map(desc: dict) -> tuple[Roadgraph, dict]:
         bxy, bdir, bpoly = union_boundary(lane_polygons)
         base = int(max(ids.values(), default=-1)) + 1
         flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
-        rg = Roadgraph(xyz=np.concatenate([rg.xyz, flat(bxy)]),
-                       dir=np.concatenate([rg.dir, flat(bdir)]),
-                       type=np.concatenate([rg.type, np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY,
-                                                             np.int32)]),
-                       id=np.concatenate([rg.id, (base + bpoly).astype(np.int32)]),
-                       valid=np.ones(len(rg.valid) + len(bxy), bool))
+        edges = Roadgraph(xyz=flat(bxy), dir=flat(bdir),
+                          type=np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY, np.int32),
+                          id=(base + bpoly).astype(np.int32), valid=np.ones(len(bxy), bool))
+        rg = jax.tree.map(lambda *parts: np.concatenate(parts), rg, edges)
     return rg, ids
 
 
@@ -413,8 +397,7 @@ def window_id(source_id: str, first_step: int, windows: int) -> str:
     sid = source_id if windows == 1 else f"{source_id}_{first_step}"
     sid = sid.encode("ascii", "replace").decode("ascii")
     if len(sid) > SCENARIO_ID_BYTES:
-        digest = hashlib.sha1(sid.encode()).hexdigest()[:8]
-        sid = f"{sid[: SCENARIO_ID_BYTES - 9]}-{digest}"
+        sid = f"{sid[: SCENARIO_ID_BYTES - 9]}-{hashlib.sha1(sid.encode()).hexdigest()[:8]}"
     return sid
 
 
@@ -478,8 +461,7 @@ def legacy_description(desc: dict) -> dict:
 
 
 def decode_description(desc: Any) -> list[Window]:
-    """A ScenarioNet scenario dict (or a legacy MetaDrive export, :func:`legacy_description`)
-    as its 91-step windows (native sizes, no capacities)."""
+    """A ScenarioNet scenario dict (or a legacy MetaDrive export) as its 91-step windows."""
     if is_legacy_description(desc):
         desc = legacy_description(desc)
     if (isinstance(desc, tuple) and len(desc) == 2 and isinstance(desc[0], dict)
@@ -504,21 +486,18 @@ def decode_description(desc: Any) -> list[Window]:
     if abs(dt - DT) > 0.01:  # resample to 10 Hz
         src = np.arange(length) * dt
         dst = np.arange(int(np.floor(src[-1] / DT + 1e-6)) + 1) * DT
-        valid = tr["valid"].astype(np.float64)
-        for k in ("xyz", "vel", "length", "width", "height"):
-            tr[k] = _resample(tr[k], src, dst)
-        tr["yaw"] = _resample(tr["yaw"], src, dst, angle=True)
-        tr["valid"] = _resample(valid, src, dst) > 1 - 1e-6  # both neighbours valid
+        for k in ("xyz", "vel", "length", "width", "height", "yaw"):
+            tr[k] = _resample(tr[k], src, dst, angle=k == "yaw")
+        tr["valid"] = _resample(tr["valid"].astype(np.float64), src, dst) > 1 - 1e-6  # both valid
         light_src = np.clip(np.round(dst / dt).astype(np.int64), 0, length - 1)
         length = len(dst)
     else:
         light_src = np.arange(length)
     roadgraph, map_ids = _decode_map(desc)
-    lights = _decode_lights(desc, map_ids, int(light_src[-1]) + 1)
-    lights = {k: v[:, light_src] for k, v in lights.items()}
+    lights = {k: v[:, light_src]
+              for k, v in _decode_lights(desc, map_ids, int(light_src[-1]) + 1).items()}
     if length <= CURRENT_INDEX:
-        raise DataError(f"log has {length} steps at 10 Hz, needs > {CURRENT_INDEX}",
-                        key="length")
+        raise DataError(f"log has {length} steps at 10 Hz, needs > {CURRENT_INDEX}", key="length")
     starts = list(range(0, max(length - NUM_STEPS, 0) + 1, NUM_STEPS))  # consecutive windows
     return [Window(_window(tr, lights, roadgraph, s, window_id(source_id, s, len(starts))),
                    source_id, s) for s in starts]
@@ -537,8 +516,7 @@ def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) 
 
     valid = cut(tr["valid"], False)
     if not valid[tr["is_sdc"], CURRENT_INDEX].any():
-        raise DataError(f"the SDC is not valid at the current step of window {start}",
-                        key="tracks")
+        raise DataError(f"the SDC is not valid at the current step of window {start}", key="tracks")
     keep = valid.any(axis=1) | tr["is_sdc"]
     f32 = lambda a: cut(a)[keep].astype(np.float32)  # noqa: E731
     xyz, vel = f32(tr["xyz"]), f32(tr["vel"])
@@ -555,8 +533,7 @@ def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) 
     lxyz = cut(lights["xyz"])[lkeep].astype(np.float32)
     traffic_lights = TrafficLights(
         state=cut(lights["state"])[lkeep], valid=lv[lkeep],
-        lane_id=cut(lights["lane_id"], -1)[lkeep], x=lxyz[..., 0], y=lxyz[..., 1],
-        z=lxyz[..., 2])
+        lane_id=cut(lights["lane_id"], -1)[lkeep], x=lxyz[..., 0], y=lxyz[..., 1], z=lxyz[..., 2])
     return Scenario(trajectory=trajectory, metadata=metadata, roadgraph=roadgraph,
                     traffic_lights=traffic_lights, scenario_id=encode_scenario_id(sid))
 

@@ -1,8 +1,6 @@
 """One way in for data: :func:`open_scenarios` reads whatever a data path names (a filter output
-folder, or files of any registered format; docs/data.md, Inputs); :func:`count_scenarios`,
-:func:`data_identity` and :func:`scenario_refs` answer the questions asked of a path without
-reading it whole; :func:`load_scenarios` stacks its scenarios (the validation scenarios that the
-training curves and the evaluation are judged on).
+folder, or files of any registered format; docs/data.md, Inputs); the other functions answer
+questions about a path without reading it whole, or stack its scenarios (validation sets).
 """
 
 from __future__ import annotations
@@ -11,7 +9,7 @@ import hashlib
 import os
 import sys
 from collections.abc import Iterator
-from itertools import chain, islice
+from itertools import chain, islice, repeat
 
 import numpy as np
 from tqdm import tqdm
@@ -94,16 +92,14 @@ def _manifest_records(ref: tuple[str, int], scenario, lines: list[dict], caps, e
     rec = ScenarioRecord(file, record, format_of(file).name, scenario)
     if per_ego:
         for e in lines:
-            slot = ego_slot(scenario, e["ego"])
-            if slot is None:
+            if (slot := ego_slot(scenario, e["ego"])) is None:
                 raise DataError(f"manifest line {e['line']}: no object {e['ego']}",
                                 file=file, record=record)
             yield from _egos_of(rec, caps, config, only=slot)
     elif egos == "all":
         yield from _egos_of(rec, caps, config)
     else:
-        for _ in lines:  # a line repeated reads twice, as it is written
-            yield rec
+        yield from repeat(rec, len(lines))  # a line repeated reads twice, as it is written
 
 
 def _egos_of(rec: ScenarioRecord, caps, config: FilterConfig, only: int | None = None
@@ -143,8 +139,7 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
     total = 0
     try:
         for item in as_paths(data):
-            manifest = manifest_of(item)
-            if manifest is not None:
+            if (manifest := manifest_of(item)) is not None:
                 entries = read_manifest(manifest)
                 if egos == "all" and not any("ego" in e for e in entries):
                     return None
@@ -167,8 +162,7 @@ def count_scenarios(data, max_scenarios: int = 0, egos: str = "sdc") -> int | No
 
 
 def data_identity(data) -> str:
-    """A string that changes when the data changes: the manifest's bytes and the files' names,
-    sizes and modification times."""
+    """Changes when the data does: the manifest's bytes, the files' names, sizes and mtimes."""
     h = hashlib.sha256()
     manifest = manifest_of(data)
     if manifest is None:
@@ -192,8 +186,7 @@ def scenario_refs(data, limit: int = 0, egos: str = "sdc",
     :func:`load_ref`. Only ``egos="all"`` decodes (eligibility needs the trajectories)."""
     files: dict[str, int] = {}
     refs = [(files.setdefault(file, len(files)), record, ego)
-            for file, record, ego in islice(_refs(data, limit, egos, filter_config),
-                                            limit or None)]
+            for file, record, ego in islice(_refs(data, limit, egos, filter_config), limit or None)]
     if not refs:
         raise DataError("no scenarios found", file=str(data))
     return list(files), np.asarray(refs, np.int64).reshape(-1, 3)
@@ -222,8 +215,7 @@ def load_ref(file: str, record: int, ego: int, caps: Capacities | None) -> Scena
         raise DataError("no such record (the file changed?)", file=file, record=record)
     if ego < 0:
         return _fit(rec, caps).scenario
-    slot = ego_slot(rec.scenario, ego)
-    if slot is None:
+    if (slot := ego_slot(rec.scenario, ego)) is None:
         raise DataError(f"no object {ego} (the file changed?)", file=file, record=record)
     return next(_egos_of(rec, caps, PAPER_FILTER, only=slot)).scenario
 
@@ -244,9 +236,8 @@ def origin_of(rec: ScenarioRecord) -> dict:
 
 def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
                    egos: str = "sdc") -> tuple:
-    """``(stacked scenarios [N], origins)`` of ``data``, one :func:`origin_of` dict per
-    scenario; ``data``: a location or a list of them (read in turn); see
-    :func:`load_validation`."""
+    """``(stacked scenarios [N], origins)`` of ``data`` (a location or a list of them), one
+    :func:`origin_of` dict per scenario; see :func:`load_validation`."""
     check_data(data, "validation")
     total = count_scenarios(data, max_scenarios, egos) if progress else None
     scenarios, origins = [], []
@@ -257,13 +248,11 @@ def load_scenarios(data, caps, max_scenarios: int = 0, progress: bool = False,
             origins.append(origin_of(rec))
             bar.update()
     if not scenarios:
-        raise DataError("no validation scenarios (empty manifest or no records)",
-                        file=str(data))
+        raise DataError("no validation scenarios (empty manifest or no records)", file=str(data))
     return stack_scenarios(scenarios), origins
 
 
-def load_validation(data, caps, max_scenarios: int = 0, progress: bool = False,
-                    egos: str = "sdc"):
+def load_validation(data, caps, max_scenarios: int = 0, progress: bool = False, egos: str = "sdc"):
     """Stacked validation scenarios ``[N]`` of ``data`` (:func:`load_scenarios`); ``progress``: a
     "loading" bar on stderr, with a total where that is cheap to know."""
     return load_scenarios(data, caps, max_scenarios, progress, egos)[0]

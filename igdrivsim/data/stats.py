@@ -1,11 +1,8 @@
-"""Scene statistics of a scenario (defined once here; ``igdrivsim stats`` and the generator's
-calibration tests use them).
+"""Scene statistics of a scenario (``igdrivsim stats``, the generator's calibration tests).
 
-Per scenario, at the current step (t = 10) and measured from the SDC, centre to centre:
-crowding, static share, nearest object, lane length and lights (:data:`STATISTICS`). Per object
-and step, WOSAC-style samples of speed, acceleration, distance to the nearest object and signed
-distance to the road edge, as fixed-bin histograms (:data:`FEATURES`) whose Jensen-Shannon
-divergence says how close two data sets' whole distributions are.
+Per scenario, at the current step and measured from the SDC, centre to centre: :data:`STATISTICS`.
+Per object and step, WOSAC-style samples as fixed-bin histograms (:data:`FEATURES`), whose
+Jensen-Shannon divergence says how close two data sets' whole distributions are.
 """
 
 from __future__ import annotations
@@ -128,11 +125,8 @@ def _lane_length(scenario: Scenario, centre: np.ndarray, radius: float = 50.0) -
 
 
 def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
-    """Statistics of one unbatched scenario: ``(row, histograms)``.
-
-    ``row`` holds the :data:`STATISTICS` keys, ``scenario_id`` and ``kept`` (the paper's filter);
-    ``histograms`` the :data:`FEATURES` counts over every valid object and step.
-    """
+    """``(row, histograms)`` of one unbatched scenario: the :data:`STATISTICS`, ``scenario_id``
+    and ``kept`` (the paper's filter); the :data:`FEATURES` counts over valid objects and steps."""
     md = scenario.metadata
     valid, xy = valid_xy(scenario)
     types = np.asarray(md.object_type)
@@ -150,13 +144,13 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     counted = valid.sum(1) > STATIC_MIN_STEPS
     static = counted & others & (path_extent(xy, valid) < STATIC_M)
     moving = counted & others & ~static
-    speed = np.linalg.norm(np.diff(xy[sdc], axis=0), axis=1) / DT  # from positions, per 0.1 s
-    ok = valid[sdc, 1:] & valid[sdc, :-1]
-    acc = np.abs(speed[ACCEL_LAG:] - speed[:-ACCEL_LAG]) / (ACCEL_LAG * DT)
-    acc = acc[ok[ACCEL_LAG:] & ok[:-ACCEL_LAG]]
+    step = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / DT  # [O, T-1], from 0.1 s positions
+    step_ok = valid[:, 1:] & valid[:, :-1]
+    acc = (step[:, ACCEL_LAG:] - step[:, :-ACCEL_LAG]) / (ACCEL_LAG * DT)
+    acc_ok = step_ok[:, ACCEL_LAG:] & step_ok[:, :-ACCEL_LAG]
+    sdc_acc = np.abs(acc[sdc][acc_ok[sdc]])
     edges = _edges(scenario)
     sdc_now = xy[sdc, CURRENT_INDEX]
-    tl_valid = np.asarray(scenario.traffic_lights.valid, bool)
     row = {
         "scenario_id": decode_scenario_id(scenario.scenario_id),
         "objects_50m": int((now <= 50).sum()),
@@ -167,9 +161,9 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
                                / max(future_ok.sum(), 1)),
         "lane_length_50m": _lane_length(scenario, sdc_now),
         "pedestrians_50m": int(((now <= 50) & (types == TYPE_PEDESTRIAN)).sum()),
-        "traffic_lights": int(tl_valid.any(-1).sum()) if tl_valid.size else 0,
+        "traffic_lights": int(np.asarray(scenario.traffic_lights.valid, bool).any(-1).sum()),
         "sdc_mean_speed": sdc_mean_speed(scenario),
-        "sdc_max_accel": float(acc.max()) if len(acc) else np.nan,
+        "sdc_max_accel": float(sdc_acc.max()) if len(sdc_acc) else np.nan,
         "closest_approach": float(dist.min()) if np.isfinite(dist).any() else np.nan,
         "tracks": int(valid.any(1).sum()),
         "moving_vehicles": int((moving & (types == TYPE_VEHICLE)).sum()),
@@ -177,22 +171,13 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
         "sdc_edge_distance": float(_edge_distance(edges, sdc_now[None])[0]),
         "kept": bool(intersecting_objects(scenario).any() and sdc_mean_speed(scenario) >= 0.7),
     }
-    return row, _feature_histograms(xy, valid, edges)
-
-
-def _feature_histograms(xy: np.ndarray, valid: np.ndarray, edges) -> dict[str, np.ndarray]:
-    step = np.linalg.norm(np.diff(xy, axis=1), axis=-1) / DT  # [O, T-1]
-    step_ok = valid[:, 1:] & valid[:, :-1]
-    lag = ACCEL_LAG
-    acc = (step[:, lag:] - step[:, :-lag]) / (lag * DT)
-    acc_ok = step_ok[:, lag:] & step_ok[:, :-lag]
     nearest = np.full(valid.shape, np.nan)
-    for t in range(valid.shape[1]):
+    for t in range(steps):
         idx = np.flatnonzero(valid[:, t])
         if len(idx) > 1:
             d, _ = cKDTree(xy[idx, t]).query(xy[idx, t], k=2)
             nearest[idx, t] = d[:, 1]
-    return {
+    return row, {
         "speed": histogram(step[step_ok], FEATURES["speed"]),
         "acceleration": histogram(acc[acc_ok], FEATURES["acceleration"]),
         "nearest_object_distance": histogram(nearest[valid], FEATURES["nearest_object_distance"]),

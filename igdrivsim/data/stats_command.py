@@ -1,10 +1,7 @@
-"""``igdrivsim stats``: scene and motion statistics of any data set, beside each other.
-
-Prints the median [p10, p90] tables per data set and, with ``--out``, writes :data:`OUTPUTS`
-(``stats.csv`` and ``motion_agents.csv``: one row per scenario / agent; ``divergence.csv`` and
-``motion_stats.csv``: Jensen-Shannon divergences from the reference data set; ``stats.md``: the
-tables; the figures).
-"""
+"""``igdrivsim stats``: scene and motion statistics of any data set, beside each other: the
+median [p10, p90] tables and, with ``--out``, :data:`OUTPUTS` (``stats.csv``, ``motion_agents.csv``:
+a row per scenario / agent; ``divergence.csv``, ``motion_stats.csv``: Jensen-Shannon divergences
+from the reference data set; ``stats.md``: the tables; the figures)."""
 
 from __future__ import annotations
 
@@ -117,8 +114,7 @@ def summary_table(frame, kept_only=()) -> str:
         for n in names:
             med, p10, p90 = cells[n][1][s.key]
             fmt = ".2f" if abs(med) < 10 else ".1f" if abs(med) < 100 else ".0f"
-            vals.append("-" if np.isnan(med) else
-                        f"{med:{fmt}} [{p10:{fmt}}, {p90:{fmt}}]")
+            vals.append("-" if np.isnan(med) else f"{med:{fmt}} [{p10:{fmt}}, {p90:{fmt}}]")
         lines.append(f"| {s.title} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
 
@@ -180,8 +176,7 @@ def plot(frame, path: str, kept_only=(), min_box: int = 10) -> None:
     import matplotlib.pyplot as plt  # heavy: only when drawing
     import seaborn as sns  # heavy: only when drawing
 
-    keep = ~frame["dataset"].isin(list(kept_only)) | frame["kept"]
-    frame = frame[keep]
+    frame = frame[~frame["dataset"].isin(list(kept_only)) | frame["kept"]]
     counts = frame["dataset"].value_counts()
     labels = {n: f"{n} (n={counts[n]})" for n in dict.fromkeys(frame["dataset"])}
     frame = frame.assign(dataset=frame["dataset"].map(labels))
@@ -241,7 +236,6 @@ def stats_command(args: argparse.Namespace) -> int:
     motion_md = motion_tables(motion, args.kept_only)
     print(f"\nMotion statistics, median [p10, p90]:\n\n{motion_md}")
     if args.out is not None:
-        os.makedirs(args.out, exist_ok=True)
         atomic_write_csv(os.path.join(args.out, "stats.csv"), frame)
         atomic_write_csv(os.path.join(args.out, "divergence.csv"), div)
         atomic_write_text(os.path.join(args.out, "stats.md"),

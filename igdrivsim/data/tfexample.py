@@ -26,10 +26,8 @@ from igdrivsim.errors import DataError
 
 PARTS = (("past", CURRENT_INDEX), ("current", 1), ("future", NUM_STEPS - CURRENT_INDEX - 1))
 # our Trajectory field -> tf.Example state key suffix
-STATE_KEYS = {
-    "x": "x", "y": "y", "z": "z", "yaw": "bbox_yaw", "vel_x": "velocity_x",
-    "vel_y": "velocity_y", "length": "length", "width": "width", "height": "height",
-}
+STATE_KEYS = {"x": "x", "y": "y", "z": "z", "yaw": "bbox_yaw", "vel_x": "velocity_x",
+              "vel_y": "velocity_y", "length": "length", "width": "width", "height": "height"}
 # our TrafficLights field -> tf.Example key suffix
 LIGHT_KEYS = {"state": "state", "lane_id": "id", "x": "x", "y": "y", "z": "z"}
 
@@ -61,11 +59,8 @@ def _values(feature_map, key: str, size: int | None, dtype, required: bool = Tru
 
 
 def decode_tfexample(data: bytes) -> Scenario:
-    """Decode one serialized WOMD motion tf.Example into a :class:`Scenario` (native sizes).
-
-    Raises :class:`DataError` (naming the key) for missing, mis-shaped or non-finite features and
-    for a scenario without exactly one SDC. The caller adds file and record to the error.
-    """
+    """Decode one serialized WOMD motion tf.Example into a :class:`Scenario` (native sizes); a
+    missing, mis-shaped or non-finite feature or not exactly one SDC is a :class:`DataError`."""
     example = example_class().FromString(data)
     fm = example.features.feature
     if not is_tfexample(example):
@@ -86,12 +81,9 @@ def decode_tfexample(data: bytes) -> Scenario:
         raise DataError(f"expected exactly one SDC, found {int(is_sdc.sum())}", key="state/is_sdc")
     optional = {k: flag(f"state/{k}", False) for k in ("tracks_to_predict", "objects_of_interest")}
     metadata = ObjectMetadata(
-        id=flag("state/id").astype(np.int32),
-        object_type=flag("state/type").astype(np.int32),
-        is_sdc=is_sdc,
-        **{k: np.zeros(num_objects, bool) if v is None else v > 0 for k, v in optional.items()},
-        valid=valid.any(axis=1),
-    )
+        id=flag("state/id").astype(np.int32), object_type=flag("state/type").astype(np.int32),
+        is_sdc=is_sdc, valid=valid.any(axis=1),
+        **{k: np.zeros(num_objects, bool) if v is None else v > 0 for k, v in optional.items()})
 
     num_points = _values(fm, "roadgraph_samples/type", None, np.int32).size
     roadgraph = Roadgraph(
@@ -131,11 +123,8 @@ def _decode_id(fm) -> np.ndarray:
 
 
 def encode_tfexample(scenario: Scenario) -> bytes:
-    """Serialize one unbatched :class:`Scenario` as a WOMD motion tf.Example.
-
-    ``decode_tfexample(encode_tfexample(s))`` gives back identical arrays (float32 values are
-    stored exactly; ``metadata.valid`` is re-derived as "valid at some step").
-    """
+    """Serialize one unbatched :class:`Scenario` as a WOMD motion tf.Example; decoding gives back
+    identical arrays (``metadata.valid`` re-derived as "valid at some step")."""
     if scenario.batch_shape:
         raise ValueError(f"encode_tfexample takes one scenario, got batch {scenario.batch_shape}")
     example = example_class()()
@@ -172,12 +161,9 @@ def encode_tfexample(scenario: Scenario) -> bytes:
     for key in ("is_sdc", "tracks_to_predict", "objects_of_interest"):
         ints(f"state/{key}", getattr(md, key))
 
-    rg = scenario.roadgraph
-    floats("roadgraph_samples/xyz", rg.xyz)
-    floats("roadgraph_samples/dir", rg.dir)
-    ints("roadgraph_samples/type", rg.type)
-    ints("roadgraph_samples/id", rg.id)
-    ints("roadgraph_samples/valid", rg.valid)
+    for name in ("xyz", "dir", "type", "id", "valid"):
+        (floats if name in ("xyz", "dir") else ints)(f"roadgraph_samples/{name}",
+                                                       getattr(scenario.roadgraph, name))
 
     fm["scenario/id"].bytes_list.value.append(
         decode_scenario_id(scenario.scenario_id).encode("ascii"))

@@ -1,8 +1,6 @@
-"""TFRecord framing: ``uint64 length | uint32 masked_crc(length) | data | uint32 masked_crc(data)``.
-
-All integers little-endian; the CRC is CRC32C (Castagnoli) masked as
-``((crc >> 15 | crc << 17) + 0xa282ead8) mod 2**32``. Every record is checked; a bad CRC or a
-truncated record raises :class:`DataError` naming the file and record index.
+"""TFRecord framing: ``uint64 length | uint32 masked_crc(length) | data | uint32 masked_crc(data)``,
+little-endian, CRC32C masked (:func:`masked_crc`). Every record is checked; a bad CRC or a
+truncated record is a :class:`DataError` naming the file and record index.
 """
 
 from __future__ import annotations
@@ -27,20 +25,11 @@ def masked_crc(data: bytes) -> int:
     return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
 
 
-def encode_record(data: bytes) -> bytes:
-    """One framed record."""
-    length = struct.pack("<Q", len(data))
-    return (length + _FOOTER.pack(masked_crc(length)) + data + _FOOTER.pack(masked_crc(data)))
-
-
 def iter_frames(path: str | os.PathLike, start: int = 0
                 ) -> Iterator[tuple[int, bytes | None, DataError | None]]:
-    """Yield ``(record_index, data, error)`` for the records of a TFRecord file, from ``start``.
-
-    A record whose data CRC fails comes with ``data=None`` and its error, and reading goes on
-    (the framing is intact). A broken framing (bad length CRC, truncation) yields its error last:
-    nothing after it can be located. Records before ``start`` are skipped by seeking.
-    """
+    """``(record_index, data, error)`` per record from ``start`` (earlier ones skipped by seeking).
+    A bad data CRC comes as ``data=None`` and its error, and reading goes on; a broken framing
+    (bad length CRC, truncation) yields its error last: nothing after it can be located."""
     path = os.fspath(path)
     try:
         f = open(path, "rb")
@@ -50,13 +39,11 @@ def iter_frames(path: str | os.PathLike, start: int = 0
     with f:
         index = 0
         while True:
-            header = f.read(_HEADER.size)
-            if not header:
+            if not (header := f.read(_HEADER.size)):
                 return
             if len(header) < _HEADER.size:
                 yield index, None, DataError(
-                    f"truncated record header ({len(header)} of 12 bytes)", file=path,
-                    record=index)
+                    f"truncated record header ({len(header)} of 12 bytes)", file=path, record=index)
                 return
             length, length_crc = _HEADER.unpack(header)
             if masked_crc(header[:8]) != length_crc:
@@ -118,6 +105,8 @@ def write_records(path: str | os.PathLike, records: Iterable[bytes]) -> int:
     n = 0
     with atomic_path(path) as f:
         for data in records:
-            f.write(encode_record(data))
+            length = struct.pack("<Q", len(data))
+            f.write(length + _FOOTER.pack(masked_crc(length)) + data
+                    + _FOOTER.pack(masked_crc(data)))
             n += 1
     return n

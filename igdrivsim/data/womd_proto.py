@@ -39,11 +39,6 @@ POLYGON_TYPES = {"crosswalk": RG_CROSSWALK, "speed_bump": RG_SPEED_BUMP}
 MAX_SPACING = 0.5  # metres; WOMD's roadgraph sampling resolution
 
 
-def parse_scenario_proto(data: bytes):
-    """The parsed Scenario message (raises protobuf's DecodeError on malformed bytes)."""
-    return scenario_class().FromString(data)
-
-
 def is_scenario_proto(message) -> bool:
     """Whether a parsed Scenario message looks like a WOMD scenario (used for auto-detection)."""
     return len(message.tracks) > 0 and message.HasField("scenario_id")
@@ -51,7 +46,7 @@ def is_scenario_proto(message) -> bool:
 
 def decode_scenario_proto(data: bytes | object) -> Scenario:
     """Decode a serialized (or parsed) WOMD Scenario protobuf into a :class:`Scenario`."""
-    msg = parse_scenario_proto(data) if isinstance(data, bytes | bytearray) else data
+    msg = scenario_class().FromString(data) if isinstance(data, bytes | bytearray) else data
     if not is_scenario_proto(msg):
         raise DataError("not a WOMD Scenario protobuf (no tracks or no scenario_id)")
     current = msg.current_time_index if msg.HasField("current_time_index") else CURRENT_INDEX
@@ -76,8 +71,7 @@ def _decode_tracks(msg) -> tuple[Trajectory, ObjectMetadata]:
             raise DataError(f"track {i} has {len(track.states)} states, expected <= {NUM_STEPS}",
                             key="tracks.states")
         lengths.append(len(track.states))  # short tracks (test split) stay invalid-padded
-        rows += [(s.center_x, s.center_y, s.center_z, s.heading, s.velocity_x, s.velocity_y,
-                  s.length, s.width, s.height, s.valid) for s in track.states]
+        rows += [tuple(getattr(s, c) for c in cols) for s in track.states]
     if rows:
         lengths = np.asarray(lengths)
         track_of = np.repeat(np.arange(num), lengths)
@@ -141,12 +135,14 @@ def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
 def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int]
                              ) -> Roadgraph:
-    """The roadgraph of typed polylines (``xyz[i]`` ``[V_i, 3]`` of type ``types[i]`` and id
-    ``ids[i]``), densified to :data:`MAX_SPACING`: one place for every reader's map."""
+    """The roadgraph of polylines ``xyz[i]`` ``[V_i, 3]`` of type ``types[i]``, id ``ids[i]``
+    (polygons closed), densified to :data:`MAX_SPACING`: one place for every reader's map."""
     if not xyz:
         z = np.zeros((0, 3), np.float32)
         return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
                          valid=np.zeros(0, bool))
+    xyz = [np.concatenate([p, p[:1]]) if t in POLYGON_TYPES.values() else p
+           for p, t in zip(xyz, types, strict=True)]
     poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
     points, poly = densify_polylines(np.concatenate(xyz), poly, MAX_SPACING)
     return Roadgraph(xyz=points.astype(np.float32),
@@ -163,9 +159,8 @@ def _decode_map(features) -> Roadgraph:
         if kind in TYPE_OFFSETS:
             rg_type = getattr(feature, kind).type + TYPE_OFFSETS[kind]
             pts = getattr(feature, kind).polyline
-        elif kind in POLYGON_TYPES:  # closed polygons
-            rg_type, pts = POLYGON_TYPES[kind], [*getattr(feature, kind).polygon]
-            pts = pts + pts[:1]
+        elif kind in POLYGON_TYPES:
+            rg_type, pts = POLYGON_TYPES[kind], getattr(feature, kind).polygon
         elif kind == "stop_sign":
             rg_type, pts = RG_STOP_SIGN, [feature.stop_sign.position]
         else:  # driveway or unset: no tf.Example type
