@@ -1,7 +1,7 @@
 """Every table and figure of one report from evaluation CSVs (``igdrivsim report --evals``):
 Table I and its companions, the supplementary metrics, Fig. 3-5 and, with learned methods beyond
-BC and BC-RL, Table II and Fig. 6. Every file but the provenance (dated) is a pure function of
-the inputs."""
+BC and BC-RL, Table II and Fig. 6; all but the (dated) provenance are pure functions of the
+inputs."""
 
 from __future__ import annotations
 
@@ -33,12 +33,6 @@ class Provenance:
 _TEX_SPECIAL = {"\\": r"\textbackslash{}", "_": r"\_", "%": r"\%", "&": r"\&", "#": r"\#",
                 "$": r"\$", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}",
                 "^": r"\textasciicircum{}"}
-
-
-def _commit() -> str:
-    """Short commit of this package's checkout, ``-dirty`` when its code is modified."""
-    state = code_state()
-    return (state["commit"] or "unknown") + ("-dirty" if state["dirty"] else "")
 
 
 def _tex_escape(text: str) -> str:
@@ -97,14 +91,15 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     tests = compare_methods(per_scenario, methods=[BC_RL] if (
         per_scenario.method == BC_RL).any() else [])
     seeds = seed_means(per_scenario)
-    learned = per_scenario[per_scenario.method.isin(list(METHOD_REGISTRY))]
-    n_seeds = int(learned.seed.nunique()) if len(learned) else 0
+    n_seeds = int(per_scenario[per_scenario.method.isin(list(METHOD_REGISTRY))].seed.nunique())
     n_scenarios = int(per_scenario.scenario_id.nunique())
     header = (f"Profile `{provenance.profile}`, data `{provenance.data}`, {n_seeds} seeds, "
               f"{n_scenarios} validation scenarios.")
     caption = (rf"Profile \texttt{{{_tex_escape(provenance.profile)}}}, "
                rf"{n_seeds} seeds, {n_scenarios} validation scenarios.")
     tables, figures, generated = out / "tables", out / "figures", out / "generated"
+    code = code_state()  # this checkout's commit, "-dirty" when its code is modified
+    commit = (code["commit"] or "unknown") + ("-dirty" if code["dirty"] else "")
     written = [
         atomic_write_csv(tables / "summary.csv", summary.round(6)),
         atomic_write_csv(tables / "tests.csv", tests.round(6)),
@@ -116,7 +111,7 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
         atomic_write_text(tables / "vs_paper.md", tab.vs_paper_markdown(summary, tests, header)),
         atomic_write_text(generated / "verdicts.tex", verdicts_tex(tests)),
         atomic_write_text(generated / "provenance.tex", provenance_tex(
-            provenance, n_seeds, n_scenarios, today(), _commit())),
+            provenance, n_seeds, n_scenarios, today(), commit)),
     ]
     written += fig.save_figure(fig.fig3_metrics(seeds, tests), figures, "fig3_metrics")
     extra = registry.metrics()

@@ -100,13 +100,6 @@ def _wrote(paths) -> None:
         print(f"wrote {path}")
 
 
-def _real_logs(args) -> None:
-    paths = _module("real_logs").write_tables(args.real, args.validation, args.out,
-                                              args.real_label, args.validation_label,
-                                              args.readouts)
-    print("wrote " + ", ".join(map(str, paths)))
-
-
 def _transfer(args) -> None:
     transfer = _module("transfer")
     found = transfer.evaluations(args.work)
@@ -160,7 +153,9 @@ ACTIONS = {
         (("--synthetic-label",), dict(dest="validation_label",
                                       default="synthetic validation scenarios",
                                       help="what the validation data are"))),
-        _real_logs),
+        lambda args: print("wrote " + ", ".join(map(str, _module("real_logs").write_tables(
+            args.real, args.validation, args.out, args.real_label, args.validation_label,
+            args.readouts))))),
     "sweep": ("a sweep of training variants in one table (compute and metrics)", (
         (("sweep",), dict(type=Path, help="sweep folder (runs/NAME, evals/NAME)")),
         (("--references",), dict(type=Path, default=None, metavar="EVAL_DIR", help="`igdrivsim "

@@ -1,8 +1,7 @@
-"""Fig. 3 (BC versus BC-RL), Fig. 4 (learning curves), Fig. 5 (supplementary metrics) and
-Fig. 6 (every learned method). The bar panels of Fig. 3, 5 and 6: per setting a group of bars
-(mean over seeds, 95% t-interval clipped to the metric's range), asterisks where significant
-after Holm (the figure's ``marked`` attribute maps each panel's metric to its asterisked
-``(setting, method)`` cells), the reference actors as horizontal lines."""
+"""Fig. 3 (BC versus BC-RL), 4 (learning curves), 5 (supplementary metrics) and 6 (every learned
+method). Bar panels: per setting a group of bars (mean over seeds, 95% t-interval clipped to the
+metric's range), asterisks where significant after Holm (``fig.marked``: each panel's metric ->
+its asterisked ``(setting, method)`` cells), the reference actors as horizontal lines."""
 
 from __future__ import annotations
 
@@ -24,12 +23,7 @@ from igdrivsim.evaluation.aggregate import ALPHA, CONFIDENCE, t_interval
 from igdrivsim.evaluation.schema import METRIC_BY_KEY
 from igdrivsim.io import atomic_savefig
 from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
-from igdrivsim.report.methods_table import (
-    extended_methods,
-    learned_methods,
-    method_colours,
-    method_label,
-)
+from igdrivsim.report import methods_table
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.tables import _metric_name, present_settings
 from igdrivsim.training.methods import METHODS as METHOD_REGISTRY
@@ -39,12 +33,10 @@ matplotlib.use("Agg")  # figures are files; never open a window
 
 Cell = tuple[str, str]  # (setting, method)
 
-INF = math.inf
 # what each unit can take; other units (e.g. "ratio") are not clipped
 FEASIBLE: dict[str, tuple[float, float]] = {
-    "%": (0.0, 100.0), "score": (0.0, 1.0), "m": (0.0, INF), "s": (0.0, INF),
-    "m/s": (0.0, INF), "m/s²": (0.0, INF), "m/s³": (0.0, INF), "rad/s": (0.0, INF),
-}
+    "%": (0.0, 100.0), "score": (0.0, 1.0),
+    **dict.fromkeys(("m", "s", "m/s", "m/s²", "m/s³", "rad/s"), (0.0, math.inf))}
 REFERENCE_STYLE: dict[str, dict] = {  # distinct colour, dash and width, labelled in the legend
     CONSTANT_VELOCITY: dict(color="#b2182b", linestyle="-.", linewidth=1.2),
     EXPERT: dict(color="0.1", linestyle=":", linewidth=1.5),
@@ -54,25 +46,23 @@ SIGNIFICANT = "*"
 
 def feasible_range(unit: str) -> tuple[float, float]:
     """``(low, high)`` a metric in ``unit`` can take (unbounded for an unknown unit)."""
-    return FEASIBLE.get(unit, (-INF, INF))
+    return FEASIBLE.get(unit, (-math.inf, math.inf))
 
 
 def clip_interval(low: float, high: float, unit: str) -> tuple[float, float]:
     """A confidence interval clipped to :func:`feasible_range` (NaN bounds stay NaN)."""
     lo, hi = feasible_range(unit)
-    return (float(np.clip(low, lo, hi)) if math.isfinite(low) else low,
-            float(np.clip(high, lo, hi)) if math.isfinite(high) else high)
+    return tuple(float(np.clip(v, lo, hi)) if math.isfinite(v) else v for v in (low, high))
 
 
 def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
     """``setting, method, mean, low, high`` of ``metric``, clipped to the unit's range."""
     part = frame[frame.metric == metric]
-    rows = []
     if "value" in part.columns:
-        for (setting, method), cell in part.groupby(["setting", "method"], sort=False):
-            values = cell["value"].dropna().to_numpy(float)
-            if values.size:
-                rows.append((setting, method, *t_interval(values, CONFIDENCE)))
+        groups = part.groupby(["setting", "method"], sort=False)
+        rows = [(setting, method, *t_interval(values, CONFIDENCE))
+                for (setting, method), cell in groups
+                if (values := cell["value"].dropna().to_numpy(float)).size]
     else:
         rows = [(r.setting, r.method, float(r.mean), float(r.ci_low), float(r.ci_high))
                 for r in part.itertuples()]
@@ -124,13 +114,11 @@ def mark_significant(ax, positions: Mapping[Cell, tuple], significant: set[Cell]
         return []
     low, high = ax.get_ylim()
     pad = 0.03 * (high - low)
-    tops = []
     for cell in marked:
         x, top = positions[cell]
         ax.text(x, top + pad, SIGNIFICANT, ha="center", va="bottom", fontsize=12,
                 fontweight="bold", color="0.1")
-        tops.append(top + 5 * pad)
-    ax.set_ylim(low, max(high, *tops))
+    ax.set_ylim(low, max(high, *(positions[c][1] + 5 * pad for c in marked)))
     return marked
 
 
@@ -166,8 +154,8 @@ def _bar_panel(ax, frame: pd.DataFrame, key: str, unit: str, settings: Sequence[
     if cells.empty:
         ax.text(0.5, 0.5, "not evaluated", ha="center", va="center", transform=ax.transAxes)
         return []
-    positions = draw_bars(ax, cells, settings, methods, method_colours(methods),
-                          {m: method_label(m) for m in methods})
+    positions = draw_bars(ax, cells, settings, methods, methods_table.method_colours(methods),
+                          {m: methods_table.method_label(m) for m in methods})
     reference_lines(ax, frame, key)
     low, _ = feasible_range(unit)
     if math.isfinite(low):  # rates and distances start at 0
@@ -197,25 +185,26 @@ def _legend(fig, tested: bool, ncols: int, top: bool = True) -> int:
     return math.ceil(len(handles) / ncols)
 
 
-def _metric_column(fig, axes, frame: pd.DataFrame, keys: Sequence[str], settings: Sequence[str],
-                   methods: Sequence[str], tests: pd.DataFrame | None, ncols: int) -> int:
-    """A panel per metric of ``keys`` down ``axes``, ``fig.marked`` and the legend's rows."""
+def _metric_column(frame: pd.DataFrame, settings: Sequence[str], methods: Sequence[str],
+                   tests: pd.DataFrame | None, figsize: tuple[float, float], ncols: int):
+    """Fig. 3 or 6: a panel per metric of :data:`PANELS` down one column, ``fig.marked``; the
+    figure and its legend's rows."""
+    sns.set_theme(style="whitegrid", context="paper")
+    fig, axes = plt.subplots(len(PANELS), 1, figsize=figsize, sharex=True, squeeze=False)
     marked = {}
-    for ax, key in zip(axes, keys, strict=True):
+    for ax, key in zip(axes[:, 0], PANELS, strict=True):
         unit = METRIC_BY_KEY[key].unit
         marked[key] = _bar_panel(ax, frame, key, unit, settings, methods, tests)
         ax.set_ylabel(f"{_metric_name(METRIC_BY_KEY[key])} ({unit})")
-    _rotate_settings(axes[-1])
+    _rotate_settings(axes[-1, 0])
     fig.marked = marked
-    return _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
+    return fig, _legend(fig, tests is not None and len(tests) > 0, ncols=ncols)
 
 
 def fig3_metrics(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     """Fig. 3 from the seed means (or the summary) and BC-RL vs BC's ``tests``."""
-    settings = present_settings(seed_level)
-    sns.set_theme(style="whitegrid", context="paper")
-    fig, axes = plt.subplots(len(PANELS), 1, figsize=(4.6, 7.0), sharex=True)
-    rows = _metric_column(fig, axes, seed_level, PANELS, settings, (BC, BC_RL), tests, 2)
+    fig, rows = _metric_column(seed_level, present_settings(seed_level), (BC, BC_RL), tests,
+                               (4.6, 7.0), 2)
     fig.text(0.01, 0.005, CLIPPED, fontsize=6, color="0.35")
     fig.tight_layout(rect=(0, 0.015, 1, 1 - 0.027 * rows))
     return fig
@@ -262,9 +251,7 @@ def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
             records.append(record)
     columns = ["setting", "method", "seed", "update", "bc_loss"] + [r[0] for r in CURVE_ROWS]
     frame = pd.DataFrame(records)
-    for column in columns:
-        if column not in frame.columns:
-            frame[column] = pd.Series(dtype=float)
+    frame = frame.assign(**{c: pd.Series(dtype=float) for c in columns if c not in frame.columns})
     key = ["setting", "method", "seed", "update"]
     # one row per key: the training line (bc_loss) and the validation line (closed-loop
     # metrics) of the same update merge; a value logged twice (a resumed run) keeps the last
@@ -412,7 +399,7 @@ def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequenc
         absent = [m for m in methods if m not in here]
         if not absent:
             continue
-        names = ", ".join(method_label(m) for m in absent)
+        names = ", ".join(methods_table.method_label(m) for m in absent)
         why = ("not trained there: their teacher is the Full-setting policy"
                if setting == "full" and all(getattr(METHOD_REGISTRY.get(m), "teacher", False)
                                             for m in absent) else "not evaluated")
@@ -422,15 +409,12 @@ def _missing_note(frame: pd.DataFrame, methods: Sequence[str], settings: Sequenc
 
 def fig6_methods(seed_level: pd.DataFrame, tests: pd.DataFrame | None = None):
     """Fig. 6: a panel per Table I metric of :data:`PANELS`, a bar per learned method."""
-    methods = learned_methods(seed_level)
+    methods = methods_table.learned_methods(seed_level)
     learned = seed_level[seed_level.method.isin(methods)]
     settings = present_settings(learned)
-    sns.set_theme(style="whitegrid", context="paper")
     width = max(5.0, 1.2 + 0.3 * len(settings) * max(len(methods), 2))
-    fig, axes = plt.subplots(len(PANELS), 1, figsize=(width, 2.1 * len(PANELS) + 0.9),
-                             sharex=True, squeeze=False)
-    rows = _metric_column(fig, axes[:, 0], seed_level, PANELS, settings, methods, tests,
-                          4 if width >= 6.5 else 2)
+    fig, rows = _metric_column(seed_level, settings, methods, tests,
+                               (width, 2.1 * len(PANELS) + 0.9), 4 if width >= 6.5 else 2)
     note = "; ".join(n for n in (_missing_note(learned, methods, settings), CLIPPED) if n)
     fig.text(0.01, 0.005, note, fontsize=7, color="0.35")
     fig.tight_layout(rect=(0, 0.02, 1, 1 - 0.035 * rows))
@@ -455,6 +439,6 @@ def redraw_from_tables(paper: str | Path) -> list[Path]:
         written += save_figure(supplementary_figure(supplementary, registry.metrics()),
                                figures, "fig5_supplementary")
     tests_all = read_table(tables / "tests_all.csv")
-    if tests_all is not None and extended_methods(main):
+    if tests_all is not None and methods_table.extended_methods(main):
         written += save_figure(fig6_methods(main, tests=tests_all), figures, "fig6_methods")
     return written

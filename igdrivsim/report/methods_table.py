@@ -20,28 +20,7 @@ from igdrivsim.names import (
     REFERENCES,
     setting_short,
 )
-from igdrivsim.report.tables import (
-    MISSING,
-    _ci_text,
-    _diff_text,
-    _fmt_mean,
-    _has_references,
-    _lookup,
-    _metric_name,
-    _reference_rows,
-    _tex,
-    _tex_number,
-    heading,
-    latex_float,
-    md_bold,
-    md_head,
-    md_row,
-    present_settings,
-    setting_header,
-    tex_across,
-    tex_bold,
-    tex_row,
-)
+from igdrivsim.report import tables as tab
 
 PAPER_METHODS: tuple[str, ...] = (BC, BC_RL)
 
@@ -93,7 +72,7 @@ def _ranges(tests: pd.DataFrame, column: str) -> str:
         values = [v for v in values if math.isfinite(v)]
         if values:
             parts.append(f"{min(values):.2f}–{max(values):.2f} {unit}")
-    return ", ".join(parts) or MISSING
+    return ", ".join(parts) or tab.MISSING
 
 
 def methods_caption(tests: pd.DataFrame) -> str:
@@ -109,25 +88,25 @@ def methods_caption(tests: pd.DataFrame) -> str:
 def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = "") -> str:
     """Markdown Table II from ``summary`` and ``tests`` (:func:`compare_all`)."""
     methods = learned_methods(summary)
-    cols = present_settings(summary[summary.method.isin(methods)])
-    out = heading("# Table II: learned methods vs BC", header)
+    cols = tab.present_settings(summary[summary.method.isin(methods)])
+    out = tab.heading("# Table II: learned methods vs BC", header)
     out += ["Mean over seeds ± 95% CI half-width (t-distribution over seed means); lower is "
             "better for every metric. Non-BC cells add Δ, the method minus BC, with its 95% "
             f"bootstrap interval ({TEST_NAME}); **bold**: significant after Holm "
-            f"(alpha={ALPHA}). `{MISSING}`: not evaluated in that setting.", "",
-            *md_head("metric", "method", *map(setting_short, cols))]
+            f"(alpha={ALPHA}). `{tab.MISSING}`: not evaluated in that setting.", "",
+            *tab.md_head("metric", "method", *map(setting_short, cols))]
     for metric in METRICS:
-        name = _metric_name(metric) + f" ({metric.unit})"
+        name = tab._metric_name(metric) + f" ({metric.unit})"
         for method in methods:
             cells = []
             for setting in cols:
-                text = _ci_text(_lookup(summary, metric.key, setting, method))
+                text = tab._ci_text(tab._lookup(summary, metric.key, setting, method))
                 if (row := _test(tests, method, metric.key, setting)) is not None:
-                    text = f"{text} (Δ {_diff_text(row)})"
-                    text = md_bold(text) if bool(row.significant) else text
+                    text = f"{text} (Δ {tab._diff_text(row)})"
+                    text = tab.md_bold(text) if bool(row.significant) else text
                 cells.append(text)
-            out.append(md_row(name, method_label(method), *cells))
-        out += _reference_rows(summary, metric, name, len(cols))
+            out.append(tab.md_row(name, method_label(method), *cells))
+        out += tab._reference_rows(summary, metric, name, len(cols))
     out += ["", methods_caption(tests)]
     return "\n".join(out) + "\n"
 
@@ -135,38 +114,38 @@ def table2_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
 def table2_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
     """Table II as a ``table*`` float (label ``tab:methods``)."""
     methods = learned_methods(summary)
-    cols = present_settings(summary[summary.method.isin(methods)])
-    holm = _tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
+    cols = tab.present_settings(summary[summary.method.isin(methods)])
+    holm = tab._tex(methods_caption(tests)).replace("alpha", r"$\alpha$").replace("–", "--")
     caption = (
         r"\caption{\textbf{Learned methods versus BC.} Mean over seeds $\pm$ 95\% CI "
         r"half-width on the validation scenarios; lower is better. Under each method, "
         r"$\Delta$: its difference from BC with the 95\% interval of a "
-        rf"{_tex(TEST_NAME)}; bold: significant ($\alpha={ALPHA}$). "
+        rf"{tab._tex(TEST_NAME)}; bold: significant ($\alpha={ALPHA}$). "
         rf"{holm} "
-        rf"{MISSING}: not evaluated. {caption_extra}}}")
-    lines = setting_header(cols, r"\textbf{Metric} &")
+        rf"{tab.MISSING}: not evaluated. {caption_extra}}}")
+    lines = tab.setting_header(cols, r"\textbf{Metric} &")
     for metric in METRICS:
         lines.append(r"\midrule")
-        first = f"{_metric_name(metric)} ({_tex(metric.unit)})"
+        first = f"{tab._metric_name(metric)} ({tab._tex(metric.unit)})"
         for method in methods:
             means, diffs = [], []
             for setting in cols:
-                text = _tex_number(_ci_text(_lookup(summary, metric.key, setting, method)))
-                text = text.replace("±", r"$\pm$")
+                text = tab._ci_text(tab._lookup(summary, metric.key, setting, method))
+                text = tab._tex_number(text).replace("±", r"$\pm$")
                 row = _test(tests, method, metric.key, setting)
-                diff = "" if row is None else _tex_number(_diff_text(row))
+                diff = "" if row is None else tab._tex_number(tab._diff_text(row))
                 if row is not None and bool(row.significant):
-                    text, diff = tex_bold(text), tex_bold(diff)
+                    text, diff = tab.tex_bold(text), tab.tex_bold(diff)
                 means.append(text)
                 diffs.append(diff)
-            lines.append(tex_row(first, _tex(method_label(method)), *means))
+            lines.append(tab.tex_row(first, tab._tex(method_label(method)), *means))
             first = ""
             if method != BC:
-                lines.append(tex_row("", r"\quad\footnotesize $\Delta$ vs BC",
+                lines.append(tab.tex_row("", r"\quad\footnotesize $\Delta$ vs BC",
                                      *[rf"\footnotesize {d}" if d else "" for d in diffs]))
-        for method in _has_references(summary):
-            value = _fmt_mean(_lookup(summary, metric.key, REFERENCE_SETTING, method))
-            lines.append(rf"{first} & \textit{{{_tex(method_label(method)).lower()}}} & "
-                         + tex_across(value, len(cols)))
+        for method in tab._has_references(summary):
+            value = tab._fmt_mean(tab._lookup(summary, metric.key, REFERENCE_SETTING, method))
+            lines.append(rf"{first} & \textit{{{tab._tex(method_label(method)).lower()}}} & "
+                         + tab.tex_across(value, len(cols)))
             first = ""
-    return latex_float(caption, "tab:methods", "ll" + "c" * len(cols), lines)
+    return tab.latex_float(caption, "tab:methods", "ll" + "c" * len(cols), lines)

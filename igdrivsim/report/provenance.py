@@ -41,6 +41,8 @@ STAGE_SOURCES = (
      ("data", "filter_*", "teacher", "train_*", "evaluate_*", "reactive")),
 )
 REPORT_STAGES = ("data", "filter_*", "teacher", "train_*", "evaluate_*", "report")
+
+
 def stages_behind(rel: str, stamped: Sequence[str]) -> list[str]:
     """The stages among ``stamped`` (kept in their order) whose numbers file ``rel`` holds."""
     patterns = next((p for prefixes, p in STAGE_SOURCES if rel.startswith(prefixes)),
@@ -176,7 +178,6 @@ def publish(staged: Path, paper: Path, entry: Entry,
         if owner(rel) != entry.run and (paper / rel).exists():
             continue  # another run's file: never overwritten
         src, dst, this = staged / rel, paper / rel, entry.with_stages(stages_of(rel))
-        dst.parent.mkdir(parents=True, exist_ok=True)
         if rel.endswith(".md"):
             atomic_write_text(dst, stamp_markdown(src.read_text(encoding="utf-8"), this.line()))
         else:
@@ -205,9 +206,6 @@ def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
     return _record(paper, files, list(files_rel), entry)
 
 
-MAZE_PREFIXES = STAGE_SOURCES[0][0]  # the maze study's files (figures, tables, its config)
-
-
 def record_maze(paper: Path) -> list[str]:
     """Record the maze study's outputs, run alone, from its ``maze_config.json``."""
     paper = Path(paper)
@@ -222,9 +220,8 @@ def record_maze(paper: Path) -> list[str]:
                   wall_s=meta.get("timings_s", {}).get("this_invocation_wall_s"),
                   date=machine.get("date") or today(),
                   note="the maze study run alone").with_stages({"maze": code})
-    files, rels = load(paper), [r for r in outputs(paper) if r.startswith(MAZE_PREFIXES)
-                                and not r.startswith("generated/")]
-    return _record(paper, files, rels, entry)
+    maze = [r for r in outputs(paper) if r.startswith(STAGE_SOURCES[0][0])]  # the study's files
+    return _record(paper, load(paper), maze, entry)
 
 
 def _record(paper: Path, files: dict, rels: list[str], entry) -> list[str]:

@@ -111,8 +111,7 @@ def _diff_cell(row: pd.Series, digits: int) -> str:
 def driver_label(setting: str, method: str) -> tuple[str, str]:
     """The table's setting and driver cells."""
     if setting == REFERENCE_SETTING:
-        label = "Expert (its own log)" if method == "expert" else METHOD_LABELS[method]
-        return "--", label
+        return "--", "Expert (its own log)" if method == "expert" else METHOD_LABELS[method]
     return setting_short(setting), METHOD_LABELS.get(method, method)
 
 

@@ -21,14 +21,7 @@ from igdrivsim.evaluation.schema import (
     table_settings,
 )
 from igdrivsim.io import atomic_write_text, read_json
-from igdrivsim.names import (
-    BC,
-    CONSTANT_VELOCITY,
-    EXPERT,
-    METHOD_LABELS,
-    REFERENCES,
-    setting_short,
-)
+from igdrivsim.names import BC, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.results_tex import read_table
 from igdrivsim.report.tables import _tex, md_head, md_row, tex_row, wrap
 
@@ -155,8 +148,7 @@ def readout_table(real: pd.DataFrame, readouts: str | Path | None) -> pd.DataFra
     frames = {"sample": real}
     cv = real[real.method == CONSTANT_VELOCITY]
     for config in sorted(Path(readouts).glob(f"*/{EVAL_CONFIG}")) if readouts else []:
-        csv = config.parent / PER_SCENARIO_FILE
-        if csv.is_file():
+        if (config.parent / PER_SCENARIO_FILE).is_file():
             frames[str(read_json(config, {}).get("actions", config.parent.name))] = pd.concat(
                 [load_evaluations([config.parent])[1], cv], ignore_index=True)
     rows = []
@@ -172,15 +164,13 @@ def readout_markdown(readouts: pd.DataFrame) -> list[str]:
     """The read-out table's lines (none with fewer than two read-outs)."""
     if len(readouts) < 2:
         return []
-    lines = ["", "## Full BC's action read-outs on the real logs", "",
-             "Table I's protocol samples each action from the policy; beside it, the most "
-             "likely action (greedy) and the expected action under the policy's distribution "
-             "(mean), each against constant velocity, ego by ego (as above).", "",
-             *md_head("actions", *PAIRED_HEAD)]
-    for _, row in readouts.iterrows():
-        lines.append(md_row(READOUT_LABELS.get(row.actions, row.actions),
-                            *paired_cells(row, "real_vs_cv_")))
-    return lines
+    return ["", "## Full BC's action read-outs on the real logs", "",
+            "Table I's protocol samples each action from the policy; beside it, the most "
+            "likely action (greedy) and the expected action under the policy's distribution "
+            "(mean), each against constant velocity, ego by ego (as above).", "",
+            *md_head("actions", *PAIRED_HEAD),
+            *[md_row(READOUT_LABELS.get(row.actions, row.actions),
+                     *paired_cells(row, "real_vs_cv_")) for _, row in readouts.iterrows()]]
 
 
 def _full_bc(table: pd.DataFrame) -> pd.Series | None:
@@ -219,8 +209,7 @@ def _target_rows(table: pd.DataFrame) -> tuple[list[tuple[str, str, str]], pd.Se
 def real_targets(table: pd.DataFrame) -> list[str]:
     """The targets section of ``real_logs.md``: each met or missed and by how much, and what
     these egos can detect at all (a miss below that is not a measured shortfall)."""
-    found = _target_rows(table)
-    if found is None:
+    if (found := _target_rows(table)) is None:
         return []
     rows, r = found
     win, lo, hi = (100 * r[f"real_vs_cv_{k}"] for k in ("win", "win_lo", "win_hi"))
@@ -238,8 +227,7 @@ def real_targets(table: pd.DataFrame) -> list[str]:
 
 def _targets_line(table: pd.DataFrame) -> str | None:
     """The results page's sentence on the real-log targets."""
-    found = _target_rows(table)
-    if found is None:
+    if (found := _target_rows(table)) is None:
         return None
     return ("Against this project's real-log targets: " + "; ".join(
         f"{target} ({value}): {verdict}" for target, value, verdict in found[0])
@@ -255,7 +243,7 @@ def _vs_cv_cell(row: pd.Series) -> str:
 
 def _cell(row: pd.Series, source: str, key: str) -> str:
     value, n = row.get(f"{source}_{key}"), row.get(f"{source}_n")
-    if value is None or pd.isna(value) or n is None or pd.isna(n):
+    if pd.isna(value) or pd.isna(n):
         return "--"
     digits = 2 if key == "log_divergence" else 1
     return f"{value:.{digits}f} (N={int(n)})"
@@ -269,8 +257,7 @@ def _label(row: pd.Series) -> tuple[str, str]:
 def _egos_text(table: pd.DataFrame) -> str:
     """`` (N egos from M source scenarios)``: the real logs' constant-velocity row's counts."""
     cv = table[table.method == CONSTANT_VELOCITY]
-    if cv.empty or not {"real_n", "real_sources"} <= set(cv.columns) or pd.isna(
-            cv.real_n.iloc[0]) or pd.isna(cv.real_sources.iloc[0]):
+    if cv.empty or cv[["real_n", "real_sources"]].iloc[0].isna().any():
         return ""
     return f" ({int(cv.real_n.iloc[0])} egos from {int(cv.real_sources.iloc[0])} source scenarios)"
 
@@ -338,14 +325,12 @@ def real_logs_summary(table: pd.DataFrame, metre: str = " m") -> str | None:
                "from the log than constant velocity")
     power = ""
     if "real_vs_cv_mde" in learned and learned.real_vs_cv_mde.notna().any():
-        mde = learned.real_vs_cv_mde.dropna()
         power = (f"; at 80% power these scenarios detect only differences of "
-                 f"{_span(mde, 1)}{metre} or more")
+                 f"{_span(learned.real_vs_cv_mde.dropna(), 1)}{metre} or more")
     closer = ""
     if "real_vs_cv_win" in learned and learned.real_vs_cv_win.notna().any():
-        win = 100 * learned.real_vs_cv_win.dropna()
         closer = (f"; ego by ego, they stay closer to the log than constant velocity on "
-                  f"{_span(win, 0)}% of the egos")
+                  f"{_span(100 * learned.real_vs_cv_win.dropna(), 0)}% of the egos")
         if (r := _full_bc(learned)) is not None:
             closer += (f", Full BC on {100 * r.real_vs_cv_win:.0f}% (95% CI "
                        f"{100 * r.real_vs_cv_win_lo:.0f}-{100 * r.real_vs_cv_win_hi:.0f}%)")
@@ -369,8 +354,7 @@ def write_tables(real: str | Path, validation: str | Path | None, out: str | Pat
                  readouts: str | Path | None = None) -> list[Path]:
     """Write ``out/real_logs*`` from the evaluation folders; the paths."""
     real_frame = load_evaluations([real])[1]
-    validation_frame = load_evaluations([validation])[1] if validation else None
-    table = real_log_table(real_frame, validation_frame)
+    table = real_log_table(real_frame, load_evaluations([validation])[1] if validation else None)
     modes = readout_table(real_frame, readouts)
     out = Path(out)
     return [atomic_write_text(out / "real_logs.md",
@@ -425,10 +409,7 @@ def _readouts(tables: Path) -> list[str]:
 def real_logs_section(tables: Path, headline: str | None = None) -> list[str]:
     """The real-log section of ``results.md`` (``headline``: the README's)."""
     table = read_table(tables / "real_logs.csv")
-    if table is None or table.empty:
-        return []
-    sentence = real_logs_summary(table)
-    if sentence is None:
+    if table is None or (sentence := real_logs_summary(table)) is None:
         return []
     full = _full_bc_line(table)
     if headline:

@@ -96,7 +96,6 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
         return "No results yet: run the reproduction (`bash scripts/reproduce.sh`).\n"
     tests = read_table(paper / "tables" / "tests.csv")
     prov = provenance(paper)
-    settings = tables.present_settings(summary)
     cv = tables.reference_means(summary, dict(_HEADLINE))
     out = [*wrap(f"Written by `igdrivsim report` from the run of "
                  f"{prov.get('Date', 'unknown date')} ({_scope(prov, summary)}). Mean over "
@@ -104,7 +103,7 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
                  "points of steps offroad, **bold** if significant after Holm."), "",
            *md_head("setting", *[f"BC {label}" for _, label in _HEADLINE],
                     "BC-RL − BC offroad", "paper's BC-RL − BC offroad")]
-    for setting in settings:
+    for setting in tables.present_settings(summary):
         cells = [_fmt(tables.cell_mean(summary, m, setting, BC)) for m, _ in _HEADLINE]
         paper_effect = PAPER_TABLE1["offroad"].get(setting)
         paper_text = _signed(paper_effect[0] - paper_effect[1]) if paper_effect else "--"
@@ -115,11 +114,9 @@ def headline_markdown(paper: str | Path, results_link: str = "docs/results.md") 
     cells = tables._cells(tests)  # BC-RL - BC
     k = int(cells.significant.astype(bool).sum()) if len(cells) else 0
     closing = f"BC-RL differs from BC in {k} of {len(cells)} cells of Table I after Holm."
-    wall = wall_seconds(read_table(paper / "tables" / RUN_TIMES))
-    line = run_line(paper, commit=False)
-    if line:
+    if line := run_line(paper, commit=False):
         closing += " " + line
-    elif math.isfinite(wall):
+    elif math.isfinite(wall := wall_seconds(read_table(paper / "tables" / RUN_TIMES))):
         closing += (f" The run took {wall_text(wall)} from its first stage's start to the "
                     "report (`tables/run_times.csv`).")
     closing += f" Full results: [{results_link}]({results_link})."
@@ -161,9 +158,9 @@ def _competence(summary: pd.DataFrame) -> list[str]:
 def curves_summary(curves: pd.DataFrame) -> pd.DataFrame:
     """Per (setting, method): the last two validation updates, mean over seeds."""
     cols = ["val_bc_loss", "log_divergence", "offroad", "overlap"]
-    val = curves.dropna(subset=["val_bc_loss"]) if len(curves) else curves
     rows = []
-    for (setting, method), part in val.groupby(["setting", "method"], sort=True):
+    validated = curves.dropna(subset=["val_bc_loss"])
+    for (setting, method), part in validated.groupby(["setting", "method"], sort=True):
         means = part.groupby("update")[cols].mean().sort_index()
         last = means.iloc[-1]
         prev = means.iloc[-2] if len(means) > 1 else last * math.nan
@@ -306,8 +303,7 @@ def results_markdown(paper: str | Path, paper_link: str = ".") -> str:
            "## Learning curves", "", *_curves(read_table(tables / CURVES_SUMMARY))]
     out += _table2(tables, summary, header)
     out += ["## Maze (paper Fig. 2)", "", *_maze(read_table(tables / "maze_summary.csv"))]
-    text = "\n".join(out).rstrip() + "\n"
-    return text.replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
+    return ("\n".join(out).rstrip() + "\n").replace("](PAPER/", f"]({paper_link.rstrip('/')}/")
 
 
 def fill_block(text: str, content: str, source: str = "README", begin: str = BEGIN,

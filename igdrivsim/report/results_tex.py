@@ -118,18 +118,16 @@ def _counts(summary: pd.DataFrame, tests: pd.DataFrame) -> list[str]:
         ResBCOffroadBelowFull=sum(bc_off.get(s, math.nan) < full_off for s in partial),
     )
     lines = [_macro(name, str(value)) for name, value in values.items()]
-    for row in cells.itertuples():  # each cell's BC-RL - BC and its interval
-        name = f"Res{SETTING_CODES.get(row.setting, 'X')}{METRIC_CODES[row.metric]}"
-        if row.setting in SETTING_CODES:
-            lines += [_macro(f"{name}Effect", _signed(row.diff)),
-                      _macro(f"{name}Interval", f"[{_signed(row.ci_low)}, {_signed(row.ci_high)}]"),
-                      _macro(f"{name}MDE", _fmt(row.mde))]
+    for row in cells[cells.setting.isin(SETTING_CODES)].itertuples():  # BC-RL - BC, interval
+        name = f"Res{SETTING_CODES[row.setting]}{METRIC_CODES[row.metric]}"
+        lines += [_macro(f"{name}Effect", _signed(row.diff)),
+                  _macro(f"{name}Interval", f"[{_signed(row.ci_low)}, {_signed(row.ci_high)}]"),
+                  _macro(f"{name}MDE", _fmt(row.mde))]
     return lines
 
 
 def _competence(summary: pd.DataFrame) -> list[str]:
-    """``\\ResFullBCTargetsMet``: how many of the competence targets Full BC meets; the targets
-    (``\\ResTargets``, ``\\ResTargetsText``)."""
+    """How many competence targets Full BC meets, how many there are and what they say."""
     cv = reference_means(summary, COMPETENCE)
     met = sum(cell_mean(summary, m, "full", BC) <= ratio * cv[m]
               for m, (ratio, _, _) in COMPETENCE.items())
@@ -141,12 +139,10 @@ def _competence(summary: pd.DataFrame) -> list[str]:
 
 def reactive_verdict(table: pd.DataFrame) -> str:
     """One sentence from ``tables/reactive.csv``: per metric, how many learned drivers are
-    significantly lower or higher under IDM agents than under log replay (Holm over the table),
-    of how many."""
+    significantly lower or higher under IDM agents than under log replay (Holm over the table)."""
     learned = table[table.setting != REFERENCE_SETTING]
     parts = []
-    for key in dict.fromkeys(learned.metric):
-        part = learned[learned.metric == key]
+    for key, part in learned.groupby("metric", sort=False):
         sig = part.significant.astype(bool)
         lower, higher = int((sig & (part["diff"] > 0)).sum()), int((sig & (part["diff"] < 0)).sum())
         label = key.replace("_", " ").replace("at fault overlap", "at-fault overlap rate")
@@ -174,7 +170,7 @@ def results_tex(paper: str | Path) -> str | None:
         return None
     summary = summary[summary.metric.isin([m.key for m in METRICS])]
     lines = ["% Table I's cells (mean over seeds), from tables/summary.csv"]
-    lines += _means(summary, METRIC_CODES, {"full", *SETTING_CODES})
+    lines += _means(summary, METRIC_CODES, SETTING_CODES)
     tests = read_table(tables / "tests.csv")
     if tests is not None and len(tests):
         lines += ["% Table I's BC-RL - BC cells, from tables/tests.csv", *_counts(summary, tests)]

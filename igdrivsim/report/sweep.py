@@ -24,17 +24,9 @@ def _overrides(config: dict, base: dict) -> list[str]:
             if key not in skip and base.get(section, {}).get(key) != value]
 
 
-def _evaluated_update(run, planned: int) -> int:
-    """The update a run's evaluation saw: its last validation, or all if done."""
-    if run.complete:
-        return planned
-    return max((c.get("update", 0) for c in run.curves() if "log_divergence" in c), default=0)
-
-
 def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
     """One row per variant of ``sweep`` (see the module docstring)."""
-    # lazy: the run reader and the configuration import JAX, which this module's import (the
-    # report's names) does without
+    # lazy: the run reader and the configuration import JAX
     from igdrivsim.training.config import get_profile, to_dict
     from igdrivsim.training.run import Run, is_run
 
@@ -48,15 +40,16 @@ def sweep_table(sweep: Path, references: Path | None = None) -> pd.DataFrame:
     rows = []
     for path in runs:
         run = Run.open(path)
-        config = run.config
-        saved, base = to_dict(config), to_dict(get_profile(config.profile))
+        saved, base = to_dict(run.config), to_dict(get_profile(run.config.profile))
         scores = sweep / "evals" / path.name / PER_SCENARIO_FILE
         if not scores.exists():
             raise ConfigError(f"{scores}: no evaluation of run {path.name}")
         frame = pd.read_csv(scores)
         seeds = frame.groupby("seed")["log_divergence"].mean()
-        planned = config.training.num_updates
-        updates = _evaluated_update(run, planned)
+        planned = run.config.training.num_updates
+        # what the evaluation saw: all if done, else the last validated update
+        updates = planned if run.complete else max(
+            (c.get("update", 0) for c in run.curves() if "log_divergence" in c), default=0)
         compute = updates / base["training"]["num_updates"]
         for section, key in _PER_UPDATE:
             compute *= saved[section][key] / base[section][key]
@@ -80,6 +73,5 @@ def sweep_markdown(sweep: Path, references: Path | None = None) -> str:
     head = ("Log divergence (m): mean over seeds, and the range of the seed means; offroad and "
             "overlap: % of steps. compute: scenario-episodes trained, relative to the "
             "profile's budget.\n\n")
-    lines = md_head(*table.columns) + [md_row(*map(str, row))
-                                       for row in table.itertuples(index=False)]
-    return head + "\n".join(lines) + "\n"
+    rows = [md_row(*map(str, row)) for row in table.itertuples(index=False)]
+    return head + "\n".join(md_head(*table.columns) + rows) + "\n"

@@ -25,8 +25,7 @@ from igdrivsim.names import (
 MISSING = "--"
 # the width of the prose lines the report writes into the README
 WIDTH = 96
-# a word of markdown: code spans, links and durations whole (they hold spaces), else a run of
-# non-space
+# a markdown word: a code span, link or duration whole (they hold spaces), else a run of non-space
 _WORD = re.compile(r"(?:\d+ h \d+ min|`[^`\n]*`|\[[^\]\n]*\]\([^)\s]*\)|\S)+")
 
 
@@ -96,11 +95,6 @@ def _test_row(tests: pd.DataFrame | None, metric: str, setting: str) -> pd.Serie
     return None if rows.empty else rows.iloc[0]
 
 
-def _better(tests: pd.DataFrame, metric: str, setting: str) -> str:
-    row = _test_row(tests, metric, setting)
-    return "" if row is None else str(row.better or "")
-
-
 def _fmt(value: float | None, digits: int = 2) -> str:
     return MISSING if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
@@ -150,7 +144,8 @@ def _table1_cells(summary: pd.DataFrame, tests: pd.DataFrame, key: str, method: 
                   cols: list[str], text, bold) -> list[str]:
     """``method``'s Table I cells of metric ``key``: ``text(row)``, ``bold``-ed where better."""
     cells = {s: text(_lookup(summary, key, s, method)) for s in cols}
-    return [bold(c) if _better(tests, key, s) == method else c for s, c in cells.items()]
+    return [bold(c) if getattr(_test_row(tests, key, s), "better", None) == method else c
+            for s, c in cells.items()]
 
 
 def table1_latex(summary: pd.DataFrame, tests: pd.DataFrame, caption_extra: str = "") -> str:
@@ -192,8 +187,8 @@ def safety_verdicts(tests: pd.DataFrame) -> dict[str, str]:
     safety = ("overlap", "overlap_rate", "offroad", "offroad_rate")
     verdicts, cells = {}, _cells(tests)
     for setting in table_settings(tests):
-        rows = cells[(cells.setting == setting) & cells.metric.isin(safety)] if len(cells) else []
-        if len(rows) == 0:
+        rows = cells[(cells.setting == setting) & cells.metric.isin(safety)]
+        if rows.empty:
             verdicts[setting] = "not evaluated"
             continue
         wins, losses = int((rows.better == BC_RL).sum()), int((rows.better == BC).sum())
@@ -221,9 +216,8 @@ def table1_markdown(summary: pd.DataFrame, tests: pd.DataFrame, header: str = ""
         out += _reference_rows(summary, metric, name, len(cols))
     if len(_cells(tests)):
         out += ["", effects_markdown(tests).rstrip("\n"), "", power_markdown(tests).rstrip("\n")]
-    out += ["", "## Is BC-RL safer than BC?", ""]
-    for setting, verdict in safety_verdicts(tests).items():
-        out.append(f"- **{setting_short(setting)}**: {verdict}")
+    out += ["", "## Is BC-RL safer than BC?", "",
+            *(f"- **{setting_short(s)}**: {v}" for s, v in safety_verdicts(tests).items())]
     return "\n".join(out) + "\n"
 
 
@@ -408,13 +402,11 @@ def supplementary_markdown(summary: pd.DataFrame, metrics, header: str = "") -> 
         better = "higher" if metric.higher_is_better else "lower"
         name = _md(f"{metric.label} ({metric.unit}; {better} is better)")
         for method, italic, cells in groups:
-            label = f"*{METHOD_LABELS[method]}*" if italic else METHOD_LABELS[method]
-            texts = [_ci_text(c) for c in cells]
-            texts = [f"*{t}*" for t in texts] if italic else texts
-            out.append(md_row(name, label, *texts))
+            mark = "*" if italic else ""
+            out.append(md_row(name, f"{mark}{METHOD_LABELS[method]}{mark}",
+                              *[f"{mark}{_ci_text(c)}{mark}" for c in cells]))
     out += ["", *md_head("metric", "source")]
-    out += [md_row(_md(m.label), _md(m.source)) for m in metrics]
-    return "\n".join(out) + "\n"
+    return "\n".join(out + [md_row(_md(m.label), _md(m.source)) for m in metrics]) + "\n"
 
 
 def _tex(text: str) -> str:

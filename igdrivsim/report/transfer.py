@@ -34,8 +34,7 @@ def evaluations(work: Path) -> dict[tuple[str, str], pd.DataFrame]:
     """``{(data set, motion): per-scenario rows}`` under ``work``."""
     found = {}
     for folder in sorted(work.glob("*/evals_*")):
-        if (folder / BC / PER_SCENARIO_FILE).is_file() and \
-                (folder / "references" / PER_SCENARIO_FILE).is_file():
+        if all((folder / run / PER_SCENARIO_FILE).is_file() for run in (BC, "references")):
             others = [p.parent for p in sorted(folder.glob(f"*/{PER_SCENARIO_FILE}"))
                       if p.parent.name not in (BC, "references")]
             _, per_scenario = load_evaluations([folder / BC, folder / "references", *others])
@@ -73,9 +72,7 @@ def _paired(a: pd.DataFrame, method_a: str, b: pd.DataFrame, method_b: str, scen
     c = paired_difference(scenario_cube(a, method_a, scen, METRICS),
                           scenario_cube(b, method_b, scen, METRICS),
                           clusters=[source[str(s)] for s in scen])
-    for i, key in enumerate(METRICS):
-        row |= {f"{key}_{k}": float(v[i]) for k, v in c.items()}
-    return row
+    return row | {f"{key}_{k}": float(v[i]) for i, key in enumerate(METRICS) for k, v in c.items()}
 
 
 def against_constant_velocity(found: dict) -> pd.DataFrame:
