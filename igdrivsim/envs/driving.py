@@ -1,13 +1,12 @@
 """The driving task as a Gymnasium environment (id ``IGDrivSim/Driving-v0``) and as pure,
-batched JAX functions.
+batched JAX functions (:func:`driving_functions`, which the class wraps).
 
-One scenario per episode (``options={"index": i}`` or drawn from ``np_random``): the
-observation under the setting from step 10, ``SimParams.num_controlled_steps`` steps, then
-truncation. Reward ``-1[overlap] - 1[offroad]``; ``info`` holds the step's metrics, and at the
-last step the episode's Table I metrics. Observation: a ``Dict`` of the
+One scenario per episode (``options={"index": i}`` or drawn from ``np_random``): the observation
+under the setting from step 10, ``SimParams.num_controlled_steps`` steps, then truncation. Reward
+``-1[overlap] - 1[offroad]``; ``info`` holds the step's metrics, and at the last step the
+episode's Table I metrics. Observation: a ``Dict`` of the
 :class:`~igdrivsim.observation.Observation` fields (masks ``int8``). Action: the expert's bins
 ``MultiDiscrete([257] * 3)``, or with ``continuous=True`` a ``Box`` of ``(dx, dy, dyaw)``.
-:func:`driving_functions` gives the jitted (and batched) pure functions the class wraps.
 """
 
 from __future__ import annotations
@@ -38,7 +37,6 @@ from igdrivsim.simulator import (
     NUM_LEVELS,
     SimParams,
     SimState,
-    StepMetrics,
     check_scenario,
     expert_discrete_action,
     reset,
@@ -168,11 +166,9 @@ class DrivingEnv(gym.Env):
         self.scenarios = _load(data, caps, max_scenarios, egos)
         self.fns = driving_functions(self.setting, params, config, continuous)
         self.observation_space = _observation_space(config)
-        if continuous:
-            self.action_space = spaces.Box(np.asarray(ACTION_LOW, np.float32),
-                                           np.asarray(ACTION_HIGH, np.float32), dtype=np.float32)
-        else:
-            self.action_space = spaces.MultiDiscrete([NUM_LEVELS] * 3)
+        self.action_space = (spaces.Box(np.asarray(ACTION_LOW, np.float32),
+                                        np.asarray(ACTION_HIGH, np.float32), dtype=np.float32)
+                             if continuous else spaces.MultiDiscrete([NUM_LEVELS] * 3))
         self.state: EnvState | None = None
         self.index = -1
         self._totals: dict[str, float] = {}
@@ -201,12 +197,17 @@ class DrivingEnv(gym.Env):
         elif action.shape != (3,) or not np.all((action >= 0) & (action < NUM_LEVELS)):
             raise ConfigError(f"action must be 3 integers in 0..{NUM_LEVELS - 1}, got {action}")
         self.state, obs, rew, done, metrics = self.fns.step(self.state, action)
-        info = self._info(jax.device_get(metrics))
-        info["timestep"] = int(self.state.sim.timestep)
-        truncated = bool(done)
-        if truncated:
+        m = jax.device_get(metrics)
+        valid = bool(m.valid)
+        info = {"overlap": bool(m.overlap), "offroad": bool(m.offroad),
+                "log_divergence": float(m.log_divergence) if valid else 0.0, "valid": valid,
+                "scenario_id": self._scenario_id(), "timestep": int(self.state.sim.timestep)}
+        for key, name in (("overlap_rate", "overlap"), ("offroad_rate", "offroad"),
+                          ("max_log_divergence", "log_divergence")):
+            self._totals[key] = max(self._totals[key], float(info[name]))
+        if done:
             info.update(self._totals)
-        return _to_numpy(obs), float(rew), False, truncated, info
+        return _to_numpy(obs), float(rew), False, bool(done), info
 
     def expert_action(self) -> np.ndarray:
         """The discretised expert's action for the current state (``int64[3]``)."""
@@ -216,17 +217,6 @@ class DrivingEnv(gym.Env):
 
     def _scenario_id(self) -> str:
         return decode_scenario_id(self.scenarios[self.index].scenario_id)
-
-    def _info(self, m: StepMetrics) -> dict:
-        valid = bool(m.valid)
-        info = {"overlap": bool(m.overlap), "offroad": bool(m.offroad),
-                "log_divergence": float(m.log_divergence) if valid else 0.0, "valid": valid,
-                "scenario_id": self._scenario_id()}
-        t = self._totals
-        t["overlap_rate"] = max(t["overlap_rate"], float(info["overlap"]))
-        t["offroad_rate"] = max(t["offroad_rate"], float(info["offroad"]))
-        t["max_log_divergence"] = max(t["max_log_divergence"], info["log_divergence"])
-        return info
 
 
 def register() -> None:

@@ -1,24 +1,13 @@
 """The policy acting: its action distribution, the actor, and its own training episodes.
 
-**The action distribution** is three independent categoricals (dx, dy, dyaw levels): logits
-``[..., 3, bins]`` and actions ``[..., 3]`` (level indices); :func:`action_log_prob` sums the
-core's categorical log-probability over the three, as the learning methods do with the core's
-other terms (:mod:`igdrivsim.core.learn`: entropy, cross-entropy, KL).
-
-**Acting.** The training episode (and therefore evaluation) is: observe the logged warm-up steps
-``t = 0..9`` (GRU state zeroed at ``t = 0``), then at every controlled step ``t = 10..89``
-observe, step the GRU, pick one of 257 levels per dimension by the *action mode*
-(:data:`ACTION_MODES`: ``sample``, the paper's protocol; ``greedy``, the most likely level;
-``mean``, the expected level: the policy's average intent without the sampling noise, a
-diagnostic) and convert it to the continuous delta-local action ``(dx, dy, dyaw)``. Every
-closed-loop episode of a learned policy goes through the simulator's runner with
-:func:`policy_actor`::
-
-    actor = policy_actor(cfg, params, setting, obs_config, mode="sample")
-    final, transitions = run_episode(state_at_reset, actor, episode_key, sim_params)
-
-:func:`policy_step` is one step by hand from a given observation (tests, interactive use).
-**The policy's own episodes**: :func:`policy_rollout`, BC-RL's training rollout.
+The action distribution is three independent categoricals (dx, dy, dyaw levels): logits
+``[..., 3, bins]`` and actions ``[..., 3]`` (level indices). An episode (training and
+evaluation alike) observes the logged warm-up steps ``t = 0..9`` (GRU state zeroed at ``t =
+0``), then at every controlled step ``t = 10..89`` observes, steps the GRU and picks one of
+257 levels per dimension by the action mode (:data:`ACTION_MODES`: ``sample``, the paper's;
+``greedy``; ``mean``, the expected level, a diagnostic). Every closed-loop episode of a
+learned policy runs :func:`policy_actor` through the simulator's ``run_episode``;
+:func:`policy_rollout` is BC-RL's training rollout.
 """
 
 from __future__ import annotations
@@ -40,7 +29,7 @@ from igdrivsim.simulator.state import SimParams, SimState, vmap_batch
 
 
 def action_log_prob(logits: jax.Array, actions: jax.Array) -> jax.Array:
-    """log pi(a) = sum over the 3 dimensions of log softmax(logits)[a_d]; ``[...]``."""
+    """log pi(a), summed over the 3 dimensions: ``[...]``."""
     return log_prob(logits, actions).sum(-1)
 
 
@@ -71,10 +60,8 @@ def choose_levels(logits: jax.Array, key: jax.Array, mode: str = "sample") -> ja
 
 def policy_step(config: PolicyConfig, params, carry: jax.Array, obs: Observation,
                 key: jax.Array, mode: str = "sample", reset=False):
-    """One step: ``-> (action f32[..., 3] continuous delta-local, carry, levels [..., 3])``.
-
-    ``reset`` zeroes the GRU state first (an episode start; the warm-up does this at t = 0).
-    """
+    """One step by hand: ``(continuous action f32[..., 3], carry, levels [..., 3])``;
+    ``reset`` zeroes the GRU state first (an episode start)."""
     reset = jnp.broadcast_to(jnp.asarray(reset, bool), carry.shape[:-1])
     carry, logits, _ = apply_step(config, params, carry, obs, reset)
     levels = choose_levels(logits, key, mode)
@@ -98,10 +85,9 @@ def warmup_carry(config: PolicyConfig, params, state, setting, obs_config: Obser
 
 @struct.dataclass
 class PolicyCarry:
-    """The learned actor's carry: the GRU state, the episode key(s) (observation noise offset;
-    the observation's step key is ``fold_in(episode_key, t)``) and the action key (levels are
-    drawn with ``fold_in(action_key, t)``; ``None``: with the runner's step key, one draw for
-    the whole batch, as BC-RL's training rollout does)."""
+    """The learned actor's carry: the GRU state, the episode key(s) (step ``t`` observes with
+    ``fold_in(episode_key, t)``) and the action key (levels drawn with ``fold_in(action_key,
+    t)``; ``None``: with the runner's step key, as BC-RL's training rollout)."""
 
     hidden: jax.Array  # f32[..., gru_hidden + history_width]: the network's carry
     episode_key: jax.Array  # key[...]
@@ -123,13 +109,10 @@ def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationC
                  mode: str = "sample") -> Actor:
     """The learned policy as an actor of :func:`igdrivsim.simulator.rollout.run_episode`.
 
-    ``init(state, key)`` (one scenario at reset; ``vmap`` it for a batch): ``episode_key,
-    action_key = split(key)`` and the GRU warmed on the logged steps 0..9
-    (:func:`warmup_carry`), a :class:`PolicyCarry`. ``step`` observes under ``setting``,
-    steps the GRU and picks levels by ``mode`` (:func:`choose_levels`); it reports a
-    :class:`~igdrivsim.simulator.rollout.StepInfo` with the observation, the value, the
-    log-probability of the levels (not in ``mean`` mode) and the levels as ``extras``.
-    ``params`` and ``setting`` may be traced (seeds and settings as data).
+    ``init(state, key)`` (one scenario at reset) splits ``key`` into the episode and action
+    keys and warms the GRU (:func:`warmup_carry`); ``step`` reports a ``StepInfo`` with the
+    observation, the value, the levels' log-probability (not in ``mean`` mode) and the levels
+    as ``extras``. ``params`` and ``setting`` may be traced.
     """
     if mode not in ACTION_MODES:
         raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
@@ -176,10 +159,9 @@ class PolicyRollout(NamedTuple):
 def policy_rollout(config: PolicyConfig, params, carry, state: SimState, setting, obs_config,
                    sim_params: SimParams, episode_keys, key,
                    num_steps: int = CONTROLLED_STEPS, privileged=None) -> PolicyRollout:
-    """Drive a batch ``[B]`` with actions sampled from the policy, starting from the warmed-up
-    GRU state ``carry [B, H]``; one draw per step for the whole batch from
-    ``split(key, num_steps)``. ``privileged``: a setting (the teacher's, e.g. ``full``) under
-    which every visited state is observed as well, for a teacher to label it."""
+    """Drive a batch ``[B]`` with sampled actions from the warmed-up GRU state ``carry [B,
+    H]``; ``privileged``: a setting (the teacher's) under which every visited state is observed
+    as well, for a teacher to label it."""
     actor = student = policy_actor(config, params, setting, obs_config, "sample")
     if privileged is not None:
         def step(s, pc, k):

@@ -1,9 +1,8 @@
 """The policy and the reference actors driving batches of scenarios in closed loop: the engine
-of the training curves and the evaluation (:mod:`igdrivsim.evaluation.rollout`, whose docstring
-gives the semantics), below both so that neither imports the other.
-
-``episode_metrics``: ``None`` or a function ``(final_state, params) -> {key: f32[]}`` run once
-per episode inside the jitted rollout (a static argument).
+of the training curves and the evaluation (:mod:`igdrivsim.evaluation.rollout` gives the
+semantics), below both so that neither imports the other. ``episode_metrics``: ``None`` or a
+function ``(final_state, params) -> {key: f32[]}`` run once per episode inside the jitted
+rollout (a static argument).
 """
 
 from __future__ import annotations
@@ -146,23 +145,15 @@ def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> St
                        scenario)
 
 
-def _pad_batch(batch, size: int):
-    """Pad a scenario batch ``[n]`` to ``[size]`` by repeating the first one (fixed shapes)."""
-    n = jax.tree.leaves(batch)[0].shape[0]
-    if n == size:
-        return batch
-    return jax.tree.map(lambda x: np.concatenate([x, np.repeat(x[:1], size - n, 0)]), batch)
-
-
 def _batches(scenarios, batch_size: int):
-    """``(start, stop, batch)``: fixed-size batches (padded; a multiple of the device count),
-    the scenario axis spread over all devices."""
+    """``(start, stop, batch)``: fixed-size batches (a multiple of the device count, padded with
+    copies of their first scenario), the scenario axis spread over all devices."""
     n = jax.tree.leaves(scenarios)[0].shape[0]
     size = -(-min(batch_size, n) // jax.device_count()) * jax.device_count()
     for start in range(0, n, batch_size):
         stop = min(start + batch_size, n)
-        part = jax.tree.map(lambda x, a=start, b=stop: np.asarray(x)[a:b], scenarios)
-        yield start, stop, _spread(_pad_batch(part, size), 0)
+        index = np.concatenate([np.arange(start, stop), np.full(size - stop + start, start)])
+        yield start, stop, _spread(jax.tree.map(lambda x, i=index: np.asarray(x)[i], scenarios), 0)
 
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,

@@ -1,10 +1,10 @@
 """The driving policy: object encoder + PointNet roadgraph encoder -> MLP -> GRU -> 3x257 heads.
 
-Two shapes, chosen by :class:`PolicyConfig`: the original's (objects flattened, road points
-pooled per road type, the heads reading the GRU output next to the encoded step; the ``paper``
-profile) and :data:`POOLED_NETWORK` (objects and road points max-pooled). The network sees one
-observation step at a time (memory lives in the GRU state; ``reset`` flags zero it at every
-episode start, which the original code never did); :func:`unroll_sequence` runs it over time.
+Two shapes (:class:`PolicyConfig`): the original's (objects flattened, road points pooled per
+road type, the heads reading the GRU output next to the encoded step; the ``paper`` profile) and
+:data:`POOLED_NETWORK` (objects and road points max-pooled). The network sees one step at a time
+(memory lives in the GRU state, zeroed at every episode start by ``reset`` flags, which the
+original code never did); :func:`unroll_sequence` runs it over time.
 """
 
 from __future__ import annotations
@@ -30,9 +30,8 @@ NUM_ACTION_DIMS = 3  # dx, dy, dyaw (delta-local)
 @dataclass(frozen=True)
 class PolicyConfig:
     """Layer widths and the encoders' shape; the defaults are the original code's network
-    (github clemgris/IGDrivSim, ``feature_extractor.py`` and ``rnn_policy.py``): 4,255,611
-    parameters without the critic (the original's and one ego speed input more), about 10.1
-    MFLOP forward per step at 32 objects and 1,500 road points."""
+    (github clemgris/IGDrivSim, ``feature_extractor.py`` and ``rnn_policy.py``) with one ego
+    speed input more."""
 
     object_hidden: tuple[int, ...] = (512, 512)  # object encoder MLP
     # "flatten": the MLP on all objects flattened with the ego speed (the original's); "pool":
@@ -49,35 +48,30 @@ class PolicyConfig:
     actor_hidden: tuple[int, ...] = (512, 512, 512)
     value_hidden: tuple[int, ...] = (256, 256)
     heads_see_features: bool = True  # the heads read [GRU output, trunk output] (the original's)
-    # a value head (None: the method decides; undecided, the network has one); without one the
-    # values are zeros
+    # a value head (None: the method decides, else one); without one the values are zeros
     value_head: bool | None = None
     num_bins: int = NUM_BINS
     remat: bool = False  # recompute per-step activations in the backward pass (saves memory)
-    # the dx head scores offsets from the constant-velocity displacement instead of absolute
-    # levels ("keep my speed" is one bias away)
+    # the dx head scores offsets from the constant-velocity level ("keep my speed" is one bias)
     relative_dx: bool = False
-    # the ego speed feature (speed / 50) times this before the trunk (at 1, one dx level moves
-    # it by 0.01)
+    # the ego speed feature (speed / 50) times this before the trunk
     speed_input_scale: float = 1.0
-    # every object's features carry the (scaled) ego speed too, so closing speeds form before
-    # pooling
+    # every object's features carry the scaled ego speed too (closing speeds before pooling)
     object_ego_speed: bool = False
     # a second actor head trained by imitation only (ADVISOR's auxiliary policy)
     aux_head: bool = False
-    # the last H speed changes in dx levels, from speeds kept in the carry (the expert's next
-    # level corrects its quantisation error; paper/findings.tex, "The speed walk"); 0: off
+    # the last H speed changes in dx levels, from speeds kept in the carry (paper/findings.tex,
+    # "The speed walk"); 0: off
     speed_history: int = 0
     # the last H observed yaw rates in dyaw levels (H - 1 kept in the carry); 0: off
     yaw_history: int = 0
 
     def __post_init__(self):
-        if self.object_encoder not in OBJECT_ENCODERS:
-            raise ConfigError(f"policy.object_encoder must be one of {OBJECT_ENCODERS}, got "
-                              f"{self.object_encoder!r}")
-        if self.roadgraph_pool not in ROADGRAPH_POOLS:
-            raise ConfigError(f"policy.roadgraph_pool must be one of {ROADGRAPH_POOLS}, got "
-                              f"{self.roadgraph_pool!r}")
+        for name, choices in (("object_encoder", OBJECT_ENCODERS),
+                              ("roadgraph_pool", ROADGRAPH_POOLS)):
+            if getattr(self, name) not in choices:
+                raise ConfigError(f"policy.{name} must be one of {choices}, got "
+                                  f"{getattr(self, name)!r}")
 
 
 OBJECT_ENCODERS = ("pool", "flatten")
@@ -108,12 +102,6 @@ def masked_max(x: jax.Array, valid: jax.Array, axis: int = -2) -> jax.Array:
     return jnp.where(jnp.any(valid, axis=axis), pooled, 0.0)
 
 
-def road_types(points: jax.Array, valid: jax.Array) -> jax.Array:
-    """Each point's road type ``int32[..., N]`` (``RG_NUM_TYPES`` for invalid points)."""
-    kind = roadgraph_kind(points)
-    return jnp.where(valid, kind, RG_NUM_TYPES).astype(jnp.int32)
-
-
 def max_per_type(x: jax.Array, types: jax.Array) -> jax.Array:
     """Max of ``x [..., N, D]`` over the points of each road type: ``[..., RG_NUM_TYPES, D]``,
     zeros for a type with no point (one segment max over all sets at once)."""
@@ -124,12 +112,6 @@ def max_per_type(x: jax.Array, types: jax.Array) -> jax.Array:
     pooled = jax.ops.segment_max(x.reshape(-1, d), ids, num_segments=sets * slots)
     pooled = pooled.reshape(*lead, slots, d)[..., :RG_NUM_TYPES, :]
     return jnp.where(jnp.isfinite(pooled), pooled, 0.0)
-
-
-def own_type(pooled: jax.Array, types: jax.Array) -> jax.Array:
-    """Each point's road type's row of ``pooled [..., T, F]`` (zeros for no type)."""
-    padded = jnp.concatenate([pooled, jnp.zeros_like(pooled[..., :1, :])], -2)
-    return jnp.take_along_axis(padded, types[..., None], axis=-2)
 
 
 class PolylineEncoder(nn.Module):
@@ -146,7 +128,7 @@ class PolylineEncoder(nn.Module):
         if not self.by_type:
             h = PooledMLP(self.hidden, name="MLP_1")(h, masked_max(h, valid))
             return masked_max(h, valid)
-        types = road_types(points, valid)
+        types = jnp.where(valid, roadgraph_kind(points), RG_NUM_TYPES).astype(jnp.int32)
         h = PooledMLP(self.hidden, name="MLP_1")(h, max_per_type(h, types), types)
         pooled = max_per_type(h, types)
         return pooled.reshape(*pooled.shape[:-2], -1)
@@ -180,8 +162,9 @@ class _SplitDense(nn.Module):
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
         per_set = pooled @ kernel[d:] + bias
         per_point = (h.reshape(-1, d) @ kernel[:d]).reshape(*h.shape[:-1], -1)
-        if types is not None:  # per_set [..., T, F]: each point takes its type's row
-            return per_point + own_type(per_set, types)
+        if types is not None:  # per_set [..., T, F]: each point takes its type's row (or zeros)
+            padded = jnp.concatenate([per_set, jnp.zeros_like(per_set[..., :1, :])], -2)
+            return per_point + jnp.take_along_axis(padded, types[..., None], axis=-2)
         return per_point + per_set[..., None, :]
 
 
@@ -355,12 +338,8 @@ def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: b
                     with_aux: bool = False):
     """Run the network over time-major observations ``[T, B, ...]``: ``(carry, logits
     [T, B, 3, bins], values [T, B])`` (and the auxiliary logits when ``with_aux``), the GRU
-    state zeroed before step 0 if ``reset_first``.
-
-    The encoders and the GRU's input projection run once over all ``T x B`` observations and
-    only the recurrence is scanned (:func:`igdrivsim.core.nn.gru_scan`): the values of stepping
-    :func:`apply_step`, several times faster on CPU. ``config.remat`` encodes one step at a
-    time, recomputed in the backward pass (one step's activation memory).
+    state zeroed before step 0 if ``reset_first``. The values of stepping :func:`apply_step`,
+    faster: the encoders run once over all ``T x B`` steps and only the recurrence is scanned.
     """
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]

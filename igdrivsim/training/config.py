@@ -35,13 +35,11 @@ class DataConfig:
     max_objects: int = 128  # object slots kept per scenario at load time (SDC + nearest)
     max_roadgraph_points: int = 20_000  # roadgraph points kept at load time (nearest first)
     prefetch: int = 2  # batches prepared ahead by the background thread
-    # keep the teacher-forced records of every training scenario in memory (and cached on
-    # disk); False: record each batch inside the update from its reset states (paper scale,
-    # where ~10 MB of records per scenario would not fit)
+    # keep every training scenario's teacher-forced records in memory (cached on disk); False:
+    # record each batch inside the update (paper scale: ~10 MB of records per scenario)
     record_teacher: bool = True
-    # stream scenarios from disk (paper scale, needs record_teacher=False): per-process shards,
-    # a Grain iterator decoding and resetting ``buffer`` batches ahead in ``workers`` threads;
-    # host memory is a few batches, whatever the dataset size (igdrivsim.training.stream)
+    # stream scenarios from disk in per-process shards, a few batches in host memory (paper
+    # scale, needs record_teacher=False; igdrivsim.training.stream)
     stream: bool = False
     workers: int = 2  # decode + reset threads of the stream
     buffer: int = 2  # batches the stream prepares ahead (bounds host memory)
@@ -79,9 +77,8 @@ class TrainConfig:
     grad_clip: float = 1.0  # global gradient-norm clip
     ppo_epochs: int = 4  # gradient passes over each batch (BC and PPO alike)
     ppo_minibatches: int = 4  # minibatches (of scenarios) per pass
-    # the same for the methods that drive (BC-RL, DAgger, ADVISOR; 0: ppo_epochs /
-    # ppo_minibatches): the paper profile's BC takes one Adam step per batch as the original
-    # did, its BC-RL real PPO epochs (the original's single step left the ratio at 1)
+    # the same for the methods that drive (0: ppo_epochs / ppo_minibatches), so that the paper
+    # profile's BC takes one Adam step per batch as the original did and its BC-RL real epochs
     rollout_epochs: int = 0
     rollout_minibatches: int = 0
     log_every: int = 10
@@ -95,9 +92,8 @@ class TrainConfig:
     # values of the methods' own hyper-parameters (``--set method.NAME=VALUE``; a method reads
     # its declared ``params``, with their defaults where not set here): ((name, value), ...)
     method_params: tuple = ()
-    # who moves the other objects in the closed-loop episodes (BC-RL's rollouts, validation
-    # curves, and the run's evaluation unless ``igdrivsim evaluate --agents``): "log" (replay,
-    # the paper's) or "idm" (reactive IDM vehicles; igdrivsim.simulator.agents)
+    # who moves the other objects in closed-loop episodes (rollouts, validation, evaluation):
+    # "log" (replay, the paper's) or "idm" (reactive vehicles; igdrivsim.simulator.agents)
     sim_agents: str = "log"
 
     def __post_init__(self):
@@ -295,24 +291,16 @@ def smoke() -> RunConfig:
     )
 
 
-# The laptop profile's budget. On the sparse scenes Full BC met the three competence targets
-# with every seed at 1,000 updates; on the calibrated scenes it meets offroad and overlap and
-# drifts 0.66x constant velocity's log divergence (target 0.5x; 0.58x at 2,000 updates), and
-# reaching it would take about four times the budget (paper/findings.tex, "On the calibrated
-# scenes"). At this compute no other learning rate, batch, number of passes or of minibatches
-# did better (docs/bench/competence_sweep_h200.md). 300 (the quick profile) misses more.
+# The laptop profile's budget: where Full BC meets the competence targets it can at this
+# compute (paper/findings.tex, "On the calibrated scenes"; docs/bench/competence_sweep_h200.md).
 COMPETENT_UPDATES = 1000
 QUICK_UPDATES = 300
 
 
 def laptop() -> RunConfig:
-    """The default: ``COMPETENT_UPDATES`` updates (see its comment), about 3 hours for 6
-    settings x 2 methods x 3 seeds on a 2-core CPU; each batch of teacher-forced episodes is
-    reused for two gradient passes. Chosen by
-    the sweep in paper/findings.tex: the observable map thinned to every 8th point (4 m apart),
-    so 64 points reach ~20 m; the dx head scores offsets from constant velocity; the policy
-    sees its last 8 speed changes and its last 5 yaw rates; the object encoder (64 wide) sees
-    the ego speed next to each object's."""
+    """The default: ``COMPETENT_UPDATES`` updates, about 3 hours for 6 settings x 2 methods x 3
+    seeds on a 2-core CPU, with the choices of the sweep in paper/findings.tex (the map thinned
+    to every 8th point, dx offsets from constant velocity, speed and yaw-rate histories)."""
     return RunConfig(
         profile="laptop",
         policy=PolicyConfig(**POOLED_NETWORK, object_hidden=(64, 64), point_hidden=(32,),
@@ -330,22 +318,17 @@ def laptop() -> RunConfig:
 
 
 def quick() -> RunConfig:
-    """The laptop network at ``QUICK_UPDATES`` updates (the default before the budget rose):
-    a first look in about 50 minutes on 2 cores; its Full BC misses the competence targets."""
+    """The laptop network at ``QUICK_UPDATES`` updates: a first look in about 50 minutes on 2
+    cores; its Full BC misses the competence targets."""
     base = laptop()
     return dataclasses.replace(base, profile="quick", training=dataclasses.replace(
         base.training, num_updates=QUICK_UPDATES, eval_every=50, checkpoint_every=50))
 
 
 def paper() -> RunConfig:
-    """The original code's network and sample budget: ``PolicyConfig``'s defaults (4,255,611
-    parameters for BC, 4,584,060 with BC-RL's critic: the original's 4,255,099 and 4,583,548
-    and one input more; about 10.1 MFLOP forward per step at 32 objects and 1,500 road
-    points), 256 scenarios per update, 200 epochs (over WOMD's 152,808 filtered training
-    scenarios: 119,382 updates, 2.45e9 scenario-steps per (setting, seed)), 3 seeds, gradient
-    norm clipped at 0.5. BC takes one Adam step per batch, as the original did; BC-RL 4 PPO
-    epochs of 4 minibatches (16 Adam steps per batch, 4x BC's forward and backward passes over
-    the batch; the original's single step left the PPO ratio at 1)."""
+    """The original code's network (``PolicyConfig``'s defaults) and sample budget: 256
+    scenarios per update, 200 epochs, 3 seeds, gradient norm clipped at 0.5; BC one Adam step
+    per batch as the original, BC-RL 4 PPO epochs of 4 minibatches (so that the ratio moves)."""
     return RunConfig(profile="paper", policy=PolicyConfig(remat=True),
                      data=DataConfig(record_teacher=False, stream=True),
                      training=TrainConfig(grad_clip=0.5, ppo_epochs=1, ppo_minibatches=1,
@@ -353,17 +336,14 @@ def paper() -> RunConfig:
 
 
 def gpu() -> RunConfig:
-    """The laptop network, data and updates (its tables agree with the laptop's up to seed
-    noise) with ``GPU_SEEDS`` seeds for power and the learning curves on twice the validation
-    subset. One GPU trains it in minutes; a 2-core CPU would take about four
-    times the laptop run."""
+    """The laptop run with ``GPU_SEEDS`` seeds for power and twice the validation subset: minutes
+    on one GPU, about four times the laptop run on a 2-core CPU."""
     base = laptop()
     return dataclasses.replace(base, profile="gpu", training=dataclasses.replace(
         base.training, seeds=GPU_SEEDS, val_scenarios=64))
 
 
-PROFILES = {"smoke": smoke, "laptop": laptop, "quick": quick, "gpu": gpu,
-            "paper": paper}
+PROFILES = {"smoke": smoke, "laptop": laptop, "quick": quick, "gpu": gpu, "paper": paper}
 
 
 def get_profile(name: str) -> RunConfig:
@@ -382,10 +362,8 @@ def _parse_value(text: str, current: Any, where: str) -> Any:
             if low not in ("true", "false", "1", "0", "yes", "no"):
                 raise ValueError(text)
             return low in ("true", "1", "yes")
-        if isinstance(current, int):
-            return int(text)
-        if isinstance(current, float):
-            return float(text)
+        if isinstance(current, (int, float)):
+            return type(current)(text)
         if isinstance(current, tuple):
             value = json.loads(text if text.strip().startswith("[") else f"[{text}]")
             return tuple(type(current[0])(v) if current else v for v in value)

@@ -2,10 +2,8 @@
 
 An *episode* is one (setting, seed, scenario) of an update. The paper network costs ``updates x
 settings x seeds x batch x seconds per episode / devices`` (data parallel, communication
-ignored), the seconds per episode measured by ``igdrivsim bench train --profiles paper``;
-:func:`table1_hours` prices the paper's Table I that way. The laptop network (profiles laptop,
-quick, gpu) is priced per (setting x update) of one training process from whole measured runs
-(:func:`laptop_train_seconds`), which :mod:`igdrivsim.pipeline.planning` spreads over workers.
+ignored; :func:`table1_hours`); the laptop network is priced per (setting x update) of one
+training process from whole measured runs (:func:`laptop_train_seconds`).
 """
 
 from __future__ import annotations
@@ -15,42 +13,30 @@ import sys
 from igdrivsim.names import GPU_SEEDS
 from igdrivsim.training.config import RunConfig, get_profile
 
-# Paper network (the original's) on the 2-core AMD EPYC, 8 scenarios x 1 seed per update (its
-# other core busy with other work): `igdrivsim bench train --profiles paper --method bc --obs
-# full --updates 3 --out docs/bench/train_paper_bc_cpu.json` and the same with `--method bc_rl
-# --updates 2` (train_paper_bc_rl_cpu.json); seconds per update / 8 = per episode.
+# Paper network on the 2-core AMD EPYC, 8 scenarios x 1 seed per update: `igdrivsim bench train
+# --profiles paper` (docs/bench/train_paper_bc_cpu.json, train_paper_bc_rl_cpu.json) / 8.
 CPU_SECONDS_PER_EPISODE = 2.0966 / 8  # teacher-forced methods (BC): one Adam step per batch
 CPU_SECONDS_PER_ROLLOUT_EPISODE = 12.3355 / 8  # methods that drive (BC-RL: 4 x 4 PPO steps)
 PAPER_SCENARIOS = 152_808  # filtered WOMD training scenarios
 # Laptop network, 3 seeds, 16 scenarios per update: seconds per update of ONE setting in one
-# one-XLA-thread worker process while another worker keeps the second core busy (the default
-# pipeline on 2 cores), everything of a training stage included (loading, teacher records,
-# compile, the learning-curve validation every 250 updates). Measured by the default run of
-# `bash scripts/reproduce.sh` on the 2-core AMD EPYC (its stage stamps, 2026-11-27): BC, 6
-# settings x 1,000 updates in one worker, 5,135 s; BC-RL, 2 settings x 1,000 updates, 4,290 s.
+# one-XLA-thread worker on 2 busy cores, the whole training stage included (loading, records,
+# compile, validation), from the default `bash scripts/reproduce.sh` (2026-11-27): BC 6
+# settings x 1,000 updates in 5,135 s; BC-RL 2 settings x 1,000 updates in 4,290 s.
 LAPTOP_CPU_S_PER_SETTING_UPDATE = 5135 / (6 * 1000)  # teacher-forced methods (BC)
 LAPTOP_CPU_S_PER_SETTING_UPDATE_ROLLOUT = 4290 / (2 * 1000)  # methods that drive (BC-RL, ...)
 LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
-# Everything of the default pipeline but training, in CPU-s: the 300-update run at 7f262a6 took
-# 5,985 CPU-s end to end (README at 6ae8db5, Table I section, `/usr/bin/time`), of which its
-# training at the rates measured then was 300 x 6 x (0.770 + 1.882) = 4,774 CPU-s; the remaining
-# 1,211 CPU-s are the data, filter, evaluations, Fig. 1, report and PDF, and the maze study: 524-534
-# CPU-s of them (README at 6ae8db5, speed table, maze study row), a stage of its own.
+# The default pipeline but training and the maze study (a stage of its own), in CPU-s: the
+# 1,211 CPU-s of a whole run (README at 6ae8db5) beyond training, less the maze's 534.
 LAPTOP_OTHER_CPU_S = 1211.0 - 534.0
-# The maze study with its converged references and baselines: `python -m maze` on 2 quiet cores
-# printed 141 s wall, 271 s CPU (2026-12-02, the run of paper/maze_config.json).
+# The maze study with its converged references and baselines, `python -m maze` on 2 quiet cores.
 MAZE_CPU_S = 271.0
-# One GPU, laptop network, 6 settings per update: the gpu profile's 12 seeds on one H200 (16 CPU
-# cores), `igdrivsim bench train --profiles gpu --method M --updates 5`: BC 0.0513 s per update
-# (compiling 17.8 s), BC-RL 0.1994 s (compiling 46.7 s) (docs/bench/train_gpu_bc_h200.json,
-# train_gpu_bc_rl_h200.json; an H100 took 0.067 / 0.236 s after 63 s). The same network at 3
-# seeds took 0.0262 / 0.0907 s (train_laptop_bc_h200.json, train_laptop_bc_rl_h200.json): a GPU
-# is not filled by 3 seeds, so the 12-seed rates are the ones to scale from.
+# One H200, laptop network, the gpu profile's 12 seeds (3 do not fill a GPU), 6 settings per
+# update: docs/bench/train_gpu_bc_h200.json, train_gpu_bc_rl_h200.json (compiling included).
 GPU_S_PER_SETTING_UPDATE = 0.0513 / 6
 GPU_S_PER_SETTING_UPDATE_ROLLOUT = 0.1994 / 6
 GPU_COMPILE_S = 46.7
-# The maze study on that machine beside the training lanes (16 cores): 86 s (the gpu profile's
-# maze stage, docs/bench/reproduce_gpu_h200_slow_compile.log), against MAZE_CPU_S on 2 cores.
+# The maze study on that machine beside the training lanes
+# (docs/bench/reproduce_gpu_h200_slow_compile.log).
 GPU_MACHINE_MAZE_S = 86.0
 
 
@@ -68,10 +54,9 @@ def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
 
 def table1_hours(bc_seconds: float, rollout_seconds: float,
                  num_scenarios: int = PAPER_SCENARIOS) -> dict[str, float]:
-    """Device-hours of the paper's Table I at paper scale (6 settings x 3 seeds of BC and of
-    BC-RL, the paper profile's 200 epochs of 256-scenario batches over ``num_scenarios``) at
-    ``bc_seconds`` / ``rollout_seconds`` per episode: ``{"teacher_forced", "rollout",
-    "total"}`` (BC's runs, BC-RL's runs, both)."""
+    """Device-hours of the paper's Table I (6 settings x 3 seeds of BC and of BC-RL, the paper
+    profile over ``num_scenarios``) at ``bc_seconds`` / ``rollout_seconds`` per episode:
+    ``{"teacher_forced", "rollout", "total"}``."""
     config = get_profile("paper")
     t = config.training
     episodes = config.total_updates(num_scenarios) * 6 * t.seeds * config.data.batch_size
@@ -81,9 +66,8 @@ def table1_hours(bc_seconds: float, rollout_seconds: float,
 
 
 def table1_text(gpu: bool) -> str:
-    """One line: what Table I at paper scale costs at the rates measured on a CPU. The paper
-    network has not been timed on a GPU yet (``bash scripts/bench_gpu.sh docs/bench`` on a
-    machine with one writes train_paper_bc_<gpu>.json): ``gpu`` says so."""
+    """One line: what Table I at paper scale costs at the CPU rates (``gpu``: say that the GPU
+    rate of the paper network is not measured yet)."""
     config = get_profile("paper")
     updates = config.total_updates(PAPER_SCENARIOS)
     head = (f"Table I at paper scale (6 settings x {{BC, BC-RL}} x {config.training.seeds} "

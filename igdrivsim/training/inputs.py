@@ -1,17 +1,17 @@
 """The training input pipeline: load once, reset once, record once, shuffle, prefetch.
 
-Scenarios come from :func:`~igdrivsim.data.source.open_scenarios`, fitted to the profile's
-capacities and ``reset`` once; the teacher-forced records (:mod:`igdrivsim.training.records`,
-computed or read from the on-disk cache) and, for the methods that drive, the states stay in
-host memory, so a batch is a gather. Seed ``s`` walks the data in epochs, each a permutation
-drawn from ``numpy.random.default_rng([seed, epoch])``: the batch of update ``u`` is a pure
-function of ``(seed, u)``, so a resumed run sees the batches an uninterrupted one would. A
-background thread places the next ``prefetch`` batches on the devices (streamed batches too,
-:mod:`igdrivsim.training.stream`).
+Scenarios (:func:`~igdrivsim.data.source.open_scenarios`, fitted to the profile's capacities)
+are ``reset`` once; the teacher-forced records (:mod:`igdrivsim.training.records`) and, for the
+methods that drive, the states stay in host memory, so a batch is a gather. Seed ``s`` walks
+the data in epochs, each a permutation drawn from ``numpy.random.default_rng([seed, epoch])``:
+a batch is a pure function of ``(seed, update)``, so a resumed run sees the batches an
+uninterrupted one would. A background thread places the next ``prefetch`` batches on the
+devices (streamed batches too).
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import queue
@@ -79,10 +79,8 @@ class Dataset:
 
     def __init__(self, teacher: ObservationRecord | None, states: SimState | None, batch_size: int,
                  seeds: Sequence[int]):
-        self.teacher = teacher
-        self.states = states
+        self.teacher, self.states, self.batch_size = teacher, states, batch_size
         self.num = int(np.shape(teacher.sdc_yaw if teacher is not None else states.timestep)[0])
-        self.batch_size = batch_size
         self.seeds = [int(s) for s in seeds]
 
     @classmethod
@@ -164,11 +162,9 @@ def prefetch(dataset, updates: range, sharding: NamedSharding, depth: int = 2,
             for batch, st in dataset.host_batches(updates, state):
                 item = (dataset.place(batch, sharding), st)
                 while not stop.is_set():
-                    try:
+                    with contextlib.suppress(queue.Full):
                         q.put(item, timeout=0.1)
                         break
-                    except queue.Full:
-                        continue
                 if stop.is_set():
                     return
         except BaseException as err:  # surface loader errors in the training thread

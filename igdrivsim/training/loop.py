@@ -87,11 +87,10 @@ def load_teacher(run_dir: str, student: RunConfig) -> tuple[PolicyConfig, object
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
           stop_after: int | None = None, progress: bool = True, devices=None,
           log=print, val_data=None, cache_dir: str | None = None) -> TrainResult:
-    """Train (or resume) one run; see the module docstring. ``data``: a folder / files, or a
-    list of :class:`~igdrivsim.data.scenario.Scenario`. ``val_data``: validation data for the
-    learning curves (none: training BC loss only). ``cache_dir``: where the teacher-forced
-    records are cached (none: computed, not saved). ``stop_after``: stop (with a checkpoint)
-    once that many updates are done (a debugging aid for resume tests)."""
+    """Train (or resume) one run. ``data``: a folder / files, or a list of scenarios;
+    ``val_data``: validation data for the learning curves; ``cache_dir``: where the
+    teacher-forced records are cached; ``stop_after``: stop (with a checkpoint) after that many
+    updates (a debugging aid)."""
     config = config.validate()
     start_time = time.perf_counter()
     t = config.training
@@ -124,8 +123,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
 
     rep = replicated(mesh)
     teacher_params = place(teacher_params, rep)
-    settings = stack_settings(config.settings)
-    settings = None if settings is None else place(settings, rep)
+    settings = place(stack_settings(config.settings), rep)
     keys = place(seed_keys(config), rep)
     fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
     state = fns.init()

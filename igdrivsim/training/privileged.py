@@ -1,10 +1,9 @@
 """The privileged teacher of DAgger and ADVISOR: a policy trained with the ``full`` setting.
 
-The teacher is an earlier run (``training.teacher``) observing with the student's capacities:
-its ``full`` setting's parameters (:func:`igdrivsim.training.loop.load_teacher`) label the
-student's states, seed by seed (cycling when the teacher has fewer seeds). ``igdrivsim teacher``
-(:func:`choose_teacher`) picks among finished runs the one that fails least (overlap + offroad)
-on the validation subset of its learning curves at the last update.
+The teacher is an earlier run (``training.teacher``) with the student's observation capacities;
+its ``full`` parameters label the student's states, seed by seed (cycling over fewer seeds).
+``igdrivsim teacher`` (:func:`choose_teacher`) picks the finished run that fails least
+(overlap + offroad) on the validation subset of its learning curves at the last update.
 """
 
 from __future__ import annotations
@@ -31,9 +30,8 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
     if TEACHER_SETTING not in config.settings:
         raise ConfigError(f"training.teacher: {run_dir} was not trained with the "
                           f"{TEACHER_SETTING!r} setting (it has {', '.join(config.settings)})")
-    o, t = student.observation, config.observation
-    mine = (o.num_objects, o.num_roadgraph_points, o.roadgraph_stride)
-    theirs = (t.num_objects, t.num_roadgraph_points, t.roadgraph_stride)
+    mine, theirs = ((o.num_objects, o.num_roadgraph_points, o.roadgraph_stride)
+                    for o in (student.observation, config.observation))
     if mine != theirs:
         raise ConfigError(f"training.teacher: {run_dir} observes (objects, road points, "
                           f"stride) = {theirs}, the student {mine}; they must match")
@@ -41,8 +39,8 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
 
 
 def teacher_score(run_dir: str) -> dict | None:
-    """Closed-loop validation metrics of a run's ``full`` setting at its last learning-curve
-    point, averaged over seeds (``None`` without such a point)."""
+    """A run's ``full`` setting's closed-loop validation metrics at its last learning-curve
+    point, averaged over seeds (``None`` without one)."""
     if not is_run(run_dir):
         return None
     rows = [r for r in Run.open(run_dir).curves()
@@ -74,8 +72,7 @@ def teacher_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def teacher_command(args: argparse.Namespace) -> int:
-    """Pick the teacher among finished runs and record the choice (the pipeline's ``teacher``
-    stage)."""
+    """Pick the teacher among finished runs and record the choice."""
     choice = choose_teacher(args.runs)
     atomic_write_json(args.out, choice, indent=2)
     for s in choice["candidates"]:

@@ -3,10 +3,8 @@ every run.
 
 BC is trained on the logged episode: warm-up steps 0..9 replayed from the log, then the
 discretised expert driving steps 10..89. :func:`compute_records` records what the ego sees along
-it before any setting, with the expert's labels, as an
-:class:`~igdrivsim.observation.observe.ObservationRecord`. The cache file is keyed by a hash of
-the data's identity and of everything that shapes the recording (capacities, simulator
-parameters, :data:`FORMAT_VERSION`): change either and it is recomputed.
+it before any setting, with the expert's labels. The cache file is keyed by a hash of the data's
+identity and of everything that shapes the recording (:func:`cache_key`).
 """
 
 from __future__ import annotations
@@ -46,8 +44,8 @@ def _record(state: SimState, rec: ObservationConfig):
 
 
 def record_episode(state: SimState, sim: SimParams, rec: ObservationConfig) -> ObservationRecord:
-    """Warm-up (log) and expert-driven observations and labels of ONE scenario at reset
-    (the record of :class:`ObservationRecord`)."""
+    """The :class:`ObservationRecord` of ONE scenario at reset: warm-up (log) and
+    expert-driven observations and labels."""
     warm = jax.vmap(lambda t: _record(state.replace(timestep=t), rec))(
         jnp.arange(CURRENT_INDEX))
 
@@ -91,9 +89,8 @@ def cache_key(identity: str, **shape) -> str:
 
 
 def load_or_compute(cache_dir: str | None, key: str, compute) -> ObservationRecord:
-    """The cached records under ``cache_dir/teacher-<key>.npz``, computed and saved if absent
-    (no ``cache_dir``: computed, not saved). Processes sharing the cache (the pipeline's
-    parallel training parts) compute each record file once: the others wait on its lock."""
+    """The cached records ``cache_dir/teacher-<key>.npz``, computed and saved if absent (no
+    ``cache_dir``: not saved); processes sharing the cache wait on a lock for the first."""
     import fcntl  # optional: Unix only (file locks)
 
     path = os.path.join(cache_dir, f"teacher-{key}.npz") if cache_dir else None

@@ -8,7 +8,7 @@
 - ``curves.jsonl``: one line per (update, setting, seed): the reported training loss and
   what the hooks (:class:`Hook`) return;
 - ``checkpoints/<updates done>/`` (:class:`Checkpoints`, Orbax; with ``data.stream`` also
-  each process's input iterator state). Data order, keys and learning rate are functions of
+  each process's input iterator state): data order, keys and learning rate are functions of
   the update, so restoring step ``k`` resumes the run exactly;
 - ``DONE``: written when the last checkpoint is saved.
 """
@@ -107,12 +107,9 @@ class Checkpoints:
 
     def restore_params(self, step: int):
         """The parameters of checkpoint ``step`` as saved (no template needed)."""
-
-        def saved():
-            return jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype),
-                                dict(self.manager.item_metadata(step)))
-
-        return self._restore(step, saved)["params"]
+        return self._restore(step, lambda: jax.tree.map(
+            lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype),
+            dict(self.manager.item_metadata(step))))["params"]
 
     def _restore(self, step: int, items: Callable[[], dict]) -> dict:
         """The tree ``items()``, each leaf on its template's sharding, else this process's first
@@ -224,8 +221,7 @@ class Run:
         self.hooks: tuple[Hook, ...] = ()  # the driver's (the learning-curve validation)
         self.main = jax.process_index() == 0
         self.seeds = list(config.seeds)
-        # the code that trains (igdrivsim.machine.code_state); a resumed run keeps the code it
-        # started with under "code" and lists any other code that continued it
+        # a resumed run keeps the code it started with and lists other code that continued it
         self.record = {"config": to_dict(config), "code": code_state()}
         self.data_states = os.path.join(self.dir, DATA_STATES)  # a streamed input's states
         self.ckpt: Checkpoints | None = None
@@ -358,12 +354,10 @@ class Run:
 
     def run_hooks(self, done: int, params, last: bool = False) -> bool:
         """Call the hooks due at ``done`` (0: a fresh run's start); True when one ran."""
-        ran = False
-        for hook in self.hooks:
-            if hook.every > 0 and (done % hook.every == 0 or last):
-                self.curves(done, hook.fn(params))
-                ran = True
-        return ran
+        due = [h for h in self.hooks if h.every > 0 and (done % h.every == 0 or last)]
+        for hook in due:
+            self.curves(done, hook.fn(params))
+        return bool(due)
 
 
 class SavedRun:

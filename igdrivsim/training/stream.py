@@ -1,13 +1,12 @@
-"""Streaming training input for paper scale (``data.stream``): bounded host memory, per-host
-shards, resumable order. Built on Grain.
+"""Streaming training input for paper scale (``data.stream``), built on Grain: bounded host
+memory, per-host shards, resumable order.
 
-Scenarios are addressed by a compact index (:class:`ScenarioIndex`) split into ``n =
-data.shards`` (default: the number of processes) disjoint shards ``j::n``, each process owning
-a contiguous block. Per seed and shard, Grain's ``MapDataset.range(len).shuffle(seed).repeat()``
-permutes each epoch without materialising anything; batch ``u`` of a process is, per seed,
-positions ``u b .. (u+1) b - 1`` of each owned shard's stream (``b = B / n``). Grain decodes and
-resets ``data.buffer`` batches ahead in ``data.workers`` threads, so host memory is a few
-batches; the iterator's state is saved beside each checkpoint and restored on ``--resume``.
+The scenarios (:class:`ScenarioIndex`) are split into ``n = data.shards`` (default: the number
+of processes) disjoint shards ``j::n``, each process owning a contiguous block. Per seed and
+shard, Grain's ``MapDataset.range(len).shuffle(seed).repeat()`` permutes each epoch; batch ``u``
+of a process takes, per seed, positions ``u b .. (u+1) b - 1`` of each owned shard (``b = B /
+n``), decoded and reset ``data.buffer`` batches ahead in ``data.workers`` threads. The
+iterator's state is saved beside each checkpoint and restored on ``--resume``.
 """
 
 from __future__ import annotations
@@ -30,10 +29,9 @@ from igdrivsim.training.config import RunConfig
 
 
 class ScenarioIndex:
-    """Random access to the scenarios of a data path: ``(file id, record)`` per scenario (8
-    bytes each), plus the ego's object id with every vehicle as the ego
-    (:func:`~igdrivsim.data.source.scenario_refs`), decoded on demand. Grain data source
-    protocol: ``len`` and ``[i]``."""
+    """Random access to the scenarios of a data path (a Grain data source): ``(file id,
+    record[, ego object id])`` per scenario (:func:`~igdrivsim.data.source.scenario_refs`),
+    decoded on demand."""
 
     def __init__(self, files: Sequence[str], refs: np.ndarray, caps: Capacities):
         refs = np.asarray(refs, np.int32)
@@ -66,8 +64,8 @@ def owned_shards(num_shards: int, process: int, processes: int) -> range:
 
 
 def shard_order(shard_len: int, seed: int, shard: int) -> grain.MapDataset:
-    """Scenario positions within a shard, in training order (an infinite stream of epochs,
-    each a permutation seeded by ``(seed, shard, epoch)``)."""
+    """Scenario positions within a shard in training order: an infinite stream of epochs, each
+    a permutation seeded by ``(seed, shard, epoch)``."""
     mixed = int(np.random.SeedSequence([int(seed), int(shard)]).generate_state(1)[0])
     return grain.MapDataset.range(shard_len).shuffle(seed=mixed).repeat()
 
@@ -115,15 +113,9 @@ class StreamDataset:
 
     def indices(self, update: int) -> np.ndarray:
         """Global scenario indices ``[S, b_local]`` this process reads for ``update``."""
-        rows = []
-        for s in self.seeds:
-            row = []
-            for j in self.shards:
-                order = self.orders[(s, j)]
-                pos = range(update * self.per_shard, (update + 1) * self.per_shard)
-                row.extend(self.members[j][order[p]] for p in pos)
-            rows.append(row)
-        return np.asarray(rows, np.int64)
+        pos = range(update * self.per_shard, (update + 1) * self.per_shard)
+        return np.asarray([[self.members[j][self.orders[(s, j)][p]] for j in self.shards
+                            for p in pos] for s in self.seeds], np.int64)
 
     def host_batch(self, update: int) -> tuple[None, SimState]:
         """Decode and reset the scenarios of ``update`` on the host: ``(None, states [S, b])``."""
@@ -134,8 +126,7 @@ class StreamDataset:
 
     def iterator(self, start: int, state: dict | None = None, stop: int = 2**62):
         """A Grain iterator over the host batches of updates ``start, start+1, ...`` (threaded,
-        ``buffer`` ahead); ``state`` (from ``get_state``, saved with checkpoint ``start``)
-        resumes it exactly."""
+        ``buffer`` ahead); ``state`` (saved with checkpoint ``start``) resumes it exactly."""
         ds = grain.MapDataset.range(stop).map(self.host_batch)  # nothing read past ``stop``
         it = iter(ds.to_iter_dataset(grain.ReadOptions(num_threads=self.workers,
                                                        prefetch_buffer_size=self.buffer)))
@@ -166,14 +157,13 @@ class StreamDataset:
 
 
 def state_path(folder: str, step: int, process: int) -> str:
-    """Where ``process`` keeps its iterator state of checkpoint ``step`` in ``folder`` (a run's
-    :data:`~igdrivsim.training.run.DATA_STATES`)."""
+    """Where ``process`` keeps its iterator state of checkpoint ``step`` in ``folder``."""
     return os.path.join(folder, f"{step}.p{process}.json")
 
 
 def save_state(folder: str, step: int, state: dict, keep: Sequence[int]) -> None:
-    """Save this process's iterator state for checkpoint ``step`` (atomic) in ``folder``; prune
-    the states of checkpoints no longer kept."""
+    """Save this process's iterator state of checkpoint ``step``; prune those of checkpoints
+    no longer kept."""
     process = jax.process_index()
     os.makedirs(folder, exist_ok=True)
     atomic_write_json(state_path(folder, step, process), {"step": step, "iterator": state})

@@ -1,19 +1,13 @@
-"""A run's pure training functions (PureJaxRL's ``make_train``), read top to bottom: the static
-update and its optimiser and schedule; the state (parameters, optimiser state and the method's
-buffer, ``[G settings, S seeds]``); one update; ``make_train``, the run's ``(init, update)``
-that the driver (:mod:`igdrivsim.training.loop`) feeds batches. Nothing here reads or writes a
-run folder.
+"""A run's pure training functions (PureJaxRL's ``make_train``): the static update, the state
+(parameters, optimiser state and the method's buffer, ``[G settings, S seeds]``), one update and
+``make_train``, the ``(init, update)`` the driver (:mod:`igdrivsim.training.loop`) feeds batches.
 
 One update is one compiled program for every (setting, seed) pair of a method: settings are
 data (stacked :class:`~igdrivsim.observation.ObservationSetting`), seeds a batch axis. Per
 pair, :func:`collect` builds the episodes the method asks for (:mod:`~igdrivsim.training.
-methods`): the logged episode under the setting, from the teacher-forced record; the policy's
-own closed-loop episode from the same warm-up (rewards ``-1[overlap] - 1[offroad]``, GAE, V = 0
-after step 90); a privileged teacher's labels of the states it visits; then the method's own
-``collect`` (DAgger's aggregate). Then ``epochs`` passes over ``minibatches`` random
-minibatches, each one Adam step on the method's loss (:func:`~igdrivsim.core.learn.sgd_epochs`)
-with the network re-run over every episode, so after the first step the PPO ratio differs
-from 1. The learning rate is an argument: one compiled update serves any run length.
+methods`), then ``epochs`` passes over ``minibatches`` random minibatches each take one Adam
+step on the method's loss with the network re-run over every episode (so the PPO ratio moves).
+The learning rate is an argument: one compiled update serves any run length.
 """
 
 from __future__ import annotations
@@ -79,15 +73,14 @@ class UpdateSpec:
 
 def update_spec(config: RunConfig, teacher_policy: PolicyConfig | None = None) -> UpdateSpec:
     """The static part of a run's update; ``teacher_policy``: the privileged teacher's network
-    (required by a method with a teacher; the driver reads it from the teacher run)."""
+    (required by a method with a teacher)."""
     t = config.training
     method = get_method(t.method)
     if method.teacher and teacher_policy is None:
         raise ValueError(f"update_spec: method {t.method!r} needs its teacher's network")
     epochs, minibatches = config.sgd_passes
-    static = None  # settings that cannot share a program: the run has one, compiled static
-    if stack_settings(config.settings) is None:
-        static = get_setting(config.settings[0])
+    # settings that cannot share a program: the run has one, compiled static
+    static = get_setting(config.settings[0]) if stack_settings(config.settings) is None else None
     return UpdateSpec(
         policy=config.policy, setting=static, obs=config.obs_config, sim=config.sim_params,
         method=t.method, loss=config.loss, epochs=epochs, minibatches=minibatches,
@@ -108,8 +101,8 @@ def seed_keys(config: RunConfig) -> jax.Array:
 
 
 def init_state(config: RunConfig, spec: UpdateSpec):
-    """Parameters and optimiser state ``[G, S]`` for every setting and seed; a seed starts
-    from the same parameters in every setting (the settings' comparison is paired)."""
+    """Parameters and optimiser state ``[G, S]``; a seed starts from the same parameters in
+    every setting (paired comparison)."""
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2**31 - 1))(seed_keys(config))
     params = init_params_per_seed(config.policy, list(init_keys), example_observation(spec.obs))
     groups = len(config.settings)
@@ -143,9 +136,8 @@ def expert_sequences(spec: UpdateSpec, rec: ObservationRecord, setting, episode_
 
 def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Observation
                    ) -> jax.Array:
-    """The privileged teacher's log-probabilities ``[80, B, 3, bins]`` along an episode: its
-    GRU warmed on the fully observed logged steps ``warm [10, B]``, then stepped over the
-    fully observed states ``seen [80, B]`` the student drove through."""
+    """The privileged teacher's log-probabilities ``[80, B, 3, bins]``: its GRU warmed on the
+    fully observed logged steps ``warm [10, B]``, then over the student's states ``seen``."""
     obs = jax.tree.map(lambda w, s: jnp.concatenate([w, s]), warm, seen)
     b = jax.tree.leaves(seen)[0].shape[1]
     _, logits, _ = unroll_sequence(spec.teacher_policy, teacher_params,
@@ -196,8 +188,8 @@ def collect(spec: UpdateSpec, params, buffer, rec: ObservationRecord, states: Si
 
 
 def _loss(spec: UpdateSpec, params, mb: dict):
-    """The method's loss on one minibatch (scenario axis first): the network runs once over
-    every episode kind the method reads, and the loss gets each kind's outputs."""
+    """The method's loss on one minibatch (scenario-major): the network runs once over every
+    episode kind the method reads."""
     method = spec.learner
     logged = jax.tree.map(_time_major, mb["logged_obs"])  # [90, b, ...]
     sequences = {}
@@ -242,13 +234,10 @@ def update_one(spec: UpdateSpec, params, opt_state, buffer, rec: ObservationReco
 
 @functools.cache
 def make_update(spec: UpdateSpec):
-    """The jitted update over all settings and seeds (one per ``spec`` in this process):
-    ``(params[G, S], opt_state[G, S], buffer[G, S] | None, teacher[S, B] | None, states[S, B]
-    | None, settings[G] | None, teacher_params[S] | None, seed_keys[S], update_index, lr) ->
-    (params, opt_state, buffer, metrics[G, S])``; without ``teacher`` records the batch is
-    recorded from ``states`` inside the update. Every setting sees the same scenarios and draws
-    of a seed (the comparison between settings is paired); seed ``s`` is labelled by the
-    teacher's seed ``s``."""
+    """The jitted update over all settings and seeds (cached per ``spec``): ``(params[G, S],
+    opt_state, buffer, teacher records[S, B] | None, states[S, B] | None, settings[G] | None,
+    teacher_params[S] | None, seed_keys[S], update_index, lr) -> (params, opt_state, buffer,
+    metrics[G, S])``. Every setting sees the same scenarios and draws of a seed (paired)."""
 
     def update(params, opt_state, buffer, teacher, states, settings, teacher_params,
                seed_keys, update_index, lr):
@@ -284,11 +273,9 @@ class Train(NamedTuple):
 
 def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=None,
                teacher_params=None, keys=None, step=None) -> Train:
-    """``(init, update)`` of a run: ``update`` applies the compiled update of ``spec`` (or
-    ``step``, e.g. ahead-of-time compiled) to one batch ``(teacher records, reset states)`` at
-    update ``u`` with its cosine learning rate; ``settings`` (stacked, or None for one static
-    setting), ``teacher_params`` and ``keys`` (default: :func:`seed_keys`) are the run's
-    constants."""
+    """``(init, update)`` of a run: ``update`` applies :func:`make_update` (or ``step``, e.g.
+    compiled ahead of time) to one batch ``(teacher records, reset states)`` at update ``u``
+    with its cosine learning rate; the other arguments are the run's constants."""
     t = config.training
     step = step or make_update(spec)
     keys = seed_keys(config) if keys is None else keys
@@ -307,9 +294,8 @@ def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=N
 
 def make_validation_loss(spec: UpdateSpec):
     """Teacher-forced BC loss ``[G, S]`` of ``params [G, S]`` on recorded validation episodes
-    ``[V]`` (fixed keys: comparable across updates), one compiled program per setting over the
-    seeds: the whole grid at once holds every episode's observations (72 x 64 in the gpu
-    profile, out of GPU memory beside the other lanes)."""
+    ``[V]`` (fixed keys), one compiled program per setting (the whole grid at once ran out of
+    GPU memory)."""
 
     @jax.jit
     def per_setting(setting, params, teacher, key):

@@ -1,21 +1,17 @@
-"""The registry of learning methods: one module each, behind one :class:`Method` interface.
+"""The registry of learning methods: one module each, ending with one :func:`register_method`.
 
-A method is one module in this package ending with one :func:`register_method` call: its
-params, its loss, the episodes its loss reads, its own collection (with the buffer it keeps
-across updates, e.g. DAgger's aggregate) and the loss it reports. The update
-(:mod:`igdrivsim.training.update`) builds, per (setting, seed), the shared episodes the method
-asks for: ``logged`` (the logged episodes under the setting's observation, labelled with the
-discretised expert actions) and ``rollout`` (the policy's own closed-loop episode from the
-same warm-up, with log-probabilities, values, rewards, GAE; with ``teacher=True`` a privileged
-teacher's action distribution at every visited state). Any other kind ``K`` is the method's
-own: its ``collect`` puts ``K_obs [b, 90, ...]`` and what its loss reads into the data. The
-update runs the network once over all of them and hands the outputs to the method's ``loss``.
+A :class:`Method` declares its params, its loss, the episodes its loss reads, its own collection
+(with a buffer kept across updates, e.g. DAgger's aggregate) and the loss it reports. The update
+(:mod:`igdrivsim.training.update`) builds the shared episodes it asks for: ``logged`` (the logged
+episodes under the setting, labelled with the discretised expert actions) and ``rollout`` (the
+policy's own closed-loop episode from the same warm-up, with log-probabilities, values, rewards,
+GAE and, with ``teacher=True``, a privileged teacher's labels). Any other kind ``K`` is the
+method's own: its ``collect`` adds ``K_obs [b, 90, ...]`` and what its loss reads. The network
+runs once over all of them and the method's ``loss`` gets the outputs.
 
-A method's own hyper-parameters are a frozen dataclass declared next to its loss (``params``,
-an instance holding the defaults; validate in its ``__post_init__``), set with ``--set
-method.NAME=VALUE`` and read in the loss as ``spec.params.NAME``. ``igdrivsim train
---method``, the configuration, the pipeline and the figures read this registry; a method's label and
-colour are :mod:`igdrivsim.names`' (``LEARNED``, which the tables read without JAX).
+A method's own hyper-parameters are a frozen dataclass instance holding the defaults
+(``params``; validate in ``__post_init__``), set with ``--set method.NAME=VALUE`` and read in
+the loss as ``spec.params.NAME``; its label and colour are :mod:`igdrivsim.names`' ``LEARNED``.
 docs/ARCHITECTURE.md, "To add a method", has a worked example.
 """
 
@@ -43,16 +39,14 @@ class Outputs(NamedTuple):
     aux_logits: jax.Array | None  # [80, b, 3, bins] with the auxiliary head, else None
 
 
-# loss(spec, outputs by episode kind, batch) -> (total, metrics): ``spec`` is the update's
-# static UpdateSpec (weights, clip, ...); ``batch`` holds time-major [80, b, ...] arrays:
-# expert_actions / expert_valid (logged), actions / log_probs / valid / advantages / returns
-# (rollout), teacher_logp (rollout with teacher), and what the method's collect added
+# loss(spec: the static UpdateSpec, outputs by episode kind, batch) -> (total, metrics); the
+# batch holds time-major [80, b, ...] arrays: expert_actions / expert_valid (logged), actions /
+# log_probs / valid / advantages / returns / teacher_logp (rollout), and what collect added
 LossFn = Callable[[Any, dict[str, Outputs], dict[str, jax.Array]],
                   tuple[jax.Array, dict[str, jax.Array]]]
 # init_buffer(spec, batch) -> the method's empty buffer of one (setting, seed)
-# collect(spec, buffer, data, key) -> (data, buffer, metrics): ``data`` (scenario-major
-# [b, ...]) holds logged_obs [b, 90] and, when the policy drives, rollout_obs [b, 80], actions,
-# log_probs, valid, advantages, returns and teacher_logp (with a teacher)
+# collect(spec, buffer, data, key) -> (data, buffer, metrics): ``data`` (scenario-major) holds
+# logged_obs [b, 90] and, when the policy drives, rollout_obs [b, 80] and the rollout's arrays
 InitBuffer = Callable[[Any, int], Any]
 CollectFn = Callable[[Any, Any, dict[str, Any], jax.Array],
                      tuple[dict[str, Any], Any, dict[str, jax.Array]]]
@@ -75,9 +69,7 @@ class Method:
     teacher: bool = False  # a privileged teacher labels the rollout's states
     aux_head: bool = False  # the network gets an auxiliary imitation head (ADVISOR)
     baseline: str | None = "bc"  # the method it is compared with (Tables I-II: BC)
-    # the method's own hyper-parameters: a frozen dataclass instance holding their defaults;
-    # set with ``--set method.NAME=VALUE``, read in the loss as ``spec.params.NAME``
-    params: Any = NoParams()
+    params: Any = NoParams()  # its own hyper-parameters (see the module docstring)
     # the training loss it reports first (progress bar, learning curves, ``bench train``)
     reports: str = "bc_loss"
     init_buffer: InitBuffer | None = None  # its state across updates (DAgger's aggregate)
@@ -132,9 +124,8 @@ def get_method(name: str) -> Method:
     return METHODS[name]
 
 
-# Every module of this package registers one method. The paper's two come first, then the
-# remedies beyond it, then any other module (alphabetically): registration order is the
-# tables' order.
+# Registration order (the tables' order): the paper's two methods, the remedies beyond it, then
+# any other module of this package alphabetically.
 ORDER = ("bc", "bc_rl", "dagger", "advisor")
 DEFAULT_METHOD = ORDER[0]  # what a run trains unless told otherwise: the paper's BC
 

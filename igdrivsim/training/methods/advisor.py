@@ -9,11 +9,10 @@ information the student's observation lacks) imitation is down-weighted in favou
     loss = mean_s[w(s) CE(teacher, pi)(s) + (1 - w(s)) PPO(s)]
            + w_rl (vf_coef * value loss - ent_coef * entropy) + mean_s CE(teacher, aux)(s)
 
-``alpha`` is ``--set method.alpha=VALUE`` (:class:`Params`); PPO's reward is the paper's
-``-1[overlap] - 1[offroad]``. The logged episodes only warm the GRU up. The value and entropy
-terms carry BC-RL's ``w_RL``: the returns are not normalised (sums of up to 80 penalties), and
-at weight 1 the value loss's gradient (norm 43 against 0.55 for the imitation term, measured at
-the end of a laptop run) took almost all of the clipped update, so the actor barely learned.
+``alpha`` is ``--set method.alpha=VALUE``; PPO's reward is the paper's ``-1[overlap] -
+1[offroad]``; the logged episodes only warm the GRU up. The value and entropy terms carry
+BC-RL's ``w_RL``: the returns are not normalised, and at weight 1 the value loss's gradient took
+almost all of the clipped update.
 """
 
 from __future__ import annotations
@@ -40,8 +39,7 @@ from igdrivsim.training.methods import Method, register_method
 
 @dataclass(frozen=True)
 class Params(AdvisorParams):
-    """``alpha``: the maze's ADVISOR parameter too (:class:`igdrivsim.core.params.AdvisorParams`,
-    its one default)."""
+    """``alpha``, shared with the maze (:class:`igdrivsim.core.params.AdvisorParams`)."""
 
     def __post_init__(self):
         if not 0.0 <= self.alpha < float("inf"):

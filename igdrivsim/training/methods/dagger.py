@@ -1,13 +1,11 @@
 """DAgger with a privileged teacher (Ross et al. 2011; the idea, our code).
 
-Iteration 0 is the logged data (BC on the discretised expert actions, weight ``w_BC``). Every
-update the student drives its own closed-loop episodes under its setting; the teacher (the
-Full-setting policy of ``training.teacher``) labels every state the student visits with its
-action distribution, seeing the full observation of that state; the labelled episodes join a
-buffer of the last ``aggregate_batches`` updates (``--set method.aggregate_batches=N``), and
-the student is trained on a batch drawn from the buffer with the soft cross-entropy to the
-teacher's labels. The student always drives (no mixing with the teacher: beta = 0 after
-iteration 0).
+Iteration 0 is the logged data (BC, weight ``w_BC``). Every update the student drives its own
+closed-loop episodes (beta = 0: no mixing with the teacher); the teacher (the Full-setting policy
+of ``training.teacher``) labels every visited state from its full observation; the labelled
+episodes join a buffer of the last ``aggregate_batches`` updates (``--set
+method.aggregate_batches=N``), and the student learns the teacher's labels (soft cross-entropy)
+on a batch drawn from it.
 """
 
 from __future__ import annotations
