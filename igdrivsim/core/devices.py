@@ -1,7 +1,5 @@
-"""Devices and processes: the one-axis device mesh that training and the closed-loop rollouts
-place their arrays on, and several processes working together (initialised from the
-environment, meeting at barriers); JAX only.
-"""
+"""The one-axis device mesh training and the closed-loop rollouts place their arrays on, and
+several processes working together (initialised from the environment, meeting at barriers)."""
 
 from __future__ import annotations
 
@@ -12,10 +10,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-# Every process must issue its collectives in one order. XLA:CPU's concurrency-optimised
-# scheduler may order independent ones (the gradients' all-reduces) differently in each process,
-# and Gloo then fails with "Received data size doesn't match expected size" (seen with two
-# processes: tests/test_training_stream.py); so several CPU processes use the plain scheduler.
+# XLA:CPU's concurrency-optimised scheduler may order independent collectives differently in
+# each process, and Gloo then fails ("Received data size doesn't match expected size").
 SEQUENTIAL_CPU_COLLECTIVES = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
 
 

@@ -1,13 +1,10 @@
 """The one episode runner: an actor and a pure environment step in a ``lax.scan``.
 
-Environments are gymnax-style (the maze's :mod:`maze.env`, the driving simulator's
-:mod:`igdrivsim.simulator.state`); the runner needs only ``env_step(state, action) -> (state,
-out)`` (``out``: reward, done, ...), closed over the environment's parameters. An
-:class:`Actor` is Waymax's ``init`` / ``select_action`` split: ``init(state, key) -> carry`` (its
-memory) and ``step(state, carry, key) -> (action, carry, info)``, where the actor *observes the
-state itself* (its own observation model) and ``info`` is any pytree recorded per step, usually
-a :class:`StepInfo`. :func:`run_episode` returns the time-major record of every step, as
-PureJaxRL's transition tuple, for a single or a batched state; ``jit``- and ``vmap``-able.
+The runner needs only ``env_step(state, action) -> (state, out)`` (gymnax-style: the maze's
+:mod:`maze.env`, the simulator's :mod:`igdrivsim.simulator.state`). An :class:`Actor` is
+Waymax's ``init(state, key) -> carry`` / ``step(state, carry, key) -> (action, carry, info)``
+split; it observes the state itself and ``info`` (any pytree, usually a :class:`StepInfo`) is
+recorded per step. ``jit``- and ``vmap``-able, for a single or a batched state.
 """
 
 from __future__ import annotations
@@ -23,8 +20,6 @@ EnvStep = Callable[[Any, Any], tuple[Any, Any]]
 
 def no_carry(state: Any, key: jax.Array) -> None:
     """The ``init`` of an actor without memory."""
-    del state, key
-    return None
 
 
 class Actor(NamedTuple):
@@ -57,10 +52,9 @@ class Step(NamedTuple):
 def run_episode(env_step: EnvStep, actor: Actor, state: Any, key: jax.Array, num_steps: int,
                 carry: Any = None, record: Callable[[Step], Any] = lambda step: step
                 ) -> tuple[Any, Any, Any]:
-    """``(final state, final carry, record [T, ...])`` of ``num_steps`` steps from ``state``.
-    ``carry`` (``None``: ``actor.init(state, key)``); the actor's key at step ``t`` is
-    ``split(key, num_steps)[t]``; ``record(Step)``: what is kept of each step (never stacked
-    otherwise)."""
+    """``(final state, final carry, record [T, ...])`` of ``num_steps`` steps from ``state``;
+    ``carry`` ``None``: ``actor.init(state, key)``; the actor's key at step ``t`` is
+    ``split(key, num_steps)[t]``; ``record(Step)``: what is kept of each step."""
     if carry is None:
         carry = actor.init(state, key)
 

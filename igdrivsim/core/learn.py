@@ -1,11 +1,9 @@
-"""What every learner shares, the maze's and the driving benchmark's: the loss terms of
-categorical policies and the one optimisation loop.
+"""What the maze's and the driving benchmark's learners share: the loss terms of categorical
+policies and the one optimisation loop.
 
-The loss terms (GAE, PPO's, a categorical's log-probability, entropy, cross-entropy and KL) take
-explicit arrays, reduce the last (class) axis only and read sequences time-major; the driving
-methods sum them over the three action dimensions. :func:`sgd_epochs` / :func:`sgd_steps` take
-one optimiser step per minibatch; the learning rate is applied after the optimiser's
-transformation (``params - lr * tx(grads)``), so one compiled function serves any schedule.
+The loss terms take explicit arrays, reduce the last (class) axis only and read sequences
+time-major. :func:`sgd_epochs` / :func:`sgd_steps` apply the learning rate after the
+optimiser's transformation (``params - lr * tx(grads)``): one compiled function, any schedule.
 """
 
 from __future__ import annotations
@@ -33,7 +31,6 @@ def normalize(x: jax.Array, mask: jax.Array | None = None, eps: float = 1e-8) ->
     return (x - mean) / (std + eps)
 
 
-# ------------------------------------------------------------------------ a categorical
 def log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
     """``log softmax(logits)[action]``: logits ``[..., K]``, action ``[...]`` -> ``[...]``."""
     logp = jax.nn.log_softmax(logits, axis=-1)
@@ -59,7 +56,6 @@ def kl_divergence(target_logp: jax.Array, logits: jax.Array) -> jax.Array:
     return (jnp.exp(target_logp) * (target_logp - logp)).sum(-1)
 
 
-# -------------------------------------------------------------------------------- PPO
 def gae(values: jax.Array, rewards: jax.Array, dones: jax.Array, last_value: jax.Array,
         gamma: float, lam: float, axis: int = 0) -> tuple[jax.Array, jax.Array]:
     """``(advantages, returns)`` shaped like ``rewards`` along the time axis ``axis``:
@@ -89,8 +85,7 @@ def surrogate_terms(logp_new: jax.Array, logp_old: jax.Array, advantages: jax.Ar
     return -jnp.minimum(ratio * advantages, jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages)
 
 
-def value_loss(values: jax.Array, returns: jax.Array, mask: jax.Array | None = None
-               ) -> jax.Array:
+def value_loss(values: jax.Array, returns: jax.Array, mask: jax.Array | None = None) -> jax.Array:
     """0.5 * mean squared error; both arguments must have the same shape (no broadcasting)."""
     if values.shape != returns.shape:
         raise ValueError(f"value_loss: values {values.shape} vs returns {returns.shape}")
@@ -145,8 +140,7 @@ def sgd_epochs(params, opt_state, data, loss_fn: Callable, tx: optax.GradientTra
 
     def epoch(carry, key):
         order = jax.random.permutation(key, size).reshape(minibatches, -1)
-        params, opt_state, aux = sgd_steps(*carry, data, loss_fn, tx, lr, order, select,
-                                           grad_norm)
+        params, opt_state, aux = sgd_steps(*carry, data, loss_fn, tx, lr, order, select, grad_norm)
         return (params, opt_state), aux
 
     (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), epoch_keys)

@@ -16,12 +16,7 @@ from jax.extend.core import ClosedJaxpr, Jaxpr
 
 def dense_2d(layer, x: jax.Array) -> jax.Array:
     """``layer`` (a flax ``nn.Dense``) on ``x[..., D]`` as one 2-D matrix product (leading axes
-    flattened).
-
-    Under ``vmap`` over seeds, a dense layer on ``[T, B, N, D]`` inputs has a weight gradient
-    that contracts over all leading axes at once, several times slower on XLA:CPU than the same
-    contraction over one flattened axis.
-    """
+    flattened): its weight gradient then contracts one axis, several times faster on XLA:CPU."""
     return layer(x.reshape(-1, x.shape[-1])).reshape(*x.shape[:-1], -1)
 
 
@@ -33,8 +28,7 @@ def _split(x: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
 
 def _gru_forward(x_proj, first, h0, w_h, b_hn, save: bool = False):
     """The time loop; with ``save`` it also returns every step's gates for the backward pass."""
-    # The gate inputs are split before the loop: slicing columns of a fused [B, 3H] input
-    # inside the loop body made XLA:CPU's step ~2.5x slower.
+    # The gate inputs are split before the loop (slicing them inside is slower on XLA:CPU).
     def step(h, inputs):
         x_r, x_z, x_n, start = inputs
         h = jnp.where(start[..., None], 0.0, h)
@@ -44,8 +38,7 @@ def _gru_forward(x_proj, first, h0, w_h, b_hn, save: bool = False):
         hn = hp_n + b_hn
         n = jnp.tanh(x_n + r * hn)
         h_new = (1.0 - z) * n + z * h
-        # Saved gates leave the loop as one array: separate outputs made XLA:CPU recompute the
-        # gate expressions once per output (2.5x slower steps).
+        # Saved gates leave as one array (XLA:CPU recomputes them once per separate output).
         return h_new, ((h_new, jnp.concatenate([r, z, n], -1)) if save else h_new)
 
     return jax.lax.scan(step, h0, (*_split(x_proj), first))
@@ -76,9 +69,7 @@ def _gru_bwd(res, grads):
     hid = h0.shape[-1]
     hn = prev @ w_h[:, 2 * hid:] + b_hn  # one matmul over all steps (cheaper than saving it)
     a_n = (1.0 - z) * (1.0 - n * n)  # dh -> pre-activation of n
-    # dh -> pre-activations of (r, z) and -> the recurrent n-block input (hp_n = prev @ w_n),
-    # kept as three arrays: one fused [T, B, 3H] array (and a [T, B, 3H] gradient patched with
-    # .at[].set afterwards) cost XLA:CPU two more passes over memory (the same numbers).
+    # dh -> pre-activations of (r, z) and the recurrent n-block input (three arrays: cheaper)
     g_r, g_z, g_n = a_n * hn * r * (1.0 - r), (prev - n) * z * (1.0 - z), a_n * r
     w_t = w_h.T
 
@@ -91,7 +82,7 @@ def _gru_bwd(res, grads):
     d_h0, dh = jax.lax.scan(back, d_last, (d_hs, g_r, g_z, g_n, z, first), reverse=True)
     d_x = jnp.concatenate([dh * g_r, dh * g_z, dh * a_n], -1)  # the input's n-block: not r-gated
     d_n = dh * g_n  # gradient of prev @ w_n
-    # A plain 2-D matmul: the equivalent einsum over (t, b) was 2.5x slower on XLA:CPU.
+    # A plain 2-D matmul (faster on XLA:CPU than an einsum over (t, b)).
     d_w = prev.reshape(-1, hid).T @ jnp.concatenate([d_x[..., :2 * hid], d_n], -1).reshape(
         -1, 3 * hid)
     return d_x, None, d_h0, d_w, d_n.reshape(-1, hid).sum(0)
@@ -123,11 +114,9 @@ def matmul_flops(fn, *args) -> int:
                 total += 2 * int(np.prod(eqn.outvars[0].aval.shape)) * int(
                     np.prod([lhs[d] for d in contract]))
                 continue
-            subs = [v for v in eqn.params.values() if isinstance(v, (Jaxpr,
-                                                                     ClosedJaxpr))]
-            subs += [b for v in eqn.params.values() if isinstance(v, tuple)
-                     for b in v if isinstance(b, (Jaxpr, ClosedJaxpr))]
-            inner = [count(getattr(j, "jaxpr", j)) for j in subs]
+            inner = [count(getattr(j, "jaxpr", j)) for v in eqn.params.values()
+                     for j in (v if isinstance(v, tuple) else (v,))
+                     if isinstance(j, (Jaxpr, ClosedJaxpr))]
             if eqn.primitive.name == "cond":
                 total += max(inner, default=0)  # one branch runs
             else:

@@ -1,11 +1,8 @@
 """The method parameters the maze and the driving benchmark share, each with its one default.
 
-The driving run configuration's loss section (``igdrivsim.training.config.LossConfig``), the
-driving ADVISOR's ``--set method.alpha`` (``igdrivsim.training.methods.advisor.Params``) and
-the maze's learners (``maze.ppo.PPOConfig``, ``maze.mixed.MixedConfig``) read these fields
-under these names; a study that needs another value sets it in its own profile (the maze
-study's ADVISOR ``alpha``, ``maze.study.MAZE_ADVISOR_ALPHA``), it does not declare a second
-default.
+The driving loss config, the driving ADVISOR's ``Params`` and the maze's learners read these
+fields under these names; a study that needs another value sets it in its own profile (e.g.
+``maze.study.MAZE_ADVISOR_ALPHA``), it does not declare a second default.
 """
 
 from __future__ import annotations

@@ -90,8 +90,7 @@ def render_command(args) -> int:
     scenario = load_scenario(path, args.record)
     state = jax.jit(sim.reset)(scenario)
     key = jax.random.PRNGKey(args.seed)
-    need = 80 if args.gif is not None else args.step - 10
-    states = render.expert_states(state, need)
+    states = render.expert_states(state, 80 if args.gif is not None else args.step - 10)
     source = scene_source(path, scenario)
     written = render.write_observation_figure(states[args.step - 10], args.out, panels,
                                               key, args.view, source=source)

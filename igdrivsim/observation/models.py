@@ -1,15 +1,13 @@
 """Partial-observability models, their composition into settings, and the paper's six presets.
 
 A model acts at two points of the observation pipeline: ``perceive_pose``, the ego's believed
-global pose (Gaussian position noise), relative to which the nearest N and their features are
-computed; and ``apply``, hiding in the SDC-frame observation (fields of view, masking): hidden
-slots become invalid with zero features and are never refilled.
+global pose, relative to which the nearest N are selected; and ``apply``, hiding in the
+SDC-frame observation: hidden slots become invalid with zero features and are never refilled.
 
 ``episode_key`` is constant over an episode, ``step_key`` changes every step; model ``i`` of a
-setting draws from ``fold_in(key, i)``. Functions take ONE example. Settings of
-:func:`flax.struct.dataclass` models stack along a leading axis and ``vmap`` as one program
-(:func:`stack_settings`). Settings compose, by name with ``+`` (:func:`get_setting`). Adding a
-model: docs/EXTENDING.md.
+setting draws from ``fold_in(key, i)``. Functions take ONE example. Settings compose by name
+with ``+`` (:func:`get_setting`) and stack as one ``vmap``-ed program (:func:`stack_settings`).
+Adding a model: docs/EXTENDING.md.
 """
 
 from __future__ import annotations
@@ -49,8 +47,7 @@ class ObservationModel:
         """The ego's believed global pose ``(xy f32[2], yaw f32[])``; default: the true pose."""
         return sdc_xy, sdc_yaw
 
-    def apply(self, obs: Observation, episode_key: jax.Array, step_key: jax.Array
-              ) -> Observation:
+    def apply(self, obs: Observation, episode_key: jax.Array, step_key: jax.Array) -> Observation:
         """The observation after this model's hiding; default: unchanged."""
         return obs
 
@@ -87,8 +84,7 @@ class CircularFieldOfView(ObservationModel):
 
 @struct.dataclass
 class ConicFieldOfView(ObservationModel):
-    """Hides what is farther than ``radius`` or outside ``+-angle/2`` of the ego heading (+x),
-    boundaries inclusive."""
+    """Hides what is farther than ``radius`` or beyond ``+-angle/2`` of the heading (inclusive)."""
 
     radius: float
     angle: float  # full opening angle, radians
@@ -154,8 +150,7 @@ class RandomMasking(ObservationModel):
 class FunctionModel(ObservationModel):
     """A model from one module-level function ``fn(obs, episode_key, step_key) -> Observation``."""
 
-    fn: Callable[[Observation, jax.Array, jax.Array], Observation] = struct.field(
-        pytree_node=False)
+    fn: Callable[[Observation, jax.Array, jax.Array], Observation] = struct.field(pytree_node=False)
 
     def apply(self, obs, episode_key, step_key):
         return self.fn(obs, episode_key, step_key)
@@ -179,14 +174,6 @@ class ObservationSetting:
     name: str = struct.field(pytree_node=False)
     models: tuple[ObservationModel, ...] = ()
     keys: tuple[Any, ...] | None = None
-
-    def key_index(self, i: int) -> Any:
-        return i if self.keys is None else self.keys[i]
-
-
-def _is_pytree(model: ObservationModel) -> bool:
-    """A registered pytree node (a struct dataclass), not an opaque leaf."""
-    return jax.tree.structure(model) != jax.tree.structure(0.0)
 
 
 def _merged_order(sequences: list[list[Any]]) -> list[Any] | None:
@@ -221,7 +208,7 @@ def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationS
     for setting in found:
         row: dict[Any, tuple[ObservationModel, int]] = {}
         for i, m in enumerate(setting.models):
-            if not _is_pytree(m):
+            if jax.tree.structure(m) == jax.tree.structure(0.0):  # an opaque leaf, not a node
                 return None
             kind = (type(m), jax.tree.structure(m))  # a treedef alone may not tell classes apart
             row[(kind, sum(k[0] == kind for k in row))] = (m, i)
@@ -243,8 +230,7 @@ def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationS
 def perceive_pose(setting: ObservationSetting, sdc_xy: jax.Array, sdc_yaw: jax.Array,
                   episode_key: jax.Array, step_key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The ego's believed pose under ``setting`` (stage 1 of the pipeline)."""
-    for i, m in enumerate(setting.models):
-        k = setting.key_index(i)
+    for m, k in zip(setting.models, setting.keys or range(len(setting.models)), strict=True):
         sdc_xy, sdc_yaw = m.perceive_pose(sdc_xy, sdc_yaw, jax.random.fold_in(episode_key, k),
                                           jax.random.fold_in(step_key, k))
     return sdc_xy, sdc_yaw
@@ -253,13 +239,11 @@ def perceive_pose(setting: ObservationSetting, sdc_xy: jax.Array, sdc_yaw: jax.A
 def apply_setting(setting: ObservationSetting, obs: Observation, episode_key: jax.Array,
                   step_key: jax.Array) -> Observation:
     """The hiding of every model of ``setting``, in order (stage 2 of the pipeline)."""
-    for i, m in enumerate(setting.models):
-        k = setting.key_index(i)
+    for m, k in zip(setting.models, setting.keys or range(len(setting.models)), strict=True):
         obs = m.apply(obs, jax.random.fold_in(episode_key, k), jax.random.fold_in(step_key, k))
     return obs
 
 
-# The paper's six settings (Table I columns, left to right).
 PRESETS: dict[str, ObservationSetting] = {
     "full": ObservationSetting("full", (FullObservability(),)),
     "gaussian_noise": ObservationSetting("gaussian_noise", (GaussianPositionNoise(sigma=3.0),)),

@@ -3,12 +3,11 @@
 ``observe(source, setting, episode_key, step_key)`` is what training and evaluation call at
 every step, on a simulator state or one step of a recorded episode (:class:`ObservationRecord`).
 
-The logged episode is deterministic, so what the ego sees along it before the setting's models
-is recorded once per dataset (:func:`igdrivsim.training.records.compute_records`), in the TRUE
-ego frame, with more than the capacities (:func:`superset_config`). Observing a recorded step
-shifts it by the believed pose's offset, re-selects the nearest around the believed position
-and hides as on a simulator state: exactly the simulator's observation without noise, and
-with noise while the offset stays below the radius of the ``N`` nearest points.
+What the ego sees along the (deterministic) logged episode is recorded once per dataset
+(:func:`igdrivsim.training.records.compute_records`) in the TRUE ego frame, beyond the
+capacities (:func:`superset_config`). Observing a recorded step shifts it by the believed
+pose's offset and re-selects the nearest: the simulator's observation exactly without noise,
+and with noise while the offset stays below the radius of the ``N`` nearest points.
 """
 
 from __future__ import annotations
@@ -27,7 +26,7 @@ from igdrivsim.observation.features import (
     Selection,
     nearest,
     observe_arrays,
-    roadgraph_rows,
+    roadgraph_features,
     rotate_to_frame,
 )
 from igdrivsim.observation.models import ObservationSetting, apply_setting, perceive_pose
@@ -60,24 +59,20 @@ def superset_config(obs: ObservationConfig, max_objects: int) -> ObservationConf
 def observe_record(rec: ObservationRecord, setting, episode_key: jax.Array,
                    step_key: jax.Array, config: ObservationConfig) -> Observation:
     """The observation of one recorded step under ``setting`` (one example)."""
-    yaw = rec.sdc_yaw
-    zero = jnp.zeros((2,), jnp.float32)
-    offset, _ = perceive_pose(setting, zero, yaw, episode_key, step_key)
-    dx, dy = rotate_to_frame(offset[0], offset[1], yaw)
-    shift = jnp.stack([dx, dy]) / POSITION_SCALE
+    offset, _ = perceive_pose(setting, jnp.zeros((2,), jnp.float32), rec.sdc_yaw, episode_key,
+                              step_key)
+    shift = jnp.stack(rotate_to_frame(offset[0], offset[1], rec.sdc_yaw)) / POSITION_SCALE
     moved = jnp.any(shift != 0)
 
     def pick(xy, valid, n):
         idx, ok = nearest(jnp.sum((xy - shift) ** 2, -1), valid, n)
-        first = jnp.arange(n)
-        return jnp.where(moved, idx, first), jnp.where(moved, ok, valid[:n])
+        return jnp.where(moved, idx, jnp.arange(n)), jnp.where(moved, ok, valid[:n])
 
     oi, ov = pick(rec.objects[:, :2], rec.objects_valid, config.num_objects)
-    objects = rec.objects[oi].at[:, :2].add(-shift)
-    objects = jnp.where(ov[:, None], objects, 0.0)
+    objects = jnp.where(ov[:, None], rec.objects[oi].at[:, :2].add(-shift), 0.0)
     ri, rv = pick(rec.roadgraph[:, :2], rec.roadgraph_valid, config.num_roadgraph_points)
     rg4 = rec.roadgraph[ri].at[:, :2].add(-shift)
-    rg = roadgraph_rows(rg4, rec.roadgraph_type[ri].astype(jnp.int32), rv)
+    rg = roadgraph_features(*rg4.T, rec.roadgraph_type[ri].astype(jnp.int32), rv)
     obs = Observation(objects=objects, objects_valid=ov, roadgraph=rg, roadgraph_valid=rv,
                       sdc_speed=rec.sdc_speed, sdc_yaw_rate=rec.sdc_yaw_rate)
     return apply_setting(setting, obs, episode_key, step_key)
@@ -106,21 +101,16 @@ def observe_setting_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax
     return apply_setting(setting, obs, episode_key, step_key), sel
 
 
-def sdc_pose(objects: Any, sdc_index: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The ego's ``(xy f32[2], yaw f32[], speed f32[])`` from per-object arrays ``[O]``."""
-    pick = lambda a: jnp.take(jnp.asarray(a, jnp.float32), sdc_index, axis=-1)  # noqa: E731
-    xy = jnp.stack([pick(objects.x), pick(objects.y)], axis=-1)
-    return xy, pick(objects.yaw), jnp.hypot(pick(objects.vel_x), pick(objects.vel_y))
-
-
 def observe_with_selection(state: Any, setting: ObservationSetting, episode_key: jax.Array,
                            step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG
                            ) -> tuple[Observation, Selection]:
     """:func:`observe` that also returns which object / roadgraph slots were selected."""
-    objects = current_objects(state)
-    xy, yaw, speed = sdc_pose(objects, state.sdc_index)
-    return observe_setting_arrays(xy, yaw, speed, objects, state.sdc_index, state.roadgraph,
-                                  setting, episode_key, step_key, config, sdc_yaw_rate(state))
+    objects, i = current_objects(state), state.sdc_index
+    x, y, yaw, vx, vy = (jnp.take(jnp.asarray(a, jnp.float32), i, axis=-1)
+                         for a in (objects.x, objects.y, objects.yaw, objects.vel_x, objects.vel_y))
+    return observe_setting_arrays(jnp.stack([x, y], axis=-1), yaw, jnp.hypot(vx, vy), objects, i,
+                                  state.roadgraph, setting, episode_key, step_key, config,
+                                  sdc_yaw_rate(state))
 
 
 def observe(source: Any, setting: ObservationSetting, episode_key: jax.Array,

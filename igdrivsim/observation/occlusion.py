@@ -24,10 +24,8 @@ from igdrivsim.observation.models import (
 from igdrivsim.observation.sight import line_of_sight
 
 
-def occlude(obs: Observation, length: jax.Array | float, width: jax.Array | float
-            ) -> Observation:
-    """``obs`` with everything hidden from the ego's line of sight removed (ONE example); a box
-    of length 0 hides nothing."""
+def occlude(obs: Observation, length: jax.Array | float, width: jax.Array | float) -> Observation:
+    """``obs`` without what is out of the ego's line of sight (ONE example); length 0: all kept."""
     keep_objects, keep_roadgraph = line_of_sight(obs, length, width)
     off = length <= 0
     return hide_roadgraph(hide_objects(obs, keep_objects | off), keep_roadgraph | off)

@@ -105,22 +105,15 @@ def _to_frame(xy: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
 _observe_jit = jax.jit(observe_with_selection, static_argnums=(1, 4))
 
 
-def observable_state(state: Any, stride: int) -> Any:
-    """``state`` (holding the full map) with the observable map of ``roadgraph_stride=stride``."""
-    if stride == 1:
-        return state
-    ref = jnp.stack([state.sdc.x[CURRENT_INDEX], state.sdc.y[CURRENT_INDEX]])
-    return state.replace(roadgraph=thin_roadgraph(state.roadgraph, stride, ref))
-
-
 def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Array,
              step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG,
              stride: int = 1) -> Snapshot:
     """What to draw of ONE simulator state observed under ``setting`` with capacities ``config``
     on the map thinned to every ``stride``-th point (the grey scene keeps the whole map)."""
     setting = get_setting(setting)
-    obs, sel = _observe_jit(observable_state(state, stride), setting, episode_key, step_key,
-                            config)
+    ref = jnp.stack([state.sdc.x[CURRENT_INDEX], state.sdc.y[CURRENT_INDEX]])
+    observable = state.replace(roadgraph=thin_roadgraph(state.roadgraph, stride, ref))
+    obs, sel = _observe_jit(observable, setting, episode_key, step_key, config)
     obs, sel = jax.tree.map(np.asarray, (obs, sel))
     objs = jax.tree.map(np.asarray, current_objects(state))
     i = int(state.sdc_index)
@@ -133,8 +126,7 @@ def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Arr
     others = objs.valid.astype(bool) & (np.arange(objs.x.shape[0]) != i)
     obj_xy = _to_frame(np.stack([objs.x, objs.y], -1)[others].astype(np.float64), ego_xy, ego_yaw)
     seen_slots = sel.object_index[obs.objects_valid]
-    seen = np.zeros(objs.x.shape[0], bool)
-    seen[seen_slots] = True
+    seen = np.isin(np.arange(objs.x.shape[0]), seen_slots)
 
     o = obs.objects[obs.objects_valid]
     r = obs.roadgraph[obs.roadgraph_valid]
@@ -164,8 +156,7 @@ def _box(ax, xy, yaw, size, **kw) -> None:
     length, width = size
     c, s = math.cos(yaw), math.sin(yaw)
     corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
-    pts = corners @ np.array([[c, s], [-s, c]]) + xy
-    ax.add_patch(Polygon(pts, closed=True, **kw))
+    ax.add_patch(Polygon(corners @ np.array([[c, s], [-s, c]]) + xy, closed=True, **kw))
 
 
 def _draw_fov(ax, setting: ObservationSetting) -> None:
@@ -182,13 +173,6 @@ def _draw_fov(ax, setting: ObservationSetting) -> None:
                 ax.add_patch(Circle((0, 0), m.radius, **style))
 
 
-def fov_radius(setting: ObservationSetting) -> float | None:
-    """The smallest field-of-view radius of ``setting`` (None without one)."""
-    radii = [m.radius for m in setting.models
-             if isinstance(m, (CircularFieldOfView, ConicFieldOfView))]
-    return min(radii) if radii else None
-
-
 def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float = 1.0) -> None:
     """The scene (grey), the field of view, the observation (colour) and the ego on ``ax``."""
     ax.scatter(snap.road_xy[:, 0], snap.road_xy[:, 1], s=1.0 * marker, c=HIDDEN, lw=0, zorder=0,
@@ -203,8 +187,7 @@ def draw_layers(ax, snap: Snapshot, setting: ObservationSetting, marker: float =
         pick = np.isin(snap.seen_road_type, types)
         ax.scatter(snap.seen_road_xy[pick, 0], snap.seen_road_xy[pick, 1], s=size * marker,
                    c=colour, lw=0, zorder=3, rasterized=True)
-    for xy, yaw, size in zip(snap.seen_obj_xy, snap.seen_obj_yaw, snap.seen_obj_size,
-                             strict=True):
+    for xy, yaw, size in zip(snap.seen_obj_xy, snap.seen_obj_yaw, snap.seen_obj_size, strict=True):
         _box(ax, xy, yaw, size, facecolor=OBSERVED_OBJECT, edgecolor="#2d6a3e", alpha=0.85,
              lw=0.8, zorder=4)
     _box(ax, (0.0, 0.0), 0.0, snap.ego_size, facecolor=EGO, edgecolor="#7a1f22", lw=0.8,
@@ -238,11 +221,12 @@ def draw_panel(ax, snap: Snapshot, setting: ObservationSetting, title: str | Non
     ax.set_title(title or setting.name, fontsize=9)
     ax.text(0.01, 0.01, panel_note(snap), transform=ax.transAxes, fontsize=6, va="bottom",
             color="#333333", bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1.5), zorder=7)
-    r = fov_radius(setting)
-    if r is not None and r < view / 3:
+    radii = [m.radius for m in setting.models
+             if isinstance(m, (CircularFieldOfView, ConicFieldOfView))]
+    if radii and min(radii) < view / 3:  # zoom on the smallest field of view
         sub = ax.inset_axes([0.58, 0.52, 0.41, 0.46])
         draw_layers(sub, snap, setting, marker=4.0)
-        half = r + 3.0
+        half = min(radii) + 3.0
         sub.set_xlim(-half, half)
         sub.set_ylim(-half * 0.85, half * 0.85)
         sub.set_aspect("equal")
@@ -288,8 +272,7 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
     fig = plt.figure(figsize=(3.3 * ncols, (2.75 * nrows + 0.35) * len(views) + 1.3),
                      layout="constrained")
     episode_key, step_key = jax.random.split(key)
-    for sub, profile in zip(fig.subfigures(len(views), 1, squeeze=False)[:, 0], views,
-                            strict=True):
+    for sub, profile in zip(fig.subfigures(len(views), 1, squeeze=False)[:, 0], views, strict=True):
         axes = sub.subplots(nrows, ncols, squeeze=False)
         for i, (ax, name) in enumerate(zip(axes.flat, settings, strict=False)):
             setting = get_setting(name)
@@ -357,8 +340,7 @@ def write_rollout_animation(states: list[Any], setting: ObservationSetting | str
 
     def write(tmp: os.PathLike) -> None:
         with writer.saving(fig, tmp, dpi=110):
-            frames = states[::every]
-            for s in tqdm(frames, desc=f"rollout {setting.name}", unit="frame",
+            for s in tqdm(states[::every], desc=f"rollout {setting.name}", unit="frame",
                           file=sys.stderr, disable=not progress):
                 ax.clear()
                 t = int(s.timestep)

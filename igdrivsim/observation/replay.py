@@ -50,20 +50,15 @@ def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
     return run
 
 
-def _steps(flags, first_step: int) -> list[int]:
-    return [first_step + int(i) for i in np.flatnonzero(np.asarray(flags))]
-
-
 def scenario_record(scenario_id: str, replay: StepMetrics, log: StepMetrics,
                     first_step: int = 11) -> dict:
     """The JSON record of one replayed scenario (per-step metrics ``[80]`` on the host)."""
     div = np.where(np.asarray(replay.valid), np.asarray(replay.log_divergence), 0.0)
     return {
-        "scenario_id": scenario_id,
-        "log_overlap_steps": _steps(log.overlap, first_step),
-        "log_offroad_steps": _steps(log.offroad, first_step),
-        "replay_overlap_steps": _steps(replay.overlap, first_step),
-        "replay_offroad_steps": _steps(replay.offroad, first_step),
+        "scenario_id": scenario_id,  # then log_overlap_steps .. replay_offroad_steps
+        **{f"{who}_{rule}_steps": [first_step + int(i)
+                                   for i in np.flatnonzero(np.asarray(getattr(m, rule)))]
+           for who, m in (("log", log), ("replay", replay)) for rule in ("overlap", "offroad")},
         "replay_mean_log_divergence": round(float(mean_log_divergence(replay)), 5),
         "replay_max_log_divergence": round(float(div.max(initial=0.0)), 5),
         "valid_steps": int(np.sum(replay.valid)),
@@ -124,8 +119,7 @@ def _write_gif(path: str, final: SimState, progress: bool = True) -> None:
 
 
 def _replay_total(files: list[str], limit: int | None, egos: str = "sdc") -> int | None:
-    """The replay bar's total: the scenarios of ``files`` capped by ``limit`` (``limit`` where
-    counting is not cheap)."""
+    """The replay bar's total: the scenarios of ``files`` up to ``limit`` (``limit`` if dear)."""
     total = count_scenarios(files, limit or 0, egos)
     return limit if total is None else total
 
@@ -144,10 +138,8 @@ def replay_command(args: argparse.Namespace) -> int:
         out = (stack.enter_context(atomic_path(os.path.join(args.out, "replay.jsonl"), "w"))
                if args.out else None)
         quiet = args.json or args.no_progress
-        bar = stack.enter_context(tqdm(total=None if quiet else _replay_total(args.files,
-                                                                              args.limit,
-                                                                              args.egos),
-                                       desc="replay", unit="scn", file=sys.stderr,
+        total = None if quiet else _replay_total(args.files, args.limit, args.egos)
+        bar = stack.enter_context(tqdm(total=total, desc="replay", unit="scn", file=sys.stderr,
                                        disable=quiet))
         for rec in open_scenarios(args.files, egos=args.egos):
             if args.limit is not None and len(records) >= args.limit:
@@ -156,8 +148,8 @@ def replay_command(args: argparse.Namespace) -> int:
                 check_scenario(rec.scenario)
             except DataError as err:
                 raise DataError(err.problem, file=rec.file, record=rec.record) from None
-            final, replay, log = jax.device_get(run(rec.scenario, jax.random.fold_in(
-                key, len(records))))
+            final, replay, log = jax.device_get(
+                run(rec.scenario, jax.random.fold_in(key, len(records))))
             sid = decode_scenario_id(rec.scenario.scenario_id)
             record = {**scenario_record(sid, replay, log), "file": rec.file,
                       "record": rec.record, **(rec.source or {}),

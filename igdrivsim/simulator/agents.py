@@ -77,8 +77,7 @@ class AgentState:
 
 
 def _fill_forward(a, valid):
-    """``a [O, T]`` with each invalid step holding the last valid value (the first valid one
-    before any)."""
+    """``a [O, T]``, each invalid step holding the last valid value (before any: the first)."""
     t = jnp.arange(a.shape[-1])
     idx = jax.lax.cummax(jnp.where(valid, t, -1), axis=a.ndim - 1)
     idx = jnp.where(idx < 0, jnp.argmax(valid, axis=-1)[..., None], idx)
@@ -102,8 +101,7 @@ def init_agents(log, metadata, sdc_index, params: IdmParams) -> AgentState:
     o, t = log.x.shape
     c = CURRENT_INDEX
     valid = jnp.asarray(log.valid, bool)
-    px, py = _fill_forward(log.x, valid), _fill_forward(log.y, valid)
-    pyaw = _fill_forward(log.yaw, valid)
+    px, py, pyaw = (_fill_forward(a, valid) for a in (log.x, log.y, log.yaw))
     seg = jnp.hypot(jnp.diff(px, axis=-1), jnp.diff(py, axis=-1))
     seg = jnp.where(jnp.arange(1, t) > c, seg, 0.0)  # the path starts at step 10
     arc = jnp.concatenate([jnp.zeros((o, 1), seg.dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
@@ -219,8 +217,7 @@ def leader_gaps(a: AgentState, objects, lights, t, params: IdmParams):
     j = jnp.argmin(obj_gap, axis=-1)
     gap = jnp.min(obj_gap, axis=-1)
     yaw_i = _at(a.yaw, t)[a.slot]
-    lead_v = jnp.maximum(objects.vel_x[j] * jnp.cos(yaw_i) + objects.vel_y[j] * jnp.sin(yaw_i),
-                         0.0)
+    lead_v = jnp.maximum(objects.vel_x[j] * jnp.cos(yaw_i) + objects.vel_y[j] * jnp.sin(yaw_i), 0.0)
     light = jnp.min(light_gap, axis=-1)
     use_light = light < gap
     return (jnp.where(use_light, light, gap),

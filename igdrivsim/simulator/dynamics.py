@@ -33,8 +33,7 @@ def wrap_angle(a):
 
 def clip_action(action):
     action = jnp.asarray(action)
-    low = jnp.asarray(ACTION_LOW, action.dtype)
-    high = jnp.asarray(ACTION_HIGH, action.dtype)
+    low, high = jnp.asarray(ACTION_LOW, action.dtype), jnp.asarray(ACTION_HIGH, action.dtype)
     finite = jnp.all(jnp.isfinite(action), axis=-1, keepdims=True)
     return jnp.where(finite, jnp.clip(action, low, high), 0.0)
 
@@ -70,8 +69,7 @@ def inverse_delta_local(x, y, yaw, x1, y1, yaw1):
     """The delta-local action that moves pose ``(x, y, yaw)`` to ``(x1, y1, yaw1)``, clipped."""
     gx, gy = x1 - x, y1 - y
     c, s = jnp.cos(yaw), jnp.sin(yaw)
-    action = jnp.stack([c * gx + s * gy, -s * gx + c * gy, wrap_angle(yaw1 - yaw)], axis=-1)
-    return clip_action(action)
+    return clip_action(jnp.stack([c * gx + s * gy, -s * gx + c * gy, wrap_angle(yaw1 - yaw)], -1))
 
 
 def inverse_delta_global(x, y, yaw, x1, y1, yaw1):
@@ -86,8 +84,7 @@ DYNAMICS = {"delta_local": (delta_local, inverse_delta_local),
 def discretize(action):
     """Nearest of the 257 levels per dimension: ``float[..., 3] -> int32[..., 3]`` in 0..256."""
     a = clip_action(action)
-    low = jnp.asarray(ACTION_LOW, a.dtype)
-    high = jnp.asarray(ACTION_HIGH, a.dtype)
+    low, high = jnp.asarray(ACTION_LOW, a.dtype), jnp.asarray(ACTION_HIGH, a.dtype)
     idx = jnp.round((a - low) / (high - low) * NUM_BINS)
     return jnp.clip(idx, 0, NUM_BINS).astype(jnp.int32)
 
@@ -95,6 +92,5 @@ def discretize(action):
 def undiscretize(idx):
     """Level index ``int[..., 3]`` (clipped to 0..256) back to the action ``float32[..., 3]``."""
     i = jnp.clip(jnp.asarray(idx), 0, NUM_BINS).astype(jnp.float32)
-    low = jnp.asarray(ACTION_LOW, jnp.float32)
-    high = jnp.asarray(ACTION_HIGH, jnp.float32)
+    low, high = jnp.asarray(ACTION_LOW, jnp.float32), jnp.asarray(ACTION_HIGH, jnp.float32)
     return low + i * ((high - low) / NUM_BINS)

@@ -65,13 +65,6 @@ def _windows(a, half: int):
     return a[..., idx]
 
 
-def _controlled_mask(valid, half: int):
-    """``bool[C]``: every sample of the window is valid and its centre is a controlled step."""
-    ok = jnp.all(_windows(valid, half), axis=-1)
-    centre = np.arange(half, valid.shape[-1] - half)
-    return ok & (centre > CURRENT_INDEX)
-
-
 def kinematics(state: SimState) -> dict[str, jax.Array]:
     """Smoothed kinematics of the simulated SDC at the window centres ``[C]`` (see module)."""
     sdc, half = state.sdc, SMOOTH_WINDOW // 2
@@ -83,21 +76,20 @@ def kinematics(state: SimState) -> dict[str, jax.Array]:
     vy, ay, jy = (wy @ k[d] for d in (1, 2, 3))
     heading = wyaw[:, half]
     c, s = jnp.cos(heading), jnp.sin(heading)
+    # valid: every sample of the window is valid and its centre is a controlled step
+    centre = np.arange(half, sdc.valid.shape[-1] - half)
+    valid = jnp.all(_windows(sdc.valid, half), axis=-1) & (centre > CURRENT_INDEX)
     return dict(
         speed=jnp.hypot(vx, vy), lon_accel=ax * c + ay * s, lat_accel=-ax * s + ay * c,
         accel=jnp.hypot(ax, ay), lon_jerk=jx * c + jy * s, jerk=jnp.hypot(jx, jy),
-        yaw_rate=wyaw @ k[1], yaw_accel=wyaw @ k[2], valid=_controlled_mask(sdc.valid, half))
-
-
-def _masked_max(x, valid):
-    return jnp.max(jnp.where(valid, x, 0.0))
+        yaw_rate=wyaw @ k[1], yaw_accel=wyaw @ k[2], valid=valid)
 
 
 def max_abs(name: str):
     """A metric ``(state, params) -> f32[]``: the largest ``|kinematics[name]|`` (0 if none)."""
     def fn(state: SimState, params: SimParams | None = None):
         kin = kinematics(state)
-        return _masked_max(jnp.abs(kin[name]), kin["valid"])
+        return jnp.max(jnp.where(kin["valid"], jnp.abs(kin[name]), 0.0))
     fn.__name__ = f"max_abs_{name}"
     return fn
 
@@ -135,8 +127,7 @@ def progress(state: SimState, params: SimParams | None = None):
     total = jnp.sum(seg_len)
     sdc = state.sdc
     last = jnp.max(jnp.where(sdc.valid, jnp.arange(sdc.valid.shape[-1]), 0))
-    ex, ey = sdc.x[last], sdc.y[last]
-    rx, ry = ex - px[:-1], ey - py[:-1]
+    rx, ry = sdc.x[last] - px[:-1], sdc.y[last] - py[:-1]
     len2 = sx * sx + sy * sy
     u = jnp.clip((rx * sx + ry * sy) / jnp.maximum(len2, 1e-12), 0.0, 1.0)
     d2 = jnp.where(seg_ok, (rx - u * sx) ** 2 + (ry - u * sy) ** 2, jnp.inf)

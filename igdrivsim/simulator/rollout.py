@@ -1,14 +1,13 @@
 """The simulator's episode runner (``run_episode``) and the reference actors.
 
 The expert (:func:`expert_action`) is inverse dynamics from the *simulated* SDC pose to its next
-logged pose, so the discretised expert corrects its quantisation error at every step and stays
-within centimetres of the log; where the next logged pose is invalid it waits (zero action).
+logged pose, so the discretised expert corrects its quantisation error at every step; where the
+next logged pose is invalid it waits (zero action).
 
 Every closed-loop episode (evaluation, BC-RL's rollout, replay) is :func:`run_episode`: the
-shared runner of :mod:`igdrivsim.core.episode` (its ``Actor``; a bare ``step`` function is
-accepted wherever an actor is) with the simulator's step, one :class:`Transition` per step.
-:func:`rollout` puts time after the batch dims; the metrics of step ``k`` are those of the
-state after the ``k``-th action (timesteps 11..90), as in Waymax.
+runner of :mod:`igdrivsim.core.episode` (an ``Actor`` or a bare ``step`` function) with the
+simulator's step. The metrics of step ``k`` are those of the state after the ``k``-th action
+(timesteps 11..90), as in Waymax.
 """
 
 from __future__ import annotations
@@ -70,11 +69,6 @@ class Transition(NamedTuple):
     metrics: Any  # metrics_fn(state reached, params), e.g. StepMetrics (with validity)
 
 
-def as_actor(policy: Actor | PolicyFn) -> Actor:
-    """An :class:`Actor` from an actor or a bare ``step`` function (no carry by default)."""
-    return policy if isinstance(policy, Actor) else Actor(step=policy)
-
-
 def action_defined(state: SimState) -> jax.Array:
     """Whether the logged SDC is valid now and at the next step (an expert label exists)."""
     t = state.timestep
@@ -88,13 +82,10 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
                 with_reward: bool = False, num_steps: int | None = None
                 ) -> tuple[SimState, Transition]:
     """Drive ``num_steps`` (default ``params.num_controlled_steps``) steps from ``state``:
-    ``(final_state, Transition)``, time-major.
-
-    ``carry`` ``None`` calls ``actor.init(state, key)``; the step keys are
-    ``split(key, num_steps)``; ``metrics_fn(state, params)`` is applied to the state reached;
-    the flags ask for the observation, value, log-probability, expert levels and reward.
-    """
-    actor = as_actor(actor)
+    ``(final_state, Transition)``, time-major, as :func:`igdrivsim.core.episode.run_episode`
+    (``carry``, keys); ``metrics_fn(state, params)`` is applied to the state reached; the flags
+    ask for the observation, value, log-probability, expert levels and reward."""
+    actor = actor if isinstance(actor, Actor) else Actor(step=actor)
     num_steps = params.num_controlled_steps if num_steps is None else num_steps
 
     def env_step(s, action):
@@ -103,10 +94,9 @@ def run_episode(state: SimState, actor: Actor | PolicyFn, key: jax.Array,
         valid = action_defined(s)
         s = step(s, action, params)
         m = None if metrics_fn is None else metrics_fn(s, params)
+        r = None
         if with_reward:  # the simulator's metrics once, when metrics_fn is them too
             r = reward(m if metrics_fn is step_metrics else step_metrics(s, params))
-        else:
-            r = None
         return s, (label, valid, r, m)
 
     def record(st: episode.Step) -> Transition:
@@ -135,16 +125,11 @@ def rollout(state: SimState, policy_fn: Actor | PolicyFn, key: jax.Array,
     return final, _time_last(tr.metrics, batch_ndim), _time_last(tr.extras, batch_ndim)
 
 
-def with_logged_sdc(state: SimState) -> SimState:
-    """The state with the SDC's simulated trajectory replaced by its log (all 91 steps)."""
-    row = log_sdc_row(state)
-    return state.replace(sdc=SdcTrajectory(x=row.x, y=row.y, yaw=row.yaw, vel_x=row.vel_x,
-                                           vel_y=row.vel_y, valid=row.valid))
-
-
 def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetrics:
     """Per-step metrics ``[..., 80]`` of the *logged* SDC over the controlled steps 11..90."""
-    logged = with_logged_sdc(state)
+    row = log_sdc_row(state)
+    logged = state.replace(sdc=SdcTrajectory(x=row.x, y=row.y, yaw=row.yaw, vel_x=row.vel_x,
+                                             vel_y=row.vel_y, valid=row.valid))
     start = jnp.asarray(state.timestep)
     steps = jnp.arange(1, params.num_controlled_steps + 1, dtype=jnp.int32)
 

@@ -1,9 +1,7 @@
 """Simulator state and the pure ``reset`` / ``step`` transitions (Waymax conventions).
 
-Only the SDC is controlled; the other objects replay their log (or move as IDM agents).
-``reset`` returns the state at timestep 10 (steps 0..10 replayed from the log); ``step``
-advances the SDC by one action. Functions broadcast over leading batch dimensions ``...`` and
-``jit``/``vmap``; pass :class:`SimParams` as a static argument.
+Functions broadcast over leading batch dimensions ``...`` and ``jit``/``vmap``; pass
+:class:`SimParams` as a static argument.
 """
 
 from __future__ import annotations
@@ -144,8 +142,7 @@ def check_scenario(scenario: Scenario) -> None:
     if steps != NUM_STEPS:
         raise DataError(f"trajectories have {steps} steps, the simulator needs {NUM_STEPS}")
     count = is_sdc.sum(axis=-1)
-    valid = np.asarray(scenario.trajectory.valid)[..., CURRENT_INDEX]
-    sdc_valid = (valid & is_sdc).any(axis=-1)
+    sdc_valid = (np.asarray(scenario.trajectory.valid)[..., CURRENT_INDEX] & is_sdc).any(axis=-1)
     ids = np.asarray(scenario.scenario_id).reshape(-1, np.shape(scenario.scenario_id)[-1])
     for flat, (n, ok) in enumerate(zip(count.reshape(-1), sdc_valid.reshape(-1), strict=True)):
         where = f"scenario {decode_scenario_id(ids[flat])!r} (batch index {flat})"
@@ -175,8 +172,7 @@ def thin_roadgraph(rg: Roadgraph, stride: int, ref_xy: jax.Array) -> Roadgraph:
 
 
 def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
-    """The state at timestep 10 (warm-up replayed from the log); concrete inputs are checked
-    with :func:`check_scenario` first."""
+    """The state at timestep 10 (warm-up replayed from the log); concrete inputs are checked."""
     if not any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(scenario)):
         check_scenario(scenario)
     sc = jax.tree.map(jnp.asarray, scenario)
@@ -189,32 +185,27 @@ def reset(scenario: Scenario, params: SimParams = SimParams()) -> SimState:
         sdc_index.ndim)(sc.roadgraph, ref)
     roadgraph = vmap_batch(lambda rg, r: thin_roadgraph(rg, params.roadgraph_stride, r),
                             sdc_index.ndim)(sc.roadgraph, ref)
-    past = jnp.arange(traj.x.shape[-1]) <= CURRENT_INDEX
     sdc = SdcTrajectory(x=row.x, y=row.y, yaw=row.yaw, vel_x=row.vel_x, vel_y=row.vel_y,
-                        valid=row.valid & past)
+                        valid=row.valid & (jnp.arange(traj.x.shape[-1]) <= CURRENT_INDEX))
     agents = None
     if params.agents == "idm":
         agents = vmap_batch(lambda lg, md, i: sim_agents.init_agents(lg, md, i, params.idm),
                             sdc_index.ndim)(traj, sc.metadata, sdc_index)
     return SimState(
         log=traj, metadata=sc.metadata, roadgraph=roadgraph, road_edges=road_edges,
-        traffic_lights=sc.traffic_lights, scenario_id=sc.scenario_id, sdc=sdc,
-        sdc_index=sdc_index, timestep=jnp.full(sdc_index.shape, CURRENT_INDEX, jnp.int32),
-        agents=agents,
-    )
+        traffic_lights=sc.traffic_lights, scenario_id=sc.scenario_id, sdc=sdc, agents=agents,
+        sdc_index=sdc_index, timestep=jnp.full(sdc_index.shape, CURRENT_INDEX, jnp.int32))
 
 
 def sdc_pose(state: SimState):
     """The simulated SDC at the current step: ``(x, y, yaw, valid)``, each ``[...]``."""
-    t = state.timestep
     s = state.sdc
-    return _take(s.x, t), _take(s.y, t), _take(s.yaw, t), _take(s.valid, t)
+    return tuple(_take(a, state.timestep) for a in (s.x, s.y, s.yaw, s.valid))
 
 
 def sdc_yaw_rate(state: SimState):
     """The SDC's heading change over the last step in rad/s (its odometry; 0 if unknown)."""
-    t = state.timestep
-    s = state.sdc
+    t, s = state.timestep, state.sdc
     prev = jnp.maximum(t - 1, 0)
     ok = (t > 0) & _take(s.valid, t) & _take(s.valid, prev)
     turn = dynamics.wrap_angle(_take(s.yaw, t) - _take(s.yaw, prev))
@@ -223,9 +214,8 @@ def sdc_yaw_rate(state: SimState):
 
 def log_sdc_at(state: SimState, t):
     """The logged SDC at step ``t [...]``: ``(x, y, yaw, valid)``."""
-    i = state.sdc_index
     lg = state.log
-    return tuple(_take(_row(a, i), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
+    return tuple(_take(_row(a, state.sdc_index), t) for a in (lg.x, lg.y, lg.yaw, lg.valid))
 
 
 def log_sdc_row(state: SimState) -> Trajectory:
@@ -244,15 +234,14 @@ def step(state: SimState, action, params: SimParams = SimParams()) -> SimState:
                           "reset and step with the same SimParams")
     agents = state.agents
     if agents is not None:
-        objects = current_objects(state)
         agents = vmap_batch(lambda a, ob, lt, t: sim_agents.step_agents(a, ob, lt, t, params.idm),
-                            state.timestep.ndim)(agents, objects, state.traffic_lights,
-                                                 state.timestep)
+                            state.timestep.ndim)(agents, current_objects(state),
+                                                 state.traffic_lights, state.timestep)
     forward, _ = dynamics.DYNAMICS[params.dynamics]
     x, y, yaw, _ = sdc_pose(state)
     nx, ny, nyaw, vx, vy = forward(x, y, yaw, jnp.asarray(action, jnp.float32))
     t1 = jnp.minimum(state.timestep + 1, NUM_STEPS - 1)
-    _, _, _, log_valid1 = log_sdc_at(state, t1)
+    log_valid1 = log_sdc_at(state, t1)[3]
     at = jnp.arange(state.sdc.x.shape[-1]) == t1[..., None]
 
     def put(old, new):
@@ -276,12 +265,10 @@ def current_objects(state: SimState) -> ObjectState:
         cur = _take(log_a, t)
         return cur if sim_a is None else jnp.where(is_sdc, _take(sim_a, t)[..., None], cur)
 
-    return ObjectState(
-        x=pick(lg.x, s.x), y=pick(lg.y, s.y), yaw=pick(lg.yaw, s.yaw),
-        vel_x=pick(lg.vel_x, s.vel_x), vel_y=pick(lg.vel_y, s.vel_y),
-        length=pick(lg.length, None), width=pick(lg.width, None),
-        valid=pick(lg.valid, s.valid),
-    )
+    return ObjectState(x=pick(lg.x, s.x), y=pick(lg.y, s.y), yaw=pick(lg.yaw, s.yaw),
+                       vel_x=pick(lg.vel_x, s.vel_x), vel_y=pick(lg.vel_y, s.vel_y),
+                       length=pick(lg.length, None), width=pick(lg.width, None),
+                       valid=pick(lg.valid, s.valid))
 
 
 def object_trajectory(state: SimState) -> Trajectory:
@@ -290,6 +277,5 @@ def object_trajectory(state: SimState) -> Trajectory:
     a = getattr(state, "agents", None)
     if a is None:
         return state.log
-    return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y,
-                             valid=a.valid)
+    return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y, valid=a.valid)
 

@@ -1,8 +1,4 @@
-"""Small constructed scenarios for tests and the benchmark (no data files needed).
-
-:func:`straight_road` builds a straight road along +x bounded by two road edges (interior on
-their left), an SDC driving at constant speed on it, and a few other vehicles.
-"""
+"""Small constructed scenarios for tests and the benchmark (no data files needed)."""
 
 from __future__ import annotations
 
@@ -41,8 +37,7 @@ def set_object(sc: Scenario, slot: int, x, y, yaw, *, length=4.5, width=2.0, sdc
     t = np.arange(NUM_STEPS)
     x, y, yaw = (np.broadcast_to(np.asarray(a, np.float32), t.shape) for a in (x, y, yaw))
     tr.x[slot], tr.y[slot], tr.yaw[slot] = x, y, yaw
-    vx, vy = np.gradient(x) / 0.1, np.gradient(y) / 0.1
-    tr.vel_x[slot], tr.vel_y[slot] = vx, vy
+    tr.vel_x[slot], tr.vel_y[slot] = np.gradient(x) / 0.1, np.gradient(y) / 0.1
     tr.length[slot], tr.width[slot], tr.height[slot] = length, width, 1.5
     tr.valid[slot] = True if valid is None else valid
     md.id[slot], md.object_type[slot], md.valid[slot] = slot, TYPE_VEHICLE, True
@@ -104,8 +99,7 @@ def curve(radius: float = 40.0, start_speed: float = 4.0, log_speed: float = 20.
 
 def red_light(stop_x: float = 40.0, speed: float = 10.0, caps: Capacities = TOY_CAPS,
               scenario_id: str = "toy-red-light") -> Scenario:
-    """:func:`following` without the car ahead and with a traffic light red at every step whose
-    stop point is ``(stop_x, 0)``."""
+    """:func:`following` without the car ahead, with a light always red at ``(stop_x, 0)``."""
     sc = following(speed=speed, caps=caps, scenario_id=scenario_id)
     sc.trajectory.valid[2] = False
     tl = sc.traffic_lights
