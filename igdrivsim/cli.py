@@ -48,10 +48,10 @@ BENCHES: dict[str, tuple[str, str]] = {
 def _add(sub, name: str, module: str, help_: str, prefix: str = "") -> None:
     parser = sub.add_parser(name, help=help_, description=help_, formatter_class=DefaultsFormatter)
     func = prefix + name.replace("-", "_")  # the module's <func>_arguments and <func>_command
-    parser.set_defaults(_module=module, _name=func, _label=f"{prefix.replace('_', ' ')}{name}")
-    # Defer importing heavy modules: only the chosen command's module configures its parser.
-    parser.set_defaults(_configure=lambda p=parser: getattr(
-        importlib.import_module(module), f"{func}_arguments")(p))
+    # _configure: only the chosen command's (heavy) module is imported, to add its arguments
+    parser.set_defaults(_module=module, _name=func, _label=f"{prefix.replace('_', ' ')}{name}",
+                        _configure=lambda p=parser: getattr(
+                            importlib.import_module(module), f"{func}_arguments")(p))
 
 
 def build_parser() -> argparse.ArgumentParser:

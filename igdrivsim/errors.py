@@ -22,13 +22,8 @@ class DataError(IGDrivSimError):
     def __init__(self, problem: str, *, file: str | None = None, record: int | None = None,
                  key: str | None = None):
         self.problem, self.file, self.record, self.key = problem, file, record, key
-        where = ", ".join(
-            part for part in (
-                f"file {file}" if file is not None else "",
-                f"record {record}" if record is not None else "",
-                f"key {key!r}" if key is not None else "",
-            ) if part
-        )
+        parts = {"file": file, "record": record, "key": None if key is None else repr(key)}
+        where = ", ".join(f"{name} {value}" for name, value in parts.items() if value is not None)
         super().__init__(f"{where}: {problem}" if where else problem)
 
 
@@ -61,7 +56,6 @@ def run_command(prog: str, body: Callable[..., int | None], *args) -> int:
 
 
 def check_min(option: str, value: float | None, minimum: float) -> None:
-    """``ConfigError`` naming the option and its value unless ``value >= minimum`` (``None``:
-    not given, accepted)."""
+    """``ConfigError`` naming the option and its value unless ``value >= minimum`` or None."""
     if value is not None and not value >= minimum:
         raise ConfigError(f"{option} must be >= {minimum}, got {value}")

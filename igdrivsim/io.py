@@ -67,36 +67,29 @@ def _umask() -> int:
     return mask
 
 
-def _temp_for(path: Path, suffix: str) -> tuple[int, Path]:
+@contextmanager
+def _replacing(path: Path, suffix: str) -> Iterator[Path]:
+    """A temp path next to ``path`` that replaces it on a clean exit (removed otherwise)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    return fd, Path(tmp)
-
-
-def _publish(tmp: Path, path: Path) -> None:
-    os.chmod(tmp, 0o666 & ~_umask())  # what a plain open() would give
-    os.replace(tmp, path)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())  # what a plain open() would give
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], mode: str = "wb",
                 **open_kwargs: Any) -> Iterator[IO[Any]]:
-    """Yield an open temp file (``mode``, ``open_kwargs`` as :func:`os.fdopen`) next to ``path``
-    that replaces ``path`` on a clean exit."""
-    path = Path(path)
-    fd, tmp = _temp_for(path, ".tmp")
-    try:
-        try:
-            f = os.fdopen(fd, mode, **open_kwargs)
-        except BaseException:
-            os.close(fd)
-            raise
-        with f:
-            yield f
-        _publish(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Yield a temp file open in ``mode`` (as :func:`open`) that replaces ``path`` on a clean
+    exit."""
+    with _replacing(Path(path), ".tmp") as tmp, open(tmp, mode, **open_kwargs) as f:
+        yield f
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
@@ -104,14 +97,8 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object],
     """Call ``write(tmp)`` with a temp path next to ``path`` ending with ``suffix`` (default:
     ``path``'s, for libraries that infer the format from it), then move it into place."""
     path = Path(path)
-    fd, tmp = _temp_for(path, path.suffix if suffix is None else suffix)
-    os.close(fd)
-    try:
+    with _replacing(path, path.suffix if suffix is None else suffix) as tmp:
         write(tmp)
-        _publish(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 

@@ -27,26 +27,14 @@ def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None =
     raised once every lane is idle. ``lanes`` 1 (or ``echo_alone``): one job at a time, in this
     thread, echoing its output."""
     stopping = stopping if stopping is not None else threading.Event()
-    names = {j.name for j in jobs}
-    unknown = {a for j in jobs for a in j.after} - names
+    unknown = {a for j in jobs for a in j.after} - {j.name for j in jobs}
     if unknown:
         raise ValueError(f"jobs wait for unknown jobs: {sorted(unknown)}")
-    if lanes <= 1 or echo_alone:
-        done: set[str] = set()
-        pending = list(jobs)
-        while pending:
-            job = next((j for j in pending if set(j.after) <= done), None)
-            if job is None:
-                raise ValueError("jobs wait for each other in a cycle")
-            job.run(True)
-            done.add(job.name)
-            pending.remove(job)
-        return
     cond = threading.Condition()
     pending, finished, running = list(jobs), set(), 0
     errors: list[BaseException] = []
 
-    def lane() -> None:
+    def lane(echo: bool) -> None:
         nonlocal running
         while True:
             with cond:
@@ -64,7 +52,7 @@ def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None =
                         return
                     cond.wait()
             try:
-                job.run(False)
+                job.run(echo)
             except BaseException as err:  # noqa: BLE001 - re-raised in the caller's thread
                 with cond:
                     errors.append(err)
@@ -77,10 +65,14 @@ def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None =
                 running -= 1
                 cond.notify_all()
 
-    threads = [threading.Thread(target=lane, daemon=True) for _ in range(min(lanes, len(jobs)))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    if lanes <= 1 or echo_alone:
+        lane(True)
+    else:
+        threads = [threading.Thread(target=lane, args=(False,), daemon=True)
+                   for _ in range(min(lanes, len(jobs)))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
     if errors:
         raise errors[0]

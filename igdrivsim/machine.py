@@ -17,8 +17,7 @@ from pathlib import Path
 
 
 def machine_record() -> dict:
-    """CPU count, load average, OS, Python, JAX, its devices and default matrix precision, date
-    (UTC) and command line."""
+    """CPU count, load, OS, Python, JAX, its devices and matmul precision, date, command line."""
     import jax  # lazy: JAX only when a record is taken
 
     try:

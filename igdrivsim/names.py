@@ -1,10 +1,7 @@
-"""The names of the observation settings, the learning methods and the reference actors: their
-labels, colours and short names, defined once.
-
-The observation registry (:mod:`igdrivsim.observation.models`), the method registry
-(:mod:`igdrivsim.training.methods`), the tables and the figures read them here. This module
-imports nothing, so the report learns every name without loading JAX. A setting or method
-registered at run time without an entry here is labelled by its name.
+"""The names of the observation settings, the learning methods and the reference actors, with
+their labels, colours and short names, defined once for the registries, tables and figures.
+Imports nothing, so that the report learns every name without loading JAX. A setting or
+method registered at run time without an entry here is labelled by its name.
 """
 
 from __future__ import annotations

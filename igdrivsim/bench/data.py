@@ -1,9 +1,8 @@
 """``igdrivsim bench data``: scenarios/s read + decoded (+ fitted to capacities) and filtered.
 
 Default input: the real WOMD samples in ``../shared/data/womd`` tiled ``--limit`` times into
-temporary shards (the Scenario-protobuf sample a tenth as often). Each measurement runs in one
-process and with ``--workers`` processes; rates with and without the workers' start-up, and the
-CPU time per scenario (this process and its workers), which a busy machine does not distort.
+temporary shards (the Scenario-protobuf sample a tenth as often). Each run is timed in one
+process and with ``--workers``, with and without start-up, and in CPU time per scenario.
 """
 
 from __future__ import annotations
@@ -59,17 +58,14 @@ def _tile(samples: Path, records: int, shards: int, folder: str) -> dict[str, li
 
 def _time_read(paths, workers: int) -> dict:
     start = time.perf_counter()
-    first = None
-    n = 0
-    for _ in iter_scenarios(paths, workers=workers, chunk=8):
-        n += 1
-        if first is None:
-            first = time.perf_counter()
+    arrivals = [time.perf_counter() for _ in iter_scenarios(paths, workers=workers, chunk=8)]
     end = time.perf_counter()
-    steady = n - 1 if n > 1 else 0
+    n = len(arrivals)
+    steady = max(n - 1, 0)  # after the first scenario: the workers have started
     return {"scenarios": n, "wall_s": round(end - start, 3),
             "scenarios_per_s": round(n / (end - start), 1),
-            "scenarios_per_s_after_startup": round(steady / (end - first), 1) if steady else None}
+            "scenarios_per_s_after_startup": (round(steady / (end - arrivals[0]), 1) if steady
+                                              else None)}
 
 
 def _time_filter(paths, workers: int, folder: str) -> dict:
@@ -89,10 +85,8 @@ def bench_data_command(args: argparse.Namespace) -> int:
         require_file_target(args.out)
     results = {"cpu_count": available_cpus(), "workers": args.workers, "runs": []}
     with tempfile.TemporaryDirectory(prefix="igdrivsim-bench-data-") as folder:
-        if args.paths:
-            inputs = {"given": list(args.paths)}
-        else:
-            inputs = _tile(Path(args.samples), args.records, args.shards, folder)
+        inputs = ({"given": list(args.paths)} if args.paths
+                  else _tile(Path(args.samples), args.records, args.shards, folder))
         for fmt, paths in inputs.items():
             for what, fn in (("read", _time_read),
                              ("filter", lambda p, w: _time_filter(p, w, folder))):
@@ -100,7 +94,6 @@ def bench_data_command(args: argparse.Namespace) -> int:
                     cpu = process_cpu_seconds()
                     row = {"input": fmt, "what": what, "workers": workers,
                            **fn(paths, workers if workers > 1 else 0)}
-                    # CPU time (incl. worker start-up) per scenario: robust to a busy machine.
                     row["cpu_ms_per_scenario"] = round(
                         1000 * (process_cpu_seconds() - cpu) / max(row["scenarios"], 1), 2)
                     results["runs"].append(row)

@@ -1,11 +1,8 @@
 """``igdrivsim bench pipeline``: where a reproduction's core-seconds go, stage by stage.
 
-Runs the reproduction of ``--profile`` at ``--updates`` updates per training run (or reads a
-finished one, ``--from-work``) and reports each stage's wall and CPU seconds from its stamp
-(CPU time is not distorted by a shared machine), grouped into data, filter, train, evaluate,
-maze and the rest. ``bench train --parts`` times each method's update and its parts; a training
-stage's CPU beyond ``updates x`` the update's is what it does besides updating (loading,
-teacher-forced records, compiling, the learning-curve validation).
+Runs the reproduction of ``--profile`` at ``--updates`` updates per training run (or reads
+``--from-work``) and groups each stage's stamped wall and CPU seconds; a training stage's CPU
+beyond its updates' (``bench train --parts``) is what it does besides updating.
 """
 
 from __future__ import annotations
@@ -71,8 +68,7 @@ def summarise(stages: list[dict]) -> dict:
 
 def training_inside(profile: str, method: str, updates: int, train_cpu: float,
                     parts_updates: int) -> dict:
-    """One method's training CPU split into its updates (timed alone, with their parts) and
-    the rest of its stages."""
+    """One method's training CPU: its updates (timed alone, with their parts) and the rest."""
     from igdrivsim.bench.train import bench_profile  # JAX: only when timing
 
     rec = bench_profile(profile, method, updates=parts_updates, parts=True)
@@ -119,7 +115,7 @@ def bench_pipeline_command(args: argparse.Namespace) -> int:
         record["stages"] = stage_costs(work)
     record["groups"] = summarise(record["stages"])
     if args.parts_updates:
-        inside = []
+        record["training"] = inside = []
         for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
             cpu = sum(s["cpu_seconds"] or s["seconds"] for s in record["stages"]
                       if s["stage"] == f"train_{method}"
@@ -127,7 +123,6 @@ def bench_pipeline_command(args: argparse.Namespace) -> int:
             inside.append(training_inside(args.profile, method, args.updates, cpu,
                                           args.parts_updates))
             print(json.dumps(inside[-1]), flush=True)
-        record["training"] = inside
     print(json.dumps({"groups": record["groups"]}), flush=True)
     if args.out:
         atomic_write_json(args.out, {**record, "machine": machine_record()}, indent=2)

@@ -1,17 +1,13 @@
 """``igdrivsim bench sim``: scenario-steps/s of reset + 80 steps with observation and metrics.
 
-Two implementations of the same episode, timed in one run on one batch: **naive** (a port of
-Waymax's approach: the offroad metric measures the distance from the SDC box corners to every
-roadgraph point, non-edges masked) and **igdrivsim** (what every rollout runs: the map's road
-edges in their own array, compacted once at reset). They give the same metrics and
-observations (tested); the difference is the offroad metric's cost. Both run the discretised
-expert with the observation of ``--obs`` at every step (a checksum kept so that XLA cannot drop
-it) and the per-step metrics; ``--agents log,idm`` also times the igdrivsim path under IDM sim
-agents (column ``igdrivsim+idm``). Results kept in the repository: docs/bench/.
+Two implementations of the same episode (same metrics and observations, tested): **naive**
+(Waymax's offroad metric: SDC box corners against every roadgraph point, non-edges masked) and
+**igdrivsim** (the road edges compacted once at reset). Both run the discretised expert with
+the ``--obs`` observation (kept as a checksum so that XLA cannot drop it); ``--agents log,idm``
+also times igdrivsim under IDM sim agents (``igdrivsim+idm``). Results: docs/bench/.
 
-This is the one episode loop not on :func:`igdrivsim.simulator.rollout.run_episode`, on
-purpose: its scan carries only what changes (the simulated SDC, the sim agents, the timestep)
-and keeps the log and the roadgraph as loop constants, timing the observation paths themselves.
+Not on :func:`igdrivsim.simulator.rollout.run_episode` on purpose: the scan carries only what
+changes and keeps the log and the roadgraph as loop constants.
 """
 
 from __future__ import annotations
@@ -44,8 +40,7 @@ DEFAULT_PARAMS = SimParams()
 
 
 def naive_reset(scenario: Any, params: SimParams = DEFAULT_PARAMS) -> SimState:
-    """Reset where every roadgraph slot is a road-edge candidate (non-edges masked), as a
-    direct Waymax port would."""
+    """Reset with every roadgraph slot a road-edge candidate (non-edges masked), as in Waymax."""
     sc = jax.tree.map(jnp.asarray, scenario)
     tiny = SimParams(dynamics=params.dynamics, edge_capacity=1,
                      offroad_method=params.offroad_method)
@@ -75,7 +70,6 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
     episode_keys = jax.random.split(key, state.timestep.shape[0])
 
-    # only what changes is carried (module docstring): XLA never copies the log or the roadgraph
     def body(carry, _):
         sdc, t, agents = carry
         st = state.replace(sdc=sdc, timestep=t, agents=agents)
@@ -161,27 +155,25 @@ def bench_sim_command(args) -> int:
         sc, k, impl=impl, setting_name=args.setting, params=p)) for i, a in cells}
     steps = DEFAULT_PARAMS.num_controlled_steps
     rows: list[dict] = []
-    bar = tqdm(total=len(batches) * len(fns), desc="bench sim", unit="cell")
-    for b in batches:
-        sc = _batch(pool, b)
-        for name, fn in fns.items():
-            if name == "naive" and b > args.skip_naive_above:
+    with tqdm(total=len(batches) * len(fns), desc="bench sim", unit="cell") as bar:
+        for b in batches:
+            sc = _batch(pool, b)
+            for name, fn in fns.items():
+                if name == "naive" and b > args.skip_naive_above:
+                    bar.update()
+                    continue
+                compile_s, sec, cpu, (metrics, _) = time_episode(fn, sc, key, args.repeats)
+                rows.append({
+                    "batch": b, "impl": name, "agents": "idm" if name.endswith("+idm") else "log",
+                    "scenario_steps_per_s": round(b * steps / sec, 1),
+                    "scenario_steps_per_cpu_s": round(b * steps / cpu, 1),
+                    "seconds_per_call": round(sec, 4), "cpu_seconds_per_call": round(cpu, 4),
+                    "first_call_s": round(compile_s, 2),
+                    "overlap_steps": int(np.sum(metrics.overlap[0])),
+                    "offroad_steps": int(np.sum(metrics.offroad[0])),
+                    "device": jax.devices()[0].platform, "setting": args.setting})
                 bar.update()
-                continue
-            compile_s, sec, cpu, out = time_episode(fn, sc, key, args.repeats)
-            metrics = out[0]
-            row = {"batch": b, "impl": name, "agents": "idm" if name.endswith("+idm") else "log",
-                   "scenario_steps_per_s": round(b * steps / sec, 1),
-                   "scenario_steps_per_cpu_s": round(b * steps / cpu, 1),
-                   "seconds_per_call": round(sec, 4), "cpu_seconds_per_call": round(cpu, 4),
-                   "first_call_s": round(compile_s, 2),
-                   "overlap_steps": int(np.sum(metrics.overlap[0])),
-                   "offroad_steps": int(np.sum(metrics.offroad[0])),
-                   "device": jax.devices()[0].platform, "setting": args.setting}
-            rows.append(row)
-            bar.update()
-            tqdm.write(json.dumps(row))
-    bar.close()
+                tqdm.write(json.dumps(rows[-1]))
     names = list(fns)
     print("scenario-steps per second (wall clock):")
     print(format_table(rows, names))

@@ -1,12 +1,9 @@
 """``igdrivsim bench train``: training samples/s and gradient steps/s of a profile.
 
-Times the real jitted update (a method's whole update: observations, rollout for the methods
-that drive, forward + backward over the 90-step episode, Adam) for every setting of ``--obs``
-and every seed in one program, on constructed straight-road scenarios, after compiling it
-(``compile_s``) and one untimed call. A *sample* is one scenario at one of the 80 controlled
-steps trained forward and backward; a gradient step one Adam step of one (setting, seed).
-Recording the teacher-forced observations (once per dataset) is not timed. Prints one JSON line
-per profile (``cpu_seconds_per_update``: process CPU time, robust on a shared machine).
+Times a method's whole jitted update for every ``--obs`` setting and seed in one program, on
+straight-road scenarios, after compiling it and one untimed call (the teacher-forced records,
+made once per dataset, are not timed). A *sample* is one scenario at one controlled step; a
+gradient step one Adam step of one (setting, seed). Prints one JSON line per profile.
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ import json
 import os
 import re
 import time
-from collections import defaultdict
+from collections import Counter
 
 import jax
 import numpy as np
@@ -76,10 +73,9 @@ def bench_train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def trace_summary(trace_dir: str, top: int = 15) -> dict:
-    """Where a traced update's time went, from the Perfetto trace under ``trace_dir``: the
-    busiest device (on a CPU, XLA thread) operations by total duration, named by their timeline
-    line with digits folded (``fusion.123`` -> ``fusion.N``) so that a kernel kind sums over its
-    instances (lines overlap: shares are of all lines' busy time); and the traced span."""
+    """The busiest device (on a CPU, XLA thread) operations of the Perfetto trace under
+    ``trace_dir`` by total duration, digits folded (``fusion.123`` -> ``fusion.N``) so that a
+    kernel kind sums its instances (shares of all lines' busy time); and the traced span."""
     files = sorted(glob.glob(os.path.join(trace_dir, "**", "perfetto_trace.json.gz"),
                              recursive=True))
     if not files:
@@ -94,8 +90,7 @@ def trace_summary(trace_dir: str, top: int = 15) -> dict:
     device = {pid for pid, n in names.items() if "/device:" in n}
     keep = device or {pid for pid, n in names.items() if "host" in n.lower()} or set(names)
     spans = [e for e in events if e.get("ph") == "X" and e.get("pid") in keep and "dur" in e]
-    busy: dict[str, float] = defaultdict(float)
-    count: dict[str, int] = defaultdict(int)
+    busy, count = Counter(), Counter()
     for e in spans:
         thread = re.sub(r"\d+", "N", threads.get((e["pid"], e.get("tid")), ""))
         name = thread + ": " + re.sub(r"\d+", "N", e.get("name", "?"))
@@ -120,17 +115,15 @@ def forward_flops_per_step(policy, obs_config, params) -> int:
 
 
 def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> dict:
-    """Seconds of each part of one update of the first setting and seed, each jitted and timed
-    alone (mean of ``repeats`` calls after one untimed): recording the teacher-forced episodes,
-    the setting's observations, the method's collection and one forward and backward pass."""
+    """Seconds of each part of one update of the first setting and seed (record, observe,
+    collect, forward and backward), each jitted and timed alone (mean of ``repeats`` calls)."""
     from functools import partial
 
     from igdrivsim.observation import get_setting
     from igdrivsim.training.update import _loss, collect, expert_sequences, record_episode
 
     def timed(fn, *args):
-        out = fn(*args)
-        jax.block_until_ready(out)
+        jax.block_until_ready(fn(*args))
         t0 = time.perf_counter()
         for _ in range(repeats):
             out = fn(*args)
@@ -142,8 +135,7 @@ def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> 
     setting = spec.setting or get_setting("full")
     rec, record_s = timed(jax.jit(jax.vmap(lambda s: record_episode(s, spec.sim, spec.record))),
                           st)
-    b = rec.sdc_yaw.shape[0]
-    episode_keys = jax.random.split(first(keys), b)
+    episode_keys = jax.random.split(first(keys), rec.sdc_yaw.shape[0])
     _, observe_s = timed(jax.jit(lambda r, k: expert_sequences(spec, r, setting, k)), rec,
                          episode_keys)
     data, collect_s = timed(jax.jit(lambda p, r, s, tp, k: collect(
@@ -177,8 +169,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     spec = update_spec(config, teacher_policy)
     mesh = make_mesh()
     inputs.check_batch(config.data.batch_size, mesh)
-    caps = config.capacities
-    scenarios = [toy.straight_road(caps, speed=4.0 + i % 8) for i in range(config.data.batch_size)]
+    scenarios = [toy.straight_road(config.capacities, speed=4.0 + i % 8)
+                 for i in range(config.data.batch_size)]
     dataset = inputs.Dataset.from_config(config, scenarios, spec.sim,
                                          need_states=config.collects_rollout)
     rep = replicated(mesh)
@@ -193,9 +185,8 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
         teacher_params = init_params_per_seed(
             teacher_policy, list(seed_keys(config)), example_observation(spec.obs))
     keys = place(seed_keys(config), rep)
-    settings = stack_settings(config.settings)
     teacher, states = place(dataset.host_batch(0), batch_sharding(mesh))
-    args = (teacher, states, settings, teacher_params, keys)
+    args = (teacher, states, stack_settings(config.settings), teacher_params, keys)
     t0 = time.perf_counter()
     update = make_update(spec).lower(params, opt_state, buffer, *args, 0, 1e-3).compile()
     compile_s = time.perf_counter() - t0
@@ -220,14 +211,12 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
         with_states = inputs.Dataset.from_config(config, scenarios, spec.sim, need_states=True)
         traced["parts_s"] = time_parts(spec, params, with_states.host_batch(0)[1], keys,
                                        teacher_params)
-    t = config.training
     steps, grads = config.steps_per_update()
     return {"profile": profile, "method": method, "backend": jax.default_backend(),
             "devices": mesh.size, "params_per_seed": n_params,
-            "forward_matmul_flops_per_step": step_flops, "seeds": t.seeds,
-            "settings": len(config.settings),
-            "batch": config.data.batch_size, "compile_s": round(compile_s, 2),
-            "first_update_s": round(first_s, 2),
+            "forward_matmul_flops_per_step": step_flops, "seeds": config.training.seeds,
+            "settings": len(config.settings), "batch": config.data.batch_size,
+            "compile_s": round(compile_s, 2), "first_update_s": round(first_s, 2),
             "seconds_per_update": round(per_update, 4),
             "cpu_seconds_per_update": round(cpu_per_update, 4),
             "updates_per_s": round(1.0 / per_update, 3),

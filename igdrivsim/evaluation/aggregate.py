@@ -1,25 +1,21 @@
 """Aggregate tidy evaluation CSVs across seeds: means, 95% confidence intervals, effects vs BC.
 
-- **Mean and 95% CI over seeds**: each seed's mean over the validation scenarios, then the mean
-  of the seed means with a t interval (``n - 1`` degrees of freedom), the paper's "mean over
-  three seeds with 95% CI".
-- **Effect of a method vs BC: two-level bootstrap.** Seeds are resampled with replacement within
-  each method (independent runs), then scenarios with the *same* resampled ids for both methods
-  and every seed (scenario difficulty is the largest variance). The 95% interval is the
-  percentile interval of ``N_RESAMPLES`` replicates, the p-value ``2 min(P*(d <= 0),
-  P*(d >= 0))`` add-one smoothed. With 3 seeds the seed level is coarse and slightly optimistic.
-- **Holm over every cell of the table** (settings x metrics x methods): a cell is significant,
-  bold in Table I, when its Holm-adjusted p is below ``ALPHA``.
-- **Minimum detectable effect** ``(z_{1-a/2} + z_{0.8}) * SE`` at ``a = ALPHA`` (``mde``) and
-  at ``ALPHA / n_cells`` (``mde_holm``).
+- **Mean and 95% CI**: each seed's mean over the scenarios, then a t interval (``n - 1``
+  degrees of freedom) over the seed means: the paper's "mean over three seeds with 95% CI".
+- **Effect vs BC, two-level bootstrap**: seeds resampled within each method, then scenarios with
+  the *same* ids for both methods and every seed (scenario difficulty is the largest variance);
+  the percentile interval of ``N_RESAMPLES`` replicates and the add-one smoothed p-value
+  ``2 min(P*(d <= 0), P*(d >= 0))`` (3 seeds make the seed level coarse, slightly optimistic).
+- **Holm over every cell** (settings x metrics x methods): significant (bold in Table I) when
+  the adjusted p is below ``ALPHA``; minimum detectable effect ``(z_{1-a/2} + z_{0.8}) * SE``
+  at ``ALPHA`` (``mde``) and at ``ALPHA / n_cells`` (``mde_holm``).
 
-A fixed seed per setting makes the tables reproducible; Welch's t-test over the seed means is
-kept in ``tests.csv`` as a check.
+A fixed seed per setting makes the tables reproducible; Welch's t-test over the seed means
+is kept in ``tests.csv`` as a check.
 """
 
 from __future__ import annotations
 
-import os
 import warnings
 import zlib
 from collections.abc import Iterable, Sequence
@@ -50,22 +46,13 @@ TEST_SEED = 0
 _CHUNK = 2_000  # resamples per block: bounds memory at CHUNK x n_scenarios counts
 
 
-def _ends_with_line_end(path: Path) -> bool:
-    """Whether a non-empty file's last byte is a line end (pandas writes one after each row)."""
-    with open(path, "rb") as f:
-        if f.seek(0, os.SEEK_END) == 0:
-            return True
-        f.seek(-1, os.SEEK_END)
-        return f.read(1) == b"\n"
-
-
 def read_csv_checked(path: str | Path, columns: Iterable[str],
                      complete: Iterable[str] = ()) -> pd.DataFrame:
     """Read a tidy CSV checked for ``columns``, a whole last row and values in every row for the
     ``complete`` columns (identifiers); a DataError names the file and row otherwise."""
     path = Path(path)
-    try:
-        cut_off = not _ends_with_line_end(path)
+    try:  # pandas ends each row with a line end: a file without one was cut off
+        cut_off = path.read_bytes()[-1:] not in (b"", b"\n")
     except OSError as err:
         raise DataError(f"cannot read CSV ({err})", file=str(path)) from err
     if cut_off:
@@ -75,7 +62,6 @@ def read_csv_checked(path: str | Path, columns: Iterable[str],
         frame = pd.read_csv(path, dtype={"setting": str, "method": str, "scenario_id": str})
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as err:
         raise DataError(f"cannot read CSV ({err})", file=str(path)) from err
-    columns = list(columns)
     missing = [c for c in columns if c not in frame.columns]
     if missing:
         raise DataError(f"missing columns {missing}", file=str(path))
@@ -106,29 +92,18 @@ def load_evaluations(paths: Iterable[str | Path]) -> tuple[pd.DataFrame, pd.Data
     per_step = pd.concat(steps, ignore_index=True) if steps else pd.DataFrame(
         columns=PER_STEP_COLUMNS)
     per_scenario = pd.concat(scenarios, ignore_index=True)
-    key = ["setting", "method", "seed", "scenario_id"]
-    per_scenario = per_scenario.drop_duplicates(key, keep="last")
-    per_step = per_step.drop_duplicates(["setting", "method", "seed", "step"], keep="last")
-    return per_step, per_scenario
+    return (per_step.drop_duplicates(["setting", "method", "seed", "step"], keep="last"),
+            per_scenario.drop_duplicates(["setting", "method", "seed", "scenario_id"], keep="last"))
 
 
 def seed_means(per_scenario: pd.DataFrame, metrics: Sequence = METRICS) -> pd.DataFrame:
     """Long table ``setting, method, seed, metric, value``: each seed's mean over scenarios at
     Table I's scale (``metrics``: Table I's or the registry's; a missing column is skipped)."""
-    rows = []
     grouped = per_scenario.groupby(["setting", "method", "seed"], sort=True)
-    for metric in metrics:
-        if metric.column not in per_scenario.columns:
-            continue  # evaluated before the metric existed
-        values = grouped[metric.column].mean() * metric.scale
-        part = values.rename("value").reset_index()
-        part["metric"] = metric.key
-        rows.append(part)
+    rows = [(grouped[m.column].mean() * m.scale).rename("value").reset_index().assign(metric=m.key)
+            for m in metrics if m.column in per_scenario.columns]  # else evaluated before it
     columns = ["setting", "method", "seed", "metric", "value"]
-    if not rows:
-        return pd.DataFrame(columns=columns)
-    out = pd.concat(rows, ignore_index=True)
-    return out[columns]
+    return pd.concat(rows, ignore_index=True)[columns] if rows else pd.DataFrame(columns=columns)
 
 
 def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
@@ -156,8 +131,7 @@ def welch_test(x: np.ndarray, y: np.ndarray) -> float:
 
 def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE,
               metrics: Sequence = METRICS) -> pd.DataFrame:
-    """One row per ``(metric, setting, method)``: mean over seeds, CI bounds, counts
-    (``metrics``: as in :func:`seed_means`)."""
+    """One row per ``(metric, setting, method)``: mean over seeds, CI bounds and counts."""
     means = seed_means(per_scenario, metrics)
     counts = per_scenario.groupby(["setting", "method"]).agg(
         n_seeds=("seed", "nunique"), n_scenarios=("scenario_id", "nunique"))
@@ -244,8 +218,6 @@ def holm_adjust(p_values: Sequence[float] | np.ndarray) -> np.ndarray:
     p = np.asarray(p_values, float)
     out = np.full_like(p, np.nan)
     ok = np.flatnonzero(np.isfinite(p))
-    if ok.size == 0:
-        return out
     order = ok[np.argsort(p[ok], kind="stable")]
     m = order.size
     adjusted = np.maximum.accumulate((m - np.arange(m)) * p[order])
@@ -311,19 +283,17 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
             scenarios = complete_scenarios(sub, (method, baseline))
             xa = scenario_cube(sub, method, scenarios)
             xb = scenario_cube(sub, baseline, scenarios)
-            if scenarios.size:
-                c = paired_difference(xa, xb, n_resamples, statistic_seed(setting))
-                diffs, lows, highs, ses, ps = c["diff"], c["lo"], c["hi"], c["se"], c["p"]
-            else:
-                diffs = lows = highs = ses = ps = np.full(len(METRICS), np.nan)
+            nan = np.full(len(METRICS), np.nan)
+            c = (paired_difference(xa, xb, n_resamples, statistic_seed(setting)) if scenarios.size
+                 else dict(diff=nan, lo=nan, hi=nan, se=nan, p=nan))
             for i, metric in enumerate(METRICS):
                 cell = means[(means.setting == setting) & (means.metric == metric.key)]
                 sa, sb = cell[cell.method == method], cell[cell.method == baseline]
                 rows.append(dict(
                     method=method, baseline=baseline, metric=metric.key, setting=setting,
                     mean_a=float(sa.value.mean()), mean_b=float(sb.value.mean()),
-                    diff=float(diffs[i]), ci_low=float(lows[i]), ci_high=float(highs[i]),
-                    se=float(ses[i]), p_value=float(ps[i]),
+                    diff=float(c["diff"][i]), ci_low=float(c["lo"][i]), ci_high=float(c["hi"][i]),
+                    se=float(c["se"][i]), p_value=float(c["p"][i]),
                     p_welch=welch_test(sa.value.to_numpy(), sb.value.to_numpy()),
                     n_seeds_a=int(xa.shape[0]), n_seeds_b=int(xb.shape[0]),
                     n_pairs=int(scenarios.size)))

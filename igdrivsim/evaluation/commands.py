@@ -56,11 +56,10 @@ def evaluate_command(args: argparse.Namespace) -> int:
     for run in args.runs:
         Run.open(run)  # every folder is a run before any is evaluated
     progress = not args.no_progress
-    if isinstance(args.data, list):  # one location as itself, several as a list read in turn
-        args.data = args.data[0] if len(args.data) == 1 else args.data
+    data = args.data[0] if len(args.data) == 1 else args.data  # several: read in turn
     for run in args.runs:
         out = Path(args.out) / Path(run).name if len(args.runs) > 1 else Path(args.out)
-        evaluate_run(run, args.data, out, args.actions, args.max_scenarios, args.batch_size,
+        evaluate_run(run, data, out, args.actions, args.max_scenarios, args.batch_size,
                      args.seed, progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     if args.references:
@@ -70,7 +69,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
             config = Run.open(like).config
             caps, sim = config.capacities, config.sim_params
         out = Path(args.out) / "references" if args.runs else Path(args.out)
-        evaluate_references(args.data, out, caps, sim, args.max_scenarios, args.batch_size,
+        evaluate_references(data, out, caps, sim, args.max_scenarios, args.batch_size,
                             progress, egos=args.egos, agents=args.agents)
         print(f"wrote {out}/per_step.csv, {out}/per_scenario.csv")
     return 0

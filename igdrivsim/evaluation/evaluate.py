@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import jax
+import pandas as pd
 from tqdm import tqdm
 
 from igdrivsim.data import Capacities
@@ -26,11 +27,8 @@ from igdrivsim.machine import code_state
 from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
 
-
-def trained_record(run: Run) -> dict:
-    """What the evaluation record says of the code, scenarios and updates that trained it."""
-    return {k: run.record[k] for k in ("code", "code_resumed", "num_scenarios", "num_updates")
-            if k in run.record}
+# what the evaluation record says of the code, scenarios and updates that trained the run
+TRAINED_KEYS = ("code", "code_resumed", "num_scenarios", "num_updates")
 
 
 def _bar(total: int, desc: str, enabled: bool):
@@ -51,8 +49,6 @@ def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
                  agents: str | None = None) -> Path:
     """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``
     (``scenarios``: stacked and fitted to the run, instead of ``data``)."""
-    import pandas as pd  # heavy: pandas is needed only here
-
     _check_sizes(max_scenarios, batch_size)
     run = Run.open(run_dir)
     config, params, seeds = run.config, run.params(), list(run.config.seeds)
@@ -66,26 +62,24 @@ def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
     label = ",".join(settings)
     with _bar(len(ids), f"evaluate {label}/{method}", progress) as bar:
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
-                                  setting=settings, obs_config=config.obs_config,
-                                  params=sim, actions=actions,
-                                  batch_size=batch_size, seed=seed, progress=bar.update,
-                                  episode_metrics=True)
+                                  setting=settings, obs_config=config.obs_config, params=sim,
+                                  actions=actions, batch_size=batch_size, seed=seed,
+                                  progress=bar.update, episode_metrics=True)
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
               for g, name in enumerate(settings)]
-    per_step = pd.concat([f[0] for f in frames], ignore_index=True)
-    per_scenario = with_origins(pd.concat([f[1] for f in frames], ignore_index=True), origins)
-    return _write(out, per_step, per_scenario, dict(
-        run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
+    steps, scens = zip(*frames, strict=True)
+    return _write(
+        out, pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True), origins,
+        egos, run=str(run_dir), data=str(data), setting=label, settings=settings, method=method,
         seeds=seeds, profile=config.profile, actions=actions, eval_seed=seed,
         num_scenarios=len(ids), sim=dataclasses.asdict(sim),
-        trained=trained_record(run), **({} if egos == "sdc" else {"egos": egos})))
+        trained={k: run.record[k] for k in TRAINED_KEYS if k in run.record})
 
 
 def evaluate_references(data, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
                         scenarios=None, egos: str = "sdc", agents: str | None = None) -> Path:
-    """Evaluate the discretised expert and constant velocity; write their tidy CSVs
-    (``agents``: the sim agents, None: ``sim``'s)."""
+    """Evaluate the discretised expert and constant velocity (``agents`` None: ``sim``'s)."""
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = with_agents(sim or SimParams(), agents)
@@ -96,10 +90,8 @@ def evaluate_references(data, out: str | Path, caps=None, sim=None,
     with _bar(2 * n, "evaluate references", progress) as bar:
         per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
                                                   progress=bar.update)
-    per_scenario = with_origins(per_scenario, origins)
-    return _write(out, per_step, per_scenario, dict(
-        references=True, data=str(data), num_scenarios=n, sim=dataclasses.asdict(sim),
-        **({} if egos == "sdc" else {"egos": egos})))
+    return _write(out, per_step, per_scenario, origins, egos, references=True, data=str(data),
+                  num_scenarios=n, sim=dataclasses.asdict(sim))
 
 
 def with_agents(sim: SimParams, agents: str | None) -> SimParams:
@@ -107,13 +99,15 @@ def with_agents(sim: SimParams, agents: str | None) -> SimParams:
     return sim if agents is None else dataclasses.replace(sim, agents=agents)
 
 
-def _write(out, per_step, per_scenario, info: dict) -> Path:
-    """Write the tidy CSVs and the evaluation record (process 0 only)."""
+def _write(out, per_step, per_scenario, origins, egos: str, **info) -> Path:
+    """Write the tidy CSVs (with the ``origins``) and the record ``info`` (process 0 only)."""
     out = Path(out)
     if jax.process_index() != 0:
         return out
     atomic_write_csv(out / PER_STEP_FILE, per_step.round(6))
-    atomic_write_csv(out / PER_SCENARIO_FILE, per_scenario.round(6))
+    atomic_write_csv(out / PER_SCENARIO_FILE, with_origins(per_scenario, origins).round(6))
+    if egos != "sdc":
+        info["egos"] = egos
     atomic_write_json(out / EVAL_CONFIG, {**info, "code": code_state()}, indent=2,
                       sort_keys=True)
     return out

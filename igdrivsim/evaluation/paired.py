@@ -1,20 +1,16 @@
-"""Paired statistics of a driver against a reference over egos, that survive heavy tails.
+"""Paired statistics of a driver against a reference ego by ego, that survive heavy tails (on
+real logs a few egos diverge by 15 m or more, so a mean difference has little power):
 
-On real logs a few egos diverge by 15 m or more, so a mean difference has little power; these
-compare a driver with a reference (constant velocity, the expert) ego by ego:
-
-- **Win share**: the share of (ego, seed) pairs where the driver's log divergence is lower than
-  the reference's on the same ego (a tie counts one half).
+- **Win share**: the share of (ego, seed) pairs where the driver's log divergence is below the
+  reference's on the same ego (a tie counts one half).
 - **Median paired difference** over egos of ``driver - reference`` (the driver's seed mean).
-- **Mean ratio** of the driver's mean to the reference's, with its **minimum detectable
-  effect** (:func:`igdrivsim.evaluation.aggregate.minimum_detectable_effect`); the mean
-  difference ``diff`` too.
+- **Mean ratio** of the driver's mean to the reference's and the mean difference ``diff``, with
+  their minimum detectable effects.
 
-95% percentile intervals come from a **hierarchical bootstrap**: source scenarios with every
-ego of a drawn source (egos of one scene are one cluster), then the driver's seeds; the
-reference is its mean over seeds per ego. Where the driver wins on every ego or on none, the
-win share's interval is Wilson's, one trial per source scenario. An ego's source is the
-frame's ``source`` column, else :func:`source_of` its ``scenario_id``.
+95% percentile intervals come from a **hierarchical bootstrap**: source scenarios (every ego of
+a drawn source), then the driver's seeds; the reference is its mean over seeds per ego. Where
+the driver wins on every ego or on none, the win share's interval is Wilson's, one trial per
+source. An ego's source is the ``source`` column, else :func:`source_of` its ``scenario_id``.
 """
 
 from __future__ import annotations
@@ -50,8 +46,7 @@ def source_of(scenario_id: str) -> str:
 def sources(frame: pd.DataFrame) -> pd.Series:
     """Each row's source scenario: its ``source`` column, else :func:`source_of` its id."""
     ids = frame["scenario_id"].astype(str)
-    given = frame[SOURCE_COLUMN] if SOURCE_COLUMN in frame.columns else pd.Series(
-        float("nan"), index=frame.index)
+    given = frame.get(SOURCE_COLUMN, pd.Series(float("nan"), index=frame.index))
     missing = given.isna() | (given.astype(str) == "")
     if not missing.any():
         return given.astype(str)

@@ -1,10 +1,9 @@
 """The registry of per-scenario metrics beyond Table I: the one place a metric is added.
 
-A :class:`ScenarioMetric` names its ``per_scenario.csv`` column, label, unit, direction and
-source, and is computed by ``episode`` (``(final_state, params) -> f32[]`` inside the jitted
-rollout) or ``derive`` (from the other columns of a row). The rollout, the CSV columns, the
-supplementary table and figure iterate over :data:`REGISTRY`; :func:`register` adds one at run
-time. Definitions: docs/metrics.md; adding one: docs/EXTENDING.md.
+A :class:`ScenarioMetric` is computed by ``episode`` (``(final_state, params) -> f32[]`` inside
+the jitted rollout) or ``derive`` (from the other columns of a row). The rollout, the CSV
+columns, the supplementary table and figure iterate over :data:`REGISTRY`; :func:`register`
+adds one at run time. Definitions: docs/metrics.md; adding one: docs/EXTENDING.md.
 """
 
 from __future__ import annotations

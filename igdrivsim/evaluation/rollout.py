@@ -62,8 +62,7 @@ def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, met
         step_rows += [(setting, method, seed, k + 1, step_ld[k], step_ov[k], step_off[k])
                       for k in range(num_steps)]
         max_ld = np.where(v, ld, -np.inf).max(axis=1)
-        any_ov = (np.where(v, ov, 0.0) > 0).any(axis=1)
-        any_off = (np.where(v, off, 0.0) > 0).any(axis=1)
+        any_ov, any_off = ((np.where(v, a, 0.0) > 0).any(axis=1) for a in (ov, off))
         mean_ld, frac_ov, frac_off = (_masked_mean(a, v, axis=1) for a in (ld, ov, off))
         for i, sid in enumerate(scenario_ids):
             if not v[i].any():
@@ -91,8 +90,7 @@ def with_origins(per_scenario: pd.DataFrame, origins: list[dict] | None) -> pd.D
 
 def scenario_ids_of(scenarios) -> list[str]:
     """Decoded scenario ids of stacked scenarios ``[N]``."""
-    ids = np.asarray(scenarios.scenario_id)
-    return [decode_scenario_id(row) for row in ids]
+    return [decode_scenario_id(row) for row in np.asarray(scenarios.scenario_id)]
 
 
 def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_size: int = 32,

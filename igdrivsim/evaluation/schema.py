@@ -1,10 +1,6 @@
-"""Names shared by the evaluation outputs: settings, methods, metrics and the paper's Table I.
-
-The tidy CSVs written by :mod:`igdrivsim.evaluation.rollout` and read by
-:mod:`igdrivsim.evaluation.aggregate` use exactly these names, so a table or a figure never
-has to guess what a column means.
-
-This module imports no JAX; the settings' and methods' names are :mod:`igdrivsim.names`'.
+"""Names shared by the evaluation outputs (the tidy CSVs written by :mod:`.rollout` and read by
+:mod:`.aggregate`): files, columns, metrics and the paper's Table I. Imports no JAX; the
+settings' and methods' names are :mod:`igdrivsim.names`'.
 """
 
 from __future__ import annotations
@@ -13,10 +9,9 @@ from dataclasses import dataclass
 
 from igdrivsim.names import SETTINGS
 
-# Competence targets of a learned driver against constant velocity on the same scenarios
-# (the project's own bar, not the paper's): metric -> (largest ratio allowed, label, unit).
-# Log divergence: 0.7x on synthetic validation (the paper's BC is about 0.8x the constant
-# velocity measured on real logs).
+# Competence targets of a learned driver against constant velocity on the same scenarios (the
+# project's own bar; the paper's BC is about 0.8x on real logs): metric -> (largest ratio
+# allowed, label, unit).
 COMPETENCE: dict[str, tuple[float, str, str]] = {
     "log_divergence": (0.7, "log divergence", "m"),
     "offroad": (0.25, "offroad", "% steps"),
@@ -24,10 +19,10 @@ COMPETENCE: dict[str, tuple[float, str, str]] = {
 }
 
 
-# Targets of Full BC against constant velocity on real logs, every ego, Table I's protocol
-# (sampled actions): the share of egos where it stays closer to the log (at least WIN, with the
-# 95% interval's lower end above one half), its mean log divergence over constant velocity's
-# (at most RATIO) and its offroad over constant velocity's (at most OFFROAD).
+# Targets of Full BC against constant velocity on real logs, every ego, sampled actions: the
+# share of egos where it stays closer to the log (at least WIN, the 95% interval's lower end
+# above one half), and its mean log divergence and offroad over constant velocity's (at most
+# RATIO and OFFROAD).
 REAL_COMPETENCE = {"win": 0.6, "ratio": 0.9, "offroad": 1.0}
 
 

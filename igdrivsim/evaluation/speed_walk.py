@@ -1,13 +1,12 @@
-"""Why sampled BC drifts along the road: the speed random walk of the discretised expert's labels.
-
-``igdrivsim speed-walk --data DIR [--limit N] [--out FILE.json] [--no-progress]``
+"""Why sampled BC drifts along the road: the speed random walk of the discretised expert's labels
+(``igdrivsim speed-walk``).
 
 Relative to the constant-velocity level, the expert's ``dx`` label (which corrects the
 quantisation error the imitator cannot see) is near-memoryless noise of +-1 level; sampling a
-BC fit of it integrates it twice. Measured on a dataset without a trained policy: the label
-offsets' distribution and entropies (also given the previous offset), and four actors with
-the expert's steering and ``dx`` from the expert, the constant-velocity level, that level plus
-an i.i.d. offset, or plus an offset drawn given the actor's previous one.
+BC fit of it integrates it twice. Measured without a trained policy: the label offsets'
+distribution and entropies (also given the previous offset), and four actors with the expert's
+steering and ``dx`` from the expert, the constant-velocity level, that level plus an i.i.d.
+offset, or plus an offset drawn given the actor's previous one.
 """
 
 from __future__ import annotations
@@ -57,9 +56,8 @@ def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
             draw = offsets[jax.random.categorical(k, log_probs, shape=cv.shape)]
             levels = levels.at[..., 0].set(cv + draw)
         elif actor == "expert_steering_offsets_given_previous":
-            draw = OFFSETS[jax.random.categorical(k, log_probs_given_previous[previous + 3])]
-            levels = levels.at[..., 0].set(cv + draw)
-            previous = draw
+            previous = OFFSETS[jax.random.categorical(k, log_probs_given_previous[previous + 3])]
+            levels = levels.at[..., 0].set(cv + previous)
         return dynamics.undiscretize(levels), previous, label_offset
 
     def init(s, k):  # the previous offset: none before the first controlled step
@@ -168,9 +166,8 @@ def report_tex(result: dict) -> str:
 def report_markdown(result: dict) -> str:
     """The result as a Markdown table (``tables/speed_walk.md``)."""
     stats = result["label_offsets"]
-    pairs = ", ".join(f"{k:+d}: {p:.3f}" for k, p in zip(stats["offset_levels"],
-                                                        stats["offset_probability"],
-                                                        strict=True))
+    pairs = ", ".join(f"{k:+d}: {p:.3f}" for k, p in zip(
+        stats["offset_levels"], stats["offset_probability"], strict=True))
     lines = [f"Speed walk on {result['scenarios']} scenarios "
              "(`igdrivsim speed-walk`).", "",
              f"Expert dx label minus the constant-velocity level: {pairs}; entropy "

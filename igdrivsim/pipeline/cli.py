@@ -1,6 +1,5 @@
-"""``scripts/reproduce.sh``'s command line: options -> a
-:class:`~igdrivsim.pipeline.stages.Pipeline`, run with a one-line error on bad input and a
-resumable stop on Ctrl-C or SIGTERM."""
+"""``scripts/reproduce.sh``'s command line: options -> a :class:`.stages.Pipeline`, run with a
+one-line error on bad input and a resumable stop on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
@@ -111,10 +110,8 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                 expand_paths(where)  # names files, else a one-line error (before any stage)
         else:
             raise ConfigError("--data takes one folder or two locations (TRAIN VAL)")
-    if args.out:
-        work, paper = Path(args.out), Path(args.out) / "paper"
-    else:
-        work, paper = REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"
+    work, paper = ((Path(args.out), Path(args.out) / "paper") if args.out
+                   else (REPO_ROOT / "outputs" / profile.name, REPO_ROOT / "paper"))
     require_folder(work)
     settings = tuple(s.strip() for s in args.settings.split(",")) if args.settings else None
     if settings is not None and (not all(settings) or len(set(settings)) != len(settings)):
@@ -127,14 +124,13 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if not methods or len(set(methods)) != len(methods):
         raise ConfigError(f"--methods must name distinct methods, got {args.methods!r}")
-    for name in methods:
-        get_method(name)  # a registered method, else a one-line error naming the choices
-    if any(get_method(m).teacher for m in methods):
-        plain = [m for m in methods if not get_method(m).teacher]
-        if not plain or (settings is not None and TEACHER_SETTING not in settings):
-            raise ConfigError("--methods: a method with a privileged teacher needs a method "
-                              f"without one (bc, bc_rl) trained on the {TEACHER_SETTING!r} "
-                              "setting to pick the teacher from")
+    # get_method: a registered method, else a one-line error naming the choices
+    taught = [m for m in methods if get_method(m).teacher]
+    if taught and (len(taught) == len(methods)
+                   or (settings is not None and TEACHER_SETTING not in settings)):
+        raise ConfigError("--methods: a method with a privileged teacher needs a method "
+                          f"without one (bc, bc_rl) trained on the {TEACHER_SETTING!r} "
+                          "setting to pick the teacher from")
 
     with_overrides(get_profile(args.profile), args.overrides)  # a bad --set fails here, clearly
     if args.workers < 0:
@@ -146,17 +142,13 @@ def pipeline_from_args(args: argparse.Namespace) -> Pipeline:
                     samples_given=tuple(args.samples or ()))
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     on_main = threading.current_thread() is threading.main_thread()
     if on_main:
         # `kill` stops the stages as Ctrl-C does, while this call runs (then the caller's
         # handler is back: a process that called main() keeps its own)
-        previous = signal.signal(signal.SIGTERM, _interrupt)
+        previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
     pipeline = None
 
     def body() -> None:

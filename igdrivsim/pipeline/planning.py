@@ -1,15 +1,10 @@
 """What a reproduction will run, over how many worker processes, and how long it should take.
 
-The (setting, method) grid is split into *parts*: one training process each, with its settings
-in one compiled program (settings as data) and one XLA thread on a CPU. :func:`split_grid`
-chooses as few parts as keep every worker busy (longest-first over the workers within 5% of
-the ideal); :func:`estimate_seconds` prices the run from the measured per-update costs of
-:mod:`igdrivsim.training.cost`. A run's numbers do not depend on the split (every setting's
-parameters are a function of its seed and the data order only), so a run may be resumed on
-another machine.
-
-``igdrivsim plan [--profile P] [--cores 1,2,4,8,16]`` prints the
-estimated wall time of the default run for each core count.
+The (setting, method) grid is split into *parts*, one training process each (its settings in
+one program, one XLA thread on a CPU): :func:`split_grid` chooses as few parts as keep every
+worker busy; :func:`estimate_seconds` prices them from :mod:`igdrivsim.training.cost`. The
+numbers do not depend on the split, so a run may be resumed on another machine.
+``igdrivsim plan`` prints the estimated wall time of the default run per core count.
 """
 
 from __future__ import annotations
@@ -30,9 +25,8 @@ from igdrivsim.training.config import get_profile
 from igdrivsim.training.methods import get_method
 
 TOLERANCE = 1.05  # a split within 5% of the ideal wall time is not split further
-# Memory of one CPU worker: the peak RSS of the default run at 6ae8db5 (two training processes
-# side by side, `/usr/bin/time`: 5.2 GB), taken whole for one worker (an upper bound:
-# each process holds the training records whatever its settings).
+# memory of one CPU worker: the default run's peak RSS with two workers, taken whole (an upper
+# bound: each process holds the training records whatever its settings)
 WORKER_MEMORY_GB = 5.2
 # profiles whose network is the laptop's: the measured per-update costs apply
 PRICED_PROFILES = ("laptop", "quick", "gpu")
@@ -68,8 +62,7 @@ def cpu_model() -> str:
 
 
 def accelerator_name() -> str | None:
-    """``"<device kind> xN"`` of JAX's non-CPU devices, asked in a child process (this one keeps
-    no GPU memory)."""
+    """``"<device kind> xN"`` of JAX's non-CPU devices, asked in a child (keeping no GPU memory)."""
     code = ("import jax; d = jax.devices(); "
             "print('' if d[0].platform == 'cpu' else f'{d[0].device_kind} x{len(d)}')")
     env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
@@ -132,19 +125,15 @@ def chunks(settings: Sequence[str], parts: int) -> list[tuple[str, ...]]:
 def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
                seconds: Callable[[str, int], float], extra: Sequence[float] = ()
                ) -> list[Part]:
-    """Split each method's settings into parts for ``workers`` workers: from one part per method,
-    split the method of the most expensive part until the wall time is within ``TOLERANCE`` of
-    the ideal; the shortest split wins (``seconds(method, n_settings)``: one part's cost;
-    ``extra``: other jobs sharing the workers)."""
+    """Split each method's settings into parts for ``workers``: split the method of the most
+    expensive part until the wall time is within ``TOLERANCE`` of the ideal, keeping the
+    shortest (``seconds(method, n_settings)``: a part's cost; ``extra``: other jobs' costs)."""
     counts = dict.fromkeys(methods, 1)
 
     def parts() -> list[Part]:
-        out = []
-        for method, n in counts.items():
-            for k, group in enumerate(chunks(settings, n)):
-                name = method if n == 1 else f"{method}-{k + 1}of{n}"
-                out.append(Part(method, group, name, seconds(method, len(group))))
-        return out
+        return [Part(method, group, method if n == 1 else f"{method}-{k + 1}of{n}",
+                     seconds(method, len(group)))
+                for method, n in counts.items() for k, group in enumerate(chunks(settings, n))]
 
     def wall(ps: list[Part]) -> float:
         return makespan([p.seconds for p in ps] + list(extra), workers)
@@ -181,9 +170,9 @@ def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
                      settings: Sequence[str], seeds: int, updates: int, workers: int,
                      gpu: bool = False, left: Callable[[str], float] = lambda stage: 1.0
                      ) -> float | None:
-    """Estimated wall seconds of the pipeline (None without measured costs): the training parts
-    and the maze over the workers, then the taught methods', plus the other stages' CPU-s
-    taken as serial; ``left(stage)``: the share of a stage still to run."""
+    """Estimated wall seconds of the pipeline (None without measured costs): the parts and the
+    maze over the workers, then the taught methods', then the other stages serially
+    (``left(stage)``: the share of a stage still to run)."""
     if profile not in PRICED_PROFILES:
         return None
     seconds = part_seconds(profile, seeds, updates, gpu)
@@ -192,8 +181,7 @@ def estimate_seconds(profile: str, plain: Sequence[str], taught: Sequence[str],
     total = makespan([p.seconds * left(f"train_{p.name}") for p in first]
                      + [maze * left("maze")], workers)
     if taught:
-        rest = [s for s in settings if s != "full"]
-        second = split_grid(taught, rest, workers, seconds)
+        second = split_grid(taught, [s for s in settings if s != "full"], workers, seconds)
         total += makespan([p.seconds * left(f"train_{p.name}") for p in second], workers)
     return total + cost.LAPTOP_OTHER_CPU_S * (not (left("report") == 0 and total == 0))
 
@@ -215,13 +203,12 @@ def plan_command(args: argparse.Namespace) -> int:
     if args.profile == "paper":
         print(cost.table1_text(gpu=True))
         return 0
-    config = get_profile(args.profile)
-    t = config.training
+    t = get_profile(args.profile).training
     print(f"profile {args.profile}: {t.num_updates} updates, {t.seeds} seeds, "
           f"{len(SETTINGS)} settings x {', '.join(METHODS)}; one XLA thread per worker")
     print("| cores | parts | estimated wall time |\n|---|---|---|")
+    seconds = part_seconds(args.profile, t.seeds, t.num_updates, False)
     for cores in (int(c) for c in args.cores.split(",")):
-        seconds = part_seconds(args.profile, t.seeds, t.num_updates, False)
         parts = split_grid(METHODS, SETTINGS, cores, seconds, [cost.MAZE_CPU_S])
         wall = estimate_seconds(args.profile, METHODS, (), SETTINGS, t.seeds, t.num_updates,
                                 cores)

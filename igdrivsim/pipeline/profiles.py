@@ -9,8 +9,7 @@ from igdrivsim.names import GPU_SEEDS, SETTINGS
 
 @dataclass(frozen=True)
 class PipelineProfile:
-    """Sizes of one reproduction profile (training hyper-parameters live in the training
-    profile of the same name)."""
+    """Sizes of one reproduction profile (its training hyper-parameters: the training profile's)."""
 
     name: str
     train_scenarios: int  # synthetic training scenarios generated

@@ -1,8 +1,6 @@
-"""Publishing a pipeline run: the report copied into ``PAPER`` with the provenance of the
-stages behind each file, the run's wall time kept across interrupted invocations, the results
-page and the PDF. :class:`Publisher` is the part of :class:`igdrivsim.pipeline.stages.Pipeline`
-that runs after the stages; the pipeline provides its fields.
-"""
+"""The part of :class:`igdrivsim.pipeline.stages.Pipeline` that runs after the stages: the report
+copied into ``PAPER`` with the provenance of the stages behind each file, the run's wall time
+across invocations, the results page and the PDF."""
 
 from __future__ import annotations
 
@@ -24,7 +22,7 @@ WALL_EVERY_S = 60.0
 
 
 class Publisher:
-    """The report's publication and the run's wall time (see the module docstring)."""
+    """The report's publication and the run's wall time (the pipeline provides the fields)."""
 
     def write_results(self) -> None:
         """The default run (report in the repository's paper/): docs/results.md and the
@@ -57,8 +55,7 @@ class Publisher:
             args += ["--obs", ",".join(self.settings)]
         if tuple(self.methods) != tuple(METHODS):
             args += ["--methods", ",".join(self.methods)]
-        for override in self.overrides:
-            args += ["--set", override]
+        args += [a for override in self.overrides for a in ("--set", override)]
         if self.samples_given:
             args += ["--samples", *map(str, self.samples_given)]
         return provenance.command_line(args)
@@ -119,8 +116,7 @@ class Publisher:
             part == m or part.startswith(f"{m}-") for m in self.methods)
 
     def run_pdf(self) -> None:
-        """Build the PDF with latexmk (or pdflatex + bibtex); a LaTeX failure is reported but does
-        not fail the pipeline."""
+        """Build the PDF with latexmk (or pdflatex and bibtex); a LaTeX error is not fatal."""
         if shutil.which("latexmk"):
             target = "pdf"
         elif shutil.which("pdflatex") and shutil.which("bibtex"):

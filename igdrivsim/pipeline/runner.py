@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-import json
 import os
 import subprocess
 import sys
@@ -18,7 +17,7 @@ from pathlib import Path
 
 from igdrivsim import machine
 from igdrivsim.errors import ConfigError, IGDrivSimError
-from igdrivsim.io import atomic_write_text, read_json
+from igdrivsim.io import atomic_write_json, read_json
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 HEARTBEAT_S = 60.0  # a stage running side by side reports its progress line this often
@@ -30,19 +29,14 @@ class StageError(IGDrivSimError):
 
 
 class StageRunner:
-    """Runs stages in ``work`` (its ``logs/`` and ``stages/`` stamps); the pipeline dataclass
-    that inherits it provides the fields."""
-
-    def log_path(self, stage: str) -> Path:
-        return self.work / "logs" / f"{stage}.log"
+    """Runs stages in ``work``; the pipeline dataclass that inherits it provides the fields."""
 
     def stamp_path(self, stage: str) -> Path:
         return self.work / "stages" / f"{stage}.json"
 
     def done(self, stage: str, depends: Sequence[str] = (),
              commands: Sequence[Sequence[str]] | None = None) -> bool:
-        """Complete: stamped (with the same ``commands``, when given), and none of ``depends``
-        ran again in this invocation."""
+        """Stamped (with the same ``commands``, when given), and none of ``depends`` ran again."""
         if not self.stamp_path(stage).is_file() or set(depends) & self.ran:
             return False
         return commands is None or self.stamp(stage).get("commands") == [
@@ -63,11 +57,9 @@ class StageRunner:
 
     def record_spent(self, stages: Sequence[str] | None = None) -> None:
         """Write the seconds of ``stages`` (default: every running one): a killed run keeps them."""
-        for stage in list(self.running if stages is None else stages):
-            if stage not in self.running:  # finished meanwhile (another lane)
-                continue
-            atomic_write_text(self.spent_path(stage),
-                              json.dumps({"seconds": round(self.spent(stage), 1)}) + "\n")
+        # those still running (not finished meanwhile in another lane)
+        for stage in set(self.running).intersection(self.running if stages is None else stages):
+            atomic_write_json(self.spent_path(stage), {"seconds": round(self.spent(stage), 1)})
 
     def stamp(self, stage: str) -> dict:
         """A complete stage's stamp (empty when there is none or it is unreadable)."""
@@ -101,7 +93,7 @@ class StageRunner:
         if self.done(name, depends, commands) and all(Path(p).exists() for p in outputs):
             self._say(f"{name}: complete, skipped")
             return False
-        log = self.log_path(name)
+        log = self.work / "logs" / f"{name}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
         # an old stamp must not survive a rerun that is killed: the next invocation would take
         # the half-rewritten stage (and so its dependents) for complete
@@ -130,11 +122,11 @@ class StageRunner:
             raise
         finally:
             del self.running[name]
-        atomic_write_text(self.stamp_path(name), json.dumps(dict(
+        atomic_write_json(self.stamp_path(name), dict(
             stage=name, seconds=round(seconds, 1), cpu_seconds=round(sum(cpu), 1),
             commands=[list(map(str, c)) for c in commands],
             finished=time.strftime("%Y-%m-%d %H:%M:%S"), device=self.device_text, code=code),
-            indent=2) + "\n")
+            indent=2)
         self.spent_path(name).unlink(missing_ok=True)
         self.ran.add(name)
         elapsed = time.time() - start
@@ -145,21 +137,19 @@ class StageRunner:
     def _run(self, argv: list[str], fh, beat: str | None, cpu: list[float]) -> int:
         """Run one command (``beat``: the stage whose progress line to report every minute);
         append its CPU seconds (its process and the workers it waited for) to ``cpu``."""
-        if self.in_process and argv[0] in ("igdrivsim", "python"):
+        if argv[0] == "igdrivsim":
+            argv = ["python", "-m", "igdrivsim.cli", *argv[1:]]
+        if self.in_process and argv[:2] == ["python", "-m"]:
             before = time.process_time()
             try:
-                return self._run_in_process(argv, fh)
+                return self._run_in_process(argv[2], argv[3:], fh)
             finally:
                 cpu.append(time.process_time() - before)
-        if argv[0] == "igdrivsim":
-            argv = [sys.executable, "-m", "igdrivsim.cli", *argv[1:]]
-        elif argv[0] == "python":
+        if argv[0] == "python":
             argv = [sys.executable, *argv[1:]]
-        # Programs compiled by one stage are reused by later ones with the same shapes (the
-        # evaluation of BC and BC-RL of a setting) and by a resumed pipeline.
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        # Two lanes share one GPU: each process takes GPU memory as it needs it rather than
-        # most of it up front (JAX's default), so the second one does not run out.
+        # two lanes share one GPU: each takes memory as it needs it, not most of it up front;
+        # the compilation cache serves later stages with the same shapes and resumed runs
         env.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
         env.setdefault("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax_cache"))
         if self.one_thread:  # one worker per core: XLA's threads would only compete
@@ -180,8 +170,7 @@ class StageRunner:
                 if self.quiet:
                     continue
                 if beat is None:
-                    sys.stderr.write(text)
-                    sys.stderr.flush()
+                    print(text, end="", file=sys.stderr, flush=True)
                     continue
                 lines = [ln.strip() for ln in text.replace("\r", "\n").splitlines()]
                 latest = next((ln for ln in reversed(lines) if ln), latest)
@@ -206,11 +195,9 @@ class StageRunner:
         return proc.returncode
 
     def _pin(self, pid: int) -> int | None:
-        """Give a worker of a stage running side by side a free core of its own (Linux; None:
-        none free or no affinity API). XLA runs parts of some programs (BC-RL's) on a thread
-        pool whatever its flags, and two such pools on two cores slow each other (two BC-RL
-        lanes side by side: 1.11x faster pinned, docs/bench/pipeline.md). Set right after the
-        process starts, before it starts threads, which inherit it."""
+        """Give a side-by-side worker a free core of its own (None: none free or no affinity
+        API): XLA runs parts of some programs on a thread pool whatever its flags, and two such
+        pools on two cores slow each other. Set before the process starts its threads."""
         with self.core_lock:
             if not self.free_cores:
                 return None
@@ -227,28 +214,22 @@ class StageRunner:
         for proc in list(self.children):
             proc.terminate()
 
-    def _run_in_process(self, argv: list[str], fh) -> int:
-        """``igdrivsim ...`` via the CLI's main, ``python -m module ...`` via its ``main``."""
+    def _run_in_process(self, name: str, args: list[str], fh) -> int:
+        """``python -m name args`` as the module's ``main(args)``. By name: a stage is a command
+        line, and the CLI (``igdrivsim.cli``) is the layer above the pipeline."""
         out = fh if self.quiet else _Tee(fh, sys.stderr)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
             try:
-                if argv[0] == "igdrivsim":
-                    # By name, like ``python -m`` below: a stage is a command line, and the CLI
-                    # is the layer above the pipeline (no import of igdrivsim.cli here).
-                    cli = importlib.import_module("igdrivsim.cli")
-                    return int(cli.main(argv[1:]) or 0)
-                if argv[:2] == ["python", "-m"]:
-                    module = importlib.import_module(argv[2])
-                    if not hasattr(module, "main"):  # a package: python -m runs __main__
-                        module = importlib.import_module(f"{argv[2]}.__main__")
-                    return int(module.main(argv[3:]) or 0)
+                module = importlib.import_module(name)
+                if not hasattr(module, "main"):  # a package: python -m runs __main__
+                    module = importlib.import_module(f"{name}.__main__")
+                return int(module.main(args) or 0)
             except SystemExit as err:  # argparse errors
                 return int(err.code or 0) if isinstance(err.code, int) else 1
             except Exception as err:  # noqa: BLE001 - reported through the stage's log
                 traceback.print_exc()
                 print(f"error: {err}")
                 return 1
-        raise ConfigError(f"cannot run {argv[0]!r} in process")
 
     @contextlib.contextmanager
     def work_lock(self):
@@ -258,8 +239,7 @@ class StageRunner:
 
         self.work.mkdir(parents=True, exist_ok=True)
         path = self.work / "pipeline.lock"
-        fh = open(path, "a+")  # noqa: SIM115 - held open for the whole run
-        try:
+        with open(path, "a+") as fh:  # held open for the whole run
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -273,8 +253,6 @@ class StageRunner:
             fh.write(str(os.getpid()))
             fh.flush()
             yield
-        finally:
-            fh.close()
 
 
 class _Tee:

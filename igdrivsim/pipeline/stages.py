@@ -1,15 +1,10 @@
-"""The whole reproduction as resumable stages (what ``scripts/reproduce.sh`` runs).
+"""The whole reproduction as resumable stages (:mod:`.runner`; ``scripts/reproduce.sh``).
 
-Stages, in order: ``data`` (synthetic shards, unless ``--data``), ``filter``, ``train`` (the
-grid split into parts over one worker process per core, :mod:`igdrivsim.pipeline.planning`),
-``evaluate`` (each part and the references), ``maze`` (Fig. 2), ``render`` (Fig. 1),
-``report``, ``reactive`` (everything again with IDM sim agents), ``real_logs`` (every real
-scenario at hand, every vehicle as the ego; skipped without them) and ``pdf``. Methods with a
-privileged teacher come after a ``teacher`` stage that picks the full-setting run to learn from.
-
-Stages are resumable (:mod:`igdrivsim.pipeline.runner`); the run first prints its plan. Work
-files live under ``WORK``, the report is published under ``PAPER``
-(:mod:`igdrivsim.pipeline.publish`).
+In order: ``data`` (synthetic, unless ``--data``), ``filter``, ``train`` (the grid split into
+parts over the workers, :mod:`.planning`; taught methods after a ``teacher`` stage),
+``evaluate``, ``maze`` (Fig. 2), ``render`` (Fig. 1), ``report``, ``reactive`` (IDM sim agents),
+``real_logs`` (every real scenario at hand, every vehicle as the ego) and ``pdf``. Work files
+live under ``WORK``, the report is published under ``PAPER`` (:mod:`.publish`).
 """
 
 from __future__ import annotations
@@ -99,42 +94,40 @@ class Pipeline(Publisher, StageRunner):
                     f"{self.profile.val_scenarios} validation scenarios generated)")
         return f"{self.train_data} | {self.val_data}"
 
+    @property
+    def pool_workers(self) -> list:
+        """``--workers 1`` in process (no process pool in tests), else nothing."""
+        return ["--workers", 1] if self.in_process else []
+
     def run_data(self) -> tuple[str, str]:
         if self.train_data is not None:
             return self.train_data, str(self.val_data)
         out = self.work / "data"
         p = self.profile
-        workers = ["--workers", 1] if self.in_process else []  # no process pool in tests
         self.stage("data", [["igdrivsim", "generate", "--out", out, "--train",
                              p.train_scenarios, "--val", p.val_scenarios, "--seed", 0,
-                             *workers]],
+                             *self.pool_workers]],
                    outputs=[out / "training", out / "validation"])
         return str(out / "training"), str(out / "validation")
 
     def run_filter(self, train: str, val: str) -> tuple[Path, Path]:
-        outs = []
+        out = self.work / "filtered"
         for split, src in (("training", train), ("validation", val)):
-            out = self.work / "filtered" / split
-            workers = ["--workers", 1] if self.in_process else []
-            self.stage(f"filter_{split}", [["igdrivsim", "filter", src, "--out", out,
-                                            *workers]],
-                       depends=["data"], outputs=[out / MANIFEST])
-            outs.append(out)
-        return outs[0], outs[1]
+            self.stage(f"filter_{split}", [["igdrivsim", "filter", src, "--out", out / split,
+                                            *self.pool_workers]],
+                       depends=["data"], outputs=[out / split / MANIFEST])
+        return out / "training", out / "validation"
 
     def run_train(self, method: str, train_manifest: Path, val_manifest: Path,
                   echo: bool = True, part: planning.Part | None = None) -> None:
-        """One run per part of the grid (default: the method on every setting): its settings
-        and seeds in one compiled program (settings as data); the teacher-forced observations
-        are computed once and cached in WORK/cache. A method with a privileged teacher trains
-        the settings other than ``full`` with the teacher the ``teacher`` stage chose."""
+        """Train one part of the grid (default: the method on every setting) in one program; a
+        method with a privileged teacher skips ``full`` and learns from the chosen teacher."""
         part = part or planning.Part(method, tuple(self.settings), method)
         run = self.work / "runs" / part.name
         settings, sets, depends = part.settings, list(self.overrides), []
         if get_method(method).teacher:
-            choice = read_json(self.teacher_choice)
             settings = tuple(s for s in settings if s != TEACHER_SETTING)
-            sets.append(f"training.teacher={choice['run']}")
+            sets.append(f"training.teacher={read_json(self.teacher_choice)['run']}")
             depends = ["teacher"]
         self.stage(f"train_{part.name}", [[
             "igdrivsim", "train", "--profile", self.profile.name,
@@ -158,9 +151,8 @@ class Pipeline(Publisher, StageRunner):
 
     def run_evaluate(self, name: str, val_manifest: Path, echo: bool = True,
                      agents: str = "log", like: str | None = None) -> None:
-        """Evaluate run ``name`` (``agents``: the sim agents; ``idm`` into ``evals_idm``); with
-        ``like``, the reference actors (``name`` "references") with that run's capacities and
-        simulator settings."""
+        """Evaluate run ``name`` under ``agents`` (:data:`EVAL_FOLDERS`); with ``like``, the
+        reference actors with that run's capacities and simulator settings."""
         folder, suffix, extra = EVAL_FOLDERS[agents]
         out = self.work / folder / name
         what = ([self.work / "runs" / name] if like is None
@@ -185,9 +177,8 @@ class Pipeline(Publisher, StageRunner):
     def run_speed_walk(self, val_manifest: Path, echo: bool = True) -> None:
         """The speed-walk diagnostic of the validation scenarios (no trained policy)."""
         out = self.work / "evals" / "speed_walk.json"
-        self.stage("speed_walk", [["igdrivsim", "speed-walk", "--data",
-                                   val_manifest, "--limit", self.profile.eval_max_scenarios,
-                                   "--out", out]],
+        self.stage("speed_walk", [["igdrivsim", "speed-walk", "--data", val_manifest, "--limit",
+                                   self.profile.eval_max_scenarios, "--out", out]],
                    depends=["filter_validation"], outputs=[out], echo=echo)
 
     def run_maze(self, echo: bool = True) -> None:
@@ -195,16 +186,12 @@ class Pipeline(Publisher, StageRunner):
         self.stage("maze", [["python", "-m", "maze", "--profile",
                              self.profile.maze_profile, "--out", out, "--work", out / "work"]],
                    outputs=[out / "figures" / "fig2_maze.png"], echo=echo)
-        for sub, names in (("figures", ("fig2_maze.pdf", "fig2_maze.png", "fig2_maze.csv",
-                                        "fig2b_maze_baselines.pdf", "fig2b_maze_baselines.png",
-                                        "maze_frames.png")),
-                           ("tables", ("maze_summary.md", "maze_summary.tex", "maze_summary.csv")),
-                           (".", ("maze_config.json",))):
-            for fname in names:
-                src = out / sub / fname
-                if src.exists():
-                    (self.staged / sub).mkdir(parents=True, exist_ok=True)
-                    atomic_copy(src, self.staged / sub / fname)
+        for rel in (*(f"figures/fig2_maze.{ext}" for ext in ("pdf", "png", "csv")),
+                    "figures/fig2b_maze_baselines.pdf", "figures/fig2b_maze_baselines.png",
+                    "figures/maze_frames.png", "maze_config.json",
+                    *(f"tables/maze_summary.{ext}" for ext in ("md", "tex", "csv"))):
+            if (out / rel).exists():  # atomic_copy makes the folder
+                atomic_copy(out / rel, self.staged / rel)
 
     def run_render(self, val: str, echo: bool = True) -> None:
         # Fig. 1 shows a real scenario when one is at hand: the user's data, else the public
@@ -318,12 +305,11 @@ class Pipeline(Publisher, StageRunner):
             profile=asdict(self.profile), train_data=self.train_data, val_data=self.val_data,
             paper=str(self.paper), overrides=list(self.overrides))))
         path = self.work / "pipeline.json"
-        if path.is_file():
-            old = read_json(path, {})
-            for key in ("profile", "train_data", "val_data", "overrides"):
-                if key in old and old[key] != record[key]:
-                    raise ConfigError(f"{path}: this work folder was made with another {key} "
-                                      f"({old[key]!r}); use another --out or the same options")
+        old = read_json(path, {})
+        for key in ("profile", "train_data", "val_data", "overrides"):
+            if key in old and old[key] != record[key]:
+                raise ConfigError(f"{path}: this work folder was made with another {key} "
+                                  f"({old[key]!r}); use another --out or the same options")
         atomic_write_json(path, record, indent=2)
 
     def method_groups(self) -> tuple[list[str], list[str]]:
@@ -340,8 +326,7 @@ class Pipeline(Publisher, StageRunner):
         first = planning.split_grid(plain, self.settings, self.lanes, seconds,
                                     [self.maze_seconds])
         rest = [s for s in self.settings if s != TEACHER_SETTING]
-        second = planning.split_grid(taught, rest, self.lanes, seconds) if taught else []
-        return first, second
+        return first, planning.split_grid(taught, rest, self.lanes, seconds) if taught else []
 
     @property
     def maze_seconds(self) -> float:
