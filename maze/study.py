@@ -85,10 +85,7 @@ class StudyConfig:
     size: int = 13
     receptive_field: int = 3
     max_steps: int = 200
-    # paper: 128; 64 keeps the whole study within minutes on a 2-core CPU. --hidden 48 ran the
-    # five curves in 61 s (117 s CPU; 64: 77 s at the same hour), both RL curves converged
-    # (partial 7.90 +- 0.15), BC partial -> partial at 6.98 +- 0.17 (64: 7.16 +- 0.20).
-    hidden: int = 64
+    hidden: int = 64  # paper: 128; 64 keeps the study within minutes on 2 cores (docs/bench)
     ppo: PPOConfig = PPOConfig()
     rl_full_updates: int = 40  # within 2% of the exact optimum (9.70) from about 30 on
     rl_partial_updates: int = 320  # the plateau test passes (280: rose 0.15; see PPOConfig)
