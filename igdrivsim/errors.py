@@ -32,15 +32,6 @@ class DataError(IGDrivSimError):
 REPORTED = (IGDrivSimError, OSError)
 
 
-def error_line(err: BaseException) -> str:
-    """One of :data:`REPORTED` as one line; a file-system error names its path(s)."""
-    if not isinstance(err, OSError):
-        return str(err)
-    paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
-    what = err.strerror or type(err).__name__
-    return f"{what}: {paths}" if paths else f"{what}: {err}"
-
-
 def run_command(prog: str, body: Callable[..., int | None], *args) -> int:
     """``body(*args)`` as every command line runs it: its exit status (``None``: 0); one of
     :data:`REPORTED` printed as one line ``<prog>: error: <what>`` on stderr, status 2; the
@@ -51,7 +42,11 @@ def run_command(prog: str, body: Callable[..., int | None], *args) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except REPORTED as err:
-        print(f"{prog}: error: {error_line(err)}", file=sys.stderr)
+        what = str(err)
+        if isinstance(err, OSError):  # a file-system error names its path(s)
+            paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
+            what = f"{err.strerror or type(err).__name__}: {paths or err}"
+        print(f"{prog}: error: {what}", file=sys.stderr)
         return 2
 
 

@@ -20,12 +20,11 @@ class Job:
     after: tuple[str, ...] = field(default_factory=tuple)
 
 
-def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None = None,
-             echo_alone: bool = False) -> None:
+def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None = None) -> None:
     """Run ``jobs`` on ``lanes`` threads in dependency order. The first failure sets
     ``stopping`` (jobs running beside it may watch it and stop; no new job starts) and is
-    raised once every lane is idle. ``lanes`` 1 (or ``echo_alone``): one job at a time, in this
-    thread, echoing its output."""
+    raised once every lane is idle. ``lanes`` 1: one job at a time, in this thread, echoing its
+    output."""
     stopping = stopping if stopping is not None else threading.Event()
     unknown = {a for j in jobs for a in j.after} - {j.name for j in jobs}
     if unknown:
@@ -65,7 +64,7 @@ def run_jobs(jobs: Sequence[Job], lanes: int, stopping: threading.Event | None =
                 running -= 1
                 cond.notify_all()
 
-    if lanes <= 1 or echo_alone:
+    if lanes <= 1:
         lane(True)
     else:
         threads = [threading.Thread(target=lane, args=(False,), daemon=True)

@@ -34,7 +34,6 @@ SETTING_SHORT: dict[str, str] = {  # table columns and figure axes
 
 
 def setting_short(name: str) -> str:
-    """A setting's short column name (else the name)."""
     return SETTING_SHORT.get(name, name)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from igdrivsim.data import FORMATS, expand_paths
-from igdrivsim.data.egos import eligible_egos
+from igdrivsim.data.egos import expand_egos
 from igdrivsim.data.filter import FilterConfig
 from igdrivsim.data.formats import format_of
 from igdrivsim.data.gpudrive import FORMAT_GPUDRIVE, read_file
@@ -59,10 +59,10 @@ def _hand_made():
     return sc.replace(scenario_id=encode_scenario_id("hand"))
 
 
-def test_eligible_egos_of_a_hand_made_scene(tmp_path):
+def test_expand_egos_of_a_hand_made_scene(tmp_path):
     sc = _hand_made()
-    assert eligible_egos(sc) == [0, 1]
-    assert eligible_egos(sc, FilterConfig(min_speed=6.0)) == []
+    assert [ego["object_id"] for _, ego in expand_egos(sc)] == [100, 101]  # slots 0 and 1
+    assert list(expand_egos(sc, FilterConfig(min_speed=6.0))) == []
     from igdrivsim.data import write_tfexample
 
     write_tfexample(tmp_path / "hand.tfrecord", [sc])
@@ -222,10 +222,10 @@ def test_training_input_stream_and_config_take_every_ego():
 
     caps = Capacities(max_objects=16, max_roadgraph_points=256)
     want = [r.ego["id"] for r in open_scenarios(GPUDRIVE, caps, egos="all")]
-    index = ScenarioIndex.from_path(GPUDRIVE, caps, egos="all")
+    index = ScenarioIndex(GPUDRIVE, caps, egos="all")
     assert index.refs.shape == (4, 3)
     assert [decode_scenario_id(index[i].scenario_id) for i in range(len(index))] == want
-    assert ScenarioIndex.from_path(GPUDRIVE, caps).refs.shape == (3, 2)  # 8 bytes each
+    assert ScenarioIndex(GPUDRIVE, caps).refs.shape == (3, 2)  # 8 bytes each
     parser = argparse.ArgumentParser()
     train_arguments(parser)
     args = parser.parse_args(["--data", str(GPUDRIVE), "--out", "x", "--egos", "all"])

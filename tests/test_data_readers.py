@@ -31,6 +31,7 @@ from igdrivsim.data.scenario import (
     empty_scenario,
     encode_scenario_id,
     fit_to_capacities,
+    trim_padding,
 )
 from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.errors import DataError
@@ -369,7 +370,7 @@ def test_trimmed_writing_round_trips_after_fitting(tmp_path):
     caps = Capacities(max_objects=8, max_roadgraph_points=40, max_traffic_lights=4)
     s = fit_to_capacities(make_scenario(num_objects=3, num_points=12, num_lights=2), caps)
     write_tfexample(tmp_path / "full.tfrecord", s)
-    write_tfexample(tmp_path / "trim.tfrecord", s, trim=True)
+    write_tfexample(tmp_path / "trim.tfrecord", trim_padding(s))
     trimmed = load_scenario(tmp_path / "trim.tfrecord", caps=None)
     assert trimmed.num_objects == 3 and trimmed.num_roadgraph_points <= 12
     assert_same(load_scenario(tmp_path / "trim.tfrecord", caps=caps), s)

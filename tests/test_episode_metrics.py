@@ -34,6 +34,7 @@ class FinalState:
     sdc: SdcTrajectory
     log: Trajectory
     sdc_index: jax.Array
+    timestep: jax.Array
 
 
 def _poses_from_speed(speed, yaw_rate=None):
@@ -59,7 +60,8 @@ def make_state(sim, log=None, others=()):
                       valid=jnp.asarray(np.stack([np.asarray(r[5], bool) for r in rows])))
     sdc = SdcTrajectory(*(jnp.asarray(a, jnp.float32) for a in sim),
                         valid=jnp.ones(NUM_STEPS, bool))
-    return FinalState(sdc=sdc, log=traj, sdc_index=jnp.int32(0))
+    return FinalState(sdc=sdc, log=traj, sdc_index=jnp.int32(0),
+                      timestep=jnp.int32(NUM_STEPS - 1))
 
 
 def values(state) -> dict[str, float]:
@@ -248,6 +250,7 @@ def test_episode_metrics_jit_and_vmap():
 def test_evaluate_policy_with_episode_metrics_keeps_per_step_shapes(real_scene):
     from igdrivsim.observation import ObservationConfig
     from igdrivsim.policy.act import example_observation
+    from igdrivsim.policy.closed_loop import evaluate_policy
     from igdrivsim.policy.network import POOLED_NETWORK, PolicyConfig, init_params_per_seed
 
     scenarios, params = real_scene
@@ -258,17 +261,17 @@ def test_evaluate_policy_with_episode_metrics_keeps_per_step_shapes(real_scene):
     seeds = init_params_per_seed(tiny, jax.random.split(jax.random.key(0), 2),
                                  example_observation(obs_config))
     kwargs = dict(policy_config=tiny, obs_config=obs_config, params=params, batch_size=2)
-    plain = rollout.evaluate_policy(seeds, scenarios, setting="full", **kwargs)
-    single = rollout.evaluate_policy(seeds, scenarios, setting="full", episode_metrics=True,
-                                     **kwargs)
+    plain = evaluate_policy(seeds, scenarios, setting="full", **kwargs)
+    single = evaluate_policy(seeds, scenarios, setting="full",
+                             episode_metrics=registry.episode_values, **kwargs)
     assert plain.scenario is None and plain.log_divergence.shape == (2, 3, 80)
     assert single.log_divergence.shape == (2, 3, 80)
     np.testing.assert_array_equal(plain.log_divergence, single.log_divergence)
     assert set(single.scenario) == set(registry.episode_keys())
     assert all(v.shape == (2, 3) for v in single.scenario.values())
     both = jax.tree.map(lambda x: jnp.stack([x, x]), seeds)
-    grouped = rollout.evaluate_policy(both, scenarios, setting=["full", "circular_r4"],
-                                      episode_metrics=True, **kwargs)
+    grouped = evaluate_policy(both, scenarios, setting=["full", "circular_r4"],
+                              episode_metrics=registry.episode_values, **kwargs)
     assert grouped.log_divergence.shape == (2, 2, 3, 80)
     assert all(v.shape == (2, 2, 3) for v in grouped.scenario.values())
     np.testing.assert_allclose(grouped.scenario["progress"][0], single.scenario["progress"])

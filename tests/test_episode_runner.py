@@ -52,13 +52,17 @@ OBS = ObservationConfig(4, 16)
 
 
 @pytest.fixture(scope="module")
-def state():
+def scenario():
     if not SAMPLE.exists():
         pytest.skip(f"real WOMD sample not found at {SAMPLE}")
     from igdrivsim.data import Capacities, load_scenario
 
-    sc = load_scenario(SAMPLE, caps=Capacities(max_objects=16, max_roadgraph_points=20_000))
-    return jax.jit(reset, static_argnums=1)(sc, PARAMS)
+    return load_scenario(SAMPLE, caps=Capacities(max_objects=16, max_roadgraph_points=20_000))
+
+
+@pytest.fixture(scope="module")
+def state(scenario):
+    return jax.jit(reset, static_argnums=1)(scenario, PARAMS)
 
 
 def _previous_reference_loop(state, actor):
@@ -126,7 +130,8 @@ def policy_params():
 
 @pytest.mark.parametrize(("setting", "actions"), [("random_masking", "sample"),
                                                    ("gaussian_noise", "mean")])
-def test_policy_episode_equals_the_previous_one(state, policy_params, setting, actions):
+def test_policy_episode_equals_the_previous_one(scenario, state, policy_params, setting,
+                                                actions):
     setting = get_setting(setting)
     key = jax.random.key(11)
     old = jax.jit(_previous_policy_episode, static_argnums=(3, 4))(
@@ -142,14 +147,18 @@ def test_policy_episode_equals_the_previous_one(state, policy_params, setting, a
         np.testing.assert_array_equal(getattr(tr.metrics, field), getattr(old, field))
     assert tr.observation.objects.shape == (80, 4, 6) and tr.value.shape == (80,)
     assert (tr.log_prob is None) == (actions == "mean")
-    # evaluation's episode is this one
-    from igdrivsim.policy.closed_loop import _metrics, _policy_episode
+    # evaluation's episode is this one, with the key of seed 0 and scenario 0
+    from igdrivsim.policy.closed_loop import EVAL_SEED, StepOutputs, evaluate_policy
 
-    outs, _ = jax.jit(lambda p, s, k: _policy_episode(
-        p, s, k, policy_config=TINY, setting=setting, obs_config=OBS, params=PARAMS,
-        actions=actions, metrics_fn=step_metrics))(policy_params, state, key)
-    for a, b in zip(outs, _metrics(old, PARAMS, lambda m, _: m), strict=True):
-        np.testing.assert_array_equal(a, b)
+    key = jax.random.fold_in(jax.random.fold_in(jax.random.key(EVAL_SEED), 0), 0)
+    old = jax.jit(_previous_policy_episode, static_argnums=(3, 4))(
+        policy_params, state, key, setting, actions)
+    one = partial(jax.tree.map, lambda x: np.asarray(x)[None])  # a batch of one
+    out = evaluate_policy(one(policy_params), one(scenario), policy_config=TINY,
+                          setting=setting.name, obs_config=OBS, params=PARAMS, actions=actions,
+                          batch_size=1)
+    for field in StepOutputs.FIELDS:
+        np.testing.assert_array_equal(getattr(out, field)[0, 0], getattr(old, field))
 
 
 def _previous_policy_rollout(params, carry, state, setting, episode_keys, key):

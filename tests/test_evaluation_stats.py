@@ -148,16 +148,15 @@ def test_learning_curves_figure(tmp_path):
                               log_divergence=v, max_log_divergence=v, overlap=0.0, offroad=0.0,
                               overlap_steps=0.01, offroad_steps=0.2)
                          for m, v in (("constant_velocity", 9.0), ("expert", 0.1))])
-    refs.to_csv(tmp_path / "refs.csv", index=False)
     curves = load_curves([runs])
     assert set(curves.method) == {"bc", "bc_rl"} and len(curves) == 12 * 2 * 3
-    paths = learning_curves_figure([runs], tmp_path / "figs", tmp_path / "refs.csv")
+    paths = learning_curves_figure(curves, tmp_path / "figs", refs)
     assert [p.name for p in paths] == ["fig4_learning_curves.pdf", "fig4_learning_curves.png"]
     from PIL import Image
 
     with Image.open(paths[1]) as im:
         assert im.size[0] > 600 and im.size[1] > 400
-    assert learning_curves_figure([tmp_path / "none"], tmp_path / "figs2") == []
+    assert learning_curves_figure(load_curves([tmp_path / "none"]), tmp_path / "figs2") == []
     (runs / "bad").mkdir()
     (runs / "bad" / "curves.jsonl").write_text('{"update": 1}\n')
     with pytest.raises(DataError, match="bad curves record"):

@@ -226,11 +226,10 @@ def test_fig1_profiles_match_the_training_profiles():
 def test_panel_note_stays_within_its_width():
     from igdrivsim.observation.render import Snapshot, panel_note
 
-    snap = Snapshot(*[np.zeros((0, 2))] * 6, ego_size=(4.0, 2.0),
+    snap = Snapshot(*[np.zeros((0, 2))] * 5, ego_size=(4.0, 2.0),
                     seen_road_xy=np.zeros((1500, 2)), seen_road_type=np.zeros(0),
                     seen_obj_xy=np.zeros((0, 2)), seen_obj_yaw=np.zeros(0),
-                    seen_obj_size=np.zeros((0, 2)), noise_offset=np.array([3.0, 0.0]),
-                    timestep=10)
+                    seen_obj_size=np.zeros((0, 2)), noise_offset=np.array([3.0, 0.0]))
     lines = panel_note(snap).splitlines()
     assert len(lines) == 2 and all(len(line) <= 44 for line in lines)
     assert "1,500 road points" in lines[0] and "3.0 m off" in lines[1]

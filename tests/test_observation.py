@@ -24,7 +24,6 @@ from igdrivsim.observation import (
     get_setting,
     hide_objects,
     object_positions,
-    observe_arrays,
     observe_setting_arrays,
     roadgraph_positions,
 )
@@ -64,9 +63,15 @@ def make_roadgraph(xy, dirs=None, types=None, valid=None) -> Roadgraph:
     )
 
 
-# Shared compiled functions (settings and config are static).
-_plain = jax.jit(observe_arrays, static_argnames="config")
+# Shared compiled function (settings and config are static); NONE: no model, the plain features.
 _obs = jax.jit(observe_setting_arrays, static_argnames=("setting", "config"))
+NONE = ObservationSetting("none")
+KEY = jax.random.key(0)
+
+
+def _plain(sdc_xy, sdc_yaw, sdc_speed, objects, sdc_index, roadgraph, config=CFG):
+    return _obs(sdc_xy, sdc_yaw, sdc_speed, objects, sdc_index, roadgraph, NONE, KEY, KEY,
+                config=config)
 
 
 def ring(radii, bearings_deg):
@@ -130,7 +135,7 @@ def test_nearest_selection_order_validity_and_padding():
     np.testing.assert_allclose(np.asarray(roadgraph_positions(obs)), xy[want], atol=1e-4)
     # Fewer candidates than slots (3 points for 8 slots, 1 of them invalid): padded, zeroed.
     rg3 = make_roadgraph(xy[:3], valid=[True, False, True])
-    obs3, _ = observe_arrays(np.zeros(2), 0.0, 0.0, objs, 0, rg3, CFG)
+    obs3, _ = observe_setting_arrays(np.zeros(2), 0.0, 0.0, objs, 0, rg3, NONE, KEY, KEY, CFG)
     assert np.asarray(obs3.roadgraph_valid).tolist() == [True, True] + [False] * 6
     assert obs3.roadgraph.shape == (8, 25) and not np.any(np.asarray(obs3.roadgraph)[2:])
 

@@ -39,8 +39,8 @@ def _pipeline(tmp: Path, monkeypatch, fail: str | None = None,
     monkeypatch.setattr(pipe, "check_work_folder", lambda: None)
     monkeypatch.setattr(pipe, "run_data", lambda: ("train", "val"))
     monkeypatch.setattr(pipe, "run_filter", lambda a, b: (Path(a), Path(b)))
-    monkeypatch.setattr(pipe, "run_train", lambda m, a, b, echo=True, part=None: fake(
-        f"train_{part.name if part else m}", echo, 1.5))
+    monkeypatch.setattr(pipe, "run_train", lambda part, a, b, echo: fake(
+        f"train_{part.name}", echo, 1.5))
     suffix = {"log": "", "idm": "_idm"}  # the sim agents' stage-name suffix
     monkeypatch.setattr(pipe, "run_evaluate", lambda m, v, echo=True, agents="log", like=None:
                         fake(f"evaluate_{m}{suffix[agents]}", echo))

@@ -29,12 +29,9 @@ def test_every_committed_table_and_figure_has_an_entry():
         for path in sorted((paper / sub).iterdir()):
             assert f"{sub}/{path.name}" in files, f"{sub}/{path.name} has no provenance entry"
     assert provenance.missing(paper) == []
-    problems, legacy = provenance.stage_check(files)
-    assert problems == []  # entries published since per-stage provenance name their stages
+    assert provenance.stage_check(files) == []  # every entry names its stages' code
     for rel, entry in files.items():
-        # published before per-stage provenance: schema 1 fields; since: every field
-        assert set(entry) == (FIELDS - {"stages"} if rel in legacy
-                              else FIELDS | {"mixed_commits"}), rel
+        assert set(entry) == FIELDS | {"mixed_commits"}, rel
         assert entry["run"] == provenance.owner(rel)
         if rel.endswith(".md"):  # the table states its entry in one line
             assert provenance.Entry.from_record(entry).line() in (paper / rel).read_text()
@@ -160,26 +157,6 @@ def test_check_fails_when_a_published_file_lacks_its_stage_commits(tmp_path, cap
     assert report_provenance(check) == 1
 
 
-def test_entries_published_before_per_stage_provenance_stay_readable(tmp_path, capsys):
-    paper = tmp_path / "paper"
-    old = {k: v for k, v in provenance.Entry.record(_entry("methods")).items()
-           if k != "stages"}  # schema 1: no stages
-    (paper / "tables").mkdir(parents=True)
-    (paper / "tables" / "table2.md").write_text("# Table II\n")
-    (paper / provenance.FILE).write_text(json.dumps({
-        "schema": 1, "about": "old", "files": {"tables/table2.md": old}}))
-    assert provenance.Entry.from_record(old).line() == _entry("methods").line()
-    assert provenance.stage_check(provenance.load(paper)) == ([], ["tables/table2.md"])
-    assert report_provenance(["check", "--paper", str(paper)]) == 0  # reported, not failed
-    assert provenance.LEGACY in capsys.readouterr().out
-    provenance.publish(_staged(tmp_path / "d", ["tables/table1.md"], "default run"), paper,
-                       _entry("default"), _at("abc1234"))
-    record = json.loads((paper / provenance.FILE).read_text())
-    assert record["schema"] == provenance.SCHEMA == 2
-    assert record["files"]["tables/table2.md"] == old  # kept as it was: no commit invented
-    assert "stages" in record["files"]["tables/table1.md"]
-
-
 def test_the_about_text_names_modules_that_exist_and_help_shows_defaults(tmp_path, capsys):
     import importlib
     import re
@@ -247,32 +224,30 @@ def test_republishing_from_cached_stages_keeps_their_commits(tmp_path, monkeypat
     assert mixed["commit"] == "aaaaaaa, bbbbbbb-dirty (diff 0123456789ab)"
     assert both in (third.paper / "tables" / "table1.md").read_text()
     assert both in (third.paper / "generated" / "run.tex").read_text()
-    assert provenance.stage_check(provenance.load(third.paper))[0] == []
+    assert provenance.stage_check(provenance.load(third.paper)) == []
 
 
 def test_derived_files_name_their_command_and_the_code_of_both_steps(tmp_path, capsys):
     """A figure redrawn from a run's tables outside the pipeline keeps the run's stages and
     adds the redrawing code's: its entry says the stages ran under different commits."""
     paper = tmp_path / "paper"
-    old = {k: v for k, v in provenance.Entry.record(_entry("default")).items()
-           if k != "stages"}  # a schema 1 source: only its recorded commit
+    old = _entry("default").with_stages({"report": _code("abc1234")}).record()
     (paper / "tables").mkdir(parents=True)
     (paper / "figures").mkdir()
     (paper / "tables" / "seed_means.csv").write_text("x\n")
     (paper / "figures" / "fig3.png").write_text("png")
     (paper / "tables" / "summary.md").write_text("# Summary\n\nrows\n")
-    (paper / provenance.FILE).write_text(json.dumps({
-        "schema": 1, "about": "old", "files": {"tables/seed_means.csv": old}}))
+    provenance.save(paper, {"tables/seed_means.csv": old})
     assert report_provenance(["derived", "figures/fig3.png", "tables/summary.md", "--from",
                             "tables/seed_means.csv", "--command", "python -m redraw",
                             "--paper", str(paper)]) == 0
     files = provenance.load(paper)
     fig = provenance.Entry.from_record(files["figures/fig3.png"])
-    assert fig.command == "python -m redraw" and set(fig.stages) == {"run", "derive"}
-    assert fig.stages["run"]["commit"] == old["commit"] and fig.mixed_commits
+    assert fig.command == "python -m redraw" and set(fig.stages) == {"report", "derive"}
+    assert fig.stages["report"]["commit"] == old["commit"] and fig.mixed_commits
     assert files["figures/fig3.png"]["mixed_commits"] is True
     assert "derived from tables/seed_means.csv" in fig.note
-    assert provenance.stage_check(files)[0] == []
+    assert provenance.stage_check(files) == []
     assert (paper / "tables" / "summary.md").read_text().splitlines()[2] == fig.line()
     assert files["tables/seed_means.csv"] == old  # the source's entry untouched
     assert report_provenance(["derived", "figures/fig3.png", "--paper", str(paper)]) == 2

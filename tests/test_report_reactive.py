@@ -45,7 +45,7 @@ def test_the_difference_log_minus_idm_is_found_where_it_is_and_not_elsewhere(tab
 
 
 def test_markdown_and_figure(table, tmp_path):
-    md = reactive_markdown(table, "Provenance: test")
+    md = reactive_markdown(table)
     assert "## at-fault overlap rate (%)" in md and "| Full | BC |" in md
     assert "| -- | Expert (its own log) |" in md and "**+" in md
     paths = reactive_figure(table, tmp_path)

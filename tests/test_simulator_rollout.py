@@ -15,7 +15,6 @@ from igdrivsim.simulator.rollout import (
     expert_action,
     expert_actor,
     expert_discrete_action,
-    jit_rollout,
     log_metrics,
     rollout,
 )
@@ -46,6 +45,9 @@ def batch():
     return _reset(stack_scenarios(scs), PARAMS)
 
 
+_jit_rollout = jax.jit(rollout, static_argnums=(1, 3))
+
+
 @functools.cache
 def _vmapped(policy):
     return jax.jit(jax.vmap(lambda s, k: rollout(s, policy, k, PARAMS)))
@@ -60,8 +62,8 @@ def expert_vmapped(batch):
 
 def test_continuous_expert_replays_the_log_exactly(batch):
     curved = jax.tree.map(lambda a: a[2], batch)
-    _, m, actions = jit_rollout(expert_actor(PARAMS, discrete=False), PARAMS)(
-        curved, jax.random.key(0))
+    _, m, actions = _jit_rollout(curved, expert_actor(PARAMS, discrete=False), jax.random.key(0),
+                                 PARAMS)
     assert m.log_divergence.shape == (80,) and actions.shape == (80, 3)
     assert float(jnp.max(m.log_divergence)) < 1e-3
     assert bool(jnp.all(m.valid))
@@ -85,9 +87,9 @@ def test_discretised_expert_stays_within_quantisation_error(batch, expert_vmappe
 def test_vmap_and_leading_batch_dims_agree_with_single_scenarios(batch, expert_vmapped):
     policy = expert_actor(PARAMS)
     keys, _, m_vmap, a_vmap = expert_vmapped
-    _, m_lead, a_lead = jit_rollout(policy, PARAMS)(batch, keys[0])
+    _, m_lead, a_lead = _jit_rollout(batch, policy, keys[0], PARAMS)
     one = jax.tree.map(lambda a: a[1], batch)
-    _, m_one, a_one = jit_rollout(policy, PARAMS)(one, keys[1])
+    _, m_one, a_one = _jit_rollout(one, policy, keys[1], PARAMS)
     np.testing.assert_array_equal(a_vmap, a_lead)
     np.testing.assert_array_equal(a_vmap[1], a_one)
     np.testing.assert_allclose(m_vmap.log_divergence[1], m_one.log_divergence, atol=1e-6)
@@ -96,17 +98,17 @@ def test_vmap_and_leading_batch_dims_agree_with_single_scenarios(batch, expert_v
 
 def test_constant_velocity_actor_follows_a_constant_speed_log(batch):
     straight = jax.tree.map(lambda a: a[0], batch)
-    _, m, _ = jit_rollout(constant_velocity_actor(PARAMS), PARAMS)(straight, jax.random.key(0))
+    _, m, _ = _jit_rollout(straight, constant_velocity_actor(PARAMS), jax.random.key(0), PARAMS)
     assert float(jnp.max(m.log_divergence)) < 1e-3
     curved = jax.tree.map(lambda a: a[2], batch)
-    _, m, _ = jit_rollout(constant_velocity_actor(PARAMS), PARAMS)(curved, jax.random.key(0))
+    _, m, _ = _jit_rollout(curved, constant_velocity_actor(PARAMS), jax.random.key(0), PARAMS)
     assert float(jnp.max(m.log_divergence)) > 5.0  # it cannot follow the turn
 
 
 def test_expert_zero_action_when_next_log_step_invalid(batch):
     st = jax.tree.map(lambda a: a[1], batch)
     st = st.replace(log=st.log.replace(valid=st.log.valid.at[0, CURRENT_INDEX + 1].set(False)))
-    _, m, idx = jit_rollout(expert_actor(PARAMS), PARAMS)(st, jax.random.key(0))
+    _, m, idx = _jit_rollout(st, expert_actor(PARAMS), jax.random.key(0), PARAMS)
     np.testing.assert_array_equal(idx[0], 128)  # level 128 is the zero action
     assert not bool(m.valid[0]) and bool(m.valid[1])
     assert float(m.log_divergence[0]) == 0.0

@@ -30,8 +30,8 @@ def _collides(a, b) -> bool:
     if not both.any():
         return False
     reach = a.reach + b.reach
-    if (a.lo[0] - reach > b.hi[0] or a.hi[0] + reach < b.lo[0]
-            or a.lo[1] - reach > b.hi[1] or a.hi[1] + reach < b.lo[1]):
+    if (a.bbox[0] - reach > b.bbox[2] or a.bbox[2] + reach < b.bbox[0]
+            or a.bbox[1] - reach > b.bbox[3] or a.bbox[3] + reach < b.bbox[1]):
         return False
     d = a.xy - b.xy
     near = both & (np.einsum("ij,ij->i", d, d) < reach * reach)
@@ -46,7 +46,8 @@ def _pairwise(agent, other):
     """Reference: one other at a time, every step, every route point in its grown box."""
     pts, yaw_route = agent.route.points, agent.route.yaw
     reach = other.reach + agent.width / 2 + 1.0
-    rows = np.flatnonzero(np.all((pts >= other.lo - reach) & (pts <= other.hi + reach), axis=1))
+    lo, hi = np.array(other.bbox[:2]), np.array(other.bbox[2:])
+    rows = np.flatnonzero(np.all((pts >= lo - reach) & (pts <= hi + reach), axis=1))
     d = pts[rows, None, :] - other.xy[None]
     c, s = np.cos(other.yaw), np.sin(other.yaw)
     dx = np.abs(d[..., 0] * c + d[..., 1] * s) - other.length / 2

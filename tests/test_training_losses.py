@@ -12,7 +12,7 @@ import pytest
 
 from igdrivsim.core.learn import entropy, gae, normalize, surrogate_terms, value_loss
 from igdrivsim.observation import ObservationConfig
-from igdrivsim.policy.act import action_log_prob, example_observation, policy_step
+from igdrivsim.policy.act import action_log_prob, choose_levels, example_observation
 from igdrivsim.policy.network import (
     POOLED_NETWORK,
     PolicyConfig,
@@ -20,6 +20,7 @@ from igdrivsim.policy.network import (
     init_params,
     init_params_per_seed,
 )
+from igdrivsim.simulator.dynamics import undiscretize
 from igdrivsim.training.methods.bc import bc_loss
 from igdrivsim.training.update import cosine_lr
 
@@ -103,13 +104,13 @@ def test_gru_reset_zeroes_the_state():
     np.testing.assert_allclose(c_reset, c_zero, atol=1e-6)
     np.testing.assert_allclose(logits_reset, logits_zero, atol=1e-6)
     assert not np.allclose(c_keep, c_zero)
-    # policy_step: greedy picks the arg-max level and returns a bounded continuous action;
-    # mean takes the expected level (between the levels, inside their range).
-    act = jax.jit(policy_step, static_argnums=(0, 5))
-    action, _, levels = act(TINY, params, zero, obs, jax.random.PRNGKey(1), "greedy")
+    # greedy picks the arg-max level (a bounded continuous action); mean takes the expected
+    # level (between the levels, inside their range).
+    levels = choose_levels(logits_zero, jax.random.PRNGKey(1), "greedy")
     np.testing.assert_array_equal(levels, jnp.argmax(logits_zero, -1))
+    action = undiscretize(levels)
     assert action.shape == (3,) and float(jnp.abs(action[:2]).max()) <= 6.0
-    _, _, mean = act(TINY, params, zero, obs, jax.random.PRNGKey(1), "mean")
+    mean = choose_levels(logits_zero, jax.random.PRNGKey(1), "mean")
     probs = jax.nn.softmax(logits_zero, -1)
     np.testing.assert_allclose(mean, (probs * jnp.arange(probs.shape[-1])).sum(-1), rtol=1e-5)
 
@@ -131,7 +132,7 @@ def test_relative_dx_head_scores_offsets_from_constant_velocity():
     params = init_params(cfg, jax.random.PRNGKey(0), obs)
     seq = jax.tree.map(lambda x: jnp.stack([x] * 3)[:, None], obs)  # [T=3, B=1, ...]
     seq = seq.replace(sdc_speed=jnp.array([0.1, 0.2, 0.3])[:, None, None])
-    _, unrolled, _ = unroll_sequence(cfg, params, jnp.zeros((1, cfg.gru_hidden)), seq, True)
+    _, unrolled, _ = unroll_sequence(cfg, params, jnp.zeros((1, cfg.gru_hidden)), seq)
     carry = jnp.zeros((1, cfg.gru_hidden))
     for t in range(3):
         o = jax.tree.map(lambda x, t=t: x[t], seq)
@@ -154,7 +155,7 @@ def test_speed_history_feeds_the_last_speed_changes_in_levels():
     speeds = jnp.array([0.10, 0.11, 0.13, 0.12])
     seq = jax.tree.map(lambda x: jnp.stack([x] * 4)[:, None], obs)  # [T=4, B=1, ...]
     seq = seq.replace(sdc_speed=speeds[:, None, None])
-    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq)
     carry = jnp.full((1, cfg.gru_hidden + 2), 0.5)  # a stale carry: the reset must drop it
     for t in range(4):
         o = jax.tree.map(lambda x, t=t: x[t], seq)
@@ -164,7 +165,7 @@ def test_speed_history_feeds_the_last_speed_changes_in_levels():
     np.testing.assert_allclose(end[0, -2:], [0.12, 0.13], atol=1e-7)
     # the changes reach the network: other past speeds, other logits
     other = seq.replace(sdc_speed=jnp.array([0.10, 0.10, 0.10, 0.12])[:, None, None])
-    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
+    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other)
     assert not np.allclose(moved[3], unrolled[3])
 
 
@@ -181,7 +182,7 @@ def test_yaw_history_feeds_the_last_yaw_rates_in_levels_next_to_the_speed_histor
     seq = jax.tree.map(lambda x: jnp.stack([x] * 4)[:, None], obs)  # [T=4, B=1, ...]
     seq = seq.replace(sdc_speed=jnp.array([0.10, 0.11, 0.13, 0.12])[:, None, None],
                       sdc_yaw_rate=jnp.array([0.0, 0.2, -0.1, 0.3])[:, None, None])
-    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    end, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq)
     assert end.shape == (1, cfg.gru_hidden + 2 + 2)
     carry = jnp.full(end.shape, 0.5)  # a stale carry: the reset must drop it
     for t in range(4):
@@ -192,7 +193,7 @@ def test_yaw_history_feeds_the_last_yaw_rates_in_levels_next_to_the_speed_histor
     np.testing.assert_allclose(end[0, -4:], [0.12, 0.13, 0.3, -0.1], atol=1e-7)
     # the yaw rates reach the network: another past turn, other logits
     other = seq.replace(sdc_yaw_rate=jnp.array([0.0, 0.0, 0.0, 0.3])[:, None, None])
-    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other, True)
+    _, moved, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), other)
     assert not np.allclose(moved[3], unrolled[3])
 
 
@@ -224,7 +225,7 @@ def test_object_ego_speed_lets_the_object_encoder_read_the_ego_speed():
     # stepping and unrolling agree
     seq = jax.tree.map(lambda v: jnp.stack([v] * 3)[:, None], obs)
     seq = seq.replace(sdc_speed=jnp.array([0.1, 0.2, 0.3])[:, None, None])
-    _, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq, True)
+    _, unrolled, _ = unroll_sequence(cfg, params, initial_carry(cfg, (1,)), seq)
     carry = initial_carry(cfg, (1,))
     for t in range(3):
         o = jax.tree.map(lambda v, t=t: v[t], seq)

@@ -175,7 +175,7 @@ def test_teacher_sees_full_observations_the_student_its_settings(teacher_run, to
     from igdrivsim.observation import get_setting, stack_settings
     from igdrivsim.policy.act import WARMUP_STEPS, example_observation, policy_rollout
     from igdrivsim.policy.network import init_params_per_seed, initial_carry, unroll_sequence
-    from igdrivsim.training.loop import load_teacher
+    from igdrivsim.training.privileged import load_teacher
     from igdrivsim.training.update import (
         collect,
         expert_sequences,

@@ -50,7 +50,7 @@ def one_process(data_dir, tmp_path_factory):
 
 
 def test_shards_are_disjoint_and_each_epoch_a_permutation(data_dir):
-    source = ScenarioIndex.from_path(data_dir, CONFIG.capacities)
+    source = ScenarioIndex(data_dir, CONFIG.capacities)
     assert len(source) == 8 and source.refs.nbytes == 8 * 8  # 8 bytes per scenario
     sim = update_spec(CONFIG).sim
     parts = [StreamDataset(source, 4, [0, 1], sim, 2, process=p, processes=2) for p in (0, 1)]
@@ -164,17 +164,14 @@ def test_two_processes_match_one_process(one_process, data_dir, tmp_path):
     np.testing.assert_allclose(two[numeric], one[numeric], atol=1e-4)
 
 
-def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
-    import io
-
+def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate(capsys):
     from igdrivsim.training import cost
     from igdrivsim.training.cost import PAPER_SCENARIOS, warn_if_cpu
 
     paper = with_overrides(get_profile("paper"), ["observation.setting=full"])
     assert paper.total_updates(PAPER_SCENARIOS) == 119_382  # 200 epochs of 256 scenarios
-    out = io.StringIO()
-    msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1, out)
-    assert msg and out.getvalue().count("\n") == 1
+    msg = warn_if_cpu(paper, PAPER_SCENARIOS, "cpu", 1)
+    assert msg and capsys.readouterr().err.count("\n") == 1
     hours = 119_382 * 256 * 3 * cost.CPU_SECONDS_PER_EPISODE / 3600  # one setting, 3 seeds
     assert f"~{hours:,.0f} hours" in msg
     table = cost.table1_hours(1.0, 2.0)  # 6 settings x 3 seeds x 256 scenarios per update
@@ -182,7 +179,7 @@ def test_paper_and_gpu_profiles_on_cpu_warn_with_the_cost_estimate():
     assert "Table I at paper scale" in cost.table1_text(gpu=True)
     assert warn_if_cpu(paper, PAPER_SCENARIOS, "gpu", 8) is None
     assert warn_if_cpu(get_profile("laptop"), 1000, "cpu", 1) is None
-    gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1, io.StringIO())
+    gpu = warn_if_cpu(get_profile("gpu"), 1000, "cpu", 1)
     assert gpu and "12 seeds, 4x the laptop" in gpu and "~10 h" in gpu  # 1,000 x 6 x 4 x 3.0 s / 2
     assert warn_if_cpu(get_profile("gpu"), 1000, "gpu", 1) is None
     short = with_overrides(get_profile("gpu"), ["training.seeds=3"])

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 from igdrivsim.errors import ConfigError, check_min
@@ -42,7 +43,6 @@ def bench_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def group_of(stage: str) -> str:
-    """``data``, ``filter``, ``train``, ``evaluate``, ``maze`` or ``other``."""
     head = stage.split("_")[0]
     return head if head in GROUPS else "other"
 
@@ -57,10 +57,9 @@ def stage_costs(work: Path) -> list[dict]:
 
 def summarise(stages: list[dict]) -> dict:
     """CPU seconds and share per group (a stamp without CPU seconds counts its wall seconds)."""
-    cpu = {}
+    cpu: Counter[str] = Counter()
     for s in stages:
-        value = s["cpu_seconds"] if s["cpu_seconds"] is not None else s["seconds"]
-        cpu[s["group"]] = cpu.get(s["group"], 0.0) + value
+        cpu[s["group"]] += float(s["cpu_seconds"] if s["cpu_seconds"] is not None else s["seconds"])
     total = sum(cpu.values()) or 1.0
     return {g: {"cpu_seconds": round(v, 1), "share": round(v / total, 3)}
             for g, v in sorted(cpu.items(), key=lambda kv: -kv[1])}

@@ -49,11 +49,6 @@ def naive_reset(scenario: Any, params: SimParams = DEFAULT_PARAMS) -> SimState:
     return state.replace(roadgraph=sc.roadgraph, road_edges=edges(sc.roadgraph))
 
 
-def _checksum(obs) -> jax.Array:
-    return (jnp.sum(obs.roadgraph, axis=(-1, -2)) + jnp.sum(obs.objects, axis=(-1, -2))
-            + obs.sdc_speed[..., 0])
-
-
 IMPLS = ("naive", "igdrivsim")
 
 
@@ -65,8 +60,6 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
     ``[B, T, ...]`` (for the equivalence test)."""
     setting = get_setting(setting_name)
     obs_config = obs_config or ObservationConfig()
-    if impl not in IMPLS:
-        raise ConfigError(f"unknown implementation {impl!r}; choose from {', '.join(IMPLS)}")
     state = naive_reset(scenario, params) if impl == "naive" else reset(scenario, params)
     episode_keys = jax.random.split(key, state.timestep.shape[0])
 
@@ -78,7 +71,9 @@ def episode(scenario: Any, key: jax.Array, *, impl: str = "igdrivsim",
             st, episode_keys, step_keys)
         action = dynamics.undiscretize(expert_discrete_action(st, params))
         st = step(st, action, params)
-        out = (step_metrics(st, params), _checksum(obs))
+        checksum = (jnp.sum(obs.roadgraph, axis=(-1, -2)) + jnp.sum(obs.objects, axis=(-1, -2))
+                    + obs.sdc_speed[..., 0])
+        out = (step_metrics(st, params), checksum)
         return (st.sdc, st.timestep, st.agents), (out + (obs,) if collect else out)
 
     _, outs = jax.lax.scan(body, (state.sdc, state.timestep, state.agents), None,
@@ -195,7 +190,6 @@ def _subset(option: str, text: str, allowed) -> list[str]:
 
 
 def label(impl: str, agents: str) -> str:
-    """A cell's name: the implementation, ``+idm`` under IDM sim agents."""
     return impl if agents == "log" else f"{impl}+{agents}"
 
 

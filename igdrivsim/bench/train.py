@@ -106,14 +106,6 @@ def trace_summary(trace_dir: str, top: int = 15) -> dict:
                            "count": count[n]} for n, t in rows]}
 
 
-def forward_flops_per_step(policy, obs_config, params) -> int:
-    """Matrix-product FLOPs of the network's forward pass over one observation (one scenario
-    at one step; :func:`matmul_flops`)."""
-    obs = example_observation(obs_config)
-    return matmul_flops(lambda p, o: apply_step(policy, p, initial_carry(policy), o,
-                                                jax.numpy.zeros((), bool)), params, obs)
-
-
 def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> dict:
     """Seconds of each part of one update of the first setting and seed (record, observe,
     collect, forward and backward), each jitted and timed alone (mean of ``repeats`` calls)."""
@@ -176,8 +168,10 @@ def bench_profile(profile: str, method: str = next(iter(METHODS)), batch: int = 
     rep = replicated(mesh)
     params, opt_state = init_state(config, spec)
     n_params = int(sum(x[0, 0].size for x in jax.tree.leaves(params)))
-    step_flops = forward_flops_per_step(config.policy, spec.obs,
-                                        jax.tree.map(lambda x: x[0, 0], params))
+    # the network's forward pass over one observation (one scenario at one step)
+    step_flops = matmul_flops(lambda p, o: apply_step(config.policy, p, initial_carry(
+        config.policy), o, jax.numpy.zeros((), bool)), jax.tree.map(lambda x: x[0, 0], params),
+        example_observation(spec.obs))
     params, opt_state = place(params, rep), place(opt_state, rep)
     buffer = place(init_buffer(config, spec), rep)
     teacher_params = None

@@ -23,27 +23,23 @@ def check_egos(egos: str) -> str:
 
 
 def add_egos_argument(parser) -> None:
-    """The ``--egos`` option every command that reads data shares."""
     parser.add_argument("--egos", choices=EGO_MODES, default="sdc",
                         help="sdc: each scenario from its logged SDC (the paper's); all: one "
                              "scenario per vehicle valid over the window that passes the "
                              "scenario filter as the ego (default: sdc)")
 
 
-def eligible_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER) -> list[int]:
-    """Slots of the vehicles valid over the whole window that pass the filter as the ego."""
-    tr = scenario.trajectory
-    speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
-    return [int(slot) for slot in ego_candidates(scenario)
-            if not speed[slot].mean() < config.min_speed  # cheap first: the filter's speed bound
-            and keep(scenario_stats(as_ego(scenario, int(slot))), config)]
-
-
 def expand_egos(scenario: Scenario, config: FilterConfig = PAPER_FILTER
                 ) -> Iterator[tuple[Scenario, dict]]:
-    """:func:`ego_of` per eligible vehicle of one unbatched scenario (native sizes: fit them to
-    capacities afterwards, so that the objects kept are those nearest to the ego)."""
-    yield from (ego_of(scenario, slot) for slot in eligible_egos(scenario, config))
+    """:func:`ego_of` per vehicle of one unbatched scenario valid over the whole window that
+    passes the filter as the ego (native sizes: fit them to capacities afterwards, so that the
+    objects kept are those nearest to the ego)."""
+    tr = scenario.trajectory
+    speed = np.hypot(np.asarray(tr.vel_x, np.float64), np.asarray(tr.vel_y, np.float64))
+    for slot in map(int, ego_candidates(scenario)):
+        if (not speed[slot].mean() < config.min_speed  # cheap first: the filter's speed bound
+                and keep(scenario_stats(as_ego(scenario, slot)), config)):
+            yield ego_of(scenario, slot)
 
 
 def ego_of(scenario: Scenario, slot: int) -> tuple[Scenario, dict]:

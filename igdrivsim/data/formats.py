@@ -96,7 +96,6 @@ FALLBACK = "tfrecord"
 
 
 def format_of(path: str) -> Format:
-    """The registered format of one file (the first that detects it, else the fallback)."""
     return next((f for name, f in FORMATS.items() if name != FALLBACK and f.detect(path)),
                 FORMATS[FALLBACK])
 

@@ -21,7 +21,6 @@ EGO_FIELDS = ("ego", "logged_sdc")  # lines of a filter run with every vehicle a
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
-    """Write ``obj`` as indented JSON, atomically."""
     atomic_write_json(path, obj, indent=2, sort_keys=True)
 
 

@@ -299,10 +299,6 @@ class MotionPool:
             parts[:] = [np.concatenate(parts) if parts else np.zeros(0)]
         return parts[0][np.isfinite(parts[0])]
 
-    def histogram(self, group: str, stat: Statistic) -> np.ndarray:
-        """Counts over ``stat.edges`` (:func:`~igdrivsim.data.stats.histogram`)."""
-        return histogram(self.values(group, stat.key), stat.edges)
-
 
 def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:
     """Tidy rows per data set, group and statistic: agents, samples, mean, median, p10, p90 and
@@ -313,8 +309,8 @@ def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:
             for s in MOTION_STATISTICS:
                 v = pool.values(g, s.key)
                 med, p10, p90 = summary(v)
-                js = (np.nan if name == reference else
-                      js_divergence(pool.histogram(g, s), pools[reference].histogram(g, s)))
+                js = (np.nan if name == reference else js_divergence(
+                    histogram(v, s.edges), histogram(pools[reference].values(g, s.key), s.edges)))
                 rows.append({"dataset": name, "group": g, "statistic": s.key, "unit": s.unit,
                              "scenarios": pool.scenarios, "agents": pool.agents[g],
                              "samples": len(v), "mean": float(v.mean()) if len(v) else np.nan,
@@ -356,7 +352,7 @@ def plot_motion(pools: dict[str, MotionPool], path: str) -> None:
         ax.legend(fontsize=7, title="n = agents", title_fontsize=7)
         for ax, s in zip(panels[1:], FIGURE_STATISTICS, strict=False):
             for ci, (name, pool) in enumerate(pools.items()):
-                h = pool.histogram(g, s)
+                h = histogram(pool.values(g, s.key), s.edges)
                 share = h / h.sum() if h.sum() else h.astype(float)
                 ax.stairs(share, s.edges, color=colours[ci % len(colours)],
                           label=f"{name} (n = {pool.agents[g]})")

@@ -107,23 +107,18 @@ def _scenario_file() -> descriptor_pb2.FileDescriptorProto:
 
 
 @cache
-def _classes() -> dict[str, type]:
+def _message_class(name: str) -> type:
     pool = descriptor_pool.DescriptorPool()
-    out = {}
-    for file, names in ((_example_file(), ("Example", "Feature")),
-                        (_scenario_file(), ("Scenario", "MapFeature", "Track"))):
-        pool.Add(file)
-        for name in names:
-            desc = pool.FindMessageTypeByName(f"{file.package}.{name}")
-            out[name] = message_factory.GetMessageClass(desc)
-    return out
+    file = _example_file() if name == "Example" else _scenario_file()
+    pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{file.package}.{name}"))
 
 
 def example_class() -> type:
     """The tf.Example message class (``features.feature[key].{float,int64,bytes}_list.value``)."""
-    return _classes()["Example"]
+    return _message_class("Example")
 
 
 def scenario_class() -> type:
     """WOMD's Scenario message class (tracks, map features, dynamic map states)."""
-    return _classes()["Scenario"]
+    return _message_class("Scenario")

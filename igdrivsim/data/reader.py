@@ -27,7 +27,6 @@ from igdrivsim.data.scenario import (
     Scenario,
     fit_to_capacities,
     index_scenario,
-    trim_padding,
 )
 from igdrivsim.data.tfexample import encode_tfexample
 from igdrivsim.errors import DataError
@@ -96,7 +95,6 @@ def expand_paths(spec: PathSpec) -> list[str]:
 
 
 def as_paths(spec: PathSpec) -> list[str]:
-    """A path or a list of them, as a list of path strings."""
     return [os.fspath(s) for s in ([spec] if isinstance(spec, str | os.PathLike) else spec)]
 
 
@@ -190,7 +188,6 @@ def _iter_parallel(files, caps, skip_bad, stats, workers, chunk):
 
 def read_scenarios(paths: PathSpec, caps: Capacities = DEFAULT_CAPS, skip_bad: bool = False,
                    stats: ReadStats | None = None, workers: int = 0) -> Iterator[Scenario]:
-    """The scenarios of :func:`iter_scenarios`, without where they come from."""
     return (rec.scenario for rec in iter_scenarios(paths, caps, skip_bad, stats, workers))
 
 
@@ -204,7 +201,6 @@ def load_scenario(path: str | os.PathLike, index: int = 0,
 
 
 def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
-    """Unbatched scenarios from scenarios that may carry leading batch dimensions."""
     for s in scenarios:
         if s.batch_shape:
             yield from unbatch(index_scenario(s, i) for i in range(s.batch_shape[0]))
@@ -212,12 +208,9 @@ def unbatch(scenarios: Iterable[Scenario]) -> Iterator[Scenario]:
             yield s
 
 
-def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario,
-                    trim: bool = False) -> int:
+def write_tfexample(path: str | os.PathLike, scenarios: Iterable[Scenario] | Scenario) -> int:
     """Write scenarios (batched or not) as WOMD tf.Example records, atomically; returns the count.
-    ``trim=True``: without trailing padding slots (:func:`trim_padding`; other WOMD readers expect
-    fixed sizes)."""
+    For compact files, pass them through :func:`~igdrivsim.data.scenario.trim_padding` first."""
     if isinstance(scenarios, Scenario):
         scenarios = [scenarios]
-    return tfrecord.write_records(path, (encode_tfexample(trim_padding(s) if trim else s)
-                                         for s in unbatch(scenarios)))
+    return tfrecord.write_records(path, map(encode_tfexample, unbatch(scenarios)))

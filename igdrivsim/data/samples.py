@@ -45,12 +45,10 @@ def default_dir() -> Path:
 
 
 def scenario_dir(out: str | os.PathLike) -> Path:
-    """Where the scenario files lie under ``out``."""
     return Path(out) / SUBDIR
 
 
 def sha256(path: str | os.PathLike) -> str:
-    """Hex sha256 of a file."""
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
 

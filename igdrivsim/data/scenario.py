@@ -156,7 +156,6 @@ def object_flags(ids: np.ndarray, sdc: int, predict: Iterable[int], interest) ->
 
 
 def decode_scenario_id(arr: np.ndarray) -> str:
-    """Scenario id of one (unbatched) scenario as a string."""
     return bytes(np.asarray(arr, np.uint8)).rstrip(b"\0").decode("ascii")
 
 
@@ -217,7 +216,6 @@ def stack_scenarios(scenarios: list[Scenario]) -> Scenario:
 
 
 def index_scenario(batch: Scenario, i) -> Scenario:
-    """The ``i``-th scenario of a batch (any index NumPy accepts)."""
     return jax.tree.map(lambda x: x[i], batch)
 
 
@@ -255,16 +253,13 @@ def _present_distance(xy: np.ndarray, valid: np.ndarray, ref: np.ndarray, ref_t:
 
 
 def fit_to_capacities(scenario: Scenario, caps: Capacities = DEFAULT_CAPS) -> Scenario:
-    """Pad (invalid) or reduce a scenario to exactly ``caps``; arbitrary leading batch dims.
+    """Pad (invalid) or reduce one unbatched scenario to exactly ``caps``.
 
     A section that fits keeps its slots in place (WOMD's SDC slot stays put), padding appended.
     Else invalid slots go first, then (in their original order) the SDC and what lies nearest to
     the SDC at the current step, by each object's last valid position up to then: what a policy
     may observe never depends on the logged future.
     """
-    if scenario.batch_shape:
-        return stack_scenarios([fit_to_capacities(index_scenario(scenario, i), caps)
-                                for i in range(scenario.batch_shape[0])])
     template = empty_scenario(caps)
     tr, md, rg, tl = (scenario.trajectory, scenario.metadata, scenario.roadgraph,
                       scenario.traffic_lights)

@@ -138,7 +138,6 @@ class SafeUnpickler(pickle.Unpickler):
 
 
 def safe_load(path: str | os.PathLike) -> Any:
-    """Load a pickle file with :class:`SafeUnpickler`; one-line :class:`DataError` if bad."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:

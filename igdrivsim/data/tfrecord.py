@@ -25,6 +25,29 @@ def masked_crc(data: bytes) -> int:
     return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
 
 
+def _open(path: str):
+    try:
+        return open(path, "rb")
+    except OSError as err:
+        raise DataError(f"cannot open: {err.strerror}", file=path) from None
+
+
+def _lengths(f, path: str) -> Iterator[int]:
+    """The data length of each record header of ``f``, its length CRC checked; a truncated header
+    or a bad length CRC is a :class:`DataError` (nothing after it can be located)."""
+    index = 0
+    while header := f.read(_HEADER.size):
+        if len(header) < _HEADER.size:
+            raise DataError(f"truncated record header ({len(header)} of 12 bytes)", file=path,
+                            record=index)
+        length, length_crc = _HEADER.unpack(header)
+        if masked_crc(header[:8]) != length_crc:
+            raise DataError("corrupt record: length CRC mismatch (not a TFRecord file?)",
+                            file=path, record=index)
+        yield length
+        index += 1
+
+
 def iter_frames(path: str | os.PathLike, start: int = 0
                 ) -> Iterator[tuple[int, bytes | None, DataError | None]]:
     """``(record_index, data, error)`` per record from ``start`` (earlier ones skipped by seeking).
@@ -32,42 +55,23 @@ def iter_frames(path: str | os.PathLike, start: int = 0
     (bad length CRC, truncation) yields its error last: nothing after it can be located."""
     path = os.fspath(path)
     try:
-        f = open(path, "rb")
-    except OSError as err:
-        yield 0, None, DataError(f"cannot open: {err.strerror}", file=path)
-        return
-    with f:
-        index = 0
-        while True:
-            if not (header := f.read(_HEADER.size)):
-                return
-            if len(header) < _HEADER.size:
-                yield index, None, DataError(
-                    f"truncated record header ({len(header)} of 12 bytes)", file=path, record=index)
-                return
-            length, length_crc = _HEADER.unpack(header)
-            if masked_crc(header[:8]) != length_crc:
-                yield index, None, DataError(
-                    "corrupt record: length CRC mismatch (not a TFRecord file?)", file=path,
-                    record=index)
-                return
-            if index < start:
-                f.seek(length + 4, os.SEEK_CUR)
-                index += 1
-                continue
-            body = f.read(length + 4)
-            if len(body) < length + 4:
-                yield index, None, DataError(
-                    f"truncated record: expected {length + 4} bytes after the header, found "
-                    f"{len(body)}", file=path, record=index)
-                return
-            data = body[:length]
-            if masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
-                yield index, None, DataError("corrupt record: data CRC mismatch", file=path,
-                                             record=index)
-            else:
-                yield index, data, None
-            index += 1
+        with _open(path) as f:
+            for index, length in enumerate(_lengths(f, path)):
+                if index < start:
+                    f.seek(length + 4, os.SEEK_CUR)
+                    continue
+                body = f.read(length + 4)
+                if len(body) < length + 4:
+                    raise DataError(f"truncated record: expected {length + 4} bytes after the "
+                                    f"header, found {len(body)}", file=path, record=index)
+                data = body[:length]
+                if masked_crc(data) != _FOOTER.unpack(body[length:])[0]:
+                    yield index, None, DataError("corrupt record: data CRC mismatch", file=path,
+                                                 record=index)
+                else:
+                    yield index, data, None
+    except DataError as err:
+        yield err.record or 0, None, err
 
 
 def read_record(path: str | os.PathLike, index: int) -> bytes:
@@ -82,22 +86,13 @@ def read_record(path: str | os.PathLike, index: int) -> bytes:
 
 def count_records(path: str | os.PathLike) -> int:
     """Number of records, checking only the framing (length CRCs), not the data CRCs."""
-    n = 0
     path = os.fspath(path)
-    try:
-        f = open(path, "rb")
-    except OSError as err:
-        raise DataError(f"cannot open: {err.strerror}", file=path) from None
-    with f:
-        while header := f.read(_HEADER.size):
-            if len(header) < _HEADER.size:
-                raise DataError("truncated record header", file=path, record=n)
-            length, length_crc = _HEADER.unpack(header)
-            if masked_crc(header[:8]) != length_crc:
-                raise DataError("corrupt record: length CRC mismatch", file=path, record=n)
+    records = 0
+    with _open(path) as f:
+        for length in _lengths(f, path):
             f.seek(length + 4, os.SEEK_CUR)
-            n += 1
-    return n
+            records += 1
+    return records
 
 
 def write_records(path: str | os.PathLike, records: Iterable[bytes]) -> int:

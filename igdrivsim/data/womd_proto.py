@@ -109,34 +109,11 @@ def subdivide(starts: np.ndarray, segments: np.ndarray, max_spacing: float
     return starts[source] + frac * segments[source], source
 
 
-def densify_polylines(points: np.ndarray, poly: np.ndarray, max_spacing: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Insert evenly spaced points on every segment longer than ``max_spacing`` (2-D length) of
-    the polylines given as vertices ``points [V, 3]`` with polyline index ``poly [V]`` (vertices
-    of one polyline contiguous); vertices are kept. Returns the new ``(points, poly)``."""
-    seg = np.zeros_like(points)
-    inside = poly[1:] == poly[:-1]  # vertex k starts a segment of its polyline
-    seg[:-1] = np.where(inside[:, None], np.diff(points, axis=0), 0.0)
-    if (np.linalg.norm(seg[:, :2], axis=1) / max_spacing - 1e-3 <= 1).all():
-        return points, poly
-    points, source = subdivide(points, seg, max_spacing)
-    return points, poly[source]
-
-
-def polyline_directions(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Unit vector from each point to the next point of its polyline (zero at a polyline end)."""
-    d = np.zeros_like(points)
-    seg = np.diff(points, axis=0)
-    norm = np.linalg.norm(seg, axis=1, keepdims=True)
-    ok = (poly[1:] == poly[:-1])[:, None] & (norm > 0)
-    d[:-1] = np.where(ok, seg / np.maximum(norm, 1e-12), 0.0)
-    return d
-
-
 def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[int]
                              ) -> Roadgraph:
     """The roadgraph of polylines ``xyz[i]`` ``[V_i, 3]`` of type ``types[i]``, id ``ids[i]``
-    (polygons closed), densified to :data:`MAX_SPACING`: one place for every reader's map."""
+    (polygons closed), vertices kept and segments longer than :data:`MAX_SPACING` (2-D length)
+    subdivided evenly; ``dir`` as in the module docstring: one place for every reader's map."""
     if not xyz:
         z = np.zeros((0, 3), np.float32)
         return Roadgraph(xyz=z, dir=z, type=np.zeros(0, np.int32), id=np.zeros(0, np.int32),
@@ -144,9 +121,18 @@ def roadgraph_from_polylines(xyz: list[np.ndarray], types: list[int], ids: list[
     xyz = [np.concatenate([p, p[:1]]) if t in POLYGON_TYPES.values() else p
            for p, t in zip(xyz, types, strict=True)]
     poly = np.repeat(np.arange(len(xyz)), [len(p) for p in xyz])
-    points, poly = densify_polylines(np.concatenate(xyz), poly, MAX_SPACING)
-    return Roadgraph(xyz=points.astype(np.float32),
-                     dir=polyline_directions(points, poly).astype(np.float32),
+    points = np.concatenate(xyz)
+    seg = np.zeros_like(points)  # vertex k starts a segment of its polyline, or none (zero)
+    seg[:-1] = np.where((poly[1:] == poly[:-1])[:, None], np.diff(points, axis=0), 0.0)
+    if not (np.linalg.norm(seg[:, :2], axis=1) / MAX_SPACING - 1e-3 <= 1).all():
+        points, source = subdivide(points, seg, MAX_SPACING)
+        poly = poly[source]
+    step = np.diff(points, axis=0)
+    norm = np.linalg.norm(step, axis=1, keepdims=True)
+    direction = np.zeros_like(points)
+    direction[:-1] = np.where((poly[1:] == poly[:-1])[:, None] & (norm > 0),
+                              step / np.maximum(norm, 1e-12), 0.0)
+    return Roadgraph(xyz=points.astype(np.float32), dir=direction.astype(np.float32),
                      type=np.asarray(types, np.int32)[poly],
                      id=np.asarray(ids, np.int64)[poly].astype(np.int32),
                      valid=np.ones(len(points), bool))

@@ -129,15 +129,14 @@ def welch_test(x: np.ndarray, y: np.ndarray) -> float:
         return float(stats.ttest_ind(x, y, equal_var=False).pvalue)
 
 
-def summarize(per_scenario: pd.DataFrame, confidence: float = CONFIDENCE,
-              metrics: Sequence = METRICS) -> pd.DataFrame:
+def summarize(per_scenario: pd.DataFrame, metrics: Sequence = METRICS) -> pd.DataFrame:
     """One row per ``(metric, setting, method)``: mean over seeds, CI bounds and counts."""
     means = seed_means(per_scenario, metrics)
     counts = per_scenario.groupby(["setting", "method"]).agg(
         n_seeds=("seed", "nunique"), n_scenarios=("scenario_id", "nunique"))
     rows = []
     for (metric, setting, method), part in means.groupby(["metric", "setting", "method"]):
-        mean, low, high = t_interval(part["value"].to_numpy(), confidence)
+        mean, low, high = t_interval(part["value"].to_numpy())
         n = counts.loc[(setting, method)]
         rows.append(dict(metric=metric, setting=setting, method=method, mean=mean, ci_low=low,
                          ci_high=high, n_seeds=int(n.n_seeds), n_scenarios=int(n.n_scenarios)))
@@ -199,14 +198,13 @@ def bootstrap_p_value(replicates: np.ndarray) -> np.ndarray:
 
 
 def paired_difference(a: np.ndarray, b: np.ndarray, n_resamples: int = N_RESAMPLES,
-                      seed: int | Sequence[int] = TEST_SEED, confidence: float = CONFIDENCE,
-                      clusters: Sequence | None = None) -> dict[str, np.ndarray]:
+                      seed: int | Sequence[int] = TEST_SEED, clusters: Sequence | None = None
+                      ) -> dict[str, np.ndarray]:
     """``a - b`` over the same scenarios per metric: the means, the difference, its
     :func:`hierarchical_bootstrap` interval, standard error, p-value and minimum detectable
     effect."""
     reps = hierarchical_bootstrap(a, b, n_resamples, seed, clusters)
-    lo, hi = np.percentile(reps, [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2],
-                           axis=0)
+    lo, hi = np.percentile(reps, [100 * (1 - CONFIDENCE) / 2, 100 * (1 + CONFIDENCE) / 2], axis=0)
     se = reps.std(axis=0, ddof=1)
     return dict(a=a.mean((0, 1)), b=b.mean((0, 1)), diff=a.mean((0, 1)) - b.mean((0, 1)),
                 lo=lo, hi=hi, se=se, p=bootstrap_p_value(reps),
@@ -225,11 +223,10 @@ def holm_adjust(p_values: Sequence[float] | np.ndarray) -> np.ndarray:
     return out
 
 
-def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA,
-                              power: float = POWER) -> float | np.ndarray:
-    """Smallest true difference a two-sided level-``alpha`` test detects with ``power``,
+def minimum_detectable_effect(se: float | np.ndarray, alpha: float = ALPHA) -> float | np.ndarray:
+    """Smallest true difference a two-sided level-``alpha`` test detects with ``POWER``,
     for an estimate with standard error ``se`` (normal approximation)."""
-    return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)) * np.asarray(se, float)
+    return (stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(POWER)) * np.asarray(se, float)
 
 
 def statistic_seed(*names: str) -> list[int]:
@@ -264,8 +261,8 @@ def complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
 
 
 def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
-                    methods: Sequence[str] | None = None, alpha: float = ALPHA,
-                    n_resamples: int = N_RESAMPLES, power: float = POWER) -> pd.DataFrame:
+                    methods: Sequence[str] | None = None, n_resamples: int = N_RESAMPLES
+                    ) -> pd.DataFrame:
     """Each method (default: every learned one) against ``baseline`` per setting and metric, one
     row each (see the module docstring): means, ``diff`` on the scenarios all seeds share, its
     interval, ``p_value``, Holm ``p_holm``, ``significant``, ``better`` (the lower, when
@@ -304,11 +301,11 @@ def compare_methods(per_scenario: pd.DataFrame, baseline: str = BC,
     if out.empty:
         return pd.DataFrame(columns=columns)
     out["p_holm"] = holm_adjust(out.p_value.to_numpy())
-    out["significant"] = out.p_holm < alpha
+    out["significant"] = out.p_holm < ALPHA
     out["better"] = [(m if d < 0 else b) if sig else ""
                      for m, b, d, sig in zip(out.method, out.baseline, out["diff"],
                                              out.significant, strict=True)]
     n_cells = int(np.isfinite(out.p_value).sum()) or 1
-    out["mde"] = minimum_detectable_effect(out.se.to_numpy(), alpha, power)
-    out["mde_holm"] = minimum_detectable_effect(out.se.to_numpy(), alpha / n_cells, power)
+    out["mde"] = minimum_detectable_effect(out.se.to_numpy())
+    out["mde_holm"] = minimum_detectable_effect(out.se.to_numpy(), ALPHA / n_cells)
     return out[columns]

@@ -14,8 +14,8 @@ from tqdm import tqdm
 from igdrivsim.data import Capacities
 from igdrivsim.data.source import load_scenarios
 from igdrivsim.errors import ConfigError, check_min
+from igdrivsim.evaluation import registry
 from igdrivsim.evaluation.rollout import (
-    evaluate_policy,
     reference_frames,
     scenario_ids_of,
     tidy_frames,
@@ -24,6 +24,7 @@ from igdrivsim.evaluation.rollout import (
 from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, PER_STEP_FILE
 from igdrivsim.io import atomic_write_csv, atomic_write_json
 from igdrivsim.machine import code_state
+from igdrivsim.policy.closed_loop import evaluate_policy
 from igdrivsim.simulator import SimParams
 from igdrivsim.training.run import Run
 
@@ -45,18 +46,14 @@ def _check_sizes(max_scenarios: int, batch_size: int) -> None:
 
 def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
                  max_scenarios: int = 0, batch_size: int = 32, seed: int = 0,
-                 progress: bool = True, scenarios=None, egos: str = "sdc",
-                 agents: str | None = None) -> Path:
-    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``
-    (``scenarios``: stacked and fitted to the run, instead of ``data``)."""
+                 progress: bool = True, egos: str = "sdc", agents: str | None = None) -> Path:
+    """Evaluate every seed of ``run_dir``; write the tidy CSVs and ``eval_config.json``."""
     _check_sizes(max_scenarios, batch_size)
     run = Run.open(run_dir)
     config, params, seeds = run.config, run.params(), list(run.config.seeds)
     sim = with_agents(config.sim_params, agents)
-    origins = None  # where each scenario comes from (the per-scenario rows' source)
-    if scenarios is None:
-        scenarios, origins = load_scenarios(data, config.capacities, max_scenarios, progress,
-                                            egos)
+    # origins: where each scenario comes from (the per-scenario rows' source)
+    scenarios, origins = load_scenarios(data, config.capacities, max_scenarios, progress, egos)
     ids = scenario_ids_of(scenarios)
     settings, method = list(config.settings), config.training.method
     label = ",".join(settings)
@@ -64,7 +61,7 @@ def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
         outputs = evaluate_policy(params, scenarios, policy_config=config.policy,
                                   setting=settings, obs_config=config.obs_config, params=sim,
                                   actions=actions, batch_size=batch_size, seed=seed,
-                                  progress=bar.update, episode_metrics=True)
+                                  progress=bar.update, episode_metrics=registry.episode_values)
     frames = [tidy_frames(outputs.map(lambda a, g=g: a[g]), ids, name, method, seeds)
               for g, name in enumerate(settings)]
     steps, scens = zip(*frames, strict=True)
@@ -78,14 +75,12 @@ def evaluate_run(run_dir: str, data, out: str | Path, actions: str = "sample",
 
 def evaluate_references(data, out: str | Path, caps=None, sim=None,
                         max_scenarios: int = 0, batch_size: int = 32, progress: bool = True,
-                        scenarios=None, egos: str = "sdc", agents: str | None = None) -> Path:
+                        egos: str = "sdc", agents: str | None = None) -> Path:
     """Evaluate the discretised expert and constant velocity (``agents`` None: ``sim``'s)."""
     _check_sizes(max_scenarios, batch_size)
     caps = caps or Capacities()
     sim = with_agents(sim or SimParams(), agents)
-    origins = None
-    if scenarios is None:
-        scenarios, origins = load_scenarios(data, caps, max_scenarios, progress, egos)
+    scenarios, origins = load_scenarios(data, caps, max_scenarios, progress, egos)
     n = int(scenarios.scenario_id.shape[0])
     with _bar(2 * n, "evaluate references", progress) as bar:
         per_step, per_scenario = reference_frames(scenarios, sim, batch_size,
@@ -95,7 +90,6 @@ def evaluate_references(data, out: str | Path, caps=None, sim=None,
 
 
 def with_agents(sim: SimParams, agents: str | None) -> SimParams:
-    """``sim`` with its sim agents replaced by ``agents`` (None: as it is)."""
     return sim if agents is None else dataclasses.replace(sim, agents=agents)
 
 

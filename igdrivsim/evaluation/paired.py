@@ -88,17 +88,14 @@ def _statistics(driver: np.ndarray, wins: np.ndarray, reference: np.ndarray,
 
 
 def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Sequence,
-                          n_resamples: int = N_RESAMPLES,
-                          seed: int | Sequence[int] = TEST_SEED,
-                          confidence: float = CONFIDENCE) -> dict[str, float]:
+                          n_resamples: int = N_RESAMPLES, seed: int | Sequence[int] = TEST_SEED
+                          ) -> dict[str, float]:
     """Win share, median paired difference, mean ratio and mean difference of ``driver``
-    ``(seeds, egos)`` against ``reference`` ``(egos,)`` or ``(seeds, egos)``, each with ``_lo``,
+    ``(seeds, egos)`` against ``reference`` ``(egos,)``, each with ``_lo``,
     ``_hi`` (and but the median ``_mde``), and ``n_egos``, ``n_sources``, ``n_seeds``; egos of
     one ``source`` are resampled together (see the module docstring)."""
     driver = np.atleast_2d(np.asarray(driver, float))
     reference = np.asarray(reference, float)
-    if reference.ndim == 2:
-        reference = reference.mean(axis=0)
     codes, uniques = pd.factorize(pd.Series(list(source), dtype=object), sort=True)
     n_seeds, n_egos = driver.shape
     if reference.shape != (n_egos,) or codes.shape != (n_egos,):
@@ -119,22 +116,21 @@ def paired_ego_statistics(driver: np.ndarray, reference: np.ndarray, source: Seq
             ego_counts = resample_counts(rng, m, len(uniques))[:, codes]
             reps[start:start + m] = _statistics(driver, wins, reference,
                                                 resample_counts(rng, m, n_seeds), ego_counts)
-    q = [100 * (1 - confidence) / 2, 100 * (1 + confidence) / 2]
+    q = [100 * (1 - CONFIDENCE) / 2, 100 * (1 + CONFIDENCE) / 2]
     lo, hi = np.nanpercentile(reps, q, axis=0)
     se = np.nanstd(np.where(np.isfinite(reps), reps, np.nan), axis=0, ddof=1)
     for i, name in enumerate(STATISTICS):
         out |= {name: float(point[i]), f"{name}_lo": float(lo[i]), f"{name}_hi": float(hi[i])}
     if point[0] in (0.0, 1.0):  # every resample agrees: the percentile interval is a point
-        out["win_lo"], out["win_hi"] = wilson_interval(point[0], len(uniques), confidence)
+        out["win_lo"], out["win_hi"] = wilson_interval(point[0], len(uniques))
     out |= {f"{name}_mde": float(minimum_detectable_effect(se[i]))
             for i, name in enumerate(STATISTICS) if name != "median"}
     return out
 
 
-def wilson_interval(share: float, n: int, confidence: float = CONFIDENCE
-                    ) -> tuple[float, float]:
+def wilson_interval(share: float, n: int) -> tuple[float, float]:
     """Wilson score interval of a binomial ``share`` observed on ``n`` trials."""
-    z = stats.norm.ppf(0.5 + confidence / 2)
+    z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
     centre = (share + z * z / (2 * n)) / (1 + z * z / n)
     half = z / (1 + z * z / n) * np.sqrt(share * (1 - share) / n + z * z / (4 * n * n))
     lo = 0.0 if share <= 0 else max(0.0, centre - half)  # exact ends at a share of 0 or 1
@@ -167,7 +163,6 @@ def ego_arrays(per_scenario: pd.DataFrame, setting: str, method: str, reference:
 def compare_on_egos(per_scenario: pd.DataFrame, setting: str, method: str, reference: str,
                     column: str = "log_divergence", n_resamples: int = N_RESAMPLES
                     ) -> dict[str, float]:
-    """:func:`paired_ego_statistics` of :func:`ego_arrays`, seeded per comparison."""
     driver, ref, source = ego_arrays(per_scenario, setting, method, reference, column)
     return paired_ego_statistics(driver, ref, source, n_resamples,
                                  statistic_seed(setting, method, reference, column))

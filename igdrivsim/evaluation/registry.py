@@ -92,12 +92,10 @@ def register(metric: ScenarioMetric) -> ScenarioMetric:
 
 
 def metrics() -> tuple[ScenarioMetric, ...]:
-    """The registered metrics, in column order."""
     return tuple(REGISTRY)
 
 
 def columns() -> tuple[str, ...]:
-    """The registry's ``per_scenario.csv`` columns (after Table I's)."""
     return tuple(m.key for m in REGISTRY)
 
 
@@ -110,7 +108,6 @@ SCENARIO_COLUMNS = scenario_columns()  # at import, before any later register() 
 
 
 def episode_keys() -> tuple[str, ...]:
-    """Keys of the metrics computed from the final state."""
     return tuple(m.key for m in REGISTRY if m.episode is not None)
 
 

@@ -4,9 +4,6 @@ episode metrics) -> tidy per-step and per-scenario frames in the columns of
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 import numpy as np
 import pandas as pd
 
@@ -24,15 +21,6 @@ from igdrivsim.policy.closed_loop import DEFAULT_SIM_PARAMS, REFERENCE_ACTORS, S
 from igdrivsim.simulator import SimParams
 
 
-def evaluate_policy(policy_params, scenarios, *, episode_metrics: bool = False,
-                    **options: Any) -> StepOutputs:
-    """:func:`igdrivsim.policy.closed_loop.evaluate_policy` (``options``: its keywords), with the
-    registry's per-episode metrics (``scenario``) when ``episode_metrics``."""
-    return closed_loop.evaluate_policy(
-        policy_params, scenarios,
-        episode_metrics=registry.episode_values if episode_metrics else None, **options)
-
-
 def _masked_mean(x: np.ndarray, valid: np.ndarray, axis: int) -> np.ndarray:
     count = valid.sum(axis=axis)
     total = np.where(valid, x, 0.0).sum(axis=axis)
@@ -43,13 +31,10 @@ def _masked_mean(x: np.ndarray, valid: np.ndarray, axis: int) -> np.ndarray:
 def tidy_frames(outputs: StepOutputs, scenario_ids: list[str], setting: str, method: str,
                 seeds: list[int]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(per_step, per_scenario)`` frames in the schema's column order from ``outputs``
-    ``[S, N, steps]`` (or ``[N, steps]``); per-step rows average the valid steps over scenarios,
-    step ``k`` being the state after the ``k``-th action."""
+    ``[S, N, steps]``; per-step rows average the valid steps over scenarios, step ``k`` being
+    the state after the ``k``-th action."""
     arrays = {f: np.asarray(getattr(outputs, f)) for f in StepOutputs.FIELDS}
     episode = {k: np.asarray(v, float) for k, v in (outputs.scenario or {}).items()}
-    if arrays["valid"].ndim == 2:
-        arrays = {k: v[None] for k, v in arrays.items()}
-        episode = {k: v[None] for k, v in episode.items()}
     valid = arrays["valid"]
     num_seeds, num_scenarios, num_steps = valid.shape
     if len(seeds) != num_seeds or len(scenario_ids) != num_scenarios:
@@ -94,14 +79,15 @@ def scenario_ids_of(scenarios) -> list[str]:
 
 
 def reference_frames(scenarios, params: SimParams = DEFAULT_SIM_PARAMS, batch_size: int = 32,
-                     metrics_fn: Callable | None = None, progress=None
-                     ) -> tuple[pd.DataFrame, pd.DataFrame]:
+                     progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Tidy frames of both reference actors (setting ``none``, seed 0)."""
     ids = scenario_ids_of(scenarios)
     frames = []
     for name in REFERENCE_ACTORS:
-        outs = closed_loop.evaluate_reference(scenarios, name, params, batch_size, metrics_fn,
-                                              progress, episode_metrics=registry.episode_values)
-        frames.append(tidy_frames(outs, ids, REFERENCE_SETTING, name, [0]))
+        outs = closed_loop.evaluate_reference(scenarios, name, params, batch_size,
+                                              progress=progress,
+                                              episode_metrics=registry.episode_values)
+        frames.append(tidy_frames(outs.map(lambda a: a[None]), ids, REFERENCE_SETTING, name,
+                                  [0]))
     steps, scens = zip(*frames, strict=True)
     return pd.concat(steps, ignore_index=True), pd.concat(scens, ignore_index=True)

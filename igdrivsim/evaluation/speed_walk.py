@@ -18,6 +18,7 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.stats import entropy
 from tqdm import tqdm
 
 from igdrivsim.data import Capacities
@@ -34,21 +35,16 @@ ACTORS = ("expert", "expert_steering_constant_speed", "expert_steering_sampled_o
 OFFSETS = jnp.arange(-3, 4)  # the offsets the fourth actor draws (labels beyond are clipped)
 
 
-def constant_velocity_level(state) -> jax.Array:
-    """The dx level of keeping the current (simulated) speed, ``int32[...]``."""
-    vx, vy = _take(state.sdc.vel_x, state.timestep), _take(state.sdc.vel_y, state.timestep)
-    return MIDDLE + dynamics.constant_speed_offset(jnp.hypot(vx, vy))
-
-
 def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
-            log_probs_given_previous: jax.Array, params: SimParams = PARAMS):
+            log_probs_given_previous: jax.Array):
     """80 steps of one actor on a batch of states at reset: per-step ``(log divergence, offroad,
     overlap, valid, label offset)`` ``[80, B]`` (``log_probs_given_previous`` row ``i``: the
     next offset's distribution after ``OFFSETS[i]``)."""
 
     def act(s, previous, k):
-        levels = dynamics.discretize(expert_action(s, params))
-        cv = constant_velocity_level(s)
+        levels = dynamics.discretize(expert_action(s, PARAMS))
+        vx, vy = _take(s.sdc.vel_x, s.timestep), _take(s.sdc.vel_y, s.timestep)
+        cv = MIDDLE + dynamics.constant_speed_offset(jnp.hypot(vx, vy))  # keep the speed
         label_offset = levels[..., 0] - cv
         if actor == "expert_steering_constant_speed":
             levels = levels.at[..., 0].set(cv)
@@ -60,17 +56,11 @@ def episode(state, key, actor: str, offsets: jax.Array, log_probs: jax.Array,
             levels = levels.at[..., 0].set(cv + previous)
         return dynamics.undiscretize(levels), previous, label_offset
 
-    def init(s, k):  # the previous offset: none before the first controlled step
-        return jnp.zeros(jnp.shape(s.timestep), jnp.int32)
-
-    _, tr = run_episode(state, Actor(step=act, init=init), key, params)
+    # init: the previous offset, none before the first controlled step
+    _, tr = run_episode(state, Actor(step=act, init=lambda s, k: jnp.zeros(
+        jnp.shape(s.timestep), jnp.int32)), key, PARAMS)
     m = tr.metrics
     return m.log_divergence, m.offroad, m.overlap, m.valid, tr.extras
-
-
-def entropy(counts: np.ndarray) -> float:
-    p = counts[counts > 0] / counts.sum()
-    return float(-(p * np.log(p)).sum())
 
 
 def label_statistics(offsets: np.ndarray, valid: np.ndarray) -> dict:
@@ -83,7 +73,7 @@ def label_statistics(offsets: np.ndarray, valid: np.ndarray) -> dict:
                       for v in np.unique(prev))
     return {"offset_levels": values.tolist(),
             "offset_probability": (counts / counts.sum()).round(4).tolist(),
-            "entropy_nats": round(entropy(counts), 3),
+            "entropy_nats": round(float(entropy(counts)), 3),
             "entropy_given_previous_nats": round(float(conditional), 3)}
 
 

@@ -11,7 +11,6 @@ from igdrivsim.observation.features import (
     hide_objects,
     hide_roadgraph,
     object_positions,
-    observe_arrays,
     roadgraph_positions,
 )
 from igdrivsim.observation.models import (
@@ -43,7 +42,7 @@ from igdrivsim.observation.occlusion import LineOfSightOcclusion, line_of_sight 
 
 __all__ = [
     "OBJECT_FEATURES", "ROADGRAPH_FEATURES", "Observation", "ObservationConfig", "hide_objects",
-    "hide_roadgraph", "object_positions", "observe_arrays", "roadgraph_positions",
+    "hide_roadgraph", "object_positions", "roadgraph_positions",
     "PRESET_TITLES", "PRESETS", "CircularFieldOfView", "ConicFieldOfView", "FunctionModel",
     "GaussianPositionNoise", "ObservationModel", "ObservationSetting", "RandomMasking",
     "apply_setting", "get_setting", "perceive_pose", "stack_settings", "register_setting",

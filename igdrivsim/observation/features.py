@@ -14,7 +14,6 @@ with :mod:`igdrivsim.policy`), nearest first, invalid (padding or hidden) slots 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -69,12 +68,6 @@ class Selection:
     roadgraph_index: jax.Array  # int32[..., N_rg], index into the (cropped) roadgraph axis
 
 
-def to_frame(x: jax.Array, y: jax.Array, origin_xy: jax.Array, origin_yaw: jax.Array
-             ) -> tuple[jax.Array, jax.Array]:
-    """Global points ``(x, y)`` in the frame at ``origin_xy`` facing ``origin_yaw``."""
-    return rotate_to_frame(x - origin_xy[..., 0], y - origin_xy[..., 1], origin_yaw)
-
-
 def rotate_to_frame(vx: jax.Array, vy: jax.Array, origin_yaw: jax.Array
                     ) -> tuple[jax.Array, jax.Array]:
     """Direction vectors ``(vx, vy)`` expressed in a frame rotated by ``origin_yaw``."""
@@ -110,50 +103,6 @@ def roadgraph_features(x: jax.Array, y: jax.Array, dir_x: jax.Array, dir_y: jax.
 def roadgraph_kind(roadgraph: jax.Array) -> jax.Array:
     """Each row's road type ``int32[..., N]`` from its one-hot columns (0 for an invalid row)."""
     return jnp.argmax(roadgraph[..., ROADGRAPH_TYPES], axis=-1)
-
-
-def object_features(sdc_xy: jax.Array, sdc_yaw: jax.Array, objects: Any, sdc_index: jax.Array,
-                    num_objects: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The ``num_objects`` nearest valid other objects: ``(features f32[N, 6], valid, index)``."""
-    ox, oy = to_frame(jnp.asarray(objects.x), jnp.asarray(objects.y), sdc_xy, sdc_yaw)
-    obj_ok = jnp.asarray(objects.valid, bool) & (jnp.arange(ox.shape[-1]) != sdc_index)
-    obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, num_objects)
-    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
-    rel_yaw = take(objects.yaw) - sdc_yaw
-    speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
-    obj = jnp.stack([take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE, jnp.cos(rel_yaw),
-                     jnp.sin(rel_yaw), speed / SPEED_SCALE, jnp.ones_like(speed)], axis=-1)
-    obj = jnp.where(obj_valid[..., None], obj, 0.0)
-    return obj, obj_valid, obj_idx
-
-
-def observe_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax.Array, objects: Any,
-                   sdc_index: jax.Array, roadgraph: Any,
-                   config: ObservationConfig = DEFAULT_CONFIG, sdc_yaw_rate: jax.Array = 0.0
-                   ) -> tuple[Observation, Selection]:
-    """``(observation, selection)`` of one example at the ego's (believed) pose ``sdc_xy``,
-    ``sdc_yaw`` from global-frame ``objects`` (``x, y, yaw, vel_x, vel_y, valid`` ``[O]``, the
-    ego in slot ``sdc_index``) and ``roadgraph`` (``xyz, dir, type, valid`` ``[R]``)."""
-    sdc_xy, sdc_yaw = jnp.asarray(sdc_xy, jnp.float32), jnp.asarray(sdc_yaw, jnp.float32)
-    obj, obj_valid, obj_idx = object_features(sdc_xy, sdc_yaw, objects, sdc_index,
-                                              config.num_objects)
-
-    xyz = jnp.asarray(roadgraph.xyz, jnp.float32)
-    rx, ry = to_frame(xyz[..., 0], xyz[..., 1], sdc_xy, sdc_yaw)
-    rg_idx, rg_valid = nearest(rx**2 + ry**2, jnp.asarray(roadgraph.valid, bool),
-                               config.num_roadgraph_points)
-    d = jnp.take(jnp.asarray(roadgraph.dir, jnp.float32), rg_idx, axis=-2)
-    dx, dy = rotate_to_frame(d[..., 0], d[..., 1], sdc_yaw)
-    rtype = jnp.take(jnp.asarray(roadgraph.type, jnp.int32), rg_idx, axis=-1)
-    rg = roadgraph_features(jnp.take(rx, rg_idx) / POSITION_SCALE,
-                            jnp.take(ry, rg_idx) / POSITION_SCALE, dx, dy, rtype, rg_valid)
-
-    obs = Observation(
-        objects=obj, objects_valid=obj_valid, roadgraph=rg, roadgraph_valid=rg_valid,
-        sdc_speed=jnp.reshape(jnp.asarray(sdc_speed, jnp.float32) / SPEED_SCALE, (1,)),
-        sdc_yaw_rate=jnp.reshape(jnp.asarray(sdc_yaw_rate, jnp.float32), (1,)),
-    )
-    return obs, Selection(object_index=obj_idx, roadgraph_index=rg_idx)
 
 
 def object_positions(obs: Observation) -> jax.Array:

@@ -193,12 +193,6 @@ def _merged_order(sequences: list[list[Any]]) -> list[Any] | None:
     return order
 
 
-def _stack_leaf(*values: Any) -> jax.Array:
-    """Python numbers stacked as strongly typed arrays (float32, int32), as traced data."""
-    stacked = jnp.stack([jnp.asarray(v) for v in values])
-    return stacked.astype(stacked.dtype)
-
-
 def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationSetting | None:
     """``settings`` as ONE setting whose numbers carry a leading axis ``[G]`` (a setting lacking
     a model gets its ``neutral()`` form), or ``None`` when they cannot share a program (a model
@@ -222,7 +216,8 @@ def stack_settings(settings: Sequence[ObservationSetting | str]) -> ObservationS
         column = [row.get(slot, (present.neutral(), 0)) for row in rows]
         if any(m is None for m, _ in column):
             return None
-        models.append(jax.tree.map(_stack_leaf, *[m for m, _ in column]))
+        # Python numbers -> strongly typed arrays (float32, int32): traced data
+        models.append(jax.tree.map(lambda *v: jnp.array(v), *[m for m, _ in column]))
         keys.append(jnp.asarray([i for _, i in column], jnp.int32))
     return ObservationSetting(",".join(s.name for s in found), tuple(models), tuple(keys))
 
@@ -282,10 +277,9 @@ def get_setting(spec: str | ObservationSetting) -> ObservationSetting:
         return spec
     names = [s.strip() for s in str(spec).split("+")]
     unknown = [n for n in names if n not in PRESETS]
-    if unknown or not names:
-        raise ConfigError(f"unknown observation setting {(unknown or [spec])[0]!r}; "
+    if unknown:
+        raise ConfigError(f"unknown observation setting {unknown[0]!r}; "
                           f"choose from {', '.join(PRESETS)} (compose with '+')")
     if len(names) == 1:
         return PRESETS[names[0]]
-    models = tuple(m for n in names for m in PRESETS[n].models)
-    return ObservationSetting("+".join(names), models)
+    return ObservationSetting("+".join(names), tuple(m for n in names for m in PRESETS[n].models))

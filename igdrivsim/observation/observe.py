@@ -21,11 +21,11 @@ from flax import struct
 from igdrivsim.observation.features import (
     DEFAULT_CONFIG,
     POSITION_SCALE,
+    SPEED_SCALE,
     Observation,
     ObservationConfig,
     Selection,
     nearest,
-    observe_arrays,
     roadgraph_features,
     rotate_to_frame,
 )
@@ -93,12 +93,39 @@ def observe_setting_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax
                            setting: ObservationSetting, episode_key: jax.Array,
                            step_key: jax.Array, config: ObservationConfig = DEFAULT_CONFIG,
                            sdc_yaw_rate: jax.Array = 0.0) -> tuple[Observation, Selection]:
-    """:func:`observe_arrays` under ``setting`` from the ego's TRUE pose ``sdc_xy``, ``sdc_yaw``."""
+    """``(observation, selection)`` of one example under ``setting`` from the ego's TRUE pose
+    ``sdc_xy``, ``sdc_yaw``, global-frame ``objects`` (``x, y, yaw, vel_x, vel_y, valid``
+    ``[O]``, the ego in slot ``sdc_index``) and ``roadgraph`` (``xyz, dir, type, valid``
+    ``[R]``): the nearest around the believed pose, then the setting's hiding."""
     xy, yaw = perceive_pose(setting, jnp.asarray(sdc_xy, jnp.float32),
                             jnp.asarray(sdc_yaw, jnp.float32), episode_key, step_key)
-    obs, sel = observe_arrays(xy, yaw, sdc_speed, objects, sdc_index, roadgraph, config,
-                              sdc_yaw_rate)
-    return apply_setting(setting, obs, episode_key, step_key), sel
+    ox, oy = rotate_to_frame(jnp.asarray(objects.x) - xy[..., 0],
+                             jnp.asarray(objects.y) - xy[..., 1], yaw)
+    obj_ok = jnp.asarray(objects.valid, bool) & (jnp.arange(ox.shape[-1]) != sdc_index)
+    obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, config.num_objects)
+    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
+    rel_yaw = take(objects.yaw) - yaw
+    speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
+    obj = jnp.stack([take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE, jnp.cos(rel_yaw),
+                     jnp.sin(rel_yaw), speed / SPEED_SCALE, jnp.ones_like(speed)], axis=-1)
+
+    xyz = jnp.asarray(roadgraph.xyz, jnp.float32)
+    rx, ry = rotate_to_frame(xyz[..., 0] - xy[..., 0], xyz[..., 1] - xy[..., 1], yaw)
+    rg_idx, rg_valid = nearest(rx**2 + ry**2, jnp.asarray(roadgraph.valid, bool),
+                               config.num_roadgraph_points)
+    d = jnp.take(jnp.asarray(roadgraph.dir, jnp.float32), rg_idx, axis=-2)
+    dx, dy = rotate_to_frame(d[..., 0], d[..., 1], yaw)
+    rtype = jnp.take(jnp.asarray(roadgraph.type, jnp.int32), rg_idx, axis=-1)
+    rg = roadgraph_features(jnp.take(rx, rg_idx) / POSITION_SCALE,
+                            jnp.take(ry, rg_idx) / POSITION_SCALE, dx, dy, rtype, rg_valid)
+
+    obs = Observation(
+        objects=jnp.where(obj_valid[..., None], obj, 0.0), objects_valid=obj_valid,
+        roadgraph=rg, roadgraph_valid=rg_valid,
+        sdc_speed=jnp.reshape(jnp.asarray(sdc_speed, jnp.float32) / SPEED_SCALE, (1,)),
+        sdc_yaw_rate=jnp.reshape(jnp.asarray(sdc_yaw_rate, jnp.float32), (1,)),
+    )
+    return apply_setting(setting, obs, episode_key, step_key), Selection(obj_idx, rg_idx)
 
 
 def observe_with_selection(state: Any, setting: ObservationSetting, episode_key: jax.Array,

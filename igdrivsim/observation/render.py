@@ -28,6 +28,7 @@ from igdrivsim.observation.models import (
     GaussianPositionNoise,
     ObservationSetting,
     get_setting,
+    perceive_pose,
 )
 from igdrivsim.observation.observe import observe_with_selection
 from igdrivsim.simulator import current_objects
@@ -57,10 +58,6 @@ class ProfileView:
     num_roadgraph_points: int
     roadgraph_stride: int  # the observable map keeps every k-th point of each polyline
 
-    @property
-    def config(self) -> ObservationConfig:
-        return ObservationConfig(self.num_objects, self.num_roadgraph_points)
-
     def describe(self) -> str:
         """One line: the profile and its observation capacities."""
         stride = self.roadgraph_stride
@@ -81,7 +78,6 @@ class Snapshot:
     """Everything one panel draws (NumPy, ego TRUE frame, metres)."""
 
     road_xy: np.ndarray  # [R, 2] all valid (cropped) roadgraph points
-    road_type: np.ndarray  # [R]
     obj_xy: np.ndarray  # [O, 2] all valid other objects
     obj_yaw: np.ndarray  # [O]
     obj_size: np.ndarray  # [O, 2] length, width
@@ -93,7 +89,6 @@ class Snapshot:
     seen_obj_yaw: np.ndarray  # [M]
     seen_obj_size: np.ndarray  # [M, 2]
     noise_offset: np.ndarray | None  # [2] believed minus true ego position (ego frame), if any
-    timestep: int
 
 
 def _to_frame(xy: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
@@ -131,14 +126,12 @@ def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Arr
     o = obs.objects[obs.objects_valid]
     r = obs.roadgraph[obs.roadgraph_valid]
     noise = None
-    for m in setting.models:
-        if isinstance(m, GaussianPositionNoise):
-            xy, _ = m.perceive_pose(jnp.asarray(ego_xy, jnp.float32), jnp.float32(ego_yaw),
-                                    jax.random.fold_in(episode_key, setting.models.index(m)),
-                                    step_key)
-            noise = _to_frame(np.asarray(xy, np.float64), ego_xy, ego_yaw)
+    if any(isinstance(m, GaussianPositionNoise) for m in setting.models):
+        xy, _ = perceive_pose(setting, jnp.asarray(ego_xy, jnp.float32), jnp.float32(ego_yaw),
+                              episode_key, step_key)
+        noise = _to_frame(np.asarray(xy, np.float64), ego_xy, ego_yaw)
     return Snapshot(
-        road_xy=road_xy, road_type=rg.type[rg.valid],
+        road_xy=road_xy,
         obj_xy=obj_xy, obj_yaw=objs.yaw[others] - ego_yaw,
         obj_size=np.stack([objs.length[others], objs.width[others]], -1),
         obj_seen=seen[others],
@@ -146,7 +139,7 @@ def snapshot(state: Any, setting: ObservationSetting | str, episode_key: jax.Arr
         seen_road_xy=r[:, :2] * POSITION_SCALE, seen_road_type=np.argmax(r[:, 4:24], -1),
         seen_obj_xy=o[:, :2] * POSITION_SCALE, seen_obj_yaw=np.arctan2(o[:, 3], o[:, 2]),
         seen_obj_size=np.stack([objs.length[seen_slots], objs.width[seen_slots]], -1),
-        noise_offset=noise, timestep=int(state.timestep),
+        noise_offset=noise,
     )
 
 
@@ -276,8 +269,8 @@ def observation_figure(state: Any, settings: list[str], key: jax.Array, view: fl
         axes = sub.subplots(nrows, ncols, squeeze=False)
         for i, (ax, name) in enumerate(zip(axes.flat, settings, strict=False)):
             setting = get_setting(name)
-            snap = snapshot(state, setting, episode_key, step_key, profile.config,
-                            profile.roadgraph_stride)
+            config = ObservationConfig(profile.num_objects, profile.num_roadgraph_points)
+            snap = snapshot(state, setting, episode_key, step_key, config, profile.roadgraph_stride)
             draw_panel(ax, snap, setting, PRESET_TITLES.get(setting.name, setting.name), view)
             if i % ncols == 0:
                 ax.set_ylabel(Y_LABEL, fontsize=7)

@@ -50,13 +50,12 @@ def replay_fn(actor: str = "expert", params: SimParams = DEFAULT_PARAMS):
     return run
 
 
-def scenario_record(scenario_id: str, replay: StepMetrics, log: StepMetrics,
-                    first_step: int = 11) -> dict:
-    """The JSON record of one replayed scenario (per-step metrics ``[80]`` on the host)."""
+def scenario_record(scenario_id: str, replay: StepMetrics, log: StepMetrics) -> dict:
+    """The JSON record of one replayed scenario (host metrics ``[80]`` of timesteps 11..90)."""
     div = np.where(np.asarray(replay.valid), np.asarray(replay.log_divergence), 0.0)
     return {
         "scenario_id": scenario_id,  # then log_overlap_steps .. replay_offroad_steps
-        **{f"{who}_{rule}_steps": [first_step + int(i)
+        **{f"{who}_{rule}_steps": [11 + int(i)
                                    for i in np.flatnonzero(np.asarray(getattr(m, rule)))]
            for who, m in (("log", log), ("replay", replay)) for rule in ("overlap", "offroad")},
         "replay_mean_log_divergence": round(float(mean_log_divergence(replay)), 5),

@@ -18,6 +18,8 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from igdrivsim.data.reader import available_cpus
 from igdrivsim.names import METHODS, SETTINGS
 from igdrivsim.training import cost
@@ -115,13 +117,6 @@ def makespan(seconds: Sequence[float], workers: int) -> float:
     return max(lanes)
 
 
-def chunks(settings: Sequence[str], parts: int) -> list[tuple[str, ...]]:
-    """``settings`` in ``parts`` contiguous groups whose sizes differ by at most one."""
-    size, extra = divmod(len(settings), parts)
-    ends = [k * size + min(k, extra) for k in range(parts + 1)]  # the first ``extra`` one longer
-    return [tuple(settings[a:b]) for a, b in zip(ends, ends[1:], strict=False)]
-
-
 def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
                seconds: Callable[[str, int], float], extra: Sequence[float] = ()
                ) -> list[Part]:
@@ -130,10 +125,11 @@ def split_grid(methods: Sequence[str], settings: Sequence[str], workers: int,
     shortest (``seconds(method, n_settings)``: a part's cost; ``extra``: other jobs' costs)."""
     counts = dict.fromkeys(methods, 1)
 
-    def parts() -> list[Part]:
-        return [Part(method, group, method if n == 1 else f"{method}-{k + 1}of{n}",
+    def parts() -> list[Part]:  # each method's settings in n contiguous groups, sizes within one
+        return [Part(method, tuple(map(str, group)), method if n == 1 else f"{method}-{k + 1}of{n}",
                      seconds(method, len(group)))
-                for method, n in counts.items() for k, group in enumerate(chunks(settings, n))]
+                for method, n in counts.items()
+                for k, group in enumerate(np.array_split(list(settings), n))]
 
     def wall(ps: list[Part]) -> float:
         return makespan([p.seconds for p in ps] + list(extra), workers)

@@ -57,7 +57,7 @@ class Publisher:
             args += ["--methods", ",".join(self.methods)]
         args += [a for override in self.overrides for a in ("--set", override)]
         if self.samples_given:
-            args += ["--samples", *map(str, self.samples_given)]
+            args += ["--samples", *self.samples_given]
         return provenance.command_line(args)
 
     def publish(self) -> list[str]:

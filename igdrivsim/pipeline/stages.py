@@ -66,8 +66,6 @@ class Pipeline(Publisher, StageRunner):
 
     def __post_init__(self):
         self.work, self.paper = Path(self.work), Path(self.paper)
-        self.samples, self.samples_given = (tuple(map(str, v))
-                                            for v in (self.samples, self.samples_given))
         self.settings = tuple(self.settings or self.profile.settings)
         for i, name in enumerate(self.settings):  # any registered setting or '+' composition
             if stack_settings(self.settings[:i + 1]) is None:
@@ -118,20 +116,19 @@ class Pipeline(Publisher, StageRunner):
                        depends=["data"], outputs=[out / split / MANIFEST])
         return out / "training", out / "validation"
 
-    def run_train(self, method: str, train_manifest: Path, val_manifest: Path,
-                  echo: bool = True, part: planning.Part | None = None) -> None:
-        """Train one part of the grid (default: the method on every setting) in one program; a
-        method with a privileged teacher skips ``full`` and learns from the chosen teacher."""
-        part = part or planning.Part(method, tuple(self.settings), method)
+    def run_train(self, part: planning.Part, train_manifest: Path, val_manifest: Path,
+                  echo: bool) -> None:
+        """Train one part of the grid in one program; a method with a privileged teacher skips
+        ``full`` and learns from the chosen teacher."""
         run = self.work / "runs" / part.name
         settings, sets, depends = part.settings, list(self.overrides), []
-        if get_method(method).teacher:
+        if get_method(part.method).teacher:
             settings = tuple(s for s in settings if s != TEACHER_SETTING)
             sets.append(f"training.teacher={read_json(self.teacher_choice)['run']}")
             depends = ["teacher"]
         self.stage(f"train_{part.name}", [[
             "igdrivsim", "train", "--profile", self.profile.name,
-            "--obs", ",".join(settings), "--method", method,
+            "--obs", ",".join(settings), "--method", part.method,
             "--seeds", self.profile.seeds, "--data", train_manifest,
             "--val-data", val_manifest, "--cache-dir", self.work / "cache",
             "--out", run, "--resume", *[a for o in sets for a in ("--set", o)]]],
@@ -143,7 +140,6 @@ class Pipeline(Publisher, StageRunner):
         return self.work / "runs" / "teacher.json"
 
     def run_teacher(self, candidates: Sequence[str]) -> None:
-        """Pick the privileged teacher among the finished runs of ``candidates``."""
         self.stage("teacher", [["igdrivsim", "teacher", "--runs",
                                 *[self.work / "runs" / m for m in candidates],
                                 "--out", self.teacher_choice]],
@@ -313,7 +309,6 @@ class Pipeline(Publisher, StageRunner):
         atomic_write_json(path, record, indent=2)
 
     def method_groups(self) -> tuple[list[str], list[str]]:
-        """``(plain, taught)``: the methods without a privileged teacher, then those with one."""
         taught = [m for m in self.methods if get_method(m).teacher]
         return [m for m in self.methods if m not in taught], taught
 
@@ -394,7 +389,6 @@ class Pipeline(Publisher, StageRunner):
         return lines
 
     def run(self) -> None:
-        """Every stage in order, holding the work folder's lock."""
         with self.work_lock():
             self.wall_seconds()  # the time of the invocations before this one, read now
             stop = threading.Event()
@@ -418,8 +412,7 @@ class Pipeline(Publisher, StageRunner):
         like = first[-1].name  # the references take its capacities and simulator settings
 
         def train_job(part: planning.Part, after: tuple[str, ...] = ()) -> lanes.Job:
-            return lanes.Job(f"train_{part.name}",
-                             lambda e: self.run_train(part.method, tm, vm, e, part), after)
+            return lanes.Job(f"train_{part.name}", lambda e: self.run_train(part, tm, vm, e), after)
 
         # the longest first; the maze among them by its cost
         costly = [*[(p.seconds, train_job(p)) for p in first],
@@ -437,7 +430,7 @@ class Pipeline(Publisher, StageRunner):
                  for agents, (_, suffix, _) in EVAL_FOLDERS.items()]
         jobs += [lanes.Job("speed_walk", lambda e: self.run_speed_walk(vm, e)),
                  lanes.Job("render", lambda e: self.run_render(val, e))]
-        lanes.run_jobs(jobs, self.lanes, self.stopping, echo_alone=self.in_process)
+        lanes.run_jobs(jobs, self.lanes, self.stopping)
         upstream = ["maze", "render", "evaluate_references", "speed_walk",
                     *[f"evaluate_{n}" for n in names]]
         self.run_report(self.work / "evals", upstream, names)

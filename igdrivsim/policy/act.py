@@ -58,16 +58,6 @@ def choose_levels(logits: jax.Array, key: jax.Array, mode: str = "sample") -> ja
     raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
 
 
-def policy_step(config: PolicyConfig, params, carry: jax.Array, obs: Observation,
-                key: jax.Array, mode: str = "sample", reset=False):
-    """One step by hand: ``(continuous action f32[..., 3], carry, levels [..., 3])``;
-    ``reset`` zeroes the GRU state first (an episode start)."""
-    reset = jnp.broadcast_to(jnp.asarray(reset, bool), carry.shape[:-1])
-    carry, logits, _ = apply_step(config, params, carry, obs, reset)
-    levels = choose_levels(logits, key, mode)
-    return undiscretize(levels), carry, levels
-
-
 def warmup_carry(config: PolicyConfig, params, state, setting, obs_config: ObservationConfig,
                  episode_key: jax.Array) -> jax.Array:
     """GRU state after observing the logged steps ``0..9`` of ONE scenario (``state`` at reset,
@@ -89,7 +79,7 @@ class PolicyCarry:
     ``fold_in(episode_key, t)``) and the action key (levels drawn with ``fold_in(action_key,
     t)``; ``None``: with the runner's step key, as BC-RL's training rollout)."""
 
-    hidden: jax.Array  # f32[..., gru_hidden + history_width]: the network's carry
+    hidden: jax.Array  # f32[..., gru_hidden + H]: the network's carry (initial_carry)
     episode_key: jax.Array  # key[...]
     action_key: jax.Array | None = None  # key[...] or None
 
@@ -114,9 +104,6 @@ def policy_actor(config: PolicyConfig, params, setting, obs_config: ObservationC
     observation, the value, the levels' log-probability (not in ``mean`` mode) and the levels
     as ``extras``. ``params`` and ``setting`` may be traced.
     """
-    if mode not in ACTION_MODES:
-        raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
-
     def init(state, key) -> PolicyCarry:
         episode_key, action_key = jax.random.split(key)
         hidden = warmup_carry(config, params, state, setting, obs_config, episode_key)
@@ -157,8 +144,7 @@ class PolicyRollout(NamedTuple):
 
 
 def policy_rollout(config: PolicyConfig, params, carry, state: SimState, setting, obs_config,
-                   sim_params: SimParams, episode_keys, key,
-                   num_steps: int = CONTROLLED_STEPS, privileged=None) -> PolicyRollout:
+                   sim_params: SimParams, episode_keys, key, privileged=None) -> PolicyRollout:
     """Drive a batch ``[B]`` with sampled actions from the warmed-up GRU state ``carry [B,
     H]``; ``privileged``: a setting (the teacher's) under which every visited state is observed
     as well, for a teacher to label it."""
@@ -172,7 +158,7 @@ def policy_rollout(config: PolicyConfig, params, carry, state: SimState, setting
         actor = Actor(step=step, init=student.init)
     _, tr = run_episode(state, actor, key, sim_params, carry=PolicyCarry(carry, episode_keys),
                         metrics_fn=None, observation=True, value=True, log_prob=True,
-                        with_reward=True, num_steps=num_steps)
+                        with_reward=True, num_steps=CONTROLLED_STEPS)
     levels, seen = tr.extras if privileged is not None else (tr.extras, None)
     rewards = jnp.where(tr.valid, tr.reward, 0.0)
     return PolicyRollout(tr.observation, levels, tr.log_prob, tr.value, rewards, tr.valid, seen)

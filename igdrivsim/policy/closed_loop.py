@@ -56,33 +56,21 @@ class StepOutputs:
         return StepOutputs(*(fn(getattr(self, f)) for f in self.FIELDS), scenario)
 
 
-def _metrics(state, params: SimParams, metrics_fn) -> tuple[jax.Array, ...]:
-    m = metrics_fn(state, params)
-    valid = getattr(m, "valid", None)
-    if valid is None:  # a metrics function without validity: the logged SDC's, at this step
-        valid = jnp.take_along_axis(state.sdc.valid, state.timestep[..., None], axis=-1)[..., 0]
-    return (jnp.asarray(m.log_divergence, jnp.float32), jnp.asarray(m.overlap, jnp.float32),
-            jnp.asarray(m.offroad, jnp.float32), jnp.asarray(valid, bool))
-
-
 REFERENCE_ACTORS: tuple[str, ...] = tuple(ACTORS)  # ("expert", "constant_velocity")
 
 
 def _run(state, actor, key, params: SimParams, metrics_fn, episode: EpisodeFn | None):
-    """One episode through the simulator's runner: per-step metrics ``[steps]`` each and the
-    registry's episode metrics (``{}`` unless ``episode``)."""
-    final, tr = run_episode(state, actor, key, params,
-                            metrics_fn=lambda s, p: _metrics(s, p, metrics_fn))
+    """One episode through the simulator's runner: per-step metrics ``[steps]`` each (the
+    fields of :class:`StepOutputs`) and the registry's episode metrics (``{}`` unless
+    ``episode``)."""
+
+    def metrics(s, p) -> tuple[jax.Array, ...]:
+        m = metrics_fn(s, p)
+        return tuple(jnp.asarray(getattr(m, f), bool if f == "valid" else jnp.float32)
+                     for f in StepOutputs.FIELDS)
+
+    final, tr = run_episode(state, actor, key, params, metrics_fn=metrics)
     return tr.metrics, {} if episode is None else episode(final, params)
-
-
-def _policy_episode(policy_params, state, key, *, policy_config: PolicyConfig, setting,
-                    obs_config: ObservationConfig, params: SimParams, actions: str, metrics_fn,
-                    episode: EpisodeFn | None = None):
-    """One scenario, one seed (:func:`igdrivsim.policy.act.policy_actor`: the GRU warmed on the
-    logged steps 0..9, then driving): per-step metrics and the episode metrics."""
-    actor = policy_actor(policy_config, policy_params, setting, obs_config, actions)
-    return _run(state, actor, key, params, metrics_fn, episode)
 
 
 @partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn", "episode"))
@@ -95,18 +83,21 @@ def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_f
 
 
 @partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "actions",
-                                   "metrics_fn", "episode"))
-def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config, setting,
-                  obs_config, params, actions, metrics_fn, episode: EpisodeFn | None = None):
+                                   "episode"))
+def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config: PolicyConfig,
+                  setting, obs_config: ObservationConfig, params: SimParams, actions: str,
+                  episode: EpisodeFn | None = None):
     """Outputs ``[G, S, B, steps]`` of ``policy_params [G, S]`` on scenarios ``[B]`` with keys
     ``[S, B]`` (shared by the settings); ``settings`` stacked ``[G]``, or ``None`` with the
-    static ``setting``."""
+    static ``setting``. Each episode: :func:`igdrivsim.policy.act.policy_actor` (the GRU warmed
+    on the logged steps 0..9, then driving)."""
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
 
     def per_setting(policy_params, setting_value):
-        one = partial(_policy_episode, policy_config=policy_config, setting=setting_value,
-                      obs_config=obs_config, params=params, actions=actions,
-                      metrics_fn=metrics_fn, episode=episode)
+        def one(p, s, k):
+            actor = policy_actor(policy_config, p, setting_value, obs_config, actions)
+            return _run(s, actor, k, params, step_metrics, episode)
+
         over_scenarios = jax.vmap(one, in_axes=(None, 0, 0))
         return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
 
@@ -145,15 +136,22 @@ def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> St
                        scenario)
 
 
-def _batches(scenarios, batch_size: int):
-    """``(start, stop, batch)``: fixed-size batches (a multiple of the device count, padded with
-    copies of their first scenario), the scenario axis spread over all devices."""
+def _batched(scenarios, batch_size: int, axis: int, progress, run: Callable) -> StepOutputs:
+    """``run(start, stop, batch)`` over fixed-size batches (a multiple of the device count,
+    padded with copies of their first scenario; the scenario axis spread over all devices), its
+    outputs cut back to the batch's scenarios and joined on the scenario ``axis``."""
     n = jax.tree.leaves(scenarios)[0].shape[0]
     size = -(-min(batch_size, n) // jax.device_count()) * jax.device_count()
+    parts = []
     for start in range(0, n, batch_size):
         stop = min(start + batch_size, n)
         index = np.concatenate([np.arange(start, stop), np.full(size - stop + start, start)])
-        yield start, stop, _spread(jax.tree.map(lambda x, i=index: np.asarray(x)[i], scenarios), 0)
+        batch = _spread(jax.tree.map(lambda x, i=index: np.asarray(x)[i], scenarios), 0)
+        outs = _to_host(run(start, stop, batch))
+        parts.append(outs.map(lambda a, k=stop - start: np.take(a, np.arange(k), axis)))
+        if progress:
+            progress(stop - start)
+    return _join(parts, axis=axis)
 
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
@@ -162,32 +160,19 @@ def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_S
                        episode_metrics: EpisodeFn | None = None) -> StepOutputs:
     """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
     per-episode metrics ``[N]`` of ``episode_metrics`` when given)."""
-    if actor_name not in REFERENCE_ACTORS:
-        raise KeyError(actor_name)
-    metrics_fn = metrics_fn or step_metrics
-    parts = []
-    for start, stop, batch in _batches(scenarios, batch_size):
-        outs = _to_host(_reference_batch(batch, params=params, actor_name=actor_name,
-                                         metrics_fn=metrics_fn, episode=episode_metrics))
-        parts.append(outs.map(lambda a, n=stop - start: a[:n]))
-        if progress:
-            progress(stop - start)
-    return _join(parts, axis=0)
 
+    def run(start, stop, batch):
+        return _reference_batch(batch, params=params, actor_name=actor_name,
+                                metrics_fn=metrics_fn or step_metrics, episode=episode_metrics)
 
-def _episode_keys(base, num_seeds: int, index: np.ndarray):
-    """Keys ``[S, B]``: ``fold_in(fold_in(base, seed), scenario_index)``."""
-    per_seed = jax.vmap(lambda s: jax.random.fold_in(base, s))(jnp.arange(num_seeds))
-    return jax.vmap(lambda k: jax.vmap(lambda i: jax.random.fold_in(k, i))(jnp.asarray(index)))(
-        per_seed)
+    return _batched(scenarios, batch_size, 0, progress, run)
 
 
 def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                     setting: str | Sequence[str],
                     obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
                     params: SimParams = DEFAULT_SIM_PARAMS, actions: str = "sample",
-                    batch_size: int = 32,
-                    seed: int = EVAL_SEED, metrics_fn: Callable | None = None,
+                    batch_size: int = 32, seed: int = EVAL_SEED,
                     progress: Callable[[int], Any] | None = None,
                     episode_metrics: EpisodeFn | None = None) -> StepOutputs:
     """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
@@ -198,7 +183,6 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
     ``s`` only, so results do not depend on the batch size or the settings run together.
     ``episode_metrics`` adds per-episode metrics (``scenario``, ``[S, N]`` or ``[G, S, N]``).
     """
-    metrics_fn = metrics_fn or step_metrics
     single = isinstance(setting, str)
     names = [setting] if single else list(setting)
     if single:
@@ -208,27 +192,23 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
         groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
                                   policy_config=policy_config, setting=n,
                                   obs_config=obs_config, params=params, actions=actions,
-                                  batch_size=batch_size, seed=seed, metrics_fn=metrics_fn,
-                                  progress=progress, episode_metrics=episode_metrics)
+                                  batch_size=batch_size, seed=seed, progress=progress,
+                                  episode_metrics=episode_metrics)
                   for g, n in enumerate(names)]
         return _join(groups, np.stack)
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
-    base = jax.random.key(seed)
+    seed_keys = jax.vmap(partial(jax.random.fold_in, jax.random.key(seed)))(jnp.arange(num_seeds))
     policy_params, settings = _spread(policy_params, None), _spread(settings, None)
-    parts = []
-    for start, stop, batch in _batches(scenarios, batch_size):
+
+    def run(start, stop, batch):  # keys [S, B]: fold_in(fold_in(key(seed), s), scenario index)
         size = jax.tree.leaves(batch)[0].shape[0]  # padded
-        index = np.minimum(np.arange(start, start + size), stop - 1)
-        keys = _spread(_episode_keys(base, num_seeds, index), 1)
-        outs = _to_host(_policy_batch(policy_params, batch, keys, settings,
-                                      policy_config=policy_config, setting=static,
-                                      obs_config=obs_config, params=params, actions=actions,
-                                      metrics_fn=metrics_fn, episode=episode_metrics))
-        parts.append(outs.map(lambda a, n=stop - start: a[:, :, :n]))
-        if progress:
-            progress(stop - start)
-    out = _join(parts, axis=2)
-    if single:
-        out = out.map(lambda a: a[0])
-    return out
+        index = jnp.asarray(np.minimum(np.arange(start, start + size), stop - 1))
+        keys = jax.vmap(lambda k: jax.vmap(partial(jax.random.fold_in, k))(index))(seed_keys)
+        keys = _spread(keys, 1)
+        return _policy_batch(policy_params, batch, keys, settings, policy_config=policy_config,
+                             setting=static, obs_config=obs_config, params=params,
+                             actions=actions, episode=episode_metrics)
+
+    out = _batched(scenarios, batch_size, 2, progress, run)
+    return out.map(lambda a: a[0]) if single else out

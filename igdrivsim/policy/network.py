@@ -247,12 +247,6 @@ def head_inputs(config: PolicyConfig, y: jax.Array, x: jax.Array) -> jax.Array:
     return jnp.concatenate([y, x], -1) if config.heads_see_features else y
 
 
-def history_width(config: PolicyConfig) -> int:
-    """Width of the ego-motion history in the carry: ``speed_history`` speeds, then
-    ``yaw_history - 1`` yaw rates."""
-    return config.speed_history + max(config.yaw_history - 1, 0)
-
-
 def split_carry(config: PolicyConfig, carry: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The GRU state and the ego-motion history (last speeds, then yaw rates) of a carry."""
     return carry[..., :config.gru_hidden], carry[..., config.gru_hidden:]
@@ -309,8 +303,10 @@ def relative_to_constant_velocity(offset_logits: jax.Array, sdc_speed: jax.Array
 
 
 def initial_carry(config: PolicyConfig, batch_shape: tuple[int, ...] = ()) -> jax.Array:
-    """The zero carry ``[*batch_shape, gru_hidden + history_width]``."""
-    return jnp.zeros((*batch_shape, config.gru_hidden + history_width(config)), jnp.float32)
+    """The zero carry ``[*batch_shape, gru_hidden + H]``: the GRU state, then the ego-motion
+    history (``H``: ``speed_history`` speeds, then ``yaw_history - 1`` yaw rates)."""
+    history = config.speed_history + max(config.yaw_history - 1, 0)
+    return jnp.zeros((*batch_shape, config.gru_hidden + history), jnp.float32)
 
 
 def init_params(config: PolicyConfig, key: jax.Array, example_obs) -> dict:
@@ -334,16 +330,14 @@ def apply_step(config: PolicyConfig, params, carry, obs, reset):
     return DrivingPolicy(config).apply(params, carry, obs, reset)
 
 
-def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, reset_first: bool = True,
-                    with_aux: bool = False):
+def unroll_sequence(config: PolicyConfig, params, carry, obs_seq, with_aux: bool = False):
     """Run the network over time-major observations ``[T, B, ...]``: ``(carry, logits
     [T, B, 3, bins], values [T, B])`` (and the auxiliary logits when ``with_aux``), the GRU
-    state zeroed before step 0 if ``reset_first``. The values of stepping :func:`apply_step`,
-    faster: the encoders run once over all ``T x B`` steps and only the recurrence is scanned.
-    """
+    state zeroed before step 0. The values of stepping :func:`apply_step`, faster: the
+    encoders run once over all ``T x B`` steps and only the recurrence is scanned."""
     model = DrivingPolicy(config)
     t = jax.tree.leaves(obs_seq)[0].shape[0]
-    resets = jnp.zeros((t, *carry.shape[:-1]), bool).at[0].set(reset_first)
+    resets = jnp.zeros((t, *carry.shape[:-1]), bool).at[0].set(True)
     h, past = split_carry(config, carry)
     changes = None
     if config.speed_history or config.yaw_history:  # every step's, before the network runs

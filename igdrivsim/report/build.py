@@ -59,23 +59,6 @@ def verdicts_tex(tests) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _speed_walk_files(eval_dirs: list[str | Path], tables: Path, generated: Path) -> list[Path]:
-    """``speed_walk.{md,tex}`` from the first ``speed_walk.json`` among the evaluation folders."""
-    for root in map(Path, eval_dirs):
-        path = root / speed_walk.RESULT_FILE
-        if path.is_file():
-            result = read_json(path)
-            return [atomic_write_text(tables / "speed_walk.md", speed_walk.report_markdown(result)),
-                    atomic_write_text(generated / "speed_walk.tex", speed_walk.report_tex(result))]
-    return []
-
-
-def default_run_dirs(eval_dirs: list[str | Path]) -> list[Path]:
-    """The ``runs/`` folder next to each evaluation folder (``WORK/evals`` -> ``WORK/runs``)."""
-    runs = (Path(root).resolve().parent / "runs" for root in eval_dirs)
-    return [r for r in dict.fromkeys(runs) if r.is_dir()]
-
-
 def build_report(eval_dirs: list[str | Path], out: str | Path,
                  provenance: Provenance = Provenance(),
                  run_dirs: list[str | Path] | None = None) -> list[Path]:
@@ -125,7 +108,13 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     ]
     written += fig.save_figure(fig.supplementary_figure(seed_means(per_scenario, extra), extra),
                            figures, "fig5_supplementary")
-    written += _speed_walk_files(eval_dirs, tables, generated)
+    for path in (Path(root) / speed_walk.RESULT_FILE for root in eval_dirs):
+        if path.is_file():  # speed_walk.{md,tex} from the first speed_walk.json found
+            result = read_json(path)
+            written += [
+                atomic_write_text(tables / "speed_walk.md", speed_walk.report_markdown(result)),
+                atomic_write_text(generated / "speed_walk.tex", speed_walk.report_tex(result))]
+            break
     if methods_table.extended_methods(per_scenario):
         tests_all = methods_table.compare_all(per_scenario)  # every learned method vs BC
         written += [
@@ -139,8 +128,11 @@ def build_report(eval_dirs: list[str | Path], out: str | Path,
     else:  # a folder never shows a Table II from an earlier run beside this Table I
         for name in METHODS_FILES:
             (out / name).unlink(missing_ok=True)
-    runs = default_run_dirs(eval_dirs) if run_dirs is None else list(run_dirs)
-    references = per_scenario[per_scenario.method.isin(REFERENCES)]
-    written += fig.learning_curves_figure(runs, figures, references if len(references) else None)
-    written += write_curves_summary(fig.load_curves(runs), tables)
+    if run_dirs is None:  # the runs/ folder next to each evaluation folder (WORK/evals -> runs)
+        runs = dict.fromkeys(Path(root).resolve().parent / "runs" for root in eval_dirs)
+        run_dirs = [r for r in runs if r.is_dir()]
+    curves = fig.load_curves(run_dirs)
+    written += fig.learning_curves_figure(curves, figures,
+                                          per_scenario[per_scenario.method.isin(REFERENCES)])
+    written += write_curves_summary(curves, tables)
     return written

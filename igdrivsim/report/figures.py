@@ -258,22 +258,15 @@ def load_curves(run_dirs: Iterable[str | Path]) -> pd.DataFrame:
     return frame.groupby(key, as_index=False, sort=True).last()
 
 
-def _reference_levels(references: str | Path | pd.DataFrame | None) -> dict[str, dict[str, float]]:
+def _reference_levels(references: pd.DataFrame | None) -> dict[str, dict[str, float]]:
     """Mean per reference method of each Fig. 4 row's per_scenario column, in row units."""
-    if references is None:
-        return {}
-    if not isinstance(references, pd.DataFrame):
-        if not Path(references).is_file():
-            return {}
-        references = pd.read_csv(references, dtype={"method": str})
     levels: dict[str, dict[str, float]] = {}
     for method in (CONSTANT_VELOCITY, EXPERT):
-        part = references[references.method == method] if "method" in references else []
-        if len(part) == 0:
-            continue
-        levels[method] = {key: float(part[column].mean()) * scale
-                          for key, _, scale, column in CURVE_ROWS
-                          if column is not None and column in part.columns}
+        part = [] if references is None else references[references.method == method]
+        if len(part):
+            levels[method] = {key: float(part[column].mean()) * scale
+                              for key, _, scale, column in CURVE_ROWS
+                              if column is not None and column in part.columns}
     return levels
 
 
@@ -300,10 +293,10 @@ def _zoom_past_start(ax, first: list[float], later: list[float]) -> None:
             transform=ax.transAxes, fontsize=6, color="0.35")
 
 
-def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
-                           references_csv: str | Path | pd.DataFrame | None = None) -> list[Path]:
-    """Fig. 4 from the runs' ``curves.jsonl``, the references as lines; the paths."""
-    curves = load_curves(run_dirs)
+def learning_curves_figure(curves: pd.DataFrame, out_dir: str | Path,
+                           references: pd.DataFrame | None = None) -> list[Path]:
+    """Fig. 4 from the runs' curves (:func:`load_curves`), the references (per_scenario rows)
+    as lines; the paths."""
     if curves.empty:
         return []
     settings = present_settings(curves)
@@ -312,7 +305,7 @@ def learning_curves_figure(run_dirs: Sequence[str | Path], out_dir: str | Path,
     extra = sns.color_palette("tab10")
     colours = {m: METHOD_REGISTRY[m].colour if m in METHOD_REGISTRY else extra[i % 10]
                for i, m in enumerate(methods)}
-    levels = _reference_levels(references_csv)
+    levels = _reference_levels(references)
     sns.set_theme(style="whitegrid", context="paper")
     fig, axes = plt.subplots(len(CURVE_ROWS), len(settings), squeeze=False, sharex="col",
                              figsize=(1.2 + 2.3 * len(settings), 1.2 + 1.8 * len(CURVE_ROWS)))

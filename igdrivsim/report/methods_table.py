@@ -49,10 +49,10 @@ def method_colours(methods: Sequence[str]) -> dict[str, str]:
     return {m: METHOD_COLOURS.get(m) or f"C{2 + spare.index(m) % 8}" for m in methods}
 
 
-def compare_all(per_scenario: pd.DataFrame, baseline: str = BC) -> pd.DataFrame:
-    """Every learned method but ``baseline`` against it, Holm over Table II's cells."""
-    methods = [m for m in learned_methods(per_scenario) if m != baseline]
-    return compare_methods(per_scenario, baseline=baseline, methods=methods)
+def compare_all(per_scenario: pd.DataFrame) -> pd.DataFrame:
+    """Every learned method but BC against it, Holm over Table II's cells."""
+    return compare_methods(per_scenario, methods=[m for m in learned_methods(per_scenario)
+                                                  if m != BC])
 
 
 def _test(tests: pd.DataFrame, method: str, metric: str, setting: str) -> pd.Series | None:

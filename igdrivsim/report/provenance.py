@@ -17,11 +17,10 @@ from igdrivsim.io import atomic_copy, atomic_write_json, atomic_write_text, read
 from igdrivsim.machine import CODE_KEYS, code_label, code_state
 
 FILE = "provenance.json"
-SCHEMA = 2  # 2: per-stage code (``stages``, ``mixed_commits``); 1: no ``stages``
+SCHEMA = 2  # per-stage code (``stages``, ``mixed_commits``)
 ABOUT = ("the command that wrote each file under this folder and the code (commit, dirty flag, "
          "diff hash) of each pipeline stage its numbers came from (igdrivsim.report.provenance; "
          "entries without 'stages' were published before per-stage provenance)")
-LEGACY = "stage commits unknown (published before per-stage provenance)"
 LINE_PREFIX = "Provenance: "
 # what a run of each kind owns (relative to the paper folder): the methods run Table II's files
 # (the report writes them only with methods beyond BC and BC-RL); everything else the default run
@@ -58,12 +57,12 @@ class Entry:
     run: str  # default | methods: the kind of run that owns the file
     profile: str  # the profile the command ran (laptop, quick, gpu, smoke, paper)
     updates: int | None  # training updates of that profile (None: not a trained output)
-    commit: str  # the stages' code (code_label, comma-separated); schema 1: at publishing
+    commit: str  # the stages' code (code_label, comma-separated)
     device: str  # CPU model and cores, or the accelerator; "device not recorded"
     wall_s: float | None  # the run's wall time (None: not recorded)
     date: str  # YYYY-MM-DD HH:MM UTC or YYYY-MM-DD
     note: str = ""
-    stages: dict[str, dict] | None = None  # stage -> its code_state; None: a schema 1 entry
+    stages: dict[str, dict] | None = None  # stage -> its code_state; None: not yet set
 
     @property
     def commits(self) -> list[str]:
@@ -82,17 +81,12 @@ class Entry:
         return replace(new, commit=", ".join(new.commits) or "unknown")
 
     def record(self) -> dict:
-        """The entry as ``provenance.json`` holds it (schema 1 form without ``stages``)."""
-        out = asdict(self)
-        if self.stages is None:
-            out.pop("stages")
-        else:
-            out["mixed_commits"] = self.mixed_commits
-        return out
+        """The entry as ``provenance.json`` holds it."""
+        return {**asdict(self), "mixed_commits": self.mixed_commits}
 
     @classmethod
     def from_record(cls, record: Mapping) -> Entry:
-        """An entry of ``provenance.json``, of either schema."""
+        """An entry of ``provenance.json``."""
         return cls(**{k: v for k, v in record.items() if k in cls.__dataclass_fields__})
 
     def line(self) -> str:
@@ -195,11 +189,9 @@ def derived(paper: Path, files_rel: Sequence[str], source: str, command: str,
     if source not in files:
         raise ConfigError(f"{FILE}: no entry for the source {source!r}")
     base = Entry.from_record(files[source])
-    stages = dict(base.stages) if base.stages is not None else {
-        "run": {"commit": base.commit, "dirty": None, "diff_hash": None}}
     note = f"derived from {source}" + (f"; {base.note}" if base.note else "")
     entry = replace(base, command=command, date=today(), note=note).with_stages(
-        {**stages, "derive": code_state(repo)})
+        {**base.stages, "derive": code_state(repo)})
     for rel in files_rel:
         if not (paper / rel).is_file():
             raise ConfigError(f"{paper / rel}: no such output to record")
@@ -242,21 +234,19 @@ def missing(paper: Path) -> list[str]:
     return [rel for rel in outputs(paper) if rel not in files]
 
 
-def stage_check(files: Mapping[str, Mapping]) -> tuple[list[str], list[str]]:
-    """``(problems, legacy)``: entries lacking stage commits, and schema 1 entries."""
-    problems, legacy = [], []
+def stage_check(files: Mapping[str, Mapping]) -> list[str]:
+    """The entries lacking stage commits, or whose ``mixed_commits`` is wrong."""
+    problems = []
     for rel, entry in sorted(files.items()):
         stages = entry.get("stages")
-        if "stages" not in entry:
-            legacy.append(rel)
-        elif not isinstance(stages, dict) or not stages:
+        if not isinstance(stages, dict) or not stages:
             problems.append(f"{rel}: no stage commits")
         elif lacking := [name for name, code in stages.items()
                          if not isinstance(code, dict) or not set(CODE_KEYS) <= set(code)]:
             problems.append(f"{rel}: stage commits missing for {', '.join(lacking)}")
         elif entry.get("mixed_commits") != Entry.from_record(entry).mixed_commits:
             problems.append(f"{rel}: mixed_commits does not match its stages")
-    return problems, legacy
+    return problems
 
 
 def command_line(args: Sequence[str]) -> str:
@@ -272,11 +262,9 @@ def provenance_command(args, repo: Path) -> int:
     paper = Path(args.paper).resolve()
     if args.task == "check":
         lacking = missing(paper)
-        problems, legacy = stage_check(load(paper))
+        problems = stage_check(load(paper))
         for line in [f"{rel}: no provenance entry" for rel in lacking] + problems:
             print(line)
-        if legacy:
-            print(f"{len(legacy)} file(s): {LEGACY}")
         return 1 if lacking or problems else 0
     if args.task == "derived":
         if not (args.files and args.source and args.command):
@@ -284,6 +272,7 @@ def provenance_command(args, repo: Path) -> int:
         written = derived(paper, args.files, args.source, args.command, repo)
     else:
         written = record_maze(paper)
+    files = load(paper)
     for rel in written:
-        print(f"{rel}: {load(paper)[rel]['command']} ({load(paper)[rel]['commit']})")
+        print(f"{rel}: {files[rel]['command']} ({files[rel]['commit']})")
     return 0

@@ -24,7 +24,7 @@ from igdrivsim.evaluation.aggregate import (
 from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
 from igdrivsim.io import atomic_write_csv, atomic_write_text
 from igdrivsim.names import BC, BC_RL, METHOD_LABELS, REFERENCES, setting_short
-from igdrivsim.report.tables import _fmt, _lookup, heading, md_bold, md_head, md_row
+from igdrivsim.report.tables import _fmt, _lookup, md_bold, md_head, md_row
 from igdrivsim.simulator import episode_metrics as em
 
 AT_FAULT = next(m for m in registry.REGISTRY if m.episode is em.at_fault_overlap)
@@ -115,11 +115,11 @@ def driver_label(setting: str, method: str) -> tuple[str, str]:
     return setting_short(setting), METHOD_LABELS.get(method, method)
 
 
-def reactive_markdown(table: pd.DataFrame, header: str = "") -> str:
+def reactive_markdown(table: pd.DataFrame) -> str:
     """``tables/reactive.md``: per driver and metric, log, idm and log - idm."""
-    lines = heading("# Every driver under log-replay and IDM sim agents (beyond the paper)", header)
     n = int(table.n_pairs.max()) if len(table) else 0
-    lines += [
+    lines = [
+        "# Every driver under log-replay and IDM sim agents (beyond the paper)", "",
         "Each cell: the mean over seeds of each seed's mean over the validation scenarios, with "
         "its 95% t-interval over seeds (none for the references: one deterministic run). "
         "*log*: the other objects replay their log (Table I); *idm*: the vehicles follow their "

@@ -356,7 +356,7 @@ def runtime_markdown(paper: str | Path, results_link: str = "docs/results.md") -
 
 def write_curves_summary(curves: pd.DataFrame, tables: Path) -> list[Path]:
     """``tables/curves_summary.csv`` (nothing when there are no curves)."""
-    if curves is None or not len(curves):
+    if curves.empty:
         (tables / CURVES_SUMMARY).unlink(missing_ok=True)
         return []
     return [atomic_write_csv(tables / CURVES_SUMMARY, curves_summary(curves).round(6))]

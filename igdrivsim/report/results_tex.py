@@ -153,13 +153,12 @@ def reactive_verdict(table: pd.DataFrame) -> str:
             + "; ".join(parts) + "; the rest do not differ detectably")
 
 
-def reactive_section(table: pd.DataFrame | None, link: str = "PAPER/tables/reactive.md"
-                     ) -> list[str]:
+def reactive_section(table: pd.DataFrame | None) -> list[str]:
     """The results page's section on reactive traffic (nothing without ``reactive.csv``)."""
     if table is None or not len(table):
         return []
-    return ["## Under reactive traffic", "",
-            f"{reactive_verdict(table)} (every cell: [reactive.md]({link}); Fig. 7).", ""]
+    return ["## Under reactive traffic", "", f"{reactive_verdict(table)} (every cell: "
+            "[reactive.md](PAPER/tables/reactive.md); Fig. 7).", ""]
 
 
 def results_tex(paper: str | Path) -> str | None:

@@ -56,12 +56,10 @@ def tex_bold(text: str) -> str:
 
 
 def md_row(*cells: str) -> str:
-    """A Markdown table row."""
     return "| " + " | ".join(cells) + " |"
 
 
 def tex_row(*cells: str) -> str:
-    """A LaTeX table row."""
     return " & ".join(cells) + r" \\"
 
 
@@ -82,11 +80,11 @@ def _lookup(summary: pd.DataFrame, metric: str, setting: str, method: str) -> pd
     return None if rows.empty else rows.iloc[0]
 
 
-def _cells(tests: pd.DataFrame | None, method: str = BC_RL) -> pd.DataFrame:
-    """The rows of ``tests`` comparing ``method`` with the baseline (all rows if unlabelled)."""
+def _cells(tests: pd.DataFrame | None) -> pd.DataFrame:
+    """The rows of ``tests`` comparing BC-RL with BC (all rows if unlabelled)."""
     if tests is None or tests.empty:
         return pd.DataFrame(columns=["metric", "setting"])
-    return tests[tests.method == method] if "method" in tests.columns else tests
+    return tests[tests.method == BC_RL] if "method" in tests.columns else tests
 
 
 def _test_row(tests: pd.DataFrame | None, metric: str, setting: str) -> pd.Series | None:
@@ -109,9 +107,9 @@ def cell_mean(summary: pd.DataFrame, metric: str, setting: str, method: str) -> 
     return math.nan if row is None else float(row["mean"])
 
 
-def reference_means(summary: pd.DataFrame, keys, method: str = CONSTANT_VELOCITY) -> dict:
-    """A reference actor's mean of each metric in ``keys`` (NaN when absent)."""
-    return {key: cell_mean(summary, key, REFERENCE_SETTING, method) for key in keys}
+def reference_means(summary: pd.DataFrame, keys) -> dict:
+    """Constant velocity's mean of each metric in ``keys`` (NaN when absent)."""
+    return {key: cell_mean(summary, key, REFERENCE_SETTING, CONSTANT_VELOCITY) for key in keys}
 
 
 def tex_across(value: str, ncols: int) -> str:

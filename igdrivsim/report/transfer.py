@@ -144,8 +144,8 @@ def code_lines(work: Path) -> list[str]:
     return lines
 
 
-def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
-             egos: pd.DataFrame | None = None) -> str:
+def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str],
+             egos: pd.DataFrame) -> str:
     lines = [
         "# Full BC trained on each synthetic motion model, against constant velocity",
         "",
@@ -170,7 +170,7 @@ def markdown(vs_cv: pd.DataFrame, motions: pd.DataFrame, code: list[str] = (),
         lines += [md_row(r.data, f"{r.motion} - {r.baseline}", str(r.n),
                          _diff(r, "log_divergence"), _diff(r, "offroad"))
                   for _, r in motions.iterrows()]
-    if egos is not None and not egos.empty:
+    if not egos.empty:
         lines += ["", "Every driver against constant velocity and the expert, ego by ego (heavy "
                   "tails leave a mean weak): N egos (source scenarios); the share of egos where "
                   "the driver stays closer to the log (over its seeds; a tie counts half); the "

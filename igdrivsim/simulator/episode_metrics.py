@@ -15,13 +15,7 @@ from igdrivsim.data.scenario import CURRENT_INDEX, DT
 from igdrivsim.simulator import metrics as step_rules
 from igdrivsim.simulator.agents import boxes_overlap
 from igdrivsim.simulator.dynamics import wrap_angle
-from igdrivsim.simulator.state import (
-    ObjectState,
-    SimParams,
-    SimState,
-    log_sdc_row,
-    object_trajectory,
-)
+from igdrivsim.simulator.state import SimParams, SimState, current_objects, log_sdc_row
 
 # nuPlan's ego-is-comfortable bounds (nuplan-devkit docs/metrics_description.md).
 LON_ACCEL_MIN, LON_ACCEL_MAX = -4.05, 2.40  # m/s^2
@@ -141,28 +135,24 @@ def min_time_to_collision(state: SimState, params: SimParams | None = None):
     """Smallest time to collision (s) over the controlled steps, capped at ``TTC_HORIZON``:
     constant-velocity extrapolation of the SDC and the other objects, skipping steps where the
     SDC is invalid, stopped or already overlapping."""
-    sdc, log, i = state.sdc, object_trajectory(state), state.sdc_index
+    i = state.sdc_index
     times = jnp.arange(1, int(round(TTC_HORIZON / TTC_STEP)) + 1) * TTC_STEP  # [K]
-    length = jnp.take(log.length, i, axis=0)
-    width = jnp.take(log.width, i, axis=0)
-    others_mask = jnp.arange(log.x.shape[0]) != i
+    others = jnp.arange(state.log.x.shape[0]) != i
 
     def at(t):
-        ox, oy, oyaw = log.x[:, t], log.y[:, t], log.yaw[:, t]
-        ovx, ovy, ovalid = log.vel_x[:, t], log.vel_y[:, t], log.valid[:, t] & others_mask
-        ex, ey, eyaw, evx, evy = sdc.x[t], sdc.y[t], sdc.yaw[t], sdc.vel_x[t], sdc.vel_y[t]
-        el, ew = length[t], width[t]
-        now = jnp.any(boxes_overlap(ex, ey, el, ew, eyaw, ox, oy, log.length[:, t],
-                                    log.width[:, t], oyaw) & ovalid)
+        o = current_objects(state.replace(timestep=t))
+        ex, ey, eyaw, el, ew, evx, evy = (a[i] for a in (o.x, o.y, o.yaw, o.length, o.width,
+                                                         o.vel_x, o.vel_y))
+        now = jnp.any(boxes_overlap(ex, ey, el, ew, eyaw, o.x, o.y, o.length, o.width, o.yaw)
+                      & o.valid & others)
         tt = times[:, None]
-        hit = boxes_overlap(ex + evx * tt, ey + evy * tt, el, ew, eyaw,
-                            ox + ovx * tt, oy + ovy * tt, log.length[:, t], log.width[:, t],
-                            oyaw) & ovalid  # [K, O]
-        first = jnp.min(jnp.where(jnp.any(hit, axis=-1), times, TTC_HORIZON))
-        skip = ~sdc.valid[t] | now | (jnp.hypot(evx, evy) < STOPPED_SPEED)
+        hit = boxes_overlap(ex + evx * tt, ey + evy * tt, el, ew, eyaw, o.x + o.vel_x * tt,
+                            o.y + o.vel_y * tt, o.length, o.width, o.yaw) & o.valid & others
+        first = jnp.min(jnp.where(jnp.any(hit, axis=-1), times, TTC_HORIZON))  # hit: [K, O]
+        skip = ~o.valid[i] | now | (jnp.hypot(evx, evy) < STOPPED_SPEED)
         return jnp.where(skip, TTC_HORIZON, first)
 
-    steps = jnp.arange(CURRENT_INDEX + 1, sdc.x.shape[-1])
+    steps = jnp.arange(CURRENT_INDEX + 1, state.sdc.x.shape[-1])
     return jnp.min(jax.lax.map(at, steps)).astype(jnp.float32)
 
 
@@ -174,16 +164,6 @@ def ttc_compliant(state: SimState, params: SimParams | None = None):
 def at_fault_overlap(state: SimState, params: SimParams | None = None):
     """1.0 when the SDC is at fault for an overlap at some controlled step
     (:func:`igdrivsim.simulator.metrics.at_fault_overlap`)."""
-    traj, sdc, i = object_trajectory(state), state.sdc, state.sdc_index
-    is_sdc = jnp.arange(traj.x.shape[0]) == i
-
-    def at(t):
-        pick = lambda a, b=None: a[:, t] if b is None else jnp.where(is_sdc, b[t], a[:, t])  # noqa: E731
-        obj = ObjectState(x=pick(traj.x, sdc.x), y=pick(traj.y, sdc.y),
-                          yaw=pick(traj.yaw, sdc.yaw), vel_x=pick(traj.vel_x, sdc.vel_x),
-                          vel_y=pick(traj.vel_y, sdc.vel_y), length=pick(traj.length),
-                          width=pick(traj.width), valid=pick(traj.valid, sdc.valid))
-        return step_rules.at_fault_objects(obj, i)
-
-    steps = jnp.arange(CURRENT_INDEX + 1, sdc.x.shape[-1])
-    return jnp.any(jax.lax.map(at, steps)).astype(jnp.float32)
+    steps = jnp.arange(CURRENT_INDEX + 1, state.sdc.x.shape[-1])
+    at_fault = jax.lax.map(lambda t: step_rules.at_fault_overlap(state.replace(timestep=t)), steps)
+    return jnp.any(at_fault).astype(jnp.float32)

@@ -7,10 +7,7 @@ objects where the sim agents put them):
   valid at this step (separating-axis test).
 - **offroad**: a corner of the SDC box has a positive signed distance to the road edges (types
   15, 16) of the whole map (``state.road_edges``: exact at any drift, blind to the logged
-  future). ``"point"`` (Waymax's): nearest road-edge point, sign of
-  ``cross(corner - point, point.dir)`` (the road on the left of ``dir``); ``"segment"``: nearest
-  edge segment, the sign from the vertex bisector at a vertex (no false offroad at convex
-  corners of closed edge loops).
+  future), by :func:`signed_distance_point` (Waymax's) or :func:`signed_distance_segment`.
 - **log divergence**: L2 distance (m) between the simulated and the logged SDC position.
 
 Functions take a ``SimState`` with leading batch dims ``...`` and return ``[...]``; invalid
@@ -84,11 +81,7 @@ def _segment_hits_box(ax, ay, bx, by, cx, cy, length, width, yaw):
 
 def at_fault_overlap(state: SimState):
     """``bool[...]``: an overlap the SDC is at fault for (nuPlan's rule, docs/metrics.md)."""
-    return at_fault_objects(current_objects(state), state.sdc_index)
-
-
-def at_fault_objects(obj, i):
-    """:func:`at_fault_overlap` of objects ``obj`` ``[..., O]`` (the SDC in slot ``i``)."""
+    obj, i = current_objects(state), state.sdc_index
     ex, ey, eyaw, el, ew = box = _sdc_box(obj, i)
     hit = _hits(obj, i, box)
     ego_moving = jnp.hypot(_take(obj.vel_x, i), _take(obj.vel_y, i))[..., None] >= STOPPED_SPEED
@@ -125,8 +118,9 @@ def _signed_at_nearest(d2, cross):
 
 
 def signed_distance_point(px, py, edges: RoadEdges):
-    """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point
-    (positive: outside; ``+-inf`` without any edge point, which :func:`offroad` counts on road)."""
+    """Waymax's rule: signed distance of points ``[..., K]`` to the nearest road-edge point, the
+    sign of ``cross(corner - point, point.dir)`` (the road on the left of ``dir``; positive:
+    outside; ``+-inf`` without any edge point, which :func:`offroad` counts on road)."""
     rx = px[..., :, None] - edges.xy[..., None, :, 0]  # [..., K, E]
     ry = py[..., :, None] - edges.xy[..., None, :, 1]
     d2 = jnp.where(edges.valid[..., None, :], rx * rx + ry * ry, jnp.inf)
@@ -136,7 +130,8 @@ def signed_distance_point(px, py, edges: RoadEdges):
 
 def signed_distance_segment(px, py, edges: RoadEdges):
     """Signed distance of points ``[..., K]`` to the nearest road-edge segment ``xy -> next_xy``
-    (the sign from the segment's direction, or at a vertex its bisector)."""
+    (the sign from the segment's direction, or at a vertex its bisector: no false offroad at
+    convex corners of closed edge loops)."""
     ax, ay = edges.xy[..., None, :, 0], edges.xy[..., None, :, 1]
     sx = edges.next_xy[..., None, :, 0] - ax
     sy = edges.next_xy[..., None, :, 1] - ay

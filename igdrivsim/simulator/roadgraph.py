@@ -32,7 +32,7 @@ def _normalize(v, fallback):
     return jnp.where(n > 1e-6, v / jnp.maximum(n, 1e-6), fallback)
 
 
-def select_nearest(d2, eligible, radius: float, capacity: int, steps: int = _BISECTION_STEPS):
+def select_nearest(d2, eligible, radius: float, capacity: int):
     """``(indices int32[capacity], valid)`` in original order of the eligible points with
     ``d2 <= radius**2``, the nearest kept: the threshold is bisected to fit ``capacity``."""
     d2 = jnp.where(eligible, d2, jnp.inf)
@@ -45,7 +45,7 @@ def select_nearest(d2, eligible, radius: float, capacity: int, steps: int = _BIS
         ok = jnp.sum(d2 <= mid) <= capacity
         return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid)
 
-    lo, _ = jax.lax.fori_loop(0, steps, body, (jnp.zeros_like(r2), r2))
+    lo, _ = jax.lax.fori_loop(0, _BISECTION_STEPS, body, (jnp.zeros_like(r2), r2))
     thr = jnp.where(fits, r2, lo)
     keep = d2 <= thr
     (idx,) = jnp.nonzero(keep, size=capacity, fill_value=0)

@@ -141,19 +141,9 @@ def log_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMetr
 
 
 @functools.cache
-def jit_rollout(policy_fn: Actor | PolicyFn, params: SimParams = DEFAULT_PARAMS):
-    """A jitted ``f(state, key, carry=None)`` for a fixed actor and params (cached per pair)."""
-    return jax.jit(lambda state, key, carry=None: rollout(state, policy_fn, key, params, carry))
-
-
 def expert_actor(params: SimParams = DEFAULT_PARAMS, discrete: bool = True) -> Actor:
     """The discretised (default) or continuous expert as an actor (extras: its action); one
-    object per ``(params, discrete)``, so jitted callers compile once."""
-    return _expert_actor(params, discrete)
-
-
-@functools.cache
-def _expert_actor(params: SimParams, discrete: bool) -> Actor:
+    object per ``(params, discrete)`` as passed, so jitted callers compile once."""
     def policy(state, carry, key):
         del key
         if discrete:
@@ -165,13 +155,9 @@ def _expert_actor(params: SimParams, discrete: bool) -> Actor:
     return Actor(step=policy)
 
 
+@functools.cache
 def constant_velocity_actor(params: SimParams = DEFAULT_PARAMS) -> Actor:
     """Keep the current velocity vector and heading (a simple baseline). Extras: the action."""
-    return _constant_velocity_actor(params)
-
-
-@functools.cache
-def _constant_velocity_actor(params: SimParams) -> Actor:
     _, inverse = dynamics.DYNAMICS[params.dynamics]
 
     def policy(state, carry, key):

@@ -14,20 +14,17 @@ from igdrivsim.data.scenario import (
     empty_scenario,
     encode_scenario_id,
 )
+from igdrivsim.data.synthetic.geometry import next_dirs
 
 
 def add_polyline(sc: Scenario, start: int, xy: np.ndarray, rg_type: int, poly_id: int) -> int:
     """Write polyline ``xy [N, 2]`` at slot ``start`` (dir to the next point); -> next slot."""
     rg = sc.roadgraph
-    n = len(xy)
-    d = np.zeros((n, 2), np.float32)
-    seg = np.diff(xy, axis=0)
-    d[:-1] = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-    sl = slice(start, start + n)
+    sl = slice(start, start + len(xy))
     rg.xyz[sl, :2], rg.xyz[sl, 2] = xy, 0.0
-    rg.dir[sl, :2], rg.dir[sl, 2] = d, 0.0
+    rg.dir[sl, :2], rg.dir[sl, 2] = next_dirs(xy), 0.0
     rg.type[sl], rg.id[sl], rg.valid[sl] = rg_type, poly_id, True
-    return start + n
+    return sl.stop
 
 
 def set_object(sc: Scenario, slot: int, x, y, yaw, *, length=4.5, width=2.0, sdc=False,
@@ -47,8 +44,7 @@ def set_object(sc: Scenario, slot: int, x, y, yaw, *, length=4.5, width=2.0, sdc
 TOY_CAPS = Capacities(max_objects=8, max_roadgraph_points=600)
 
 
-def straight_road(caps: Capacities = TOY_CAPS,
-                  speed: float = 10.0, half_width: float = 5.0, spacing: float = 1.0,
+def straight_road(caps: Capacities = TOY_CAPS, speed: float = 10.0, half_width: float = 5.0,
                   scenario_id: str = "toy-straight") -> Scenario:
     """A straight road ``y in [-half_width, half_width]``, SDC (slot 0) along ``y = 0`` at
     ``speed`` m/s from ``x = -10``; slot 1 a car ahead in the same lane at the same speed; slot
@@ -59,7 +55,7 @@ def straight_road(caps: Capacities = TOY_CAPS,
     set_object(sc, 1, 10.0 + speed * t, 0.0, 0.0)
     set_object(sc, 2, 40.0, -3.0, np.pi)
     n = caps.max_roadgraph_points // 3
-    xs = -30.0 + spacing * np.arange(n, dtype=np.float32)
+    xs = -30.0 + np.arange(n, dtype=np.float32)
     i = add_polyline(sc, 0, np.stack([xs, np.zeros_like(xs)], 1), RG_LANE_SURFACE_STREET, 1)
     # Right edge runs +x (interior, y > -hw, on its left); left edge runs -x.
     i = add_polyline(sc, i, np.stack([xs, np.full_like(xs, -half_width)], 1),
@@ -70,11 +66,11 @@ def straight_road(caps: Capacities = TOY_CAPS,
 
 
 def following(gap: float = 40.0, speed: float = 10.0, leader_speed: float = 0.0,
-              caps: Capacities = TOY_CAPS, scenario_id: str = "toy-following") -> Scenario:
+              scenario_id: str = "toy-following") -> Scenario:
     """Slot 1 a car driving along ``y = 0`` at ``speed`` from ``x = 0`` (its log runs through
     whatever is ahead); slot 2 a car ``gap`` m ahead (centre to centre) at ``leader_speed``;
     the SDC (slot 0) parked out of the way at ``y = -30``. Roadgraph as :func:`straight_road`."""
-    sc = straight_road(caps, scenario_id=scenario_id)
+    sc = straight_road(scenario_id=scenario_id)
     t = (np.arange(NUM_STEPS) - 10) * 0.1
     set_object(sc, 0, -50.0, -30.0, 0.0, sdc=True)
     set_object(sc, 1, speed * t, 0.0, 0.0)
@@ -82,11 +78,10 @@ def following(gap: float = 40.0, speed: float = 10.0, leader_speed: float = 0.0,
     return sc
 
 
-def curve(radius: float = 40.0, start_speed: float = 4.0, log_speed: float = 20.0,
-          caps: Capacities = TOY_CAPS, scenario_id: str = "toy-curve") -> Scenario:
+def curve(radius: float = 40.0, start_speed: float = 4.0, log_speed: float = 20.0) -> Scenario:
     """Slot 1 a car on a circle of ``radius`` (counter-clockwise from ``(0, -radius)``),
     ``start_speed`` up to step 11 then ``log_speed``; the SDC parked far away."""
-    sc = straight_road(caps, scenario_id=scenario_id)
+    sc = straight_road(scenario_id="toy-curve")
     steps = np.arange(NUM_STEPS)
     v = np.where(steps <= 10, start_speed, log_speed)
     arc = np.concatenate([[0.0], np.cumsum(v[:-1] * 0.1)]) - 10 * start_speed * 0.1
@@ -97,10 +92,9 @@ def curve(radius: float = 40.0, start_speed: float = 4.0, log_speed: float = 20.
     return sc
 
 
-def red_light(stop_x: float = 40.0, speed: float = 10.0, caps: Capacities = TOY_CAPS,
-              scenario_id: str = "toy-red-light") -> Scenario:
+def red_light(stop_x: float = 40.0, speed: float = 10.0) -> Scenario:
     """:func:`following` without the car ahead, with a light always red at ``(stop_x, 0)``."""
-    sc = following(speed=speed, caps=caps, scenario_id=scenario_id)
+    sc = following(speed=speed, scenario_id="toy-red-light")
     sc.trajectory.valid[2] = False
     tl = sc.traffic_lights
     tl.state[0], tl.valid[0], tl.x[0], tl.y[0] = 4, True, stop_x, 0.0  # LANE_STATE_STOP

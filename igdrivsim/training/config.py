@@ -132,7 +132,6 @@ class RunConfig:
         return t.ppo_epochs, t.ppo_minibatches
 
     def total_updates(self, num_scenarios: int) -> int:
-        """Updates of a run over ``num_scenarios``: ``num_updates``, else ``epochs`` passes."""
         t = self.training
         if t.num_updates > 0:
             return t.num_updates
@@ -151,7 +150,6 @@ class RunConfig:
 
     @property
     def seeds(self) -> tuple[int, ...]:
-        """This run's seeds: ``training.seed_offset`` and the ``training.seeds - 1`` after it."""
         t = self.training
         return tuple(range(t.seed_offset, t.seed_offset + t.seeds))
 
@@ -163,7 +161,6 @@ class RunConfig:
 
     @property
     def obs_config(self) -> ObservationConfig:
-        """The imitator's observation capacities (objects, roadgraph points)."""
         o = self.observation
         return ObservationConfig(o.num_objects, o.num_roadgraph_points)
 
@@ -179,19 +176,6 @@ class RunConfig:
         metric's road-edge selection keeps its defaults)."""
         return SimParams(roadgraph_stride=self.observation.roadgraph_stride,
                          agents=self.training.sim_agents)
-
-    def _check_ranges(self) -> None:
-        """Every field of :data:`RANGES` within its range (tuples: each entry), finite."""
-        for (section, name), (low, high) in RANGES.items():
-            value = getattr(getattr(self, section), name)
-            for v in value if isinstance(value, tuple) else (value,):
-                if (not math.isfinite(v) or (low is not None and v < low)
-                        or (high is not None and v > high)):
-                    bound = (f">= {low}" if high is None else f"in [{low}, {high}]")
-                    raise ConfigError(f"{section}.{name} must be finite and {bound}, got {value}")
-        if self.policy.num_bins != NUM_BINS:
-            raise ConfigError(f"policy.num_bins must be {NUM_BINS} (the expert's discretised "
-                              f"levels), got {self.policy.num_bins}")
 
     def validate(self) -> RunConfig:
         """Check the fields (one-line :class:`ConfigError`) and return the config with what
@@ -225,7 +209,16 @@ class RunConfig:
             raise ConfigError("data.workers and data.buffer must be >= 1, data.shards >= 0")
         if epochs < 1:
             raise ConfigError(f"training.ppo_epochs must be >= 1, got {t.ppo_epochs}")
-        self._check_ranges()
+        for (section, name), (low, high) in RANGES.items():  # tuples: each entry
+            value = getattr(getattr(self, section), name)
+            for v in value if isinstance(value, tuple) else (value,):
+                if (not math.isfinite(v) or (low is not None and v < low)
+                        or (high is not None and v > high)):
+                    bound = (f">= {low}" if high is None else f"in [{low}, {high}]")
+                    raise ConfigError(f"{section}.{name} must be finite and {bound}, got {value}")
+        if self.policy.num_bins != NUM_BINS:
+            raise ConfigError(f"policy.num_bins must be {NUM_BINS} (the expert's discretised "
+                              f"levels), got {self.policy.num_bins}")
         if t.num_updates < 0 or (t.num_updates == 0 and t.epochs <= 0):
             raise ConfigError("set training.num_updates > 0 or training.epochs > 0")
         names = list(self.settings)
@@ -243,9 +236,7 @@ class RunConfig:
                               "be false")
         decided = {"aux_head": method.aux_head,
                    "value_head": method.rollout if value_head is None else value_head}
-        if any(getattr(self.policy, k) != v for k, v in decided.items()):
-            return dataclasses.replace(self, policy=dataclasses.replace(self.policy, **decided))
-        return self
+        return dataclasses.replace(self, policy=dataclasses.replace(self.policy, **decided))
 
 
 SECTIONS = {"policy": PolicyConfig, "data": DataConfig, "observation": ObsConfig,
@@ -283,8 +274,7 @@ def smoke() -> RunConfig:
         policy=PolicyConfig(**POOLED_NETWORK, object_hidden=(16,), point_hidden=(16,),
                             roadgraph_hidden=(16,), trunk_hidden=(16,), gru_hidden=16,
                             actor_hidden=(16,), value_hidden=(16,)),
-        data=DataConfig(batch_size=4, max_scenarios=16, max_objects=8,
-                        max_roadgraph_points=256, prefetch=2),
+        data=DataConfig(batch_size=4, max_scenarios=16, max_objects=8, max_roadgraph_points=256),
         observation=ObsConfig(num_objects=4, num_roadgraph_points=32),
         training=TrainConfig(seeds=2, num_updates=4, ppo_epochs=2, ppo_minibatches=2,
                              log_every=1, eval_every=4, val_scenarios=4, checkpoint_every=2),
@@ -308,8 +298,7 @@ def laptop() -> RunConfig:
                             actor_hidden=(128,), value_hidden=(64,), relative_dx=True,
                             speed_input_scale=10.0, speed_history=8,
                             yaw_history=5, object_ego_speed=True),
-        data=DataConfig(batch_size=16, max_scenarios=0, max_objects=32,
-                        max_roadgraph_points=10_240, prefetch=2),
+        data=DataConfig(batch_size=16, max_objects=32, max_roadgraph_points=10_240),
         observation=ObsConfig(num_objects=16, num_roadgraph_points=64, roadgraph_stride=8),
         training=TrainConfig(seeds=3, num_updates=COMPETENT_UPDATES, lr=3e-3, ppo_epochs=2,
                              ppo_minibatches=4, log_every=10, eval_every=250, val_scenarios=32,

@@ -52,14 +52,13 @@ def laptop_train_seconds(updates: int, settings: int, seeds: int, rollout: bool,
     return updates * settings * per * seeds / LAPTOP_SEEDS
 
 
-def table1_hours(bc_seconds: float, rollout_seconds: float,
-                 num_scenarios: int = PAPER_SCENARIOS) -> dict[str, float]:
+def table1_hours(bc_seconds: float, rollout_seconds: float) -> dict[str, float]:
     """Device-hours of the paper's Table I (6 settings x 3 seeds of BC and of BC-RL, the paper
-    profile over ``num_scenarios``) at ``bc_seconds`` / ``rollout_seconds`` per episode:
+    profile over ``PAPER_SCENARIOS``) at ``bc_seconds`` / ``rollout_seconds`` per episode:
     ``{"teacher_forced", "rollout", "total"}``."""
     config = get_profile("paper")
     t = config.training
-    episodes = config.total_updates(num_scenarios) * 6 * t.seeds * config.data.batch_size
+    episodes = config.total_updates(PAPER_SCENARIOS) * 6 * t.seeds * config.data.batch_size
     out = {"teacher_forced": episodes * bc_seconds / 3600,
            "rollout": episodes * rollout_seconds / 3600}
     return out | {"total": out["teacher_forced"] + out["rollout"]}
@@ -81,14 +80,13 @@ def table1_text(gpu: bool) -> str:
                    if gpu else "")
 
 
-def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: int,
-                stream=None) -> str | None:
+def warn_if_cpu(config: RunConfig, num_scenarios: int, backend: str, devices: int) -> str | None:
     """Warn once (stderr) when the paper or gpu profile runs without an accelerator; returns
     the message (None when there is nothing to warn about)."""
     warn = {"paper": _paper_on_cpu, "gpu": _gpu_profile_on_cpu}.get(config.profile)
     msg = warn(config, num_scenarios, devices) if backend == "cpu" and warn else None
     if msg:
-        print(msg, file=stream or sys.stderr, flush=True)
+        print(msg, file=sys.stderr, flush=True)
     return msg
 
 

@@ -140,9 +140,7 @@ class Dataset:
         for u in updates:
             yield self.host_batch(u), None
 
-    @staticmethod
-    def place(batch, sharding: NamedSharding):
-        return place(batch, sharding)
+    place = staticmethod(place)  # the devices' copy of a host batch
 
 
 def prefetch(dataset, updates: range, sharding: NamedSharding, depth: int = 2,

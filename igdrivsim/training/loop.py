@@ -1,5 +1,5 @@
 """The training driver: data, I/O, checkpoints, logging and hooks around a run's pure
-functions (:func:`igdrivsim.training.update.make_train`), batch by batch. ``train(config, data,
+update (:func:`igdrivsim.training.update.make_update`), batch by batch. ``train(config, data,
 out_dir)`` runs (or resumes) every setting x seed of ``config`` in one compiled program, into
 the run folder ``out_dir`` (:mod:`igdrivsim.training.run`)."""
 
@@ -7,28 +7,30 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import barrier, batch_sharding, make_mesh, place, replicated
 from igdrivsim.data.source import load_validation
-from igdrivsim.errors import ConfigError
 from igdrivsim.observation import stack_settings
 from igdrivsim.policy.closed_loop import evaluate_policy
-from igdrivsim.policy.network import PolicyConfig, count_params
+from igdrivsim.policy.network import count_params
 from igdrivsim.training import inputs
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.cost import warn_if_cpu
 from igdrivsim.training.methods import get_method
-from igdrivsim.training.privileged import TEACHER_SETTING, teacher_config
+from igdrivsim.training.privileged import load_teacher
 from igdrivsim.training.run import Hook, Run
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
-    make_train,
+    init_buffer,
+    init_state,
     make_update,
     make_validation_loss,
     seed_keys,
@@ -45,48 +47,34 @@ class TrainResult:
     seconds: float
 
 
-class Validation:
-    """The fixed validation subset a run is judged on while it trains: teacher-forced BC loss
-    and closed-loop metrics of every (setting, seed)."""
+def validation(config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None
+               ) -> Callable[[object], dict]:
+    """The hook judging a run on the fixed validation subset while it trains: teacher-forced
+    BC loss and closed-loop metrics of every (setting, seed)."""
+    n = config.training.val_scenarios
+    teacher = inputs.Dataset.from_config(
+        config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
+    teacher = jax.tree.map(jnp.asarray, teacher)  # on the device once, not per hook
+    scenarios = load_validation(data, config.capacities, n, egos=config.data.egos)
+    loss, settings = make_validation_loss(spec), stack_settings(config.settings)
 
-    def __init__(self, config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None):
-        n = config.training.val_scenarios
-        self.config, self.spec = config, spec
-        teacher = inputs.Dataset.from_config(
-            config, data, spec.sim, cache_dir=cache_dir, max_scenarios=n, record=True).teacher
-        self.teacher = jax.tree.map(jnp.asarray, teacher)  # on the device once, not per hook
-        self.scenarios = load_validation(data, config.capacities, n, egos=config.data.egos)
-        self.loss = make_validation_loss(spec)
-        self.settings = stack_settings(config.settings)
-
-    def __call__(self, params) -> dict:
-        c = self.config
-        val_bc = self.loss(params, self.teacher, self.settings, jax.random.key(0))
-        out = evaluate_policy(params, self.scenarios, policy_config=c.policy,
-                              setting=c.settings, obs_config=self.spec.obs,
-                              params=self.spec.sim, batch_size=c.training.val_scenarios)
+    def hook(params) -> dict:
+        val_bc = loss(params, teacher, settings, jax.random.key(0))
+        out = evaluate_policy(params, scenarios, policy_config=config.policy,
+                              setting=config.settings, obs_config=spec.obs, params=spec.sim,
+                              batch_size=n)
         valid = out.valid
         count = np.maximum(valid.sum(axis=(2, 3)), 1)
         mean = lambda a: np.where(valid, a, 0.0).sum(axis=(2, 3)) / count  # noqa: E731
         return {"val_bc_loss": np.asarray(val_bc), "log_divergence": mean(out.log_divergence),
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 
-
-def load_teacher(run_dir: str, student: RunConfig) -> tuple[PolicyConfig, object]:
-    """The privileged teacher's network config and its ``full``-setting parameters stacked
-    over the student's seeds ``[S]``."""
-    config = teacher_config(run_dir, student)
-    teacher = Run.open(run_dir)
-    if not teacher.complete:
-        raise ConfigError(f"training.teacher: {run_dir} has not finished training")
-    g = config.settings.index(TEACHER_SETTING)
-    pick = np.arange(student.training.seeds) % config.training.seeds
-    return config.policy, jax.tree.map(lambda x: jnp.asarray(x[g])[pick], teacher.params())
+    return hook
 
 
 def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = False,
-          stop_after: int | None = None, progress: bool = True, devices=None,
-          log=print, val_data=None, cache_dir: str | None = None) -> TrainResult:
+          stop_after: int | None = None, progress: bool = True, log=print, val_data=None,
+          cache_dir: str | None = None) -> TrainResult:
     """Train (or resume) one run. ``data``: a folder / files, or a list of scenarios;
     ``val_data``: validation data for the learning curves; ``cache_dir``: where the
     teacher-forced records are cached; ``stop_after``: stop (with a checkpoint) after that many
@@ -102,7 +90,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         teacher_policy, teacher_params = load_teacher(t.teacher, config)
         log(f"privileged teacher: the full setting of {t.teacher}")
     spec = update_spec(config, teacher_policy)
-    mesh = make_mesh(devices)
+    mesh = make_mesh()
     inputs.check_batch(config.data.batch_size, mesh)
     if config.data.stream:  # paper scale: per-process shards decoded on demand
         from igdrivsim.training.stream import StreamDataset  # lazy: grain, only for data.stream
@@ -119,19 +107,16 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                      settings=config.settings, devices=mesh.size,
                      processes=jax.process_count())
     if val_data is not None and t.eval_every > 0:
-        run.hooks = (Hook(t.eval_every, Validation(config, spec, val_data, cache_dir)),)
+        run.hooks = (Hook(t.eval_every, validation(config, spec, val_data, cache_dir)),)
 
-    rep = replicated(mesh)
-    teacher_params = place(teacher_params, rep)
-    settings = place(stack_settings(config.settings), rep)
-    keys = place(seed_keys(config), rep)
-    fns = make_train(config, spec, num_updates, settings, teacher_params, keys)
-    state = fns.init()
+    state = (*init_state(config, spec), init_buffer(config, spec))
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], state[0]))
     log(f"policy: {per_seed:,} parameters per run x {len(config.settings)} setting(s) x "
         f"{t.seeds} seeds; {dataset.num} scenarios, {num_updates} updates of "
         f"{config.data.batch_size} scenarios on {mesh.size} device(s)")
-    state = place(state, rep)
+    state, settings, teacher_params, keys = place(  # on every device
+        (state, stack_settings(config.settings), teacher_params, seed_keys(config)),
+        replicated(mesh))
     barrier("start")
     start, state = run.restore(state)
     data_state = None
@@ -141,23 +126,23 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
         data_state = load_state(run.data_states, start)
     end = num_updates if stop_after is None else min(num_updates, stop_after)
     steps_per_update, grads_per_update = config.steps_per_update()
-    if progress:
-        run.progress(start, num_updates)
+    if progress and run.main:  # rate and ETA
+        run.bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train",
+                       dynamic_ncols=True)
     batches = inputs.prefetch(dataset, range(start, end), batch_sharding(mesh),
                               config.data.prefetch, data_state)
+    step = make_update(spec)
     last_log, last_time = start, time.perf_counter()
     with run:
         if start == 0:
             run.run_hooks(0, state[0])
         for u, (batch, data_state) in zip(range(start, end), batches, strict=True):
+            lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
+            args = (*batch, settings, teacher_params, keys, u, lr)
             if u == start and jax.process_count() > 1:  # compile everywhere, then meet
-                lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
-                step = make_update(spec).lower(*state, *batch, settings, teacher_params, keys,
-                                              u, lr).compile()
-                fns = make_train(config, spec, num_updates, settings, teacher_params, keys,
-                                 step)
+                step = step.lower(*state, *args).compile()
                 barrier("compiled")
-            state, metrics, lr = fns.update(state, batch, u)
+            *state, metrics = step(*state, *args)
             done = u + 1
             if run.bar is not None:
                 run.bar.update()

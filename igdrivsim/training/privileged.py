@@ -11,22 +11,27 @@ from __future__ import annotations
 import argparse
 import os
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from igdrivsim.errors import ConfigError
 from igdrivsim.io import atomic_write_json
+from igdrivsim.policy.network import PolicyConfig
 from igdrivsim.training.config import RunConfig
 from igdrivsim.training.run import Run, is_run
 
 TEACHER_SETTING = "full"
 
 
-def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
-    """The teacher run's config, checked against the student's observation capacities."""
+def load_teacher(run_dir: str, student: RunConfig) -> tuple[PolicyConfig, object]:
+    """The privileged teacher's network config and its ``full``-setting parameters stacked
+    over the student's seeds ``[S]``, the run checked against the student's observation."""
     if not is_run(run_dir):
         raise ConfigError(f"training.teacher: {run_dir} holds no run (train the full setting "
                           "first)")
-    config = Run.open(run_dir).config
+    teacher = Run.open(run_dir)
+    config = teacher.config
     if TEACHER_SETTING not in config.settings:
         raise ConfigError(f"training.teacher: {run_dir} was not trained with the "
                           f"{TEACHER_SETTING!r} setting (it has {', '.join(config.settings)})")
@@ -35,7 +40,11 @@ def teacher_config(run_dir: str, student: RunConfig) -> RunConfig:
     if mine != theirs:
         raise ConfigError(f"training.teacher: {run_dir} observes (objects, road points, "
                           f"stride) = {theirs}, the student {mine}; they must match")
-    return config
+    if not teacher.complete:
+        raise ConfigError(f"training.teacher: {run_dir} has not finished training")
+    g = config.settings.index(TEACHER_SETTING)
+    pick = np.arange(student.training.seeds) % config.training.seeds
+    return config.policy, jax.tree.map(lambda x: jnp.asarray(x[g])[pick], teacher.params())
 
 
 def teacher_score(run_dir: str) -> dict | None:

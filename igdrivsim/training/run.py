@@ -27,7 +27,6 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 from flax import serialization
-from tqdm.auto import tqdm
 
 from igdrivsim.core.devices import barrier
 from igdrivsim.errors import ConfigError, DataError
@@ -80,9 +79,6 @@ class Checkpoints:
         options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True)
         self.manager = ocp.CheckpointManager(self.path, options=options,
                                              item_handlers=ocp.StandardCheckpointHandler())
-
-    def latest_step(self) -> int | None:
-        return self.manager.latest_step()
 
     def save(self, step: int, params, opt_state, buffer=None) -> None:
         """Save synchronously (returns when the checkpoint is complete on disk)."""
@@ -217,16 +213,15 @@ class Run:
     def __init__(self, out_dir: str | os.PathLike, config: RunConfig, resume: bool = False,
                  log: Callable[[str], None] = print):
         self.dir = os.fspath(out_dir)
-        self.config, self.settings, self.resume, self.log = config, config.settings, resume, log
+        self.config, self.resume, self.log = config, resume, log
         self.hooks: tuple[Hook, ...] = ()  # the driver's (the learning-curve validation)
         self.main = jax.process_index() == 0
-        self.seeds = list(config.seeds)
         # a resumed run keeps the code it started with and lists other code that continued it
         self.record = {"config": to_dict(config), "code": code_state()}
         self.data_states = os.path.join(self.dir, DATA_STATES)  # a streamed input's states
         self.ckpt: Checkpoints | None = None
         self._files = contextlib.ExitStack()
-        self.bar = None
+        self.bar = None  # the driver's progress bar (process 0)
 
     @staticmethod
     def open(out_dir: str | os.PathLike) -> SavedRun:
@@ -285,8 +280,8 @@ class Run:
         t = self.config.training
         self.ckpt = Checkpoints(os.path.join(self.dir, CHECKPOINTS), t.max_checkpoints)
         start = 0
-        if self.resume and self.ckpt.latest_step() is not None:
-            start = self.ckpt.latest_step()
+        if self.resume and self.ckpt.manager.latest_step() is not None:
+            start = self.ckpt.manager.latest_step()
             state = self.ckpt.restore(start, *state)
             self.log(f"resuming from update {start}")
         if self.main:
@@ -322,16 +317,10 @@ class Run:
             self.bar.close()
         self._files.close()
 
-    def progress(self, start: int, num_updates: int) -> None:
-        """A progress bar (rate and ETA) on process 0."""
-        if self.main:
-            self.bar = tqdm(total=num_updates, initial=start, unit="upd", desc="train",
-                            dynamic_ncols=True)
-
     def curves(self, done: int, values: dict) -> None:
         """One ``curves.jsonl`` line per (setting, seed) from ``{name: [G, S] array}``."""
-        for g, name in enumerate(self.settings):
-            for i, seed in enumerate(self.seeds):
+        for g, name in enumerate(self.config.settings):
+            for i, seed in enumerate(self.config.seeds):
                 line = {"update": done, "setting": name, "method": self.config.training.method,
                         "seed": seed, **{k: float(np.asarray(v)[g, i]) for k, v in values.items()}}
                 self.curves_file.write(json.dumps(line) + "\n")
@@ -390,13 +379,13 @@ class SavedRun:
     def latest_step(self) -> int | None:
         """The updates done at the latest checkpoint (``None`` without one)."""
         with contextlib.closing(Checkpoints(os.path.join(self.dir, CHECKPOINTS))) as ckpt:
-            return ckpt.latest_step()
+            return ckpt.manager.latest_step()
 
     def params(self, step: int | None = None):
         """The parameters stacked over settings and seeds ``[G, S]`` at checkpoint ``step``
         (default: the latest), on this process's first device."""
         with contextlib.closing(Checkpoints(os.path.join(self.dir, CHECKPOINTS))) as ckpt:
-            step = ckpt.latest_step() if step is None else step
+            step = ckpt.manager.latest_step() if step is None else step
             if step is None:
                 raise ConfigError(f"{self.dir}: no checkpoint yet")
             return ckpt.restore_params(step)

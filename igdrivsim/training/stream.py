@@ -29,21 +29,17 @@ from igdrivsim.training.config import RunConfig
 
 
 class ScenarioIndex:
-    """Random access to the scenarios of a data path (a Grain data source): ``(file id,
-    record[, ego object id])`` per scenario (:func:`~igdrivsim.data.source.scenario_refs`),
-    decoded on demand."""
+    """Random access to the scenarios :func:`~igdrivsim.data.source.open_scenarios` reads from
+    ``data`` (a Grain data source): ``(file id, record[, ego object id])`` per scenario
+    (:func:`~igdrivsim.data.source.scenario_refs`), decoded on demand."""
 
-    def __init__(self, files: Sequence[str], refs: np.ndarray, caps: Capacities):
+    def __init__(self, data: str | os.PathLike, caps: Capacities, limit: int = 0,
+                 egos: str = "sdc"):
+        files, refs = scenario_refs(data, limit, egos)
         refs = np.asarray(refs, np.int32)
         if refs.shape[1] == 3 and (refs[:, 2] < 0).all():
             refs = refs[:, :2]  # the logged SDCs: no ego column
-        self.files, self.refs, self.caps = list(files), refs, caps
-
-    @classmethod
-    def from_path(cls, data: str | os.PathLike, caps: Capacities, limit: int = 0,
-                  egos: str = "sdc") -> ScenarioIndex:
-        """The scenarios :func:`~igdrivsim.data.source.open_scenarios` reads from ``data``."""
-        return cls(*scenario_refs(data, limit, egos), caps)
+        self.files, self.refs, self.caps = files, refs, caps
 
     def __len__(self) -> int:
         return len(self.refs)
@@ -52,15 +48,6 @@ class ScenarioIndex:
         row = self.refs[int(i)]
         ego = int(row[2]) if len(row) > 2 else -1
         return load_ref(self.files[int(row[0])], int(row[1]), ego, self.caps)
-
-
-def owned_shards(num_shards: int, process: int, processes: int) -> range:
-    """The shards process ``process`` of ``processes`` reads (a contiguous block)."""
-    if num_shards % processes:
-        raise ConfigError(f"data.shards ({num_shards}) must be a multiple of the number of "
-                          f"processes ({processes})")
-    per = num_shards // processes
-    return range(process * per, (process + 1) * per)
 
 
 def shard_order(shard_len: int, seed: int, shard: int) -> grain.MapDataset:
@@ -92,20 +79,23 @@ class StreamDataset:
         self.batch_size = batch_size
         self.per_shard = batch_size // self.num_shards
         self.seeds = [int(s) for s in seeds]
-        self.shards = owned_shards(self.num_shards, process, processes)
-        self.local_batch = self.per_shard * len(self.shards)
+        if self.num_shards % processes:
+            raise ConfigError(f"data.shards ({self.num_shards}) must be a multiple of the "
+                              f"number of processes ({processes})")
+        per = self.num_shards // processes  # this process reads a contiguous block of shards
+        self.shards = range(process * per, (process + 1) * per)
         # positions (global indices) of each owned shard, and its order per seed
         self.members = {j: np.arange(j, self.num, self.num_shards) for j in self.shards}
         self.orders = {(s, j): shard_order(len(self.members[j]), s, j)
                        for s in self.seeds for j in self.shards}
-        self.workers, self.buffer = max(1, workers), max(1, buffer)
+        self.workers, self.buffer = workers, buffer
 
     @classmethod
     def from_config(cls, config: RunConfig, data, params: SimParams) -> StreamDataset:
         d = config.data
         if isinstance(data, (str, os.PathLike)):
             check_data(data, "training")
-            source = ScenarioIndex.from_path(data, config.capacities, d.max_scenarios, d.egos)
+            source = ScenarioIndex(data, config.capacities, d.max_scenarios, d.egos)
         else:
             source = list(data)[: d.max_scenarios or None]
         return cls(source, d.batch_size, config.seeds, params, d.shards, workers=d.workers,
@@ -124,21 +114,18 @@ class StreamDataset:
         states = inputs.reset_chunk(flat, self.params, len(flat))  # late-bound: tests patch it
         return None, jax.tree.map(lambda x: x.reshape(idx.shape + x.shape[1:]), states)
 
-    def iterator(self, start: int, state: dict | None = None, stop: int = 2**62):
-        """A Grain iterator over the host batches of updates ``start, start+1, ...`` (threaded,
-        ``buffer`` ahead); ``state`` (saved with checkpoint ``start``) resumes it exactly."""
-        ds = grain.MapDataset.range(stop).map(self.host_batch)  # nothing read past ``stop``
+    def host_batches(self, updates: range, state: dict | None = None) -> Iterator:
+        """``(host batch, iterator state after it)`` for each of ``updates``, from a Grain
+        iterator (threaded, ``buffer`` ahead; nothing read past the last update); ``state``
+        (saved with the checkpoint of the first update) resumes it exactly."""
+        start = updates.start
+        ds = grain.MapDataset.range(updates.stop).map(self.host_batch)
         it = iter(ds.to_iter_dataset(grain.ReadOptions(num_threads=self.workers,
                                                        prefetch_buffer_size=self.buffer)))
         state = {"next_index": start} if state is None else state
         if state.get("next_index") != start:
             raise ConfigError(f"saved input iterator state {state} does not match update {start}")
         it.set_state(state)
-        return it
-
-    def host_batches(self, updates: range, state: dict | None = None) -> Iterator:
-        """``(host batch, iterator state after it)`` for each of ``updates``."""
-        it = self.iterator(updates.start, state, updates.stop)
         for _ in updates:
             batch = next(it)
             yield batch, it.get_state()

@@ -1,6 +1,6 @@
-"""A run's pure training functions (PureJaxRL's ``make_train``): the static update, the state
-(parameters, optimiser state and the method's buffer, ``[G settings, S seeds]``), one update and
-``make_train``, the ``(init, update)`` the driver (:mod:`igdrivsim.training.loop`) feeds batches.
+"""A run's pure training functions: the static update, the state (parameters, optimiser state
+and the method's buffer, ``[G settings, S seeds]``) and the jitted update (:func:`make_update`)
+the driver (:mod:`igdrivsim.training.loop`) feeds batches.
 
 One update is one compiled program for every (setting, seed) pair of a method: settings are
 data (stacked :class:`~igdrivsim.observation.ObservationSetting`), seeds a batch axis. Per
@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -141,7 +140,7 @@ def teacher_labels(spec: UpdateSpec, teacher_params, warm: Observation, seen: Ob
     obs = jax.tree.map(lambda w, s: jnp.concatenate([w, s]), warm, seen)
     b = jax.tree.leaves(seen)[0].shape[1]
     _, logits, _ = unroll_sequence(spec.teacher_policy, teacher_params,
-                                   initial_carry(spec.teacher_policy, (b,)), obs, True)
+                                   initial_carry(spec.teacher_policy, (b,)), obs)
     return jax.nn.log_softmax(logits[WARMUP_STEPS:], axis=-1)
 
 
@@ -159,8 +158,7 @@ def collect(spec: UpdateSpec, params, buffer, rec: ObservationRecord, states: Si
     metrics = {}
     if method.rollout:
         warm = jax.tree.map(lambda x: x[:WARMUP_STEPS], logged)
-        carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)),
-                                      warm, True)
+        carry, _, _ = unroll_sequence(spec.policy, params, initial_carry(spec.policy, (b,)), warm)
         full = get_setting("full") if method.teacher else None
         roll = policy_rollout(spec.policy, params, carry, states, setting, spec.obs, spec.sim,
                               episode_keys, k_act, privileged=full)
@@ -203,9 +201,8 @@ def _loss(spec: UpdateSpec, params, mb: dict):
             sequences[kind] = jax.tree.map(_time_major, mb[f"{kind}_obs"])
     obs = jax.tree.map(lambda *xs: jnp.concatenate(xs, 1), *sequences.values())
     width = jax.tree.leaves(obs)[0].shape[1]
-    _, logits, values, aux = unroll_sequence(spec.policy, params,
-                                             initial_carry(spec.policy, (width,)), obs, True,
-                                             with_aux=True)
+    _, logits, values, aux = unroll_sequence(
+        spec.policy, params, initial_carry(spec.policy, (width,)), obs, with_aux=True)
     outputs, at = {}, 0
     for kind, seq in sequences.items():
         n = jax.tree.leaves(seq)[0].shape[1]
@@ -216,8 +213,8 @@ def _loss(spec: UpdateSpec, params, mb: dict):
     return method.loss(spec, outputs, batch)
 
 
-def update_one(spec: UpdateSpec, params, opt_state, buffer, rec: ObservationRecord,
-               states: SimState | None, setting, teacher_params, key, lr):
+def update_one(spec: UpdateSpec, setting, lr, params, opt_state, buffer, rec: ObservationRecord,
+               states: SimState | None, teacher_params, key):
     """One update of one (setting, seed) on its batch ``[B]``: ``(params, opt_state, buffer,
     metrics)``."""
     b = rec.sdc_yaw.shape[0]
@@ -247,11 +244,8 @@ def make_update(spec: UpdateSpec):
                 states)
 
         def one_setting(setting, params, opt_state, buffer):
-            def per_seed(p, o, buf, r, s, tp, k):
-                return update_one(spec, p, o, buf, r, s, setting, tp, k, lr)
-
-            return jax.vmap(per_seed)(params, opt_state, buffer, teacher, states,
-                                      teacher_params, keys)
+            return jax.vmap(partial(update_one, spec, setting, lr))(
+                params, opt_state, buffer, teacher, states, teacher_params, keys)
 
         if spec.setting is not None:
             first = jax.tree.map(lambda x: x[0], (params, opt_state, buffer))
@@ -260,36 +254,6 @@ def make_update(spec: UpdateSpec):
         return jax.vmap(one_setting)(settings, params, opt_state, buffer)
 
     return jax.jit(update, donate_argnums=(0, 1, 2))
-
-
-# -------------------------------------------------------------------------------- the run
-class Train(NamedTuple):
-    """A run's pure functions: ``init() -> state`` and ``update(state, batch, u) -> (state,
-    metrics, lr)``; a state is ``(params, opt_state, buffer)``, each ``[G, S]``."""
-
-    init: Callable[[], tuple]
-    update: Callable[[tuple, tuple, int], tuple]
-
-
-def make_train(config: RunConfig, spec: UpdateSpec, num_updates: int, settings=None,
-               teacher_params=None, keys=None, step=None) -> Train:
-    """``(init, update)`` of a run: ``update`` applies :func:`make_update` (or ``step``, e.g.
-    compiled ahead of time) to one batch ``(teacher records, reset states)`` at update ``u``
-    with its cosine learning rate; the other arguments are the run's constants."""
-    t = config.training
-    step = step or make_update(spec)
-    keys = seed_keys(config) if keys is None else keys
-
-    def init() -> tuple:
-        return (*init_state(config, spec), init_buffer(config, spec))
-
-    def update(state: tuple, batch: tuple, u: int) -> tuple:
-        lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
-        params, opt_state, buffer, metrics = step(*state, *batch, settings, teacher_params,
-                                                  keys, u, lr)
-        return (params, opt_state, buffer), metrics, lr
-
-    return Train(init, update)
 
 
 def make_validation_loss(spec: UpdateSpec):
@@ -304,16 +268,13 @@ def make_validation_loss(spec: UpdateSpec):
         obs = expert_sequences(spec, teacher, setting, jax.random.split(key, v))  # seed-free
 
         def one(p):
-            _, logits, _ = unroll_sequence(spec.policy, p, initial_carry(spec.policy, (v,)),
-                                           obs, True)
+            _, logits, _ = unroll_sequence(spec.policy, p, initial_carry(spec.policy, (v,)), obs)
             return bc_loss(logits[WARMUP_STEPS:], _time_major(teacher.actions),
                            _time_major(teacher.action_valid))
 
         return jax.vmap(one)(params)
 
-    def loss(params, teacher, settings, key):
-        if spec.setting is not None:
-            return per_setting(None, jax.tree.map(lambda x: x[0], params), teacher, key)[None]
+    def loss(params, teacher, settings, key):  # settings None: the one static setting
         groups = jax.tree.leaves(params)[0].shape[0]
         return jnp.stack([per_setting(jax.tree.map(lambda x, g=g: x[g], settings),
                                       jax.tree.map(lambda x, g=g: x[g], params), teacher, key)

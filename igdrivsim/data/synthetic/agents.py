@@ -55,12 +55,9 @@ class Agent:
     xy: np.ndarray | None = None
     yaw: np.ndarray | None = None
     speed: np.ndarray | None = None
-    lo: np.ndarray | None = None  # bounding box of the valid centre positions
-    hi: np.ndarray | None = None
     reach: float = 0.0  # half the box diagonal
-    bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # lo and hi as floats
+    bbox: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # of the valid centres: lo, hi
     track: np.ndarray | None = None  # moving agents: [7, T] x, y, yaw, cos, sin, speed, valid
-    stand: tuple[float, ...] = ()  # standing agents: x, y, yaw, length, width, reach
 
 
 def speed_profile(route: Route, v_des: float, brake: float) -> np.ndarray:
@@ -128,7 +125,7 @@ def _may_cover(agent: Agent, xy: np.ndarray, yaw: np.ndarray, length, width) -> 
 def _standing_hits(agent: Agent, yaw_route: np.ndarray, fixed: list[Agent]):
     """Route points covered by standing objects, as :func:`_occupancy` (``along`` 0: aligned)."""
     lo, hi = agent.route.bounds
-    stand = np.array([o.stand for o in fixed])  # [F, 6], see Agent.stand
+    stand = np.array([(*o.bbox[:2], o.yaw[0], o.length, o.width, o.reach) for o in fixed])
     xy, yaw, size = stand[:, :2], stand[:, 2], stand[:, 3:5]
     reach = stand[:, 5] + agent.width / 2 + 1.0
     near = ((xy >= lo - reach[:, None]) & (xy <= hi + reach[:, None])).all(1)
@@ -159,8 +156,7 @@ def plan(agent: Agent, planned: list[Agent]) -> None:
     agent.reach = float(np.hypot(agent.length, agent.width) / 2)
     agent.speed = np.hypot(*np.gradient(agent.xy, DT, axis=0).T)
     where = agent.xy[agent.valid] if agent.valid.any() else agent.xy[:1]
-    agent.lo, agent.hi = where.min(0), where.max(0)
-    agent.bbox = (*agent.lo.tolist(), *agent.hi.tolist())
+    agent.bbox = (*where.min(0).tolist(), *where.max(0).tolist())
     agent.track = np.stack([*agent.xy.T, agent.yaw, np.cos(agent.yaw), np.sin(agent.yaw),
                             agent.speed, agent.valid])
 
@@ -176,10 +172,8 @@ def pose_standing(agents: list[Agent]) -> None:
         for i, a in enumerate(group):
             a.s, a.valid, a.speed = np.full(T, s[i, 0]), np.full(T, valid[i, 0]), np.zeros(T)
             a.xy, a.yaw = np.repeat(xy[i], T, 0), np.full(T, yaw[i, 0])
-            a.lo = a.hi = xy[i, 0]
             a.reach = float(np.hypot(a.length, a.width) / 2)
-            a.bbox = (*a.lo.tolist(), *a.hi.tolist())
-            a.stand = (*a.bbox[:2], float(yaw[i, 0]), a.length, a.width, a.reach)
+            a.bbox = (*xy[i, 0].tolist(),) * 2
 
 
 def _simulate(agent: Agent, s_route: np.ndarray, planned: list[Agent]) -> np.ndarray:
@@ -366,8 +360,8 @@ def collides_any(a: Agent, others: list[Agent]) -> bool:
         return False
     reach = a.reach + np.array([b.reach for b in others])
     box = np.array([b.bbox for b in others])  # lo x, lo y, hi x, hi y
-    meet = ~((a.lo[0] - reach > box[:, 2]) | (a.hi[0] + reach < box[:, 0])
-             | (a.lo[1] - reach > box[:, 3]) | (a.hi[1] + reach < box[:, 1]))
+    meet = ~((a.bbox[0] - reach > box[:, 2]) | (a.bbox[2] + reach < box[:, 0])
+             | (a.bbox[1] - reach > box[:, 3]) | (a.bbox[3] + reach < box[:, 1]))
     if not meet.any():
         return False
     others, reach = [b for b, m in zip(others, meet, strict=True) if m], reach[meet]

@@ -40,10 +40,9 @@ def shard_ranges(count: int, shards: int) -> list[range]:
 
 
 def _encode_chunk(seed: int, split: str, start: int, stop: int, config: GeneratorConfig,
-                  compact: bool = False):
-    prepare = trim_padding if compact else (lambda s: s)
-    return [encode_tfexample(prepare(generate_scenario(seed, i, split, config)))
-            for i in range(start, stop)]
+                  compact: bool):
+    scenarios = (generate_scenario(seed, i, split, config) for i in range(start, stop))
+    return [encode_tfexample(trim_padding(s) if compact else s) for s in scenarios]
 
 
 def generate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,9 +83,9 @@ def generate_command(args: argparse.Namespace) -> int:
     require_folder(args.out)
     config = GeneratorConfig(seed=args.seed, p_intersection=args.p_intersection,
                              motion=args.motion)
-    plan = {split: (count, min(args.shards or max(1, round(count / 250)), count))
-            for split, count in (("training", args.train), ("validation", args.val)) if count}
-    splits = {s: {"scenarios": c, "shards": k} for s, (c, k) in plan.items()}
+    splits = {split: {"scenarios": count,
+                      "shards": min(args.shards or max(1, round(count / 250)), count)}
+              for split, count in (("training", args.train), ("validation", args.val)) if count}
     resolved = {"generator": config.to_dict(), "compact": args.compact, "splits": splits}
     os.makedirs(args.out, exist_ok=True)
     config_path = os.path.join(args.out, "generator_config.json")
@@ -99,9 +98,9 @@ def generate_command(args: argparse.Namespace) -> int:
                 os.remove(stale)
     atomic_write_json(config_path, resolved, indent=2)
 
-    todo = [(split, path, indices) for split, (count, shards) in plan.items()
-            for path, indices in zip(shard_paths(args.out, split, shards),
-                                     shard_ranges(count, shards), strict=True)
+    todo = [(split, path, indices) for split, n in splits.items()
+            for path, indices in zip(shard_paths(args.out, split, n["shards"]),
+                                     shard_ranges(n["scenarios"], n["shards"]), strict=True)
             if args.overwrite or not os.path.exists(path)]
     total = sum(len(r) for _, _, r in todo)
     start, cpu = time.perf_counter(), process_cpu_seconds()
@@ -132,5 +131,5 @@ def generate_command(args: argparse.Namespace) -> int:
                       "scenarios_per_s": round(total / seconds, 2) if total else None,
                       "cpu_seconds": round(cpu, 2),
                       "cpu_ms_per_scenario": round(1000 * cpu / total, 1) if total else None,
-                      "skipped_shards": sum(k for _, k in plan.values()) - len(todo)}))
+                      "skipped_shards": sum(n["shards"] for n in splits.values()) - len(todo)}))
     return 0

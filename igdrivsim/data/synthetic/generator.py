@@ -385,7 +385,7 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     seen = [a.valid & (d <= sensor) for a, d in zip(agents, dist, strict=True)]
     keep = [k for k, a in enumerate(agents) if seen[k].any() or a.is_sdc]
     if len(keep) > caps.max_objects:  # keep the SDC and the objects nearest to it
-        near = np.argsort([np.linalg.norm(agents[k].xy - sdc_xy, axis=1).min() for k in keep])
+        near = np.argsort(dist[keep].min(1))
         keep = [keep[k] for k in np.sort(near[: caps.max_objects])]
     agents, seen = [agents[k] for k in keep], [seen[k] for k in keep]
     n = len(agents)

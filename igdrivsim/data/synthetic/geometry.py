@@ -7,9 +7,7 @@ import numpy as np
 
 def arc_length(points: np.ndarray) -> np.ndarray:
     """Cumulative arc length ``[N]`` along a polyline, starting at 0."""
-    points = np.asarray(points, float)
-    d = points[1:] - points[:-1]
-    seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])  # np.linalg.norm's arithmetic
+    seg = np.linalg.norm(np.diff(np.asarray(points, float), axis=0), axis=1)
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 

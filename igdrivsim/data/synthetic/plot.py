@@ -93,8 +93,8 @@ def add_legend(ax) -> None:
               ncols=3, fontsize=7, frameon=False)
 
 
-def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthetic") -> list[str]:
-    """One PNG per scenario, ``out_dir/{prefix}_{k}.png`` titled ``k: ...`` (k from 1)."""
+def save_pictures(scenarios: list[Scenario], out_dir: str) -> list[str]:
+    """One PNG per scenario, ``out_dir/synthetic_{k}.png`` titled ``k: ...`` (k from 1)."""
     import matplotlib  # heavy: only when drawing
 
     matplotlib.use("Agg")
@@ -108,7 +108,7 @@ def save_pictures(scenarios: list[Scenario], out_dir: str, prefix: str = "synthe
         draw_scenario(ax, scenario, title=f"{k}: {name[0].lower()}{name[1:]}")
         add_legend(ax)
         fig.tight_layout()
-        path = os.path.join(out_dir, f"{prefix}_{k}.png")
+        path = os.path.join(out_dir, f"synthetic_{k}.png")
         try:
             atomic_savefig(fig, path)
         finally:
