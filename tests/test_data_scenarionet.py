@@ -70,9 +70,9 @@ def _description(steps=30, dt=0.1, clockwise=True, with_edges=False) -> dict:
 
 @pytest.mark.parametrize("clockwise", [True, False])
 def test_lane_polygons_become_road_edges_with_road_on_the_left(clockwise):
-    (w,) = sn.decode_description(_description(clockwise=clockwise))
-    s = w.scenario
-    assert (w.source_id, w.first_step, decode_scenario_id(s.scenario_id)) == ("toy", 0, "toy")
+    ((s, source),) = sn.decode_description(_description(clockwise=clockwise))
+    assert (source, decode_scenario_id(s.scenario_id)) == (
+        {"source_id": "toy", "first_step": 0}, "toy")
     assert s.trajectory.x.shape == (3, NUM_STEPS)
     assert s.trajectory.valid[:, :30].all() and not s.trajectory.valid[:, 30:].any()
     assert list(s.metadata.object_type) == [1, 2, 4] and list(s.metadata.is_sdc) == [1, 0, 0]
@@ -85,18 +85,18 @@ def test_lane_polygons_become_road_edges_with_road_on_the_left(clockwise):
     inward = -pts  # the polygon's centre is on the road: it must be left of dir
     assert (d[:, 0] * inward[:, 1] - d[:, 1] * inward[:, 0] > 0).all()
     # dataset road edges present: nothing is derived
-    (w,) = sn.decode_description(_description(with_edges=True))
-    assert np.isin(w.scenario.roadgraph.type, RG_ROAD_EDGE_TYPES).sum() < 100
+    ((s, _),) = sn.decode_description(_description(with_edges=True))
+    assert np.isin(s.roadgraph.type, RG_ROAD_EDGE_TYPES).sum() < 100
 
 
 def test_long_logs_become_windows_and_other_rates_are_resampled():
     ws = sn.decode_description(_description(steps=200))
-    assert [w.first_step for w in ws] == [0, 91]
-    assert [decode_scenario_id(w.scenario.scenario_id) for w in ws] == ["toy_0", "toy_91"]
-    np.testing.assert_allclose(ws[1].scenario.trajectory.x[0, 0], -10 + 5 * 9.1, atol=1e-4)
+    assert [source["first_step"] for _, source in ws] == [0, 91]
+    assert [decode_scenario_id(s.scenario_id) for s, _ in ws] == ["toy_0", "toy_91"]
+    np.testing.assert_allclose(ws[1][0].trajectory.x[0, 0], -10 + 5 * 9.1, atol=1e-4)
     ws = sn.decode_description(_description(steps=41, dt=0.5))  # 2 Hz, 20 s
     assert len(ws) == 2
-    x = ws[0].scenario.trajectory.x[0]
+    x = ws[0][0].trajectory.x[0]
     np.testing.assert_allclose(np.diff(x), 0.5, atol=1e-4)  # 5 m/s at 10 Hz
     with pytest.raises(DataError, match="steps"):
         sn.decode_description(_description(steps=2, dt=0.5))

@@ -35,6 +35,7 @@ class FinalState:
     log: Trajectory
     sdc_index: jax.Array
     timestep: jax.Array
+    agents: None = None  # log-replayed objects
 
 
 def _poses_from_speed(speed, yaw_rate=None):
@@ -261,20 +262,21 @@ def test_evaluate_policy_with_episode_metrics_keeps_per_step_shapes(real_scene):
     seeds = init_params_per_seed(tiny, jax.random.split(jax.random.key(0), 2),
                                  example_observation(obs_config))
     kwargs = dict(policy_config=tiny, obs_config=obs_config, params=params, batch_size=2)
-    plain = evaluate_policy(seeds, scenarios, setting="full", **kwargs)
-    single = evaluate_policy(seeds, scenarios, setting="full",
+    one = jax.tree.map(lambda x: x[None], seeds)
+    plain = evaluate_policy(one, scenarios, setting=["full"], **kwargs)
+    single = evaluate_policy(one, scenarios, setting=["full"],
                              episode_metrics=registry.episode_values, **kwargs)
-    assert plain.scenario is None and plain.log_divergence.shape == (2, 3, 80)
-    assert single.log_divergence.shape == (2, 3, 80)
+    assert plain.scenario is None and plain.log_divergence.shape == (1, 2, 3, 80)
+    assert single.log_divergence.shape == (1, 2, 3, 80)
     np.testing.assert_array_equal(plain.log_divergence, single.log_divergence)
     assert set(single.scenario) == set(registry.episode_keys())
-    assert all(v.shape == (2, 3) for v in single.scenario.values())
+    assert all(v.shape == (1, 2, 3) for v in single.scenario.values())
     both = jax.tree.map(lambda x: jnp.stack([x, x]), seeds)
     grouped = evaluate_policy(both, scenarios, setting=["full", "circular_r4"],
                               episode_metrics=registry.episode_values, **kwargs)
     assert grouped.log_divergence.shape == (2, 2, 3, 80)
     assert all(v.shape == (2, 2, 3) for v in grouped.scenario.values())
-    np.testing.assert_allclose(grouped.scenario["progress"][0], single.scenario["progress"])
+    np.testing.assert_allclose(grouped.scenario["progress"][0], single.scenario["progress"][0])
     _, frame = rollout.tidy_frames(grouped.map(lambda a: a[1]), ["a", "b", "c"],
                                    "circular_r4", "bc", [0, 1])
     assert frame[list(registry.columns())].notna().all().all()

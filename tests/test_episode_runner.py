@@ -154,11 +154,11 @@ def test_policy_episode_equals_the_previous_one(scenario, state, policy_params, 
     old = jax.jit(_previous_policy_episode, static_argnums=(3, 4))(
         policy_params, state, key, setting, actions)
     one = partial(jax.tree.map, lambda x: np.asarray(x)[None])  # a batch of one
-    out = evaluate_policy(one(policy_params), one(scenario), policy_config=TINY,
-                          setting=setting.name, obs_config=OBS, params=PARAMS, actions=actions,
-                          batch_size=1)
+    out = evaluate_policy(one(one(policy_params)), one(scenario), policy_config=TINY,
+                          setting=[setting.name], obs_config=OBS, params=PARAMS,
+                          actions=actions, batch_size=1)
     for field in StepOutputs.FIELDS:
-        np.testing.assert_array_equal(getattr(out, field)[0, 0], getattr(old, field))
+        np.testing.assert_array_equal(getattr(out, field)[0, 0, 0], getattr(old, field))
 
 
 def _previous_policy_rollout(params, carry, state, setting, episode_keys, key):

@@ -69,9 +69,8 @@ def test_legacy_pickle_loads_with_inert_tags(tmp_path, monkeypatch):
     assert desc["tracks"][7]["type"] == "VEHICLE" and type(desc["tracks"][7]["type"]) is str
     assert desc["map"][2]["type"] == "ROAD_LINE_BROKEN_SINGLE_WHITE"
     assert desc["map"][1]["left_boundaries"][0]["type"] == "ROAD_LINE_SOLID_SINGLE_WHITE"
-    windows = sn.read_file(path)
-    assert [w.first_step for w in windows] == [0]  # 120 steps: one 91-step window
-    s = windows[0].scenario
+    ((s, source),) = sn.read_file(path)
+    assert source["first_step"] == 0  # 120 steps: one 91-step window
     assert s.trajectory.x.shape == (3, NUM_STEPS) and s.metadata.is_sdc.tolist() == [1, 0, 0]
     assert s.metadata.object_type.tolist() == [1, 2, 4] and s.metadata.id.tolist() == [7, 8, 9]
     assert s.trajectory.length[0, 0] == pytest.approx(4.5)
@@ -131,7 +130,8 @@ def test_argoverse_replay_log_is_refused_with_a_reason(tmp_path):
         sn.read_file(path)
 
 
-def _fake_wheel(tmp_path) -> tuple[str, dict, str]:
+def _fake_wheel(tmp_path, monkeypatch) -> str:
+    """A two-scenario wheel, made the expected one (``FILES``, ``WHEEL_SHA256``)."""
     wheel = tmp_path / "fake.whl"
     files = {}
     with zipfile.ZipFile(wheel, "w") as zf:
@@ -140,13 +140,15 @@ def _fake_wheel(tmp_path) -> tuple[str, dict, str]:
             zf.writestr(f"metadrive/assets/waymo/{i}.pkl", data)
             files[f"metadrive/assets/waymo/{i}.pkl"] = (f"{i}.pkl",
                                                         hashlib.sha256(data).hexdigest(), "id")
-    return str(wheel), files, samples.sha256(wheel)
+    monkeypatch.setattr(samples, "FILES", files)
+    monkeypatch.setattr(samples, "WHEEL_SHA256", samples.sha256(wheel))
+    return str(wheel)
 
 
 def test_samples_fetch_verify_and_reuse_offline(tmp_path, monkeypatch):
-    wheel, files, digest = _fake_wheel(tmp_path)
+    wheel = _fake_wheel(tmp_path, monkeypatch)
     out = tmp_path / "cache"
-    paths, fetched = samples.fetch(out, wheel, files, digest)
+    paths, fetched = samples.fetch(out, wheel)
     assert fetched and [p.name for p in paths] == ["0.pkl", "1.pkl"]
     assert json.loads((out / samples.RECORD).read_text())["terms"] == samples.TERMS
 
@@ -154,34 +156,34 @@ def test_samples_fetch_verify_and_reuse_offline(tmp_path, monkeypatch):
         raise AssertionError("pip called although the files are there")
 
     monkeypatch.setattr(samples, "download_wheel", no_network)
-    assert samples.fetch(out, None, files, digest) == (paths, False)
+    assert samples.fetch(out) == (paths, False)
     paths[1].write_bytes(b"tampered")  # a changed file is fetched again
-    assert samples.verified(out, files) is None
-    assert samples.fetch(out, wheel, files, digest)[1]
+    assert samples.verified(out) is None
+    assert samples.fetch(out, wheel)[1]
+    digest, files = samples.WHEEL_SHA256, samples.FILES
+    monkeypatch.setattr(samples, "WHEEL_SHA256", "0" * 64)
     with pytest.raises(DataError, match="sha256"):
-        samples.fetch(tmp_path / "other", wheel, files, "0" * 64)
+        samples.fetch(tmp_path / "other", wheel)
+    monkeypatch.setattr(samples, "WHEEL_SHA256", digest)
     bad = dict(files, **{"metadrive/assets/waymo/1.pkl": ("1.pkl", "0" * 64, "id")})
+    monkeypatch.setattr(samples, "FILES", bad)
     with pytest.raises(DataError, match="waymo/1.pkl"):
-        samples.fetch(tmp_path / "other", wheel, bad, digest)
+        samples.fetch(tmp_path / "other", wheel)
 
 
-def test_a_samples_folder_names_its_scenario_files(tmp_path):
+def test_a_samples_folder_names_its_scenario_files(tmp_path, monkeypatch):
     """``--data`` given the folder of ``igdrivsim samples`` reads the scenarios under it, not
     its record file."""
     from igdrivsim.data import expand_paths
 
-    wheel, files, digest = _fake_wheel(tmp_path)
-    paths, _ = samples.fetch(tmp_path / "cache", wheel, files, digest)
+    paths, _ = samples.fetch(tmp_path / "cache", _fake_wheel(tmp_path, monkeypatch))
     assert expand_paths(tmp_path / "cache") == [str(p) for p in paths]
 
 
 def test_samples_command_prints_place_and_terms(tmp_path, monkeypatch, capsys):
     from igdrivsim.cli import main
 
-    wheel, files, digest = _fake_wheel(tmp_path)
-    monkeypatch.setattr(samples, "FILES", files)
-    monkeypatch.setattr(samples, "WHEEL_SHA256", digest)
-    monkeypatch.setattr(samples.fetch, "__defaults__", (None, files, digest))
+    wheel = _fake_wheel(tmp_path, monkeypatch)
     assert main(["samples", "--out", str(tmp_path / "s"), "--wheel", wheel]) == 0
     out = capsys.readouterr().out
     assert str(tmp_path / "s" / "womd") in out and "Non-Commercial" in out

@@ -18,7 +18,6 @@ from igdrivsim.simulator.metrics import (
     boxes_overlap,
     mean_log_divergence,
     reward,
-    scenario_metrics,
     signed_distance_point,
     signed_distance_segment,
     step_metrics,
@@ -217,17 +216,13 @@ def test_log_divergence_and_validity():
     assert not bool(m.valid) and not bool(m.offroad) and float(m.log_divergence) == 0.0
 
 
-def test_reward_and_scenario_aggregation():
+def test_reward_and_mean_log_divergence():
     ov = jnp.asarray([[False, True, False], [False, False, False]])
     off = jnp.asarray([[True, True, False], [False, False, False]])
     div = jnp.asarray([[0.5, 2.0, 9.0], [1.0, 3.0, 0.0]])
     valid = jnp.asarray([[True, True, False], [True, True, True]])
     m = StepMetrics(overlap=ov, offroad=off, log_divergence=div, valid=valid)
     np.testing.assert_array_equal(reward(m), [[-1, -2, 0], [0, 0, 0]])
-    agg = scenario_metrics(m)
-    np.testing.assert_array_equal(agg.overlap_rate, [1.0, 0.0])
-    np.testing.assert_array_equal(agg.offroad_rate, [1.0, 0.0])
-    np.testing.assert_allclose(agg.max_log_divergence, [2.0, 3.0])  # step 3 of row 0 invalid
     np.testing.assert_allclose(mean_log_divergence(m), [1.25, 4.0 / 3.0])
 
 

@@ -4,7 +4,6 @@ several processes working together (initialised from the environment, meeting at
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
 
 import jax
 import numpy as np
@@ -38,9 +37,9 @@ def barrier(name: str, timeout_s: int = 3600) -> None:
         distributed.global_state.client.wait_at_barrier(f"igdrivsim-{name}", timeout_s * 1000)
 
 
-def make_mesh(devices: Sequence | None = None) -> Mesh:
+def make_mesh() -> Mesh:
     """A 1-D mesh ``('data',)`` over all (global) devices: scenarios sharded, params replicated."""
-    return Mesh(np.asarray(list(devices) if devices is not None else jax.devices()), ("data",))
+    return Mesh(np.asarray(jax.devices()), ("data",))
 
 
 def batch_sharding(mesh: Mesh) -> NamedSharding:

@@ -68,10 +68,9 @@ def _decode_tfrecord(path: str, start: int, stop: int | None) -> Iterator[Decode
 
 def _decode_scenarionet(path: str, start: int, stop: int | None) -> Iterator[Decoded]:
     """The 91-step windows of a ScenarioNet log (a bad file is one bad record)."""
-    for index, w in enumerate(scenarionet.read_file(path)):
+    for index, (scenario, source) in enumerate(scenarionet.read_file(path)):
         if index >= start and (stop is None or index < stop):
-            yield index, scenarionet.FORMAT_SCENARIONET, w.scenario, {
-                "source_id": w.source_id, "first_step": w.first_step}
+            yield index, scenarionet.FORMAT_SCENARIONET, scenario, source
 
 
 def _decode_gpudrive(path: str, start: int, stop: int | None) -> Iterator[Decoded]:

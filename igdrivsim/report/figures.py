@@ -19,7 +19,7 @@ from matplotlib.container import BarContainer
 from matplotlib.lines import Line2D
 
 from igdrivsim.errors import DataError
-from igdrivsim.evaluation.aggregate import ALPHA, CONFIDENCE, t_interval
+from igdrivsim.evaluation.aggregate import ALPHA, t_interval
 from igdrivsim.evaluation.schema import METRIC_BY_KEY
 from igdrivsim.io import atomic_savefig
 from igdrivsim.names import BC, BC_RL, CONSTANT_VELOCITY, EXPERT, METHOD_LABELS, setting_short
@@ -60,7 +60,7 @@ def cell_stats(frame: pd.DataFrame, metric: str, unit: str) -> pd.DataFrame:
     part = frame[frame.metric == metric]
     if "value" in part.columns:
         groups = part.groupby(["setting", "method"], sort=False)
-        rows = [(setting, method, *t_interval(values, CONFIDENCE))
+        rows = [(setting, method, *t_interval(values))
                 for (setting, method), cell in groups
                 if (values := cell["value"].dropna().to_numpy(float)).size]
     else:

@@ -16,9 +16,11 @@ from igdrivsim.evaluation.aggregate import (
     ALPHA,
     TEST_NAME,
     TEST_SEED,
+    complete_scenarios,
     holm_adjust,
     load_evaluations,
     paired_difference,
+    scenario_cube,
     summarize,
 )
 from igdrivsim.evaluation.schema import METRIC_BY_KEY, REFERENCE_SETTING, table_settings
@@ -35,22 +37,6 @@ HEADERS = {"overlap_rate": "overlap rate (%)", AT_FAULT.key: f"{AT_FAULT.label} 
 FIGURE = "fig7_reactive"
 # the table's column -> its key in paired_difference's result
 DIFF_COLUMNS = {"diff": "diff", "diff_low": "lo", "diff_high": "hi", "p_value": "p", "mde": "mde"}
-
-
-def _cube(frame: pd.DataFrame, scenarios: pd.Index) -> np.ndarray:
-    """``(seeds, scenarios, metrics)`` of one driver, at the tables' scale."""
-    cols = [m.column for m in METRICS]
-    part = frame.set_index(["seed", "scenario_id"])[cols]
-    seeds = sorted(part.index.get_level_values(0).unique())
-    full = pd.MultiIndex.from_product([seeds, scenarios], names=["seed", "scenario_id"])
-    scale = np.array([m.scale for m in METRICS])
-    return part.reindex(full).to_numpy(float).reshape(len(seeds), len(scenarios), -1) * scale
-
-
-def _complete(frame: pd.DataFrame) -> set:
-    """Scenarios with every metric for every seed of ``frame``."""
-    ok = frame.dropna(subset=[m.column for m in METRICS]).groupby("scenario_id").seed.nunique()
-    return set(ok.index[ok == frame.seed.nunique()])
 
 
 def drivers(log: pd.DataFrame, idm: pd.DataFrame) -> list[tuple[str, str]]:
@@ -72,10 +58,13 @@ def reactive_table(log: pd.DataFrame, idm: pd.DataFrame, n_resamples: int = 10_0
     for setting, method in pairs:
         a = log[(log.setting == setting) & (log.method == method)]
         b = idm[(idm.setting == setting) & (idm.method == method)]
-        scenarios = pd.Index(sorted(_complete(a) & _complete(b)), name="scenario_id")
+        scenarios = pd.Index(sorted(set(complete_scenarios(a, [method], METRICS))
+                                    & set(complete_scenarios(b, [method], METRICS))),
+                             name="scenario_id")
         seed = [TEST_SEED, zlib.crc32(f"{setting}/{method}".encode())]
         if scenarios.size:
-            c = paired_difference(_cube(a, scenarios), _cube(b, scenarios), n_resamples, seed)
+            c = paired_difference(scenario_cube(a, method, scenarios, METRICS),
+                                  scenario_cube(b, method, scenarios, METRICS), n_resamples, seed)
         else:
             c = {k: np.full(len(METRICS), np.nan) for k in DIFF_COLUMNS.values()}
         for i, metric in enumerate(METRICS):

@@ -17,14 +17,20 @@ from igdrivsim.evaluation.aggregate import (
     scenario_cube,
 )
 from igdrivsim.evaluation.paired import SOURCE_COLUMN, compare_on_egos, source_map
-from igdrivsim.evaluation.schema import EVAL_CONFIG, PER_SCENARIO_FILE, table_settings
+from igdrivsim.evaluation.schema import (
+    EVAL_CONFIG,
+    METRIC_BY_KEY,
+    PER_SCENARIO_FILE,
+    STEP_METRICS,
+    table_settings,
+)
 from igdrivsim.io import read_json
 from igdrivsim.machine import code_label, code_state
 from igdrivsim.names import BC, CONSTANT_VELOCITY, METHOD_LABELS, REFERENCES, setting_short
 from igdrivsim.report.real_logs import PAIRED_HEAD, PAIRED_REFERENCES, paired_cells
 from igdrivsim.report.tables import md_head, md_row
 
-METRICS = ("log_divergence", "offroad", "overlap")
+METRICS = tuple(METRIC_BY_KEY[k] for k in STEP_METRICS)
 FULL = "full"  # the observation setting of the first table's BC
 VALIDATION = "validation"  # the synthetic validation set's name (evals_validation)
 POOLED = "real, pooled"  # every real set of a motion model together
@@ -72,7 +78,7 @@ def _paired(a: pd.DataFrame, method_a: str, b: pd.DataFrame, method_b: str, scen
     c = paired_difference(scenario_cube(a, method_a, scen, METRICS),
                           scenario_cube(b, method_b, scen, METRICS),
                           clusters=[source[str(s)] for s in scen])
-    return row | {f"{key}_{k}": float(v[i]) for i, key in enumerate(METRICS) for k, v in c.items()}
+    return row | {f"{m.key}_{k}": float(v[i]) for i, m in enumerate(METRICS) for k, v in c.items()}
 
 
 def against_constant_velocity(found: dict) -> pd.DataFrame:

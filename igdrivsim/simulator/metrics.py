@@ -1,4 +1,4 @@
-"""Per-step metrics (overlap, offroad, log divergence), the reward, and per-scenario aggregation.
+"""Per-step metrics (overlap, offroad, log divergence), the reward, and the mean log divergence.
 
 Waymax conventions, on the state *after* a step (the SDC at its simulated pose, the other
 objects where the sim agents put them):
@@ -16,8 +16,6 @@ steps report no overlap, no offroad and zero divergence. The geometry avoids sma
 """
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -191,23 +189,6 @@ def step_metrics(state: SimState, params: SimParams = DEFAULT_PARAMS) -> StepMet
 def reward(metrics: StepMetrics):
     """The paper's penalty-only reward ``-1[overlap] - 1[offroad]`` (``f32[...]``)."""
     return -(metrics.overlap.astype(jnp.float32) + metrics.offroad.astype(jnp.float32))
-
-
-class ScenarioMetrics(NamedTuple):
-    """Per-scenario metrics, ``f32[...]`` each. Averaging over scenarios gives the paper's
-    overlap rate, offroad rate and (mean) max log divergence."""
-
-    overlap_rate: jax.Array  # 1.0 if the SDC overlaps at any step, else 0.0
-    offroad_rate: jax.Array  # 1.0 if the SDC is offroad at any step, else 0.0
-    max_log_divergence: jax.Array  # over the valid steps (0 if none)
-
-
-def scenario_metrics(per_step: StepMetrics) -> ScenarioMetrics:
-    """Aggregate per-step metrics ``[..., T]`` (the 80 controlled steps) per scenario."""
-    return ScenarioMetrics(
-        overlap_rate=jnp.any(per_step.overlap, axis=-1).astype(jnp.float32),
-        offroad_rate=jnp.any(per_step.offroad, axis=-1).astype(jnp.float32),
-        max_log_divergence=jnp.max(jnp.where(per_step.valid, per_step.log_divergence, 0.0), -1))
 
 
 def mean_log_divergence(per_step: StepMetrics):

@@ -274,7 +274,7 @@ def current_objects(state: SimState) -> ObjectState:
 def object_trajectory(state: SimState) -> Trajectory:
     """Every object's ``[..., O, T]`` trajectory as simulated by the sim agents (the log under
     ``"log"`` agents); the SDC row is its log."""
-    a = getattr(state, "agents", None)
+    a = state.agents
     if a is None:
         return state.log
     return state.log.replace(x=a.x, y=a.y, yaw=a.yaw, vel_x=a.vel_x, vel_y=a.vel_y, valid=a.valid)

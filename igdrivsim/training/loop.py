@@ -25,7 +25,7 @@ from igdrivsim.training.config import RunConfig
 from igdrivsim.training.cost import warn_if_cpu
 from igdrivsim.training.methods import get_method
 from igdrivsim.training.privileged import load_teacher
-from igdrivsim.training.run import Hook, Run
+from igdrivsim.training.run import Run
 from igdrivsim.training.update import (
     UpdateSpec,
     cosine_lr,
@@ -107,7 +107,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                      settings=config.settings, devices=mesh.size,
                      processes=jax.process_count())
     if val_data is not None and t.eval_every > 0:
-        run.hooks = (Hook(t.eval_every, validation(config, spec, val_data, cache_dir)),)
+        run.hook = validation(config, spec, val_data, cache_dir)
 
     state = (*init_state(config, spec), init_buffer(config, spec))
     per_seed = count_params(jax.tree.map(lambda x: x[0, 0], state[0]))
@@ -135,7 +135,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
     last_log, last_time = start, time.perf_counter()
     with run:
         if start == 0:
-            run.run_hooks(0, state[0])
+            run.run_hook(0, state[0])
         for u, (batch, data_state) in zip(range(start, end), batches, strict=True):
             lr = cosine_lr(u, num_updates, t.lr, t.lr_end)
             args = (*batch, settings, teacher_params, keys, u, lr)
@@ -154,7 +154,7 @@ def train(config: RunConfig, data, out_dir: str | os.PathLike, resume: bool = Fa
                     "updates_per_s": rate, "scenario_steps_per_s": rate * steps_per_update,
                     "grad_steps_per_s": rate * grads_per_update})
                 last_log, last_time = done, time.perf_counter()
-            if run.run_hooks(done, state[0], last=done == num_updates):
+            if run.run_hook(done, state[0], last=done == num_updates):
                 last_time = time.perf_counter()  # rates measure training only
             if done % t.checkpoint_every == 0 or done == end:
                 run.checkpoint(done, state, data_state)

@@ -6,7 +6,7 @@
 - ``metrics.jsonl``: one line per logged update, each metric's mean over settings and seeds
   and ``<metric>_seeds`` its per-seed means;
 - ``curves.jsonl``: one line per (update, setting, seed): the reported training loss and
-  what the hooks (:class:`Hook`) return;
+  what the validation hook (:attr:`Run.hook`) returns;
 - ``checkpoints/<updates done>/`` (:class:`Checkpoints`, Orbax; with ``data.stream`` also
   each process's input iterator state): data order, keys and learning rate are functions of
   the update, so restoring step ``k`` resumes the run exactly;
@@ -21,7 +21,6 @@ import json
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import jax
 import numpy as np
@@ -142,15 +141,6 @@ def is_complete(out_dir: str | os.PathLike) -> bool:
     return os.path.isfile(os.path.join(out_dir, DONE))
 
 
-@dataclass(frozen=True)
-class Hook:
-    """``fn(params) -> {name: [G, S] values}`` every ``every`` updates, at the start of a fresh
-    run and at its last update; the values are written to ``curves.jsonl``."""
-
-    every: int
-    fn: Callable[[object], dict]
-
-
 def truncate_jsonl(path: str, upto: int) -> None:
     """Keep the lines of updates ``<= upto`` (a resumed run re-logs the rest); a line torn by
     a kill mid-write (not JSON, or without an update) is dropped with the rest."""
@@ -214,7 +204,8 @@ class Run:
                  log: Callable[[str], None] = print):
         self.dir = os.fspath(out_dir)
         self.config, self.resume, self.log = config, resume, log
-        self.hooks: tuple[Hook, ...] = ()  # the driver's (the learning-curve validation)
+        # the driver's learning-curve validation: params -> {name: [G, S] values}
+        self.hook: Callable[[object], dict] | None = None
         self.main = jax.process_index() == 0
         # a resumed run keeps the code it started with and lists other code that continued it
         self.record = {"config": to_dict(config), "code": code_state()}
@@ -341,12 +332,13 @@ class Run:
         if self.bar is not None:
             self.bar.set_postfix({key: f"{line[key]:.3f}"}, refresh=False)
 
-    def run_hooks(self, done: int, params, last: bool = False) -> bool:
-        """Call the hooks due at ``done`` (0: a fresh run's start); True when one ran."""
-        due = [h for h in self.hooks if h.every > 0 and (done % h.every == 0 or last)]
-        for hook in due:
-            self.curves(done, hook.fn(params))
-        return bool(due)
+    def run_hook(self, done: int, params, last: bool = False) -> bool:
+        """Write the hook's values when due at ``done``: every ``eval_every`` updates, at the
+        start of a fresh run (0) and at its last update; True when it ran."""
+        due = self.hook is not None and (done % self.config.training.eval_every == 0 or last)
+        if due:
+            self.curves(done, self.hook(params))
+        return due
 
 
 class SavedRun:
