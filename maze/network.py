@@ -46,7 +46,7 @@ class GRUPolicy(nn.Module):
         if self.encoding == "onehot":
             visible = (goal[..., :1] >= 0).astype(obs.dtype)
             cells = jnp.arange(self.side)
-            onehot = lambda x: (x[..., None] == cells).astype(obs.dtype).reshape(  # noqa: E731
+            onehot = lambda x: (x[..., None] == cells).astype(obs.dtype).reshape(
                 *x.shape[:-1], -1)
             parts += [visible, (goal - pos) * scale * visible, onehot(pos), onehot(goal)]
         return jnp.concatenate(parts, axis=-1)

@@ -99,7 +99,7 @@ def test_the_ego_is_out_of_its_own_observation_and_the_former_sdc_in_it():
         dx, dy = tr.x[slot, 10] - tr.x[1, 10], tr.y[slot, 10] - tr.y[1, 10]
         return np.asarray(rotate_to_frame(dx, dy, tr.yaw[1, 10]))
 
-    distance = lambda slot: np.linalg.norm(seen - relative(slot), axis=1).min()  # noqa: E731
+    distance = lambda slot: np.linalg.norm(seen - relative(slot), axis=1).min()
     assert distance(0) < 1e-3  # the logged SDC is an ordinary object now
     assert np.linalg.norm(seen, axis=1).min() > 1.0  # nothing where the ego is
 

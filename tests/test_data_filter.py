@@ -58,7 +58,7 @@ def crossing(x0=4.0, valid=ALL):
 
 
 def test_segments_intersect_hand_cases():
-    p = lambda *v: np.array(v, float)  # noqa: E731
+    p = lambda *v: np.array(v, float)
     cases = [  # (p0, p1, q0, q1, expected)
         (p(0, 0), p(2, 2), p(0, 2), p(2, 0), True),  # X
         (p(0, 0), p(2, 0), p(0, 1), p(2, 1), False),  # parallel

@@ -47,7 +47,7 @@ def _description(steps=30, dt=0.1, clockwise=True, with_edges=False) -> dict:
     """A small synthetic scenario: the SDC drives along x inside a 40 x 8 m lane polygon."""
     t = np.arange(steps) * dt
     x = -10 + 5.0 * t
-    state = lambda px, py: {  # noqa: E731
+    state = lambda px, py: {
         "position": np.c_[px, py, np.zeros(steps)], "heading": np.zeros(steps),
         "velocity": np.c_[np.full(steps, 5.0), np.zeros(steps)],
         "length": np.full((steps, 1), 1.8), "width": np.full((steps, 1), 4.5),  # swapped

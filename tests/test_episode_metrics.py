@@ -53,7 +53,7 @@ def make_state(sim, log=None, others=()):
     same), plus other objects ``(x, y, yaw, vx, vy, valid)`` with 4.5 x 2 m boxes."""
     log = sim if log is None else log
     rows = [(*log, np.ones(NUM_STEPS, bool))] + [tuple(o) for o in others]
-    field = lambda k: jnp.asarray(np.stack([np.asarray(r[k], float) for r in rows]))  # noqa: E731
+    field = lambda k: jnp.asarray(np.stack([np.asarray(r[k], float) for r in rows]))
     n = len(rows)
     traj = Trajectory(x=field(0), y=field(1), z=jnp.zeros((n, NUM_STEPS)), yaw=field(2),
                       vel_x=field(3), vel_y=field(4), length=jnp.full((n, NUM_STEPS), 4.5),

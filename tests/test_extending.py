@@ -69,7 +69,7 @@ def test_the_observation_model_recipe_trains_beside_the_paper_six():
         rear = apply_setting(get_setting("rear_blind_5"), obs, *keys)
         assert 0 < int(rear.objects_valid.sum()) < obs.objects_valid.size  # it hides some
     finally:
-        for registry in (obs_models.PRESETS, obs_models.PRESET_TITLES, obs_models.PRESET_SHORT):
+        for registry in (obs_models.PRESETS, obs_models.PRESET_TITLES):
             registry.pop("rear_blind_5", None)
 
 

@@ -275,17 +275,26 @@ def test_scene_stats_show_n_and_points_below_ten(monkeypatch, tmp_path):
     medians = [ln for ln in ax.get_lines() if ln.get_marker() == "|"]
     assert len(medians) == 1 and medians[0].get_ydata()[0] == 1  # the n=4 row: no box
     assert all(a.get_xlabel() for a in captured[0].axes if a.axison)
-    plt.close(captured[0])
+    stats_command.plot(pd.DataFrame(rows), str(tmp_path / "stats.png"))  # again: same points
+    points = [[c.get_offsets().tolist() for c in fig.axes[0].collections] for fig in captured]
+    assert points[0] == points[1] and sum(map(len, points[0])) == 16
+    for fig in captured:
+        plt.close(fig)
 
 
 def test_scene_pictures_have_titles_scale_bar_and_legend_off_the_road():
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
+    from igdrivsim.data.scenario import decode_scenario_id
     from igdrivsim.data.synthetic.generator import generate_scenario
     from igdrivsim.data.synthetic.plot import add_legend, draw_scenario, readable_title
 
     assert readable_title("syn0t00000003") == "Synthetic training scenario 3 (seed 0)"
     assert readable_title("syn2av00000010") == "Synthetic validation scenario 10 (seed 42)"
+    ids = {split: decode_scenario_id(generate_scenario(1, 2, split).scenario_id)
+           for split in ("training", "validation", "testing")}
+    assert len(set(ids.values())) == 3  # a testing id is not a training one
+    assert readable_title(ids["testing"]) == "Synthetic testing scenario 2 (seed 1)"
     fig, ax = plt.subplots()
     try:
         draw_scenario(ax, generate_scenario(0, 0))

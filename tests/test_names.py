@@ -21,8 +21,7 @@ def test_the_registries_read_the_names():
     from igdrivsim.training.methods import METHODS
 
     assert names.SETTINGS == models.PAPER_SETTINGS
-    assert models.PRESET_SHORT == {s: names.SETTING_SHORT[s] for s in models.PRESETS}
-    assert models.PRESET_TITLES["occlusion"] == names.SETTING_TITLES["occlusion"]
+    assert models.PRESET_TITLES == {s: names.SETTING_TITLES[s] for s in models.PRESETS}
     assert names.LEARNED == {m.name: (m.label, m.colour) for m in METHODS.values()}
     assert list(names.LEARNED) == list(METHODS)  # the tables' order is the registry's
     assert set(names.METHODS) <= set(METHODS)

@@ -78,7 +78,7 @@ def test_recorded_observation_equals_the_online_one(recorded, name):
         np.testing.assert_allclose(a.sdc_speed, np.asarray(b.sdc_speed), atol=1e-6)
         np.testing.assert_allclose(a.sdc_yaw_rate, np.asarray(b.sdc_yaw_rate), atol=1e-5)
         # points at equal distances may come in either order (float rounding): compare sets
-        rows = lambda m: m[np.lexsort(np.round(m, 4).T[::-1])]  # noqa: E731
+        rows = lambda m: m[np.lexsort(np.round(m, 4).T[::-1])]
         np.testing.assert_allclose(rows(a.roadgraph), rows(np.asarray(b.roadgraph)), atol=2e-5)
 
 

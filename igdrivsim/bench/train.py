@@ -122,7 +122,7 @@ def time_parts(spec, params, states, keys, teacher_params, repeats: int = 2) -> 
         jax.block_until_ready(out)
         return out, round((time.perf_counter() - t0) / repeats, 4)
 
-    first = lambda tree: jax.tree.map(lambda x: x[0], tree)  # noqa: E731
+    first = lambda tree: jax.tree.map(lambda x: x[0], tree)
     p, st, tp = first(first(params)), first(states), first(teacher_params)
     setting = spec.setting or get_setting("full")
     rec, record_s = timed(jax.jit(jax.vmap(lambda s: record_episode(s, spec.sim, spec.record))),

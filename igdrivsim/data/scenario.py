@@ -190,9 +190,9 @@ def empty_scenario(caps: Capacities = DEFAULT_CAPS) -> Scenario:
     """An all-invalid scenario with the given capacities (the padding template)."""
     o, t = caps.max_objects, caps.num_steps
     r, nl = caps.max_roadgraph_points, caps.max_traffic_lights
-    f = lambda *s: np.zeros(s, np.float32)  # noqa: E731
-    i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
-    b = lambda *s: np.zeros(s, bool)  # noqa: E731
+    f = lambda *s: np.zeros(s, np.float32)
+    i = lambda *s: np.zeros(s, np.int32)
+    b = lambda *s: np.zeros(s, bool)
     return Scenario(
         trajectory=Trajectory(*(f(o, t) for _ in range(9)), valid=b(o, t)),  # 9 float fields
         metadata=ObjectMetadata(id=np.full(o, -1, np.int32), object_type=i(o), is_sdc=b(o),
@@ -305,7 +305,7 @@ def trim_padding(scenario: Scenario) -> Scenario:
     md = scenario.metadata
     num_objects = used(np.asarray(md.valid) | np.asarray(md.is_sdc)
                        | np.asarray(scenario.trajectory.valid).any(-1))
-    cut = lambda tree, n: jax.tree.map(lambda x: np.asarray(x)[:n], tree)  # noqa: E731
+    cut = lambda tree, n: jax.tree.map(lambda x: np.asarray(x)[:n], tree)
     return Scenario(trajectory=cut(scenario.trajectory, num_objects),
                     metadata=cut(md, num_objects),
                     roadgraph=cut(scenario.roadgraph, used(scenario.roadgraph.valid)),

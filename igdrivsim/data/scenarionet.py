@@ -356,7 +356,7 @@ def _decode_map(desc: dict) -> tuple[Roadgraph, dict]:
     if not any(t in RG_ROAD_EDGE_TYPES for t in types) and lane_polygons:
         bxy, bdir, bpoly = union_boundary(lane_polygons)
         base = int(max(ids.values(), default=-1)) + 1
-        flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+        flat = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)
         edges = Roadgraph(xyz=flat(bxy), dir=flat(bdir),
                           type=np.full(len(bxy), RG_ROAD_EDGE_BOUNDARY, np.int32),
                           id=(base + bpoly).astype(np.int32), valid=np.ones(len(bxy), bool))
@@ -510,7 +510,7 @@ def _window(tr: dict, lights: dict, roadgraph: Roadgraph, start: int, sid: str) 
     if not valid[tr["is_sdc"], CURRENT_INDEX].any():
         raise DataError(f"the SDC is not valid at the current step of window {start}", key="tracks")
     keep = valid.any(axis=1) | tr["is_sdc"]
-    f32 = lambda a: cut(a)[keep].astype(np.float32)  # noqa: E731
+    f32 = lambda a: cut(a)[keep].astype(np.float32)
     xyz, vel = f32(tr["xyz"]), f32(tr["vel"])
     trajectory = Trajectory(
         x=xyz[..., 0], y=xyz[..., 1], z=xyz[..., 2], yaw=f32(tr["yaw"]),

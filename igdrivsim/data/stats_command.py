@@ -186,18 +186,20 @@ def plot(frame, path: str, kept_only=(), min_box: int = 10) -> None:
     cols = 4
     rows = -(-len(STATISTICS) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.4 * rows))
+    jitter = np.random.default_rng(0)  # the same figure from the same data
     for ax, s in zip(axes.ravel(), STATISTICS, strict=False):
         if boxed:
             sns.boxplot(frame[frame["dataset"].isin(boxed)], x=s.key, y="dataset", order=order,
                         hue="dataset", palette=palette, ax=ax, showfliers=False, legend=False,
                         width=0.5, boxprops={"alpha": 0.4})
-        sns.stripplot(frame, x=s.key, y="dataset", order=order, hue="dataset", palette=palette,
-                      ax=ax, size=3, alpha=0.7, legend=False, jitter=0.2)
-        for row, name in enumerate(order):
-            if name not in boxed:
-                values = frame.loc[frame["dataset"] == name, s.key].dropna()
-                if len(values):
-                    ax.plot(values.median(), row, marker="|", ms=14, mew=1.5, color="black")
+        for row, name in enumerate(order):  # the points, jittered by a seeded generator
+            values = frame.loc[frame["dataset"] == name, s.key].dropna()
+            ax.scatter(values, row + jitter.uniform(-0.2, 0.2, len(values)), s=9, alpha=0.7,
+                       color=palette[name], linewidths=0)
+            if name not in boxed and len(values):
+                ax.plot(values.median(), row, marker="|", ms=14, mew=1.5, color="black")
+        ax.set_yticks(range(len(order)), order)
+        ax.set_ylim(len(order) - 0.5, -0.5)
         ax.set_title(s.label, fontsize=9)
         ax.set_xlabel(s.unit or ("fraction" if s.key.endswith("share") else "count"))
         ax.set_ylabel("")

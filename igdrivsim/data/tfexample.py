@@ -75,7 +75,7 @@ def decode_tfexample(data: bytes) -> Scenario:
     valid = state("valid", np.int64) > 0
     trajectory = Trajectory(**{name: state(key, np.float32) for name, key in STATE_KEYS.items()},
                             valid=valid)
-    flag = lambda key, required=True: _values(fm, key, num_objects, np.int64, required)  # noqa: E731
+    flag = lambda key, required=True: _values(fm, key, num_objects, np.int64, required)
     is_sdc = flag("state/is_sdc") > 0
     if is_sdc.sum() != 1:
         raise DataError(f"expected exactly one SDC, found {int(is_sdc.sum())}", key="state/is_sdc")

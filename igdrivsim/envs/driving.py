@@ -107,7 +107,7 @@ def driving_functions(setting: str = "full", params: SimParams = DEFAULT_PARAMS,
 
 
 def _observation_space(config: ObservationConfig) -> spaces.Dict:
-    box = lambda *shape: spaces.Box(-np.inf, np.inf, shape, np.float32)  # noqa: E731
+    box = lambda *shape: spaces.Box(-np.inf, np.inf, shape, np.float32)
     n_obj, n_rg = config.num_objects, config.num_roadgraph_points
     return spaces.Dict({
         "objects": box(n_obj, OBJECT_FEATURES),

@@ -93,7 +93,7 @@ def roadgraph_features(x: jax.Array, y: jax.Array, dir_x: jax.Array, dir_y: jax.
     """The ``f32[..., 25]`` roadgraph features of points already in the ego frame and scaled (one
     elementwise select over the feature axis: XLA:CPU fuses it, ~4x faster than concatenating)."""
     col = jnp.arange(ROADGRAPH_FEATURES)
-    e = lambda a: a[..., None]  # noqa: E731
+    e = lambda a: a[..., None]
     onehot = (col == e(rtype) + 4) | (col == ROADGRAPH_FEATURES - 1)
     rg = jnp.where(col == 0, e(x), jnp.where(col == 1, e(y), jnp.where(
         col == 2, e(dir_x), jnp.where(col == 3, e(dir_y), onehot.astype(jnp.float32)))))

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from igdrivsim.errors import ConfigError
-from igdrivsim.names import SETTING_SHORT, SETTING_TITLES
+from igdrivsim.names import SETTING_TITLES
 from igdrivsim.observation.features import (
     Observation,
     hide_objects,
@@ -252,22 +252,20 @@ PRESETS: dict[str, ObservationSetting] = {
 # The paper's six, in Table I column order (the registry may hold more: register_setting).
 PAPER_SETTINGS: tuple[str, ...] = tuple(PRESETS)
 
-# Panel titles and short names (igdrivsim.names; register_setting adds those of a new setting).
+# Panel titles (igdrivsim.names; register_setting adds a new setting's).
 PRESET_TITLES: dict[str, str] = {name: SETTING_TITLES[name] for name in PRESETS}
-PRESET_SHORT: dict[str, str] = {name: SETTING_SHORT[name] for name in PRESETS}
 
 
-def register_setting(setting: ObservationSetting, title: str | None = None,
-                     short: str | None = None) -> ObservationSetting:
+def register_setting(setting: ObservationSetting, title: str | None = None
+                     ) -> ObservationSetting:
     """Add ``setting`` to the registry under its name: ``--obs NAME`` in every command, the
-    pipeline's ``--obs`` and the tables' and figures' columns (``title`` and ``short`` label
-    them; default: :mod:`igdrivsim.names`', else the name). Returns the setting."""
+    pipeline's ``--obs`` and the tables' and figures' columns (labelled as in
+    :mod:`igdrivsim.names`, else by the name); ``title`` heads its render panels (default:
+    :mod:`igdrivsim.names`', else the name). Returns the setting."""
     if setting.name in PRESETS and PRESETS[setting.name] != setting:
         raise ConfigError(f"observation setting {setting.name!r} is already registered")
     PRESETS[setting.name] = setting
-    title = title or SETTING_TITLES.get(setting.name)
-    PRESET_TITLES[setting.name] = title or setting.name
-    PRESET_SHORT[setting.name] = short or SETTING_SHORT.get(setting.name) or title or setting.name
+    PRESET_TITLES[setting.name] = title or SETTING_TITLES.get(setting.name) or setting.name
     return setting
 
 

@@ -103,7 +103,7 @@ def observe_setting_arrays(sdc_xy: jax.Array, sdc_yaw: jax.Array, sdc_speed: jax
                              jnp.asarray(objects.y) - xy[..., 1], yaw)
     obj_ok = jnp.asarray(objects.valid, bool) & (jnp.arange(ox.shape[-1]) != sdc_index)
     obj_idx, obj_valid = nearest(ox**2 + oy**2, obj_ok, config.num_objects)
-    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)  # noqa: E731
+    take = lambda a: jnp.take(jnp.asarray(a, jnp.float32), obj_idx, axis=-1)
     rel_yaw = take(objects.yaw) - yaw
     speed = jnp.hypot(take(objects.vel_x), take(objects.vel_y))
     obj = jnp.stack([take(ox) / POSITION_SCALE, take(oy) / POSITION_SCALE, jnp.cos(rel_yaw),

@@ -132,7 +132,7 @@ class Dataset:
     def host_batch(self, update: int):
         """``(teacher [S, B] or None, states [S, B] or None)`` on the host for ``update``."""
         idx = self.indices(update)
-        take = lambda tree: None if tree is None else jax.tree.map(lambda x: x[idx], tree)  # noqa: E731
+        take = lambda tree: None if tree is None else jax.tree.map(lambda x: x[idx], tree)
         return take(self.teacher), take(self.states)
 
     def host_batches(self, updates: range, state=None) -> Iterator[tuple]:

@@ -65,7 +65,7 @@ def validation(config: RunConfig, spec: UpdateSpec, data, cache_dir: str | None
                               batch_size=n)
         valid = out.valid
         count = np.maximum(valid.sum(axis=(2, 3)), 1)
-        mean = lambda a: np.where(valid, a, 0.0).sum(axis=(2, 3)) / count  # noqa: E731
+        mean = lambda a: np.where(valid, a, 0.0).sum(axis=(2, 3)) / count
         return {"val_bc_loss": np.asarray(val_bc), "log_divergence": mean(out.log_divergence),
                 "offroad": mean(out.offroad), "overlap": mean(out.overlap)}
 

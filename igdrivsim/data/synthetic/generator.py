@@ -44,6 +44,7 @@ from igdrivsim.data.synthetic.motion import (
     calibrate_cast,
     calibrate_map,
 )
+from igdrivsim.data.synthetic.plot import SPLIT_LETTERS
 
 SPLITS = {"training": 0, "validation": 1, "testing": 2}
 
@@ -259,7 +260,7 @@ def _cast_intersection(rng, m: MapData) -> list[Agent]:
     eta = (route.entry - s0) / max(sdc.v0, 3.0)
     for g in sorted({r.group for r in m.routes}):
         routes = [r for r in m.routes if r.group == g]
-        pick = lambda rs=routes: rs[int(rng.integers(len(rs)))]  # noqa: E731
+        pick = lambda rs=routes: rs[int(rng.integers(len(rs)))]
         red = routes[0].signal is not None and routes[0].signal[0] != LIGHT_GO
         if red:  # a queue at the red light (behind it the SDC, on its own lane)
             queue = _queue(rng, pick(), (1, 6))
@@ -395,7 +396,7 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     origin = rng.uniform(-config.origin_range, config.origin_range, 2)
     z0 = rng.uniform(-20, 60)
-    place = lambda xy: xy @ rot.T + origin  # noqa: E731
+    place = lambda xy: xy @ rot.T + origin
 
     out = empty_scenario(Capacities(max_objects=n, max_roadgraph_points=1,
                                     max_traffic_lights=min(len(m.lights),
@@ -405,8 +406,8 @@ def to_scenario(rng: np.random.Generator, m: MapData, agents: list[Agent], scena
     vel = np.gradient(xy, 0.1, axis=1)
     vel[~valid] = 0
     yaw = (np.stack([a.yaw for a in agents]) + angle + np.pi) % (2 * np.pi) - np.pi
-    f32 = lambda v: np.where(valid, v, 0).astype(np.float32)  # noqa: E731
-    size = lambda name: np.array([getattr(a, name) for a in agents])[:, None]  # noqa: E731
+    f32 = lambda v: np.where(valid, v, 0).astype(np.float32)
+    size = lambda name: np.array([getattr(a, name) for a in agents])[:, None]
     tr = out.trajectory.replace(
         x=f32(xy[..., 0]), y=f32(xy[..., 1]), z=f32(z0 + size("height") / 2), yaw=f32(yaw),
         vel_x=f32(vel[..., 0]), vel_y=f32(vel[..., 1]), length=f32(size("length")),
@@ -465,4 +466,4 @@ def generate_scenario(seed: int, index: int, split: str = "training",
     ``plot.GENERATED_ID`` parses."""
     rng = scenario_rng(seed, index, split)
     m, agents = plan_scenario(rng, config)
-    return to_scenario(rng, m, agents, f"syn{seed:x}{split[0]}{index:08d}", config)
+    return to_scenario(rng, m, agents, f"syn{seed:x}{SPLIT_LETTERS[split]}{index:08d}", config)

@@ -91,7 +91,7 @@ def paths_intersect(xy_a: np.ndarray, valid_a: np.ndarray, xy_b: np.ndarray,
     a0, a1, b0, b1 = a0[near_a], a1[near_a], b0[near_b], b1[near_b]
     p, r = a0[:, None], (a1 - a0)[:, None]
     q, s = b0[None], (b1 - b0)[None]
-    cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731
+    cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
     den = cross(r, s)
     qp = q - p
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -214,7 +214,7 @@ def road_map(rng: np.random.Generator, bend: float = 1.0) -> MapData:
     bike = rng.uniform(1.5, 1.8) if rng.random() < 0.5 else 0.0  # bike lanes on both kerbs
     bike_l = bike if n_back else 0.0
     s_ref = geo.arc_length(ref)
-    smooth = lambda u: np.clip(u, 0, 1) ** 2 * (3 - 2 * np.clip(u, 0, 1))  # noqa: E731
+    smooth = lambda u: np.clip(u, 0, 1) ** 2 * (3 - 2 * np.clip(u, 0, 1))
     # Lane drop: the rightmost lane tapers away over [drop - taper, drop]; its traffic merges.
     drop = (rng.uniform(170, 240) if n_fwd >= 2 and not park_r and not bike
             and rng.random() < 0.5 else None)
@@ -392,8 +392,8 @@ def intersection_map(rng: np.random.Generator, skew: float = 1.0) -> MapData:
     gaps = np.diff(np.concatenate([angles, angles[:1] + 2 * np.pi]))
     half_width = np.maximum(side_in, side_out)
     r = float(half_width.max() / np.sin(min(gaps.min(), np.pi / 2)) + corner * 0.7 + 1.0)
-    along = lambda a, d: lambda s: u[a] * s + nrm[a] * d  # noqa: E731
-    line = lambda a, d, s0, s1: np.stack([along(a, d)(s) for s in np.linspace(s0, s1, 2)])  # noqa: E731
+    along = lambda a, d: lambda s: u[a] * s + nrm[a] * d
+    line = lambda a, d, s0, s1: np.stack([along(a, d)(s) for s in np.linspace(s0, s1, 2)])
     ins, outs = {}, {}
     for a in range(n_arms):
         for j in range(n_in[a]):

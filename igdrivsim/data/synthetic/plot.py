@@ -19,7 +19,7 @@ from igdrivsim.io import atomic_savefig
 
 _LANES, _LINES = (1, 2, 3), tuple(range(5, 14))
 GENERATED_ID = re.compile(r"syn([0-9a-f]+)([a-z])(\d{8})")  # the generator's scenario names
-_SPLITS = {"t": "training", "v": "validation"}
+SPLIT_LETTERS = {"training": "t", "validation": "v", "testing": "x"}  # a split's letter in them
 
 
 def readable_title(scenario_id: str) -> str:
@@ -28,8 +28,8 @@ def readable_title(scenario_id: str) -> str:
     if match is None:
         return f"Scenario {scenario_id}"
     seed, split, index = match.groups()
-    return (f"Synthetic {_SPLITS.get(split, split)} scenario {int(index)} "
-            f"(seed {int(seed, 16)})")
+    split = next((k for k, v in SPLIT_LETTERS.items() if v == split), split)
+    return f"Synthetic {split} scenario {int(index)} (seed {int(seed, 16)})"
 
 
 def draw_scenario(ax, scenario: Scenario, radius: float = 70.0, title: str | None = None) -> None:
