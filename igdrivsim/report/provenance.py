@@ -19,8 +19,7 @@ from igdrivsim.machine import CODE_KEYS, code_label, code_state
 FILE = "provenance.json"
 SCHEMA = 2  # per-stage code (``stages``, ``mixed_commits``)
 ABOUT = ("the command that wrote each file under this folder and the code (commit, dirty flag, "
-         "diff hash) of each pipeline stage its numbers came from (igdrivsim.report.provenance; "
-         "entries without 'stages' were published before per-stage provenance)")
+         "diff hash) of each pipeline stage its numbers came from (igdrivsim.report.provenance)")
 LINE_PREFIX = "Provenance: "
 # what a run of each kind owns (relative to the paper folder): the methods run Table II's files
 # (the report writes them only with methods beyond BC and BC-RL); everything else the default run
