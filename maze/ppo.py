@@ -43,15 +43,17 @@ from maze.rollout import Stream, run_stream, start_stream
 class PPOConfig(PPOParams):
     """Paper (PureJaxRL) defaults except ``lr``, ``update_epochs`` and ``num_minibatches``: one
     pass of 8 minibatches per rollout at lr 1.2e-2. The partial agent (10 seeds, GRU-64, linear
-    decay to 0, measured; "rose": over the last quarter, the study's plateau test is < 0.1):
-    4 epochs x 4 minibatches at 2e-3 reached 6.16 in 80 updates (rose 0.25); 2 x 4 at 8e-3 7.35
-    in 120 (rose 0.25); 1 x 8 at 8e-3 converged in 480 updates (8.02, rose 0.05), at 1.2e-2 in
-    320 (7.99, rose 0.03), but not in 280 (7.81, rose 0.15); 16 minibatches at 1.2e-2 7.69 in 240
-    (rose 0.33); 64-step rollouts 6.63 in 320 (rose 0.23). A PPO update is compute-bound (the
-    GRU's products), so the updates are the study's cost: 320 at 1.2e-2 is the cheapest setting
-    found that converges. ``gamma``, ``gae_lambda``, ``clip_eps``, ``ent_coef`` and ``vf_coef``
-    are the driving benchmark's PPO parameters (:class:`igdrivsim.core.params.PPOParams`, their
-    defaults)."""
+    decay to 0, measured; "rose": over the last quarter of the updates): 4 epochs x 4 minibatches
+    at 2e-3 reached 6.16 in 80 updates (rose 0.25); 2 x 4 at 8e-3 7.35 in 120 (rose 0.25); 1 x 8
+    at 8e-3 8.02 in 480 updates (rose 0.05), at 1.2e-2 7.99 in 320 (rose 0.03) and 7.81 in 280
+    (rose 0.15); 16 minibatches at 1.2e-2 7.69 in 240 (rose 0.33); 64-step rollouts 6.63 in 320
+    (rose 0.23). At GRU-32, the study's width (seeds 0-4, 1 x 8 at 1.2e-2; "rose": from half the
+    updates, the study's plateau test under the decay, :func:`maze.extended.plateau_start`):
+    7.74 in 320 updates (rose 0.32), 8.07 in 480 (rose 0.14), 8.10 in 640 (rose 0.08); 32 envs
+    x 4 minibatches 7.92 in 640 (rose 0.43). A PPO update is compute-bound (the GRU's products),
+    so the updates are the study's cost. ``gamma``, ``gae_lambda``, ``clip_eps``, ``ent_coef``
+    and ``vf_coef`` are the driving benchmark's PPO parameters
+    (:class:`igdrivsim.core.params.PPOParams`, their defaults)."""
 
     lr: float = 1.2e-2
     anneal_lr: bool = True

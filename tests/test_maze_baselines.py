@@ -126,3 +126,22 @@ def test_plateau_criterion():
     flat = rising.assign(**{"return": np.minimum(progress, 0.5)})
     assert not extended.plateau(rising, "rl", 0.1)["converged"]
     assert extended.plateau(flat, "rl", 0.1)["converged"]
+
+
+def test_plateau_under_annealing_spans_the_last_quarter_of_the_step_sizes():
+    """A linear decay to 0 spends the last quarter of its step sizes' sum over the second half
+    of the updates: a curve still rising there, though flat over the last quarter of the
+    updates, fails the annealed test and passes the constant-rate one."""
+    updates = np.arange(1, 641)
+    lr = 1.0 - (updates - 1) / len(updates)
+    start = extended.plateau_start(anneal=True)
+    spent = np.cumsum(lr) / lr.sum()
+    assert spent[int(start * len(updates)) - 1] == pytest.approx(0.75, abs=0.01)
+    assert extended.plateau_start(anneal=False) == 0.75
+    progress = np.linspace(0, 1, 17)
+    cooling = pd.DataFrame({"curve": "rl", "progress": progress,
+                            "return": 8.0 - 2.0 * (1.0 - np.minimum(progress, 0.75) / 0.75)})
+    assert extended.plateau(cooling, "rl", 0.1, start=0.75)["converged"]
+    late = extended.plateau(cooling, "rl", 0.1, start=start)
+    assert not late["converged"] and late["since"] == 0.5
+    assert late["rise"] == pytest.approx(2.0 / 3.0)

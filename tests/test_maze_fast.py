@@ -93,7 +93,8 @@ def test_plateau_compares_points_evaluated_alike(updates):
     with tqdm(disable=True) as bar:
         rows = pd.DataFrame(S.run_rl(fake, "rl_partial", True, bar)["records"])
     chunks = updates // cfg.chunk_updates
-    compared = extended.plateau_point(chunks)
+    start = extended.plateau_start(cfg.ppo.anneal_lr)
+    compared = extended.plateau_point(chunks, start)
     every = max(1, chunks // cfg.rl_curve_points)
     evaluated = sorted({c for c in range(0, chunks + 1, every)} | {compared, chunks})
     assert len(fake.rounds) == len(evaluated)
@@ -105,7 +106,7 @@ def test_plateau_compares_points_evaluated_alike(updates):
     # plateau() compares the final point with exactly that point
     rise = rows.assign(**{"return": rows.progress.map(
         lambda p: 1.0 if p == 1 else (0.5 if p == pytest.approx(compared / chunks) else 0.0))})
-    assert extended.plateau(rise, "rl_partial", 0.1)["rise_last_quarter"] == pytest.approx(0.5)
+    assert extended.plateau(rise, "rl_partial", 0.1, start=start)["rise"] == pytest.approx(0.5)
 
 
 COMPILE_ONE = """
