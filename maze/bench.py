@@ -1,4 +1,4 @@
-"""Speed of the maze study's parts: ``python -m maze.bench [--seeds 5] [--hidden 64]``.
+"""Speed of the maze study's parts: ``python -m maze.bench [--seeds 5] [--hidden 32]``.
 
 Prints one JSON line per measurement: batched environment steps/s (random actions, auto-reset,
 observation included), recurrent-PPO training env steps/s (the study's PPO update, ``vmap`` over
@@ -20,8 +20,10 @@ import jax.numpy as jnp
 from igdrivsim.cli_args import DefaultsFormatter
 from igdrivsim.core.nn import gru_scan, matmul_flops
 from maze import env as maze_env
+from maze.compiled import Program
 from maze.network import init_stacked, make_policy
 from maze.ppo import PPOConfig, make_ppo
+from maze.study import StudyConfig
 
 
 def bench_env(num_envs: int, num_steps: int, repeats: int = 3) -> dict:
@@ -62,7 +64,7 @@ def bench_ppo(seeds: int, hidden: int, updates: int, partial: bool) -> dict:
     net = init_stacked(model, jax.random.PRNGKey(0), seeds, params.obs_dim)
     state = jax.jit(jax.vmap(init))(jax.random.split(jax.random.PRNGKey(1), seeds), net,
                                     jnp.full(seeds, partial), jnp.full(seeds, 10 * updates))
-    train = jax.jit(jax.vmap(chunk))
+    train = Program(jax.vmap(chunk))  # compiled as the study compiles it
     t = time.perf_counter()
     state, metrics = train(state)
     jax.block_until_ready(metrics)
@@ -111,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--envs", type=int, default=4096, help="batched environments")
     parser.add_argument("--steps", type=int, default=500, help="steps per environment")
     parser.add_argument("--seeds", type=int, default=5, help="PPO seeds trained at once")
-    parser.add_argument("--hidden", type=int, nargs="+", default=[64], help="GRU widths")
+    parser.add_argument("--hidden", type=int, nargs="+", default=[StudyConfig.hidden],
+                        help="GRU widths")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates timed")
     parser.add_argument("--skip-ppo", action="store_true", help="time only the environment")
     args = parser.parse_args(argv)
