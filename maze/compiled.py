@@ -48,7 +48,7 @@ def _key(cfg, *path: int) -> jax.Array:
 # XLA's backend optimisation level 1 on a CPU: the study's programs compile in about half the
 # time (ppo_chunk 13.1 -> 9.4 s, evaluate 8.3 -> 3.1 s, collect 7.6 -> 3.2 s on one core) and
 # run as fast (their time is the GRU's small products, which LLVM's costly passes do not speed
-# up; docs/bench/README.md). Compiling was a fifth of a fresh study's CPU time.
+# up; docs/bench/README.md). Compiling was an eighth of a fresh study's CPU time.
 CPU_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 
 
