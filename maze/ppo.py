@@ -49,8 +49,9 @@ class PPOConfig(PPOParams):
     (rose 0.15); 16 minibatches at 1.2e-2 7.69 in 240 (rose 0.33); 64-step rollouts 6.63 in 320
     (rose 0.23). At GRU-32, the study's width (seeds 0-4, 1 x 8 at 1.2e-2; "rose": from half the
     updates, the study's plateau test under the decay, :func:`maze.extended.plateau_start`):
-    7.74 in 320 updates (rose 0.32), 8.07 in 480 (rose 0.14), 8.10 in 640 (rose 0.08); 32 envs
-    x 4 minibatches 7.92 in 640 (rose 0.43). A PPO update is compute-bound (the GRU's products),
+    7.74 in 320 updates (rose 0.32), 8.07 in 480 (rose 0.14), 8.09 in 520 (rose 0.18), 8.10 in
+    640 (rose 0.08); 32 envs x 4 minibatches 7.92 in 640 (rose 0.43); 96-step rollouts 7.97 in
+    640 (rose 0.20). A PPO update is compute-bound (the GRU's products),
     so the updates are the study's cost. ``gamma``, ``gae_lambda``, ``clip_eps``, ``ent_coef``
     and ``vf_coef`` are the driving benchmark's PPO parameters
     (:class:`igdrivsim.core.params.PPOParams`, their defaults)."""
