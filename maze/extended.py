@@ -72,15 +72,23 @@ def plateau(curves: pd.DataFrame, curve: str, tol: float, optimum: float | None 
     """Convergence test: the seed-mean return rose by less than ``tol`` over the last quarter of
     learning (final point vs. the last point at or before ``start`` of the run, see
     :func:`plateau_start`), or it is within 2% of a known exact ``optimum`` (the
-    full-observation shortest path). ``since``: the compared point's fraction of the run."""
-    mean = curves[curves.curve == curve].groupby("progress")["return"].mean()
+    full-observation shortest path). ``since``: the compared point's fraction of the run;
+    ``rise_ci95``: the half-width of the rise's 95% interval over seeds (NaN without a ``seed``
+    column), which says how far from the tolerance the verdict is."""
+    rows = curves[curves.curve == curve]
+    mean = rows.groupby("progress")["return"].mean()
     if mean.empty:
-        return {"converged": False, "rise": float("nan"), "since": start, "tol": tol}
+        return {"converged": False, "rise": float("nan"), "rise_ci95": float("nan"),
+                "since": start, "tol": tol}
     at = mean.index[mean.index <= start + 1e-9].max()
     rise = float(mean.iloc[-1] - mean.loc[at])
+    spread = float("nan")
+    if "seed" in rows:
+        per_seed = rows.pivot_table(index="seed", columns="progress", values="return")
+        spread = ci95(per_seed[mean.index[-1]] - per_seed[at])
     at_optimum = optimum is not None and float(mean.iloc[-1]) >= 0.98 * optimum
-    return {"converged": bool(rise < tol or at_optimum), "rise": rise, "since": float(at),
-            "tol": tol, "at_optimum": bool(at_optimum)}
+    return {"converged": bool(rise < tol or at_optimum), "rise": rise, "rise_ci95": spread,
+            "since": float(at), "tol": tol, "at_optimum": bool(at_optimum)}
 
 
 def run_dagger(study, experts: dict, bar: tqdm, seeds: Sequence[int] | None = None) -> dict:

@@ -388,7 +388,8 @@ def run_study(cfg: StudyConfig, out: Path, work: Path, force: bool = False,
                    this_invocation_cpu_s=cpu)
     status = "; ".join(
         f"{n}: {'converged' if p['converged'] else 'NOT converged'} (rose "
-        f"{p['rise']:.2f} over the last quarter of learning, from {p['since']:.0%} of the "
+        f"{p['rise']:.2f} +- {p['rise_ci95']:.2f} (95% CI over seeds) over the last quarter of "
+        f"learning, from {p['since']:.0%} of the "
         f"updates; criterion < {p['tol']}"
         + (", within 2% of the exact optimum)" if p.get("at_optimum") else ")")
         + f" after {getattr(cfg, n + '_updates')} updates, "

@@ -145,3 +145,19 @@ def test_plateau_under_annealing_spans_the_last_quarter_of_the_step_sizes():
     late = extended.plateau(cooling, "rl", 0.1, start=start)
     assert not late["converged"] and late["since"] == 0.5
     assert late["rise"] == pytest.approx(2.0 / 3.0)
+
+
+def test_plateau_rise_has_its_interval_over_seeds():
+    """The rise is the mean of the seeds' own rises (final minus the compared point), and its
+    95% interval is the Student-t one over those seeds: three seeds rising 0.0, 0.1 and 0.2
+    give 0.1 +- t(0.975, 2) * 0.1 / sqrt(3)."""
+    from scipy import stats
+
+    progress = np.array([0.0, 0.5, 1.0])
+    rows = [{"curve": "rl", "seed": s, "progress": p, "return": 5.0 + s + rise * (p == 1.0)}
+            for s, rise in enumerate([0.0, 0.1, 0.2]) for p in progress]
+    test = extended.plateau(pd.DataFrame(rows), "rl", 0.1, start=0.5)
+    assert test["rise"] == pytest.approx(0.1)
+    assert test["rise_ci95"] == pytest.approx(stats.t.ppf(0.975, 2) * 0.1 / np.sqrt(3))
+    no_seeds = pd.DataFrame(rows).drop(columns="seed")
+    assert np.isnan(extended.plateau(no_seeds, "rl", 0.1, start=0.5)["rise_ci95"])

@@ -216,6 +216,7 @@ def maze_tex(paper: str | Path) -> str | None:
         for name, test in meta.get("plateau", {}).items():
             code = MAZE_CODES.get(name) or _camel(name)
             lines += [_macro(f"Maze{code}Rise", _signed(float(test["rise"]))),
+                      _macro(f"Maze{code}RiseCI", _fmt(test.get("rise_ci95"))),
                       _macro(f"Maze{code}Tol", _fmt(float(test["tol"]))),
                       _macro(f"Maze{code}Plateau", "passes" if test["converged"] else "fails")]
         weights = [w for item in meta.get("baseline_metrics", {}).get(
