@@ -28,8 +28,9 @@ LAPTOP_SEEDS = 3  # the seeds of those measurements (cost scales with seeds)
 # The default pipeline but training and the maze study (a stage of its own), in CPU-s: the
 # 1,211 CPU-s of a whole run (README at 6ae8db5) beyond training, less the maze's 534.
 LAPTOP_OTHER_CPU_S = 1211.0 - 534.0
-# The maze study with its converged references and baselines, `python -m maze` on 2 quiet cores.
-MAZE_CPU_S = 271.0
+# The maze study with its converged references and baselines, `python -m maze` on 2 quiet cores
+# (`this_invocation_cpu_s` of paper/maze_config.json: 234.9).
+MAZE_CPU_S = 235.0
 # One H200, laptop network, the gpu profile's 12 seeds (3 do not fill a GPU), 6 settings per
 # update: docs/bench/train_gpu_bc_h200.json, train_gpu_bc_rl_h200.json (compiling included).
 GPU_S_PER_SETTING_UPDATE = 0.0513 / 6
