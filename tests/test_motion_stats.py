@@ -7,12 +7,16 @@ import numpy as np
 import pytest
 
 from igdrivsim.data.motion_stats import (
+    AGENT_KEYS,
+    GROUPS,
     HORIZONS,
     MOTION_STATISTICS,
+    STEP_KEYS,
     LaneMap,
     Motion,
     MotionPool,
     agent_motion,
+    js_floor,
     motion_statistics,
     motion_summary,
 )
@@ -164,3 +168,30 @@ def test_scenario_groups_pool_and_divergence():
                  and r["statistic"] == "speed")
     assert speed["median"] == pytest.approx(8.0, rel=1e-5) and speed["js"] == 0.0
     assert np.isnan(next(r for r in rows if r["dataset"] == "b")["js"])
+
+
+def speed_pool(scenarios: int, mean: float, seed: int) -> MotionPool:
+    """One SDC per scenario whose 40 speed samples are normal around ``mean`` (other keys 0)."""
+    rng = np.random.default_rng(seed)
+    pool = MotionPool()
+    for _ in range(scenarios):
+        samples = {g: dict.fromkeys(STEP_KEYS, np.zeros(0)) for g in GROUPS}
+        samples["sdc"] = {**samples["sdc"], "speed": rng.normal(mean, 3.0, 40).clip(0, 30)}
+        pool.add(Motion([{"group": "sdc", "object": 0, **dict.fromkeys(AGENT_KEYS, 0.0)}],
+                        samples))
+    return pool
+
+
+def test_divergence_floor_separates_sample_size_from_a_real_difference():
+    speed = next(s for s in MOTION_STATISTICS if s.key == "speed")
+    big, same, shifted = speed_pool(200, 10.0, 0), speed_pool(10, 10.0, 1), speed_pool(10, 16.0, 2)
+    rows = motion_summary({"same": same, "shifted": shifted, "big": big}, reference="big")
+    row = {r["dataset"]: r for r in rows if r["group"] == "sdc" and r["statistic"] == "speed"}
+    floor = js_floor(same, big, "sdc", speed)
+    assert floor == js_floor(big, same, "sdc", speed)  # seeded, and symmetric in its pools
+    assert 0.0 < floor[1] < floor[0] < floor[2]
+    assert row["same"]["js_floor_median"] == pytest.approx(floor[0], abs=1e-4)
+    assert floor[1] <= row["same"]["js"] <= floor[2]  # the same distribution: inside the floor
+    assert row["shifted"]["js"] > 2 * row["shifted"]["js_floor_p90"]  # a real shift: far above
+    assert np.isnan(js_floor(same, same, "sdc", speed)[0])  # equal sizes: no larger pool
+    assert np.isnan(row["big"]["js_floor_median"])  # the reference itself

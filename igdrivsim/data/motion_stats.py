@@ -274,48 +274,78 @@ def motion_statistics(scenario: Scenario) -> Motion:
 
 
 class MotionPool:
-    """A data set's pooled per-agent values and per-window samples, per group."""
+    """A data set's per-agent values and per-window samples, per group, kept per scenario (the
+    unit :func:`js_floor` resamples)."""
 
     def __init__(self) -> None:
-        self.parts: dict[str, dict[str, list]] = {g: defaultdict(list) for g in GROUPS}
+        self.units: dict[str, list[dict[str, np.ndarray]]] = {g: [] for g in GROUPS}
         self.agents = dict.fromkeys(GROUPS, 0)
         self.scenarios = 0
+        self._joined: dict[tuple[str, str], np.ndarray] = {}
 
     def add(self, motion: Motion) -> None:
         self.scenarios += 1
-        for row in motion.agents:
-            g = row["group"]
-            self.agents[g] += 1
-            for k in AGENT_KEYS:
-                self.parts[g][k].append(np.array([row[k]], np.float64))
-        for g, samples in motion.samples.items():
-            for k, v in samples.items():
-                self.parts[g][k].append(v)
+        self._joined.clear()
+        for g in GROUPS:
+            rows = [row for row in motion.agents if row["group"] == g]
+            if rows:
+                self.agents[g] += len(rows)
+                self.units[g].append({**{k: np.array([r[k] for r in rows], np.float64)
+                                         for k in AGENT_KEYS}, **motion.samples[g]})
 
     def values(self, group: str, key: str) -> np.ndarray:
         """The finite values of ``key`` pooled over the scenarios added."""
-        parts = self.parts[group][key]
-        if len(parts) != 1:  # join once
-            parts[:] = [np.concatenate(parts) if parts else np.zeros(0)]
-        return parts[0][np.isfinite(parts[0])]
+        if (group, key) not in self._joined:
+            parts = [u[key] for u in self.units[group]]
+            v = np.concatenate(parts) if parts else np.zeros(0)
+            self._joined[group, key] = v[np.isfinite(v)]
+        return self._joined[group, key]
+
+
+FLOOR_DRAWS = 200  # random subsets behind a divergence's sampling floor
+
+
+def js_floor(a: MotionPool, b: MotionPool, group: str, stat: Statistic,
+             draws: int = FLOOR_DRAWS, seed: int = 0) -> tuple[float, float, float]:
+    """``(median, p10, p90)`` of the divergence that sample size alone gives: as many scenarios
+    of ``group`` as the smaller pool has, drawn without replacement from the larger one, against
+    the larger pool's other scenarios (two disjoint samples of one distribution). A divergence
+    inside it cannot tell the two pools apart. NaN when the larger pool is not larger."""
+    small, large = sorted((a.units[group], b.units[group]), key=len)
+    if not small or len(small) >= len(large):
+        return np.nan, np.nan, np.nan
+    counts = np.stack([histogram(u[stat.key], stat.edges) for u in large])  # [scenarios, bins]
+    rng = np.random.default_rng(seed)
+    drawn = np.zeros((draws, len(large)))
+    for row in drawn:
+        row[rng.choice(len(large), len(small), replace=False)] = 1.0
+    picked = drawn @ counts  # each draw's histogram; its other scenarios': the total less it
+    return summary([js_divergence(p, q) for p, q in zip(picked, counts.sum(0) - picked,
+                                                         strict=True)])
 
 
 def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:
-    """Tidy rows per data set, group and statistic: agents, samples, mean, median, p10, p90 and
-    the Jensen-Shannon divergence (base 2) of its histogram from ``reference``'s."""
+    """Tidy rows per data set, group and statistic: agents, samples, mean, median, p10, p90, the
+    Jensen-Shannon divergence (base 2) of its histogram from ``reference``'s and that
+    divergence's sampling floor (:func:`js_floor`: median, p10, p90)."""
     rows = []
     for name, pool in pools.items():
         for g in GROUPS:
             for s in MOTION_STATISTICS:
                 v = pool.values(g, s.key)
                 med, p10, p90 = summary(v)
+                ref = pools[reference]
                 js = (np.nan if name == reference else js_divergence(
-                    histogram(v, s.edges), histogram(pools[reference].values(g, s.key), s.edges)))
+                    histogram(v, s.edges), histogram(ref.values(g, s.key), s.edges)))
+                floor = (np.nan,) * 3 if name == reference else js_floor(pool, ref, g, s)
                 rows.append({"dataset": name, "group": g, "statistic": s.key, "unit": s.unit,
                              "scenarios": pool.scenarios, "agents": pool.agents[g],
                              "samples": len(v), "mean": float(v.mean()) if len(v) else np.nan,
                              "median": med, "p10": p10, "p90": p90,
-                             "js": js if np.isnan(js) else round(js, 4), "reference": reference})
+                             "js": js if np.isnan(js) else round(js, 4),
+                             **{f"js_floor_{q}": x if np.isnan(x) else round(x, 4)
+                                for q, x in zip(("median", "p10", "p90"), floor, strict=True)},
+                             "reference": reference})
     return rows
 
 

@@ -1,7 +1,8 @@
 """``igdrivsim stats``: scene and motion statistics of any data set, beside each other: the
 median [p10, p90] tables and, with ``--out``, :data:`OUTPUTS` (``stats.csv``, ``motion_agents.csv``:
 a row per scenario / agent; ``divergence.csv``, ``motion_stats.csv``: Jensen-Shannon divergences
-from the reference data set; ``stats.md``: the tables; the figures)."""
+from the reference data set, the motion ones with their sampling floor; ``stats.md``: the tables;
+the figures)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from tqdm.auto import tqdm
 
 from igdrivsim.data.egos import add_egos_argument
 from igdrivsim.data.motion_stats import (
+    FLOOR_DRAWS,
     GROUP_LABELS,
     GROUPS,
     MOTION_STATISTICS,
@@ -153,7 +155,30 @@ def motion_tables(summary_frame, kept_only: Sequence[str] = ()) -> str:
                       f"{sub.loc[(n, s.key), 'js']:.3f}" for n in others]
             lines.append(f"| {s.title} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
+        floored = [n for n in others if sub.loc[n, "js_floor_median"].notna().any()]
+        if floored:
+            parts.append(_floor_table(sub, g, floored))
     return "\n\n".join(parts)
+
+
+def _floor_table(sub, group: str, names: list[str]) -> str:
+    """Each divergence beside its sampling floor (:func:`motion_stats.js_floor`)."""
+    head = [f"{x} {n}" for n in names for x in ("JS", "floor")]
+    lines = [f"{GROUP_LABELS[group]}: sampling floor of JS, median [p10, p90] over "
+             f"{FLOOR_DRAWS} random subsets (as many scenarios as the smaller set has, drawn "
+             "from the larger one, against its other scenarios); a JS inside it cannot tell the "
+             "two sets apart", "",
+             "| statistic | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
+    for s in MOTION_STATISTICS:
+        cells = []
+        for n in names:
+            r = sub.loc[(n, s.key)]
+            cells += ["-" if np.isnan(r["js"]) else f"{r['js']:.3f}",
+                      "-" if np.isnan(r["js_floor_median"]) else
+                      f"{r['js_floor_median']:.3f} [{r['js_floor_p10']:.3f}, "
+                      f"{r['js_floor_p90']:.3f}]"]
+        lines.append(f"| {s.title} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
