@@ -14,7 +14,13 @@ import pytest
 from igdrivsim.cli import main as cli_main
 from igdrivsim.data import read_scenarios, write_tfexample
 from igdrivsim.data.scenario import NUM_STEPS, Capacities, empty_scenario
-from igdrivsim.data.stats import js_divergence, scene_statistics, summary
+from igdrivsim.data.stats import (
+    EDGE_CLASSES,
+    FEATURES,
+    js_divergence,
+    scene_statistics,
+    summary,
+)
 from igdrivsim.data.synthetic.generator import generate_scenario
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -59,6 +65,33 @@ def test_statistics_of_a_constructed_scene():
     assert summary([1.0, 2.0, np.nan, 3.0])[0] == 2.0
 
 
+def test_road_edge_distances_split_by_object_class():
+    """A road edge along y = 5.25 heading -x (the road, y < 5.25, on its inner side): the SDC
+    drives 5.25 m inside it, the parked car 1.25 m, the far car (moved to y = -2) 7.25 m; the
+    walker stands 4.75 m outside."""
+    s = constructed()
+    px = np.asarray(s.roadgraph.xyz)[:, 0]
+    rg = s.roadgraph.replace(
+        xyz=np.stack([px[::-1], np.full_like(px, 5.25), 0 * px], 1).astype(np.float32),
+        dir=np.tile(np.array([-1.0, 0.0, 0.0], np.float32), (len(px), 1)),
+        type=np.full(len(px), 15, np.int32))
+    y = np.asarray(s.trajectory.y).copy()
+    y[3] = -2.0
+    _, hists = scene_statistics(s.replace(roadgraph=rg, trajectory=s.trajectory.replace(y=y)))
+    edges = FEATURES["road_edge_distance"]
+
+    def steps_at(cls: str) -> dict[float, int]:  # bin's lower edge -> object-steps
+        h = hists[f"road_edge:{cls}"]
+        return {float(edges[i]): int(h[i]) for i in np.flatnonzero(h)}
+
+    assert steps_at("parked vehicle") == {-1.5: NUM_STEPS, -7.5: NUM_STEPS}
+    assert steps_at("moving vehicle") == {-5.5: NUM_STEPS}
+    assert steps_at("pedestrian") == {4.5: NUM_STEPS}
+    assert steps_at("cyclist") == steps_at("other") == {}
+    assert (sum(hists[f"road_edge:{c}"] for c in EDGE_CLASSES)
+            == hists["road_edge_distance"]).all()
+
+
 def test_stats_command_on_every_format(tmp_path, capsys):
     syn = tmp_path / "syn.tfrecord"
     write_tfexample(syn, [generate_scenario(31, i) for i in range(3)])
@@ -81,6 +114,9 @@ def test_stats_command_on_every_format(tmp_path, capsys):
     assert (out / "motion_stats.png").stat().st_size > 10_000
     motion = pd.read_csv(out / "motion_stats.csv")
     assert set(motion.dataset) == set(frame.dataset) and set(motion.group) == {"sdc", "others"}
+    edge = pd.read_csv(out / "road_edge.csv")
+    assert set(edge["class"]) == set(EDGE_CLASSES) and set(edge.dataset) == set(frame.dataset)
+    assert edge.groupby("dataset").share.sum().between(0.99, 1.01).all()  # every object-step
     agents = pd.read_csv(out / "motion_agents.csv")
     assert (agents.groupby(["dataset", "file", "record"]).group.first() == "sdc").all()
     if len(specs) > 1:

@@ -20,6 +20,7 @@ from igdrivsim.data.scenario import (
     RG_LANE_FREEWAY,
     RG_LANE_SURFACE_STREET,
     RG_ROAD_EDGE_TYPES,
+    TYPE_CYCLIST,
     TYPE_PEDESTRIAN,
     TYPE_VEHICLE,
     Scenario,
@@ -76,6 +77,10 @@ FEATURES: dict[str, np.ndarray] = {
     "nearest_object_distance": np.linspace(0.0, 50.0, 101),
     "road_edge_distance": np.linspace(-20.0, 10.0, 61),
 }
+# The classes the road-edge distance is split by (``road_edge:<class>`` histograms): where a
+# data set puts its objects beside the road says more than their pooled distribution. Parked: a
+# vehicle with more than STATIC_MIN_STEPS valid steps whose path stays under STATIC_M.
+EDGE_CLASSES = ("parked vehicle", "moving vehicle", "pedestrian", "cyclist", "other")
 
 
 def histogram(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -126,7 +131,8 @@ def _lane_length(scenario: Scenario, centre: np.ndarray, radius: float = 50.0) -
 
 def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     """``(row, histograms)`` of one unbatched scenario: the :data:`STATISTICS`, ``scenario_id``
-    and ``kept`` (the paper's filter); the :data:`FEATURES` counts over valid objects and steps."""
+    and ``kept`` (the paper's filter); the :data:`FEATURES` counts over valid objects and steps,
+    and the road-edge counts per :data:`EDGE_CLASSES` (``road_edge:<class>``)."""
     md = scenario.metadata
     valid, xy = valid_xy(scenario)
     types = np.asarray(md.object_type)
@@ -177,12 +183,20 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
         if len(idx) > 1:
             d, _ = cKDTree(xy[idx, t]).query(xy[idx, t], k=2)
             nearest[idx, t] = d[:, 1]
+    edge = np.full(valid.shape, np.nan)
+    edge[valid] = _edge_distance(edges, xy[valid])
+    vehicle = types == TYPE_VEHICLE
+    parked = vehicle & counted & (path_extent(xy, valid) < STATIC_M)  # the SDC included
+    classes = dict(zip(EDGE_CLASSES, (parked, vehicle & ~parked, types == TYPE_PEDESTRIAN,
+                                      types == TYPE_CYCLIST), strict=False))
+    classes["other"] = ~np.any(list(classes.values()), 0)
+    edge_bins = FEATURES["road_edge_distance"]
     return row, {
         "speed": histogram(step[step_ok], FEATURES["speed"]),
         "acceleration": histogram(acc[acc_ok], FEATURES["acceleration"]),
         "nearest_object_distance": histogram(nearest[valid], FEATURES["nearest_object_distance"]),
-        "road_edge_distance": histogram(_edge_distance(edges, xy[valid]),
-                                         FEATURES["road_edge_distance"]),
+        "road_edge_distance": histogram(edge[valid], edge_bins),
+        **{f"road_edge:{c}": histogram(edge[mask], edge_bins) for c, mask in classes.items()},
     }
 
 

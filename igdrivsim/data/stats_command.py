@@ -27,7 +27,14 @@ from igdrivsim.data.motion_stats import (
     plot_motion,
 )
 from igdrivsim.data.source import open_scenarios
-from igdrivsim.data.stats import FEATURES, STATISTICS, js_divergence, scene_statistics, summary
+from igdrivsim.data.stats import (
+    EDGE_CLASSES,
+    FEATURES,
+    STATISTICS,
+    js_divergence,
+    scene_statistics,
+    summary,
+)
 from igdrivsim.errors import ConfigError, DataError, check_min
 from igdrivsim.io import atomic_savefig, atomic_write_csv, atomic_write_text, require_folder
 
@@ -46,8 +53,8 @@ def parse_datasets(specs: list[str]) -> dict[str, list[str]]:
     return dict(out)
 
 
-OUTPUTS = ("stats.csv", "divergence.csv", "stats.md", "stats.png", "motion_stats.csv",
-           "motion_agents.csv", "motion_stats.png")
+OUTPUTS = ("stats.csv", "divergence.csv", "road_edge.csv", "stats.md", "stats.png",
+           "motion_stats.csv", "motion_agents.csv", "motion_stats.png")
 
 
 def stats_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,7 +85,7 @@ def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: 
     ``kept_only``) and motion rows (one per agent)."""
     rows, hists, pools, agents = [], {}, {}, []
     for name, paths in datasets.items():
-        pooled = {k: np.zeros(len(e) - 1, np.int64) for k, e in FEATURES.items()}
+        pooled: dict[str, np.ndarray] = defaultdict(lambda: 0)
         pools[name] = MotionPool()
         records = islice(open_scenarios(paths, caps=None, egos=egos), limit)
         count = 0
@@ -87,8 +94,8 @@ def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: 
             row, h = scene_statistics(scenario)
             where = {"dataset": name, "file": rec.file, "record": rec.record}
             rows.append({**where, **row})
-            for k in pooled:
-                pooled[k] += h[k]
+            for k, v in h.items():
+                pooled[k] = pooled[k] + v
             motion = motion_statistics(scenario)
             if row["kept"] or name not in kept_only:
                 pools[name].add(motion)
@@ -96,7 +103,7 @@ def collect(datasets: dict[str, list[str]], limit: int | None = None, progress: 
                        for a in motion.agents]
         if not count:
             raise DataError(f"no scenarios in data set {name!r}", file=", ".join(paths))
-        hists[name] = pooled
+        hists[name] = dict(pooled)
     return rows, hists, pools, agents
 
 
@@ -191,6 +198,39 @@ def divergences(hists: dict[str, dict[str, np.ndarray]], reference: str):
     return pd.DataFrame(rows, columns=["dataset", "reference", *FEATURES])
 
 
+def road_edge_classes(hists: dict[str, dict[str, np.ndarray]]):
+    """Tidy rows per data set, object class and road-edge bin: object-steps and their share of
+    the data set's (signed distance to the nearest road-edge point; < 0: on the road side)."""
+    import pandas as pd  # heavy: pandas is needed only here
+
+    edges = FEATURES["road_edge_distance"]
+    rows = [{"dataset": name, "class": c, "lo": lo, "hi": hi, "steps": int(n),
+             "share": round(n / max(h["road_edge_distance"].sum(), 1), 4)}
+            for name, h in hists.items() for c in EDGE_CLASSES
+            for lo, hi, n in zip(edges[:-1], edges[1:], h[f"road_edge:{c}"], strict=True)]
+    return pd.DataFrame(rows)
+
+
+def road_edge_table(frame, top: int = 3) -> str:
+    """Markdown: per data set, its ``top`` most populated road-edge bins and the outermost one
+    (everything beyond the range), each with its share of object-steps split by class."""
+    lines = [f"Road-edge distance by object class (share of object-steps; the {top} most "
+             "populated 0.5-m bins and the outermost, which holds everything beyond it; < 0: on "
+             "the road side)", "",
+             "| data set | bin (m) | share | " + " | ".join(EDGE_CLASSES) + " |",
+             "|---" * (len(EDGE_CLASSES) + 3) + "|"]
+    for name, sub in frame.groupby("dataset", sort=False):
+        bins = sub.pivot_table(index=["lo", "hi"], columns="class", values="share",
+                               aggfunc="sum")[list(EDGE_CLASSES)]
+        total = bins.sum(axis=1)
+        shown = list(dict.fromkeys([*total.nlargest(top).index, total.index[-1]]))
+        for lo, hi in shown:
+            label = f">= {lo:g}" if (lo, hi) == total.index[-1] else f"{lo:g} to {hi:g}"
+            lines.append(f"| {name} | {label} | {total[lo, hi]:.2f} | " + " | ".join(
+                f"{bins.loc[(lo, hi), c]:.2f}" for c in EDGE_CLASSES) + " |")
+    return "\n".join(lines)
+
+
 def plot(frame, path: str, kept_only=(), min_box: int = 10) -> None:
     """One panel per statistic, one distribution per data set, its scenario count ``n`` in its
     label: the points over a box from ``min_box`` scenarios on, the points and their median
@@ -259,14 +299,19 @@ def stats_command(args: argparse.Namespace) -> int:
     if len(div):
         print(f"\nJensen-Shannon divergence (base 2) from {reference}:")
         print(div.drop(columns="reference").to_string(index=False))
+    edge = road_edge_classes(hists)
+    edge_md = road_edge_table(edge)
+    print(f"\n{edge_md}")
     motion = pd.DataFrame(motion_summary(pools, reference))
     motion_md = motion_tables(motion, args.kept_only)
     print(f"\nMotion statistics, median [p10, p90]:\n\n{motion_md}")
     if args.out is not None:
         atomic_write_csv(os.path.join(args.out, "stats.csv"), frame)
         atomic_write_csv(os.path.join(args.out, "divergence.csv"), div)
+        atomic_write_csv(os.path.join(args.out, "road_edge.csv"), edge)
         atomic_write_text(os.path.join(args.out, "stats.md"),
-                          f"{table}\n\n## Motion statistics, median [p10, p90]\n\n{motion_md}\n")
+                          f"{table}\n\n{edge_md}\n\n## Motion statistics, median [p10, p90]"
+                          f"\n\n{motion_md}\n")
         plot(frame, os.path.join(args.out, "stats.png"), args.kept_only)
         atomic_write_csv(os.path.join(args.out, "motion_stats.csv"), motion)
         atomic_write_csv(os.path.join(args.out, "motion_agents.csv"), pd.DataFrame(agents))
