@@ -1,8 +1,8 @@
 """``igdrivsim stats``: scene and motion statistics of any data set, beside each other: the
 median [p10, p90] tables and, with ``--out``, :data:`OUTPUTS` (``stats.csv``, ``motion_agents.csv``:
 a row per scenario / agent; ``divergence.csv``, ``motion_stats.csv``: Jensen-Shannon divergences
-from the reference data set, the motion ones with their sampling floor; ``stats.md``: the tables;
-the figures)."""
+from the reference data set, the motion ones with their sampling floor; ``road_edge.csv``: the
+road-edge distances per object class; ``stats.md``: the tables; the figures)."""
 
 from __future__ import annotations
 
