@@ -328,13 +328,12 @@ def motion_summary(pools: dict[str, MotionPool], reference: str) -> list[dict]:
     """Tidy rows per data set, group and statistic: agents, samples, mean, median, p10, p90, the
     Jensen-Shannon divergence (base 2) of its histogram from ``reference``'s and that
     divergence's sampling floor (:func:`js_floor`: median, p10, p90)."""
-    rows = []
+    rows, ref = [], pools[reference]
     for name, pool in pools.items():
         for g in GROUPS:
             for s in MOTION_STATISTICS:
                 v = pool.values(g, s.key)
                 med, p10, p90 = summary(v)
-                ref = pools[reference]
                 js = (np.nan if name == reference else js_divergence(
                     histogram(v, s.edges), histogram(ref.values(g, s.key), s.edges)))
                 floor = (np.nan,) * 3 if name == reference else js_floor(pool, ref, g, s)

@@ -190,13 +190,14 @@ def scene_statistics(scenario: Scenario) -> tuple[dict, dict[str, np.ndarray]]:
     classes = dict(zip(EDGE_CLASSES, (parked, vehicle & ~parked, types == TYPE_PEDESTRIAN,
                                       types == TYPE_CYCLIST), strict=False))
     classes["other"] = ~np.any(list(classes.values()), 0)
-    edge_bins = FEATURES["road_edge_distance"]
+    by_class = {f"road_edge:{c}": histogram(edge[mask], FEATURES["road_edge_distance"])
+                for c, mask in classes.items()}  # the classes cover every object once
     return row, {
         "speed": histogram(step[step_ok], FEATURES["speed"]),
         "acceleration": histogram(acc[acc_ok], FEATURES["acceleration"]),
         "nearest_object_distance": histogram(nearest[valid], FEATURES["nearest_object_distance"]),
-        "road_edge_distance": histogram(edge[valid], edge_bins),
-        **{f"road_edge:{c}": histogram(edge[mask], edge_bins) for c, mask in classes.items()},
+        "road_edge_distance": sum(by_class.values()),
+        **by_class,
     }
 
 
